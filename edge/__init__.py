@@ -1,0 +1,1 @@
+"""edge-ips: optical indoor positioning for small robot fleets."""

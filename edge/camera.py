@@ -1,0 +1,204 @@
+"""Pinhole camera model with lens distortion (OpenCV conventions), shared by the simulator and calibration.
+
+World frame: centimetres, origin at the bottom-left corner of the working area (as in the paper's Fig. 1), x along
+the 391.5 cm width, y along the 549.5 cm length, z up from the floor. Camera frame: OpenCV (x right, y down,
+z forward). ``rvec``/``tvec`` map world points into the camera frame: ``X_cam = R @ X_world + t``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from edge.errors import CalibrationError
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class PinholeCamera:
+    """An intrinsically and extrinsically calibrated camera.
+
+    ``camera_matrix``: (3, 3) float64 intrinsics K in pixels.
+    ``dist_coeffs``: (5,) float64 OpenCV distortion ``k1, k2, p1, p2, k3``.
+    ``rvec``, ``tvec``: (3,) float64 world-to-camera rotation (Rodrigues) and translation (cm).
+    """
+
+    camera_matrix: FloatArray
+    dist_coeffs: FloatArray
+    rvec: FloatArray
+    tvec: FloatArray
+    width_px: int
+    height_px: int
+    rotation: FloatArray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        k = np.asarray(self.camera_matrix, dtype=np.float64).reshape(3, 3)
+        d = np.zeros(5, dtype=np.float64)
+        dist = np.asarray(self.dist_coeffs, dtype=np.float64).ravel()
+        d[: min(5, dist.size)] = dist[:5]
+        object.__setattr__(self, "camera_matrix", k)
+        object.__setattr__(self, "dist_coeffs", d)
+        object.__setattr__(self, "rvec", np.asarray(self.rvec, dtype=np.float64).reshape(3))
+        object.__setattr__(self, "tvec", np.asarray(self.tvec, dtype=np.float64).reshape(3))
+        object.__setattr__(self, "rotation", cv2.Rodrigues(self.rvec)[0])
+
+    # -- construction -------------------------------------------------------------------------------------------
+    @classmethod
+    def look_at(
+        cls,
+        position_cm: tuple[float, float, float],
+        target_cm: tuple[float, float, float],
+        *,
+        width_px: int = 1280,
+        height_px: int = 720,
+        hfov_deg: float = 70.0,
+        dist_coeffs: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0),
+        principal_offset_px: tuple[float, float] = (0.0, 0.0),
+        roll_deg: float = 0.0,
+    ) -> PinholeCamera:
+        """A camera at ``position_cm`` whose optical axis passes through ``target_cm`` (world z is up)."""
+        pos = np.asarray(position_cm, dtype=np.float64)
+        forward = np.asarray(target_cm, dtype=np.float64) - pos
+        norm = float(np.linalg.norm(forward))
+        if norm == 0.0:
+            raise CalibrationError("camera position and target coincide")
+        forward /= norm
+        up_world = np.array([0.0, 0.0, 1.0])
+        right = np.cross(forward, up_world)
+        if np.linalg.norm(right) < 1e-9:  # looking straight down: pick world +y as image up
+            right = np.cross(forward, np.array([0.0, 1.0, 0.0]))
+        right /= np.linalg.norm(right)
+        down = np.cross(forward, right)
+        rot = np.stack([right, down, forward])  # rows: camera axes in world coordinates
+        if roll_deg:
+            c, s = math.cos(math.radians(roll_deg)), math.sin(math.radians(roll_deg))
+            rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]) @ rot
+        fx = (width_px / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
+        k = np.array(
+            [
+                [fx, 0.0, (width_px - 1) / 2.0 + principal_offset_px[0]],
+                [0.0, fx, (height_px - 1) / 2.0 + principal_offset_px[1]],
+                [0.0, 0.0, 1.0],
+            ]
+        )
+        rvec = np.asarray(cv2.Rodrigues(rot)[0], dtype=np.float64).ravel()
+        tvec = -rot @ pos
+        return cls(k, np.asarray(dist_coeffs, dtype=np.float64), rvec, tvec, width_px, height_px)
+
+    # -- geometry -----------------------------------------------------------------------------------------------
+    @property
+    def position_cm(self) -> FloatArray:
+        """(3,) camera centre in world cm."""
+        return np.asarray(-self.rotation.T @ self.tvec)
+
+    @property
+    def has_distortion(self) -> bool:
+        return bool(np.any(self.dist_coeffs != 0.0))
+
+    def world_to_camera(self, xyz_world_cm: FloatArray) -> FloatArray:
+        """(N, 3) world cm -> (N, 3) camera-frame cm."""
+        pts = np.asarray(xyz_world_cm, dtype=np.float64).reshape(-1, 3)
+        return np.asarray(pts @ self.rotation.T + self.tvec)
+
+    def project(self, xyz_world_cm: FloatArray) -> FloatArray:
+        """(N, 3) world cm -> (N, 2) distorted pixel coordinates (pixel centres at integers)."""
+        pts = np.asarray(xyz_world_cm, dtype=np.float64).reshape(-1, 3)
+        if pts.shape[0] == 0:
+            return np.zeros((0, 2))
+        uv, _ = cv2.projectPoints(pts, self.rvec, self.tvec, self.camera_matrix, self.dist_coeffs)
+        return np.asarray(uv.reshape(-1, 2), dtype=np.float64)
+
+    def undistort_px(self, uv_px: FloatArray) -> FloatArray:
+        """(N, 2) distorted pixels -> (N, 2) ideal (distortion-free) pixels under the same intrinsics."""
+        uv = np.asarray(uv_px, dtype=np.float64).reshape(-1, 1, 2)
+        if not self.has_distortion or uv.shape[0] == 0:
+            return uv.reshape(-1, 2).copy()
+        out = cv2.undistortPoints(
+            uv,
+            self.camera_matrix,
+            self.dist_coeffs,
+            P=self.camera_matrix,
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10),
+        )
+        return np.asarray(out.reshape(-1, 2), dtype=np.float64)
+
+    def pixel_to_plane(self, uv_px: FloatArray, z_cm: float) -> FloatArray:
+        """(N, 2) distorted pixels -> (N, 2) world ``x, y`` cm where their rays meet the plane ``z = z_cm``."""
+        ideal = self.undistort_px(uv_px)
+        ones = np.ones((ideal.shape[0], 1))
+        rays_cam = np.hstack([ideal, ones]) @ np.linalg.inv(self.camera_matrix).T
+        rays_world = rays_cam @ self.rotation  # R^T applied to each row
+        centre = self.position_cm
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (z_cm - centre[2]) / rays_world[:, 2]
+        xyz = centre + rays_world * s[:, None]
+        return np.asarray(xyz[:, :2])
+
+    def plane_homography(self, z_cm: float) -> FloatArray:
+        """(3, 3) homography from world ``(x, y, 1)`` on the plane ``z = z_cm`` to ideal pixels."""
+        r = self.rotation
+        h = self.camera_matrix @ np.column_stack([r[:, 0], r[:, 1], r[:, 2] * z_cm + self.tvec])
+        return np.asarray(h / h[2, 2])
+
+    def in_front(self, xyz_world_cm: FloatArray) -> NDArray[np.bool_]:
+        """(N,) bool: the points lie in front of the camera."""
+        return np.asarray(self.world_to_camera(xyz_world_cm)[:, 2] > 1e-6)
+
+
+class CameraFile(BaseModel):
+    """On-disk form of a :class:`PinholeCamera` (``camera.json`` of the simulator, fiducial calibration)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    kind: Literal["edge-ips/camera"] = "edge-ips/camera"
+    version: Literal[1] = 1
+    width_px: int = Field(gt=0)
+    height_px: int = Field(gt=0)
+    camera_matrix: list[list[float]] = Field(min_length=3, max_length=3)
+    dist_coeffs: list[float] = Field(min_length=0, max_length=5)
+    rvec: list[float] = Field(min_length=3, max_length=3)
+    tvec: list[float] = Field(min_length=3, max_length=3)
+
+    @classmethod
+    def from_camera(cls, cam: PinholeCamera) -> CameraFile:
+        return cls(
+            width_px=cam.width_px,
+            height_px=cam.height_px,
+            camera_matrix=cam.camera_matrix.tolist(),
+            dist_coeffs=cam.dist_coeffs.tolist(),
+            rvec=cam.rvec.tolist(),
+            tvec=cam.tvec.tolist(),
+        )
+
+    def to_camera(self) -> PinholeCamera:
+        return PinholeCamera(
+            np.asarray(self.camera_matrix, dtype=np.float64),
+            np.asarray(self.dist_coeffs, dtype=np.float64),
+            np.asarray(self.rvec, dtype=np.float64),
+            np.asarray(self.tvec, dtype=np.float64),
+            self.width_px,
+            self.height_px,
+        )
+
+
+def save_camera(cam: PinholeCamera, path: Path) -> None:
+    path.write_text(CameraFile.from_camera(cam).model_dump_json(indent=2) + "\n")
+
+
+def load_camera(path: Path) -> PinholeCamera:
+    try:
+        return CameraFile.model_validate_json(path.read_bytes()).to_camera()
+    except OSError as exc:
+        raise CalibrationError(f"{path}: cannot read camera file ({exc.strerror})") from exc
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
+        raise CalibrationError(f"{path}: invalid camera file at {where}: {first['msg']}") from exc

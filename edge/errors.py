@@ -1,0 +1,35 @@
+"""One error hierarchy for the whole package.
+
+Library code raises these with a message that names the file, key or row at fault; only ``edge.cli`` turns them
+into a one-line message and exit code 2.
+"""
+
+from __future__ import annotations
+
+
+class EdgeIpsError(Exception):
+    """Base class of every error a user can cause and fix."""
+
+
+class ConfigError(EdgeIpsError):
+    """Invalid configuration file, key, value or environment override."""
+
+
+class CalibrationError(EdgeIpsError):
+    """Calibration input or file that cannot give a trustworthy mapping."""
+
+
+class SourceError(EdgeIpsError):
+    """A frame source (camera, video, stream, simulator) that cannot be opened or read."""
+
+
+class MessageError(EdgeIpsError):
+    """A message that does not conform to the versioned contract in ``shared/schema``."""
+
+
+class BrokerError(EdgeIpsError):
+    """An MQTT broker that cannot be started, reached or authenticated against."""
+
+
+class SimulationError(EdgeIpsError):
+    """A simulator scenario or parameter that cannot be rendered."""

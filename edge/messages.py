@@ -1,0 +1,265 @@
+"""The versioned message contract between the edge and the rovers (``shared/schema/``).
+
+The pydantic models here are the single source of truth: ``shared/schema/*.schema.json`` are generated from them
+(``edge-ips schema --out shared/schema``) and a test fails when the committed files drift. The hot path does not
+build models: :func:`encode_pose` formats the canonical bytes directly, and tests pin that those bytes are exactly
+what the model validates and re-serialises.
+
+Numbers are rounded on the wire: positions to 0.01 cm, velocities to 0.1 cm/s, heading to 1e-4 rad, quality to
+0.01, capture time to 1 ms. A pose message is at most :data:`POSE_MAX_BYTES` bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
+
+from edge.errors import MessageError
+
+VERSION = 1
+TOPIC_PREFIX = "ips/v1"
+POSE_MAX_BYTES = 160
+FORMATION_MAX_BYTES = 512
+STATUS_MAX_BYTES = 512
+
+ID_PATTERN = r"^[a-z0-9_-]{1,16}$"
+MAX_INT = 999_999_999  # seq and frame wrap here: below 2**30, so small ints on the ESP8266 (no allocation)
+MAX_ABS_CM = 9_999.99  # 100 m: anything beyond is a bug, not a lab
+MAX_ABS_CM_S = 999.9  # 10 m/s: far beyond any small rover; the filter output is clipped to it
+THETA_LIMIT = 3.1416  # pi rounded up to the wire's 1e-4 rad resolution
+
+RoverId = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
+Cm = Annotated[float, Field(ge=-MAX_ABS_CM, le=MAX_ABS_CM, allow_inf_nan=False)]
+CmPerS = Annotated[float, Field(ge=-MAX_ABS_CM_S, le=MAX_ABS_CM_S, allow_inf_nan=False)]
+Counter = Annotated[int, Field(ge=0, le=MAX_INT)]
+
+_STRICT = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
+
+
+# -- topics ------------------------------------------------------------------------------------------------------
+def pose_topic(rover_id: str) -> str:
+    """One topic per rover, as the paper's three topics: ``ips/v1/rovers/<id>/pose``."""
+    return f"{TOPIC_PREFIX}/rovers/{rover_id}/pose"
+
+
+def rover_status_topic(rover_id: str) -> str:
+    """A rover's own retained status (its last will says ``offline``)."""
+    return f"{TOPIC_PREFIX}/rovers/{rover_id}/status"
+
+
+def edge_status_topic(edge_id: str) -> str:
+    """The edge's retained status (its last will says ``offline``)."""
+    return f"{TOPIC_PREFIX}/edge/{edge_id}/status"
+
+
+FORMATION_TOPIC = f"{TOPIC_PREFIX}/formation"
+POSE_WILDCARD = f"{TOPIC_PREFIX}/rovers/+/pose"
+
+
+# -- models ------------------------------------------------------------------------------------------------------
+class PoseV1(BaseModel):
+    """One rover's state, one message per rover per processed frame, on ``ips/v1/rovers/<id>/pose``."""
+
+    model_config = ConfigDict(
+        **_STRICT,
+        title="pose v1",
+        json_schema_extra={"x-max-bytes": POSE_MAX_BYTES, "x-topic": "ips/v1/rovers/<id>/pose"},
+    )
+
+    v: Literal[1] = Field(description="Message version, always 1.")
+    id: RoverId = Field(description="Rover id, 1-16 characters of a-z, 0-9, _ and -.")
+    seq: Counter = Field(description="Per-rover message counter, increments by one per message.")
+    frame: Counter = Field(description="Index of the source frame the pose was measured in.")
+    t: float = Field(ge=0.0, lt=1e10, description="Capture time of the frame, Unix seconds (wall clock at grab).")
+    x: Cm = Field(description="World x, cm, origin at the bottom-left corner of the working area.")
+    y: Cm = Field(description="World y, cm.")
+    theta: float | None = Field(
+        ge=-THETA_LIMIT, le=THETA_LIMIT, description="Heading, radians in (-pi, pi] (x axis = 0), or null."
+    )
+    vx: CmPerS | None = Field(description="Velocity along x, cm/s, or null when unknown.")
+    vy: CmPerS | None = Field(description="Velocity along y, cm/s, or null when unknown.")
+    q: float = Field(ge=0.0, le=1.0, description="Quality / confidence of the measurement, 0..1.")
+
+
+FormationKind = Literal["line", "rendezvous", "triangle", "stop"]
+
+
+class FormationV1(BaseModel):
+    """The commanded formation, retained on ``ips/v1/formation``."""
+
+    model_config = ConfigDict(
+        **_STRICT,
+        title="formation v1",
+        json_schema_extra={"x-max-bytes": FORMATION_MAX_BYTES, "x-topic": FORMATION_TOPIC, "x-retained": True},
+    )
+
+    v: Literal[1] = Field(description="Message version, always 1.")
+    seq: Counter = Field(description="Increments with every new formation command.")
+    kind: FormationKind = Field(description="Which formation: line, rendezvous, triangle, or stop (all halt).")
+    ids: list[RoverId] = Field(max_length=16, description="Ordered ids of the rovers taking part.")
+    spacing: float | None = Field(
+        default=None, gt=0.0, le=1000.0, description="Line: distance between neighbours along the line, cm."
+    )
+    side: float | None = Field(default=None, gt=0.0, le=1000.0, description="Triangle: side length, cm.")
+    x: Cm | None = Field(default=None, description="Optional anchor x, cm (line: the line's x; else centre).")
+    y: Cm | None = Field(default=None, description="Optional anchor y, cm (the formation's centre).")
+    theta: float | None = Field(
+        default=None,
+        ge=-THETA_LIMIT,
+        le=THETA_LIMIT,
+        description="Orientation of the formation, rad (line: direction of the line; 0 = along +y).",
+    )
+
+
+EdgeState = Literal["online", "degraded", "offline"]
+CameraState = Literal["ok", "starting", "stalled", "missing", "stopped"]
+
+
+class StatusV1(BaseModel):
+    """The edge's health, retained on ``ips/v1/edge/<edge-id>/status``; the last will is ``state: offline``."""
+
+    model_config = ConfigDict(
+        **_STRICT,
+        title="status v1",
+        json_schema_extra={"x-max-bytes": STATUS_MAX_BYTES, "x-topic": "ips/v1/edge/<edge-id>/status"},
+    )
+
+    v: Literal[1] = Field(description="Message version, always 1.")
+    edge: RoverId = Field(description="Edge id (same alphabet as rover ids).")
+    state: EdgeState = Field(description="online, degraded (camera or tracking trouble) or offline.")
+    camera: CameraState = Field(description="State of the frame source.")
+    fps: float = Field(ge=0.0, le=1000.0, description="Processed frames per second over the last interval.")
+    rovers: list[RoverId] = Field(max_length=32, description="Rovers seen in the last interval.")
+    missing: list[RoverId] = Field(
+        default_factory=list, max_length=32, description="Configured rovers not seen in the last interval."
+    )
+    t: float = Field(ge=0.0, le=1e10, description="Wall-clock time of the status, Unix seconds.")
+
+
+MODELS: dict[str, type[BaseModel]] = {"pose": PoseV1, "formation": FormationV1, "status": StatusV1}
+
+
+# -- encoding ----------------------------------------------------------------------------------------------------
+def _num(value: float, ndigits: int) -> str:
+    r = round(value, ndigits) + 0.0  # + 0.0 turns -0.0 into 0.0
+    return repr(r)
+
+
+def _opt(value: float | None, ndigits: int) -> str:
+    return "null" if value is None else _num(value, ndigits)
+
+
+def wrap_angle(theta_rad: float) -> float:
+    """Angle in (-pi, pi]."""
+    wrapped = math.remainder(theta_rad, math.tau)
+    return math.pi if wrapped <= -math.pi else wrapped
+
+
+def encode_pose(
+    rover_id: str,
+    seq: int,
+    frame: int,
+    t: float,
+    x: float,
+    y: float,
+    theta: float | None,
+    vx: float | None,
+    vy: float | None,
+    q: float,
+) -> bytes:
+    """Canonical pose v1 bytes (no spaces, fixed key order, rounded numbers), without building a model.
+
+    Counters wrap at :data:`MAX_INT`; ``theta`` outside +-3.1416 is wrapped into (-pi, pi]; ``q`` is clipped to
+    0..1. Raises :class:`MessageError` for values the contract cannot carry (NaN, infinities, out-of-range x, y).
+    """
+    values = (t, x, y, *tuple(v for v in (theta, vx, vy) if v is not None))
+    if not all(math.isfinite(v) for v in values) or not math.isfinite(q):
+        raise MessageError(f"pose for {rover_id!r}: non-finite value in {(*values, q)}")
+    if abs(x) > MAX_ABS_CM or abs(y) > MAX_ABS_CM:
+        raise MessageError(f"pose for {rover_id!r}: position ({x}, {y}) cm out of range")
+    if theta is not None and not -THETA_LIMIT <= theta <= THETA_LIMIT:
+        theta = wrap_angle(theta)
+    if vx is not None:
+        vx = min(max(vx, -MAX_ABS_CM_S), MAX_ABS_CM_S)
+    if vy is not None:
+        vy = min(max(vy, -MAX_ABS_CM_S), MAX_ABS_CM_S)
+    q = min(max(q, 0.0), 1.0)
+    text = (
+        f'{{"v":1,"id":"{rover_id}","seq":{seq % (MAX_INT + 1)},"frame":{frame % (MAX_INT + 1)},'
+        f'"t":{_num(t, 3)},"x":{_num(x, 2)},"y":{_num(y, 2)},"theta":{_opt(theta, 4)},'
+        f'"vx":{_opt(vx, 1)},"vy":{_opt(vy, 1)},"q":{_num(q, 2)}}}'
+    )
+    return text.encode("ascii")
+
+
+def dumps(message: BaseModel) -> bytes:
+    """Canonical bytes of any contract message: no spaces, declared key order, every field present."""
+    if isinstance(message, PoseV1):
+        m = message
+        return encode_pose(m.id, m.seq, m.frame, m.t, m.x, m.y, m.theta, m.vx, m.vy, m.q)
+    return json.dumps(message.model_dump(mode="json"), separators=(",", ":"), allow_nan=False).encode()
+
+
+# -- decoding ----------------------------------------------------------------------------------------------------
+def _loads(model: type[BaseModel], payload: bytes, max_bytes: int) -> Any:
+    if len(payload) > max_bytes:
+        raise MessageError(f"{model.__name__}: payload of {len(payload)} bytes exceeds {max_bytes}")
+    try:
+        text = payload.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise MessageError(f"{model.__name__}: payload is not UTF-8 ({exc.reason})") from exc
+    try:
+        return model.model_validate_json(text)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
+        raise MessageError(f"{model.__name__}: {where}: {first['msg']}") from exc
+
+
+def parse_pose(payload: bytes) -> PoseV1:
+    return _loads(PoseV1, payload, POSE_MAX_BYTES)
+
+
+def parse_formation(payload: bytes) -> FormationV1:
+    return _loads(FormationV1, payload, FORMATION_MAX_BYTES)
+
+
+def parse_status(payload: bytes) -> StatusV1:
+    return _loads(StatusV1, payload, STATUS_MAX_BYTES)
+
+
+PARSERS = {"pose": parse_pose, "formation": parse_formation, "status": parse_status}
+
+
+# -- JSON Schema -------------------------------------------------------------------------------------------------
+def schema_documents() -> dict[str, dict[str, Any]]:
+    """``{file name: JSON Schema}`` for every message and version, as committed under ``shared/schema/``."""
+    docs: dict[str, dict[str, Any]] = {}
+    for name, model in MODELS.items():
+        schema = model.model_json_schema(mode="validation")
+        schema = {
+            "$schema": "https://json-schema.org/draft/2020-12/schema",
+            "$id": f"https://edge-ips.invalid/schema/{name}.v{VERSION}.schema.json",
+            **schema,
+        }
+        docs[f"{name}.v{VERSION}.schema.json"] = schema
+    return docs
+
+
+def render_schema(doc: dict[str, Any]) -> str:
+    return json.dumps(doc, indent=2, sort_keys=False) + "\n"
+
+
+def write_schemas(directory: Path) -> list[Path]:
+    """Write every schema document into ``directory``; returns the paths written."""
+    directory.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, doc in schema_documents().items():
+        path = directory / name
+        path.write_text(render_schema(doc))
+        written.append(path)
+    return written

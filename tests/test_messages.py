@@ -1,0 +1,133 @@
+"""The message contract: generated schemas, golden examples, canonical encoding."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import jsonschema
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from edge import messages
+from edge.errors import MessageError
+from tests.conftest import EXAMPLES, SCHEMA_DIR
+
+VALID = sorted((EXAMPLES / "valid").iterdir())
+INVALID = sorted((EXAMPLES / "invalid").iterdir())
+
+
+def _kind(path: Path) -> str:
+    return path.name.split("-", 1)[0]
+
+
+def _validator(kind: str) -> jsonschema.Draft202012Validator:
+    doc = json.loads((SCHEMA_DIR / f"{kind}.v1.schema.json").read_text())
+    return jsonschema.Draft202012Validator(doc)
+
+
+def test_committed_schemas_match_the_models() -> None:
+    generated = messages.schema_documents()
+    committed = {p.name for p in SCHEMA_DIR.glob("*.schema.json")}
+    assert committed == set(generated), "schema files differ from the models: run `edge-ips schema`"
+    for name, doc in generated.items():
+        assert (SCHEMA_DIR / name).read_text() == messages.render_schema(doc), (
+            f"{name} drifted from edge/messages.py: run `edge-ips schema --out shared/schema`"
+        )
+
+
+def test_schemas_are_valid_json_schema() -> None:
+    for name in messages.schema_documents():
+        jsonschema.Draft202012Validator.check_schema(json.loads((SCHEMA_DIR / name).read_text()))
+
+
+def test_examples_cover_every_message_kind() -> None:
+    assert {_kind(p) for p in VALID} == set(messages.MODELS)
+    assert {_kind(p) for p in INVALID} == set(messages.MODELS)
+
+
+@pytest.mark.parametrize("path", VALID, ids=lambda p: p.name)
+def test_valid_example_parses_to_the_values_in_the_file(path: Path) -> None:
+    payload = path.read_bytes()
+    model = messages.PARSERS[_kind(path)](payload)
+    expected = json.loads(payload)
+    assert model.model_dump() == expected
+    _validator(_kind(path)).validate(expected)
+
+
+@pytest.mark.parametrize("path", INVALID, ids=lambda p: p.name)
+def test_invalid_example_is_rejected(path: Path) -> None:
+    with pytest.raises(MessageError):
+        messages.PARSERS[_kind(path)](path.read_bytes())
+
+
+@pytest.mark.parametrize("path", INVALID, ids=lambda p: p.name)
+def test_invalid_example_is_rejected_by_the_json_schema_or_the_byte_rules(path: Path) -> None:
+    """What the schema language cannot say (size, encoding, NaN) is said by ``x-max-bytes`` and RFC 8259."""
+    payload = path.read_bytes()
+    kind = _kind(path)
+    max_bytes = messages.schema_documents()[f"{kind}.v1.schema.json"]["x-max-bytes"]
+    if len(payload) > max_bytes:
+        return
+    try:
+        doc = json.loads(payload.decode("utf-8"), parse_constant=lambda c: pytest.fail(f"{c} is not JSON"))
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        return
+    except pytest.fail.Exception:
+        return
+    assert not _validator(kind).is_valid(doc)
+
+
+NON_CANONICAL = {"pose-integers.json", "pose-reordered-spaced.json"}  # valid, but not what the edge writes
+
+
+@pytest.mark.parametrize("path", [p for p in VALID if p.name not in NON_CANONICAL], ids=lambda p: p.name)
+def test_canonical_example_is_the_byte_exact_encoding_of_its_values(path: Path) -> None:
+    payload = path.read_bytes()
+    assert messages.dumps(messages.PARSERS[_kind(path)](payload)) == payload
+
+
+def test_longest_pose_fits_the_byte_budget() -> None:
+    payload = (EXAMPLES / "valid" / "pose-longest.json").read_bytes()
+    assert len(payload) <= messages.POSE_MAX_BYTES
+
+
+@pytest.mark.parametrize(
+    ("theta_in", "theta_out"),
+    [(0.0, 0.0), (math.pi, 3.1416), (-math.pi + 1e-9, -3.1416), (3 * math.pi / 2, -1.5708), (7.0, 0.7168)],
+)
+def test_heading_is_wrapped_into_minus_pi_pi(theta_in: float, theta_out: float) -> None:
+    pose = messages.parse_pose(messages.encode_pose("red", 0, 0, 0.0, 0.0, 0.0, theta_in, None, None, 1.0))
+    assert pose.theta == pytest.approx(theta_out, abs=1e-4)
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_encoder_refuses_non_finite_values(bad: float) -> None:
+    with pytest.raises(MessageError):
+        messages.encode_pose("red", 0, 0, 0.0, bad, 0.0, None, None, None, 1.0)
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False)
+
+
+@given(
+    rover_id=st.from_regex(r"\A[a-z0-9_-]{1,16}\Z"),
+    seq=st.integers(min_value=0, max_value=2**40),
+    t=st.floats(min_value=0, max_value=9e9),
+    x=st.floats(min_value=-9999.99, max_value=9999.99),
+    y=st.floats(min_value=-9999.99, max_value=9999.99),
+    theta=st.one_of(st.none(), st.floats(min_value=-100, max_value=100)),
+    vx=st.one_of(st.none(), finite),
+    q=st.floats(min_value=-1, max_value=2),
+)
+def test_every_encoded_pose_is_valid_and_round_trips(
+    rover_id: str, seq: int, t: float, x: float, y: float, theta: float | None, vx: float | None, q: float
+) -> None:
+    payload = messages.encode_pose(rover_id, seq, seq, t, x, y, theta, vx, vx, q)
+    assert len(payload) <= messages.POSE_MAX_BYTES
+    pose = messages.parse_pose(payload)
+    _validator("pose").validate(json.loads(payload))
+    assert messages.dumps(pose) == payload
+    assert pose.x == pytest.approx(x, abs=0.005 + 1e-9)
