@@ -1,0 +1,139 @@
+"""A private Mosquitto broker per test: own port, own config, own users and ACLs. Never a shared broker."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+MOSQUITTO = "/usr/sbin/mosquitto"
+MOSQUITTO_PASSWD = shutil.which("mosquitto_passwd") or "/usr/bin/mosquitto_passwd"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def wait_for_port(host: str, port: int, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            with socket.create_connection((host, port), timeout=0.2):
+                return
+        except OSError:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"nothing listens on {host}:{port} after {timeout_s} s") from None
+            time.sleep(0.02)
+
+
+def _user_line() -> str:
+    # Run as root, mosquitto drops to the `mosquitto` user, which cannot read files under pytest's private tmp.
+    return "user root\n" if os.geteuid() == 0 else ""
+
+
+@dataclass
+class Mosquitto:
+    """A Mosquitto process with its own config in ``workdir``.
+
+    ``users``: name -> password (anonymous access is then off unless ``allow_anonymous``); ``acl``: the text of
+    an ACL file. ``conf_path`` may point at a complete config (e.g. one written by ``edge-ips broker-config``):
+    then only the listener line is replaced by this instance's port.
+    """
+
+    workdir: Path
+    port: int = field(default_factory=free_port)
+    users: Mapping[str, str] | None = None
+    acl: str | None = None
+    allow_anonymous: bool = True
+    conf_path: Path | None = None
+    host: str = "127.0.0.1"
+    proc: subprocess.Popen[bytes] | None = None
+
+    def _write_config(self) -> Path:
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        if self.conf_path is not None:
+            lines = [
+                ln
+                for ln in self.conf_path.read_text().splitlines()
+                if not ln.strip().startswith(("listener", "port ", "log_dest", "pid_file"))
+            ]
+            text = f"listener {self.port} {self.host}\nlog_dest stderr\n{_user_line()}" + "\n".join(lines) + "\n"
+            conf = self.workdir / "mosquitto-test.conf"
+            conf.write_text(text)
+            return conf
+        lines = [
+            f"listener {self.port} {self.host}",
+            "persistence false",
+            "log_dest stderr",
+            _user_line(),
+            f"allow_anonymous {'true' if self.allow_anonymous and not self.users else 'false'}",
+        ]
+        if self.users:
+            pw = self.workdir / "passwd"
+            pw.write_text("")
+            for name, password in self.users.items():
+                subprocess.run([MOSQUITTO_PASSWD, "-b", str(pw), name, password], check=True, capture_output=True)
+            pw.chmod(0o600)
+            lines.append(f"password_file {pw}")
+        if self.acl is not None:
+            acl = self.workdir / "acl"
+            acl.write_text(self.acl)
+            acl.chmod(0o600)
+            lines.append(f"acl_file {acl}")
+        conf = self.workdir / "mosquitto.conf"
+        conf.write_text("\n".join(lines) + "\n")
+        return conf
+
+    def start(self) -> Mosquitto:
+        conf = self._write_config()
+        self.proc = subprocess.Popen(
+            [MOSQUITTO, "-c", str(conf)],
+            stdout=subprocess.DEVNULL,
+            stderr=open(self.workdir / "mosquitto.log", "ab"),  # noqa: SIM115 - closed with the process
+        )
+        try:
+            deadline = time.monotonic() + 10.0
+            while True:
+                if self.proc.poll() is not None:
+                    raise TimeoutError
+                try:
+                    wait_for_port(self.host, self.port, timeout_s=0.2)
+                    break
+                except TimeoutError:
+                    if time.monotonic() > deadline:
+                        raise
+        except TimeoutError:
+            self.stop()
+            raise RuntimeError(f"mosquitto did not start: {(self.workdir / 'mosquitto.log').read_text()}") from None
+        return self
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self.proc = None
+
+    def restart(self) -> None:
+        self.stop()
+        self.start()
+
+    @property
+    def url(self) -> str:
+        return f"mqtt://{self.host}:{self.port}"
+
+    def __enter__(self) -> Mosquitto:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
