@@ -202,3 +202,25 @@ def load_camera(path: Path) -> PinholeCamera:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"]) or "(top level)"
         raise CalibrationError(f"{path}: invalid camera file at {where}: {first['msg']}") from exc
+
+
+# The paper's lab (section III.A): a Logitech C920 at 1280x720 (horizontal field of view about 70 degrees),
+# 280 cm above the floor, beside the 391.5 x 549.5 cm working area, looking down obliquely along +y.
+AREA_WIDTH_CM = 391.5
+AREA_LENGTH_CM = 549.5
+MARKER_HEIGHT_CM = 13.0
+PAPER_CAMERA_HEIGHT_CM = 280.0
+PAPER_CAMERA_SETBACK_CM = 200.0  # behind the near (y = 0) edge: the closest that keeps the whole area in view
+PAPER_CAMERA_AIM_Y_CM = 200.0
+
+
+def paper_camera(dist_coeffs: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)) -> PinholeCamera:
+    """The default camera: the paper's geometry, whole working area (floor and marker plane) in view."""
+    return PinholeCamera.look_at(
+        (AREA_WIDTH_CM / 2.0, -PAPER_CAMERA_SETBACK_CM, PAPER_CAMERA_HEIGHT_CM),
+        (AREA_WIDTH_CM / 2.0, PAPER_CAMERA_AIM_Y_CM, 0.0),
+        width_px=1280,
+        height_px=720,
+        hfov_deg=70.0,
+        dist_coeffs=dist_coeffs,
+    )
