@@ -34,6 +34,26 @@ log = logging.getLogger("edge.broker")
 
 
 # -- the embedded broker -----------------------------------------------------------------------------------------
+def _make_broker(config: dict[str, Any]) -> Any:
+    """An amqtt broker that sends a connecting client only the retained messages of its own subscriptions.
+
+    amqtt 0.12.1 (``Broker._handle_client_session``) pushes, to every client that connects, the retained messages
+    matching *any* client's subscriptions: a rover would receive topics it never subscribed to. The override
+    skips subscriptions the session does not hold (pinned: amqtt >=0.12,<0.13; a test pins the behaviour).
+    """
+    from amqtt.broker import Broker
+
+    class _Broker(Broker):
+        async def _publish_retained_messages_for_subscription(
+            self, subscription: tuple[str, int], session: Any
+        ) -> None:
+            holders = self._subscriptions.get(subscription[0], [])
+            if any(s.client_id == session.client_id for s, _ in holders):
+                await super()._publish_retained_messages_for_subscription(subscription, session)
+
+    return _Broker(config, loop=asyncio.get_running_loop())
+
+
 class EmbeddedBroker:
     """An amqtt broker on ``host:port`` (port 0 = any free port; see :attr:`port` after :meth:`start`)."""
 
@@ -61,14 +81,12 @@ class EmbeddedBroker:
         )
 
     async def _serve(self) -> None:
-        from amqtt.broker import Broker
-
         config = {
             "listeners": {"default": {"type": "tcp", "bind": f"{self.host}:{self._port}"}},
             # Only anonymous authentication: amqtt's default plugin set adds $SYS topics and packet logging.
             "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}},
         }
-        broker = Broker(config, loop=asyncio.get_running_loop())
+        broker = _make_broker(config)
         try:
             await broker.start()
         except Exception as exc:

@@ -228,11 +228,12 @@ class MqttPublisher:
         self._client.loop_start()
 
     def wait_connected(self, timeout_s: float) -> bool:
-        """Wait for the first connection; raises :class:`BrokerError` if the broker refused the credentials."""
+        """Wait until connected; raises :class:`BrokerError` if the broker refused the first connection attempt."""
+        deadline = time.monotonic() + timeout_s
         self._first_connack.wait(timeout_s)
         if self._first_refusal is not None and not self.connected:
             raise BrokerError(self._first_refusal + " (check broker.username and broker.password)")
-        return self.connected
+        return self._connected.wait(max(0.0, deadline - time.monotonic()))
 
     def publish(self, topic: str, payload: bytes, *, qos: int = 0, retain: bool = False) -> bool:
         if not self._connected.is_set():

@@ -322,7 +322,7 @@ def make_source(
     if spec.kind == "camera":
         return CameraSource(spec.target, width=width, height=height, fps=fps, fourcc=fourcc)
     if spec.kind == "stream":
-        return StreamSource(spec.target, read_timeout_s=stall_timeout_s)
+        return StreamSource(spec.target, open_timeout_s=max(2.0, 2 * stall_timeout_s), read_timeout_s=stall_timeout_s)
     if spec.kind == "sim":
         if sim_factory is None:
             raise SourceError("the simulated camera is not available in this build")

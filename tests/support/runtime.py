@@ -75,6 +75,7 @@ class Received:
     payload: bytes
     retain: bool
     t_recv: float
+    qos: int = 0
 
 
 @dataclass
@@ -103,7 +104,7 @@ class MqttRecorder:
 
     def _on_message(self, c: Any, u: Any, msg: mqtt.MQTTMessage) -> None:
         with self._cond:
-            self.messages.append(Received(msg.topic, bytes(msg.payload), bool(msg.retain), time.time()))
+            self.messages.append(Received(msg.topic, bytes(msg.payload), bool(msg.retain), time.time(), msg.qos))
             self._cond.notify_all()
 
     def start(self) -> MqttRecorder:
