@@ -148,11 +148,9 @@ def start(
         edge-ips start --source sim --broker mqtt://localhost:1883
     """
     import logging
-    import signal
-    import threading
 
     from edge.config import broker_target
-    from edge.runtime import prepare_appliance
+    from edge.runtime import prepare_appliance, run_until_signalled
 
     config, where, env_keys = _load(
         config_path,
@@ -184,16 +182,7 @@ def start(
     )
     if env_keys:
         log.info("environment overrides: %s", ", ".join(env_keys))
-    appliance = prepare_appliance(config, config_where=where)
-    stop = threading.Event()
-
-    def on_signal(signum: int, frame: Any) -> None:
-        log.info("%s received: stopping", signal.Signals(signum).name)
-        stop.set()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
-    appliance.run(stop)
+    run_until_signalled(prepare_appliance(config, config_where=where))
 
 
 # -- formation ---------------------------------------------------------------------------------------------------

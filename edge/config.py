@@ -86,7 +86,7 @@ class BrokerSection(BaseModel):
     reconnect_min_s: float = Field(default=0.25, gt=0.0, le=60.0)
     reconnect_max_s: float = Field(default=2.0, gt=0.0, le=600.0)
     embedded_host: str = Field(default="0.0.0.0", description="Embedded broker: address to listen on.")
-    embedded_port: int = Field(default=1883, ge=1, le=65535, description="Embedded broker: TCP port.")
+    embedded_port: int = Field(default=1883, ge=0, le=65535, description="Embedded broker: TCP port (0: any free).")
 
     @field_validator("url")
     @classmethod

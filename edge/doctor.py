@@ -41,7 +41,7 @@ def check_config(where: str, env_keys: tuple[str, ...]) -> Check:
 
 def check_camera(config: EdgeConfig, sim_factory: Callable[[str], Any] | None = None) -> tuple[Check, Any, Any]:
     """Open the source and read one frame. Returns the check, the (closed) source and what it granted."""
-    from edge.sources import make_source
+    from edge.sources import make_source, parse_source
 
     cam = config.camera
     try:
@@ -73,7 +73,7 @@ def check_camera(config: EdgeConfig, sim_factory: Callable[[str], Any] | None = 
     detail = f"{info.description}; first frame {w}x{h}"
     level: Level = "ok"
     hint = ""
-    if cam.source != "sim" and not cam.source.startswith("sim:") and ((w, h) != asked or info.fps + 0.5 < cam.fps):
+    if parse_source(cam.source).kind == "camera" and ((w, h) != asked or info.fps + 0.5 < cam.fps):
         level = "warn"
         hint = f"the camera did not grant {cam.width}x{cam.height}@{cam.fps:g}; check `v4l2-ctl --list-formats-ext`"
     check = Check("camera", level, detail, hint)

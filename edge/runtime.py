@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import signal
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -92,6 +93,7 @@ class EdgeRuntime:
         self.frames_processed = 0
         self.poses_invalid = 0
         self.latest_result: FrameResult | None = None
+        self._first_result_mono: float | None = None
         self.error: BaseException | None = None
         self._rovers = {r: _RoverStats(r) for r in self.rover_ids}
         self._status_due = threading.Event()
@@ -153,6 +155,8 @@ class EdgeRuntime:
             self.fps_meter.tick(t2)
             self.frames_processed += 1
             self.latest_result = result
+            if self._first_result_mono is None:
+                self._first_result_mono = t2
 
     def _run_guarded(self, target: Callable[[], None]) -> Callable[[], None]:
         def run() -> None:
@@ -189,7 +193,8 @@ class EdgeRuntime:
     def _state(self, camera: str, missing: list[str]) -> tuple[str, str]:
         if camera not in ("ok", "starting"):
             return "degraded", f"camera {camera}"
-        if camera == "ok" and missing:
+        tracking_for_s = 0.0 if self._first_result_mono is None else time.monotonic() - self._first_result_mono
+        if camera == "ok" and missing and tracking_for_s > max(self.status_interval_s, 1.0):
             return "degraded", f"not seen: {', '.join(missing)}"
         return "online", ""
 
@@ -406,7 +411,7 @@ def prepare_appliance(
     calibration_loader: CalibrationLoader | None = None,
     connect_timeout_s: float = 3.0,
 ) -> Appliance:
-    """Open the source, load the calibration, build the tracker, bind the ports, start the broker and connect.
+    """Bind the ports, start the broker, open the source, load the calibration, build the tracker, connect.
 
     Every user-fixable problem raises an :class:`EdgeIpsError` here, before any frame is published; whatever was
     already started is stopped again.
@@ -418,6 +423,18 @@ def prepare_appliance(
 
     cam = config.camera
     with contextlib.ExitStack() as started:
+        http = None
+        if config.http.enabled:
+            http = HttpServer(config.http.host, config.http.port).start()
+            started.callback(http.stop)
+
+        target = broker_target(config.broker)
+        broker = None
+        if target.embedded:
+            broker = EmbeddedBroker(target.host, target.port).start()
+            started.callback(broker.stop)
+            target = BrokerTarget(embedded=True, host=target.host, port=broker.port)
+
         source = make_source(
             cam.source,
             width=cam.width,
@@ -434,18 +451,6 @@ def prepare_appliance(
         log.info("source: %s", info.description)
         calibration = (calibration_loader or load_calibration_for)(config, source, info, config_where)
         tracker = tracker_factory(TrackerInputs(config, source, info, calibration))
-
-        http = None
-        if config.http.enabled:
-            http = HttpServer(config.http.host, config.http.port).start()
-            started.callback(http.stop)
-
-        target = broker_target(config.broker)
-        broker = None
-        if target.embedded:
-            broker = EmbeddedBroker(target.host, target.port).start()
-            started.callback(broker.stop)
-            target = BrokerTarget(embedded=True, host=target.host, port=broker.port)
 
         recorder = None
         if config.recording.dir is not None:
@@ -500,6 +505,19 @@ def prepare_appliance(
             )
         started.pop_all()  # all checks passed: the appliance owns what was started
     return Appliance(runtime=runtime, target=target, broker=broker, http=http)
+
+
+def run_until_signalled(appliance: Appliance) -> None:
+    """Run until SIGTERM or SIGINT (call from the main thread), then stop cleanly."""
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: Any) -> None:
+        log.info("%s received: stopping", signal.Signals(signum).name)
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    appliance.run(stop)
 
 
 def _health(runtime: EdgeRuntime) -> Any:
