@@ -262,6 +262,8 @@ def write_mosquitto_config(
                 "per_listener_settings false",
                 f"listener {port} {bind}",
                 "allow_anonymous false",
+                "# Forward each small pose at once (Nagle's algorithm would hold it for the rover's delayed ACK):",
+                "set_tcp_nodelay true",
                 f"password_file {where / 'passwd'}",
                 f"acl_file {where / 'acl'}",
                 "# Keep the system's `persistence true` (Debian's default): the retained formation survives restarts.",

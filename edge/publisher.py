@@ -8,7 +8,9 @@ exponential backoff on paho's network thread, so the tracker never waits for the
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import socket
 import ssl
 import threading
 import time
@@ -124,7 +126,15 @@ def make_client(
             cert_reqs=ssl.CERT_REQUIRED,
         )
     client.reconnect_delay_set(min_delay=reconnect_min_s, max_delay=reconnect_max_s)  # type: ignore[arg-type]
+    client.on_socket_open = _no_delay
     return client
+
+
+def _no_delay(client: mqtt.Client, userdata: Any, sock: Any) -> None:
+    # paho leaves Nagle's algorithm on: the 2nd and 3rd pose of a frame would wait for the broker's delayed ACK
+    # (up to 40 ms on Linux). Poses are small and latency-bound, so send each segment at once.
+    with contextlib.suppress(OSError, AttributeError):
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
 
 def _connect_host(target: BrokerTarget) -> str:

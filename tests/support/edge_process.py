@@ -20,7 +20,7 @@ def main(argv: list[str]) -> None:
     config = edge_config(**overrides)
     appliance = prepare_appliance(
         config,
-        tracker_factory=lambda inputs: CentroidTracker(),
+        tracker_factory=lambda inputs: CentroidTracker(stride=max(1, inputs.info.width_px // 320)),
         calibration_loader=lambda *a: None,
         sim_factory=memory_sim(),
     )

@@ -28,14 +28,16 @@ CM_PER_PX = 1.0  # the fake tracker's whole calibration: one pixel is one centim
 class CentroidTracker:
     """Finds each rover as the centroid of the pixels near its marker colour: enough to check the plumbing."""
 
-    def __init__(self, rovers: Sequence[RoverConfig] = DEFAULT_ROVERS, tolerance: int = 30) -> None:
+    def __init__(self, rovers: Sequence[RoverConfig] = DEFAULT_ROVERS, tolerance: int = 30, stride: int = 1) -> None:
         self.rovers = tuple(rovers)
         self.tolerance = tolerance
+        self.stride = stride  # look at every stride-th pixel only: cheap on large frames (benchmarks)
         self.calls = 0
 
     def process(self, frame: Frame) -> FrameResult:
         self.calls += 1
-        img = frame.image.astype(np.int16)
+        s = self.stride
+        img = frame.image[::s, ::s].astype(np.int16)
         estimates, missing = [], []
         for rover in self.rovers:
             mask = np.all(np.abs(img - np.array(rover.color_bgr, dtype=np.int16)) < self.tolerance, axis=2)
@@ -43,7 +45,7 @@ class CentroidTracker:
             if us.size < 5:
                 missing.append(rover.id)
                 continue
-            u, v = float(us.mean()), float(vs.mean())
+            u, v = float(us.mean()) * s, float(vs.mean()) * s
             estimates.append(RoverEstimate(rover.id, u * CM_PER_PX, v * CM_PER_PX, 0.0, None, None, 1.0, (u, v)))
         return FrameResult(frame.index, frame.t_capture_s, frame.t_mono_s, tuple(estimates), tuple(missing), {})
 
@@ -51,12 +53,13 @@ class CentroidTracker:
 def scene(
     index: int, width: int = 320, height: int = 240, rovers: Sequence[RoverConfig] = DEFAULT_ROVERS
 ) -> NDArray[np.uint8]:
-    """A grey floor with one filled disc per rover, moving one pixel per frame along x."""
+    """A grey floor with one filled disc per rover, moving one pixel per frame along x (scaled to the size)."""
     img = np.full((height, width, 3), 90, dtype=np.uint8)
+    k_px = width / 320
     for k, rover in enumerate(rovers):
-        u = 30 + (index + 40 * k) % (width - 60)
-        v = 40 + 60 * k
-        cv2.circle(img, (u, v), 10, tuple(int(c) for c in rover.color_bgr), -1)
+        u = int(k_px * (30 + (index + 40 * k) % 260))
+        v = int(k_px * (40 + 60 * k))
+        cv2.circle(img, (u, v), int(10 * k_px), tuple(int(c) for c in rover.color_bgr), -1)
     return img
 
 
