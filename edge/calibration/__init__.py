@@ -1,0 +1,1 @@
+"""Calibration: pixels to world cm on the marker plane."""
