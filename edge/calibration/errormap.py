@@ -100,8 +100,8 @@ def predicted_error_map(plane: PlaneFit, sigma_px: float, cal: Calibration, *, s
 def _resize_to(grid: FloatArray, us: FloatArray, vs: FloatArray, w: int, h: int) -> FloatArray:
     """Bilinear interpolation of a grid sampled at ``us`` x ``vs`` onto every pixel centre 0..w-1, 0..h-1."""
     step_u, step_v = us[1] - us[0], vs[1] - vs[0]
-    map_x, map_y = np.meshgrid(np.arange(w, dtype=np.float32) / step_u, np.arange(h, dtype=np.float32) / step_v)
-    out = cv2.remap(grid.astype(np.float32), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    map_x, map_y = np.meshgrid(np.arange(w) / step_u, np.arange(h) / step_v)
+    out = cv2.remap(grid.astype(np.float32), map_x.astype(np.float32), map_y.astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return np.asarray(out, dtype=np.float64)
 
 

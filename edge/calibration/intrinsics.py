@@ -7,7 +7,7 @@ model (``k1, k2, p1, p2, k3``). The result is used to undistort measured *points
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -84,7 +84,7 @@ class IntrinsicsResult:
 
 
 def calibrate_intrinsics(
-    images: Sequence[tuple[str, NDArray[np.uint8]]],
+    images: Iterable[tuple[str, NDArray[np.uint8]]],
     board: tuple[int, int],
     square_cm: float,
     *,
@@ -97,8 +97,6 @@ def calibrate_intrinsics(
     """
     if square_cm <= 0 or not np.isfinite(square_cm):
         raise CalibrationError(f"square size must be a positive number of cm, got {square_cm}")
-    if not images:
-        raise CalibrationError("no checkerboard images given")
     size: tuple[int, int] | None = None
     obj = board_object_points(board, square_cm).astype(np.float32)
     obj_points, img_points, used = [], [], []

@@ -13,7 +13,6 @@ threshold is removed and the test repeated, so one gross error cannot hide anoth
 
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,8 +20,19 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from edge.calibration.errormap import ErrorMap, predicted_error_map
+from edge.calibration.files import (
+    Calibration,
+    CalibrationFile,
+    FitRecord,
+    PointRecord,
+    RejectedRecord,
+    calibration_record,
+)
 from edge.calibration.homography import PlaneFit, apply_homography, fit_plane
 from edge.calibration.lens import Intrinsics
+from edge.calibration.tables import parse_table, read_text
+from edge.camera import MARKER_HEIGHT_CM
 from edge.errors import CalibrationError
 
 FloatArray = NDArray[np.float64]
@@ -66,59 +76,18 @@ def point_table(uv_px: FloatArray, xy_world_cm: FloatArray, source: str = "point
 
 def read_points_csv(path: Path) -> PointTable:
     """Read a ``u,v,x,y`` CSV (header required, any column order, extra columns ignored, ``#`` lines skipped)."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise CalibrationError(f"{path}: cannot read points file ({exc.strerror or exc})") from exc
-    except UnicodeDecodeError as exc:
-        raise CalibrationError(f"{path}: not a text (UTF-8) CSV file") from exc
-    return parse_points_csv(text, str(path))
+    return parse_points_csv(read_text(path, "points file"), str(path))
 
 
 def parse_points_csv(text: str, source: str) -> PointTable:
-    lines = [
-        (n, line)
-        for n, line in enumerate(text.splitlines(), start=1)
-        if line.strip() and not line.lstrip().startswith("#")
-    ]
-    if not lines:
-        raise CalibrationError(f"{source}: empty file, expected a header u,v,x,y and at least {MIN_POINTS} rows")
-    header_line, header = lines[0]
-    names = [h.strip().lower() for h in next(csv.reader([header]))]
-    missing = [c for c in COLUMNS if c not in names]
-    if missing:
-        raise CalibrationError(
-            f"{source} line {header_line}: header must name the columns u,v,x,y (missing {','.join(missing)}; "
-            f"found {','.join(names) or 'nothing'})"
-        )
-    index = {c: names.index(c) for c in COLUMNS}
-    values: list[list[float]] = []
-    line_numbers: list[int] = []
-    for row_number, (line_number, line) in enumerate(lines[1:], start=1):
-        fields = next(csv.reader([line]))
-        where = f"{source} row {row_number} (line {line_number})"
-        if len(fields) != len(names):
-            raise CalibrationError(f"{where}: expected {len(names)} fields like the header, got {len(fields)}")
-        row: list[float] = []
-        for c in COLUMNS:
-            raw = fields[index[c]].strip()
-            try:
-                value = float(raw)
-            except ValueError:
-                raise CalibrationError(f"{where}: {c} is not a number: {raw!r}") from None
-            if not math.isfinite(value):
-                raise CalibrationError(f"{where}: {c} is not a finite number: {raw!r}")
-            row.append(value)
-        values.append(row)
-        line_numbers.append(line_number)
-    arr = np.asarray(values, dtype=np.float64).reshape(-1, 4)
-    n = arr.shape[0]
+    table = parse_table(text, source, COLUMNS)
+    c = table.columns
     return PointTable(
         source=source,
-        uv_px=arr[:, :2].copy(),
-        xy_world_cm=arr[:, 2:].copy(),
-        rows=np.arange(1, n + 1, dtype=np.int64),
-        lines=np.asarray(line_numbers, dtype=np.int64),
+        uv_px=np.column_stack([c["u"], c["v"]]),
+        xy_world_cm=np.column_stack([c["x"], c["y"]]),
+        rows=table.rows,
+        lines=table.lines,
     )
 
 
@@ -349,3 +318,138 @@ def _fit_or_explain(table: PointTable, world: FloatArray, uv: FloatArray) -> Pla
     if not np.isfinite(cond) or cond > 1e12:
         raise CalibrationError(f"{table.source}: the points do not determine a plane mapping (nearly collinear layout)")
     return plane
+
+
+# -- the whole point-pair calibration -------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PointsCalibration:
+    """The result of :func:`calibrate_points`: runtime calibration, its file record, the fit and the error map."""
+
+    calibration: Calibration
+    record: CalibrationFile
+    fit: PointsFit
+    stats: FitRecord
+    error_map: ErrorMap | None
+
+
+def calibrate_points(
+    table: PointTable,
+    image_size: tuple[int, int],
+    *,
+    height_cm: float = MARKER_HEIGHT_CM,
+    intrinsics: Intrinsics | None = None,
+    area_cm: tuple[float, float, float, float] | None = None,
+    detect_outliers: bool = True,
+    error_map_step_px: int = 8,
+) -> PointsCalibration:
+    """Fit, report and package a point-pair calibration. ``area_cm`` defaults to the bounding box of the points
+    kept; the error map needs at least 5 points (redundancy to estimate the noise)."""
+    if intrinsics is not None and (intrinsics.width_px, intrinsics.height_px) != tuple(image_size):
+        raise CalibrationError(
+            f"intrinsics are for {intrinsics.width_px}x{intrinsics.height_px} images, "
+            f"the points for {image_size[0]}x{image_size[1]}"
+        )
+    fit = fit_points(table, image_size, intrinsics, detect_outliers=detect_outliers)
+    if area_cm is None:
+        kept = table.xy_world_cm[fit.used]
+        lo, hi = kept.min(axis=0), kept.max(axis=0)
+        area_cm = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    cal = Calibration(fit.plane.g, image_size[0], image_size[1], float(height_cm), area_cm, intrinsics)
+    emap = None
+    notes: list[str] = []
+    if fit.sigma_px is not None and fit.sigma_px > 0:
+        emap = predicted_error_map(fit.plane, fit.sigma_px, cal, step_px=error_map_step_px)
+    else:
+        notes.append("no error map: 4 points fit exactly, there is no redundancy to estimate the noise")
+    if not fit.outlier_test:
+        notes.append(
+            f"no outlier test: it needs at least {MIN_POINTS_FOR_OUTLIER_TEST} points"
+            if detect_outliers
+            else "outlier test switched off"
+        )
+    loo = fit.loo_stats_cm()
+    used_cm = fit.residual_cm[fit.used]
+    stats = FitRecord(
+        n_points=len(table),
+        n_used=fit.n_used,
+        sigma_px=fit.sigma_px,
+        residual_mean_cm=float(used_cm.mean()),
+        residual_max_cm=float(used_cm.max()),
+        loo_mean_cm=loo[0] if loo else None,
+        loo_max_cm=loo[1] if loo else None,
+        loo_rms_cm=loo[2] if loo else None,
+        error_map_mean_cm=emap.mean_cm if emap else None,
+        error_map_max_cm=emap.max_cm if emap else None,
+        notes=notes,
+    )
+    points = [
+        PointRecord(
+            row=int(table.rows[i]),
+            u=float(table.uv_px[i, 0]),
+            v=float(table.uv_px[i, 1]),
+            x=float(table.xy_world_cm[i, 0]),
+            y=float(table.xy_world_cm[i, 1]),
+            used=bool(fit.used[i]),
+            residual_px=float(np.linalg.norm(fit.residual_px[i])),
+            error_cm=float(fit.residual_cm[i]),
+            loo_error_cm=None if fit.loo_error_cm is None else float(fit.loo_error_cm[i]),
+        )
+        for i in range(len(table))
+    ]
+    rejected = [
+        RejectedRecord(
+            row=r.row,
+            line=r.line,
+            u=r.uv_px[0],
+            v=r.uv_px[1],
+            x=r.xy_world_cm[0],
+            y=r.xy_world_cm[1],
+            loo_residual_px=r.loo_residual_px,
+            score=r.score,
+            error_cm=r.error_cm,
+        )
+        for r in fit.rejected
+    ]
+    record = calibration_record(cal, method="points", source=table.source, fit=stats, points=points, rejected=rejected)
+    return PointsCalibration(cal, record, fit, stats, emap)
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """``mapped_cm``: (N, 2) where the calibration puts each check point's pixel; ``error_cm``: (N,) distance to
+    its surveyed position."""
+
+    table: PointTable
+    mapped_cm: FloatArray
+    error_cm: FloatArray
+
+    @property
+    def n(self) -> int:
+        return int(self.error_cm.size)
+
+    @property
+    def mean_cm(self) -> float:
+        return float(self.error_cm.mean())
+
+    @property
+    def max_cm(self) -> float:
+        return float(self.error_cm.max())
+
+    @property
+    def rms_cm(self) -> float:
+        return float(np.sqrt(np.mean(self.error_cm**2)))
+
+
+def check_calibration(cal: Calibration, table: PointTable) -> CheckResult:
+    """Map the pixels of independently measured points and compare with their surveyed positions."""
+    if len(table) == 0:
+        raise CalibrationError(f"{table.source}: no check points")
+    w, h = cal.image_size
+    for i, (u, v) in enumerate(table.uv_px):
+        if not (-0.5 <= u <= w - 0.5 and -0.5 <= v <= h - 0.5):
+            raise CalibrationError(f"{table.where(i)}: pixel ({u:g}, {v:g}) is outside the {w}x{h} image")
+    mapped = cal.pixel_to_world(table.uv_px)
+    bad = np.flatnonzero(~np.all(np.isfinite(mapped), axis=1))
+    if bad.size:
+        raise CalibrationError(f"{table.where(int(bad[0]))}: pixel does not see the marker plane (above the horizon)")
+    return CheckResult(table, mapped, np.linalg.norm(mapped - table.xy_world_cm, axis=1))
