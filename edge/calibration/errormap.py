@@ -101,7 +101,13 @@ def _resize_to(grid: FloatArray, us: FloatArray, vs: FloatArray, w: int, h: int)
     """Bilinear interpolation of a grid sampled at ``us`` x ``vs`` onto every pixel centre 0..w-1, 0..h-1."""
     step_u, step_v = us[1] - us[0], vs[1] - vs[0]
     map_x, map_y = np.meshgrid(np.arange(w) / step_u, np.arange(h) / step_v)
-    out = cv2.remap(grid.astype(np.float32), map_x.astype(np.float32), map_y.astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out = cv2.remap(
+        grid.astype(np.float32),
+        map_x.astype(np.float32),
+        map_y.astype(np.float32),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REPLICATE,
+    )
     return np.asarray(out, dtype=np.float64)
 
 

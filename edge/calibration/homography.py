@@ -25,6 +25,7 @@ FloatArray = NDArray[np.float64]
 AnyFloat = NDArray[np.floating[Any]]
 
 N_PARAMS = 8
+GAUSS_NEWTON_STEPS = 5
 
 
 def apply_homography(h: AnyFloat, xy: AnyFloat) -> FloatArray:
@@ -159,6 +160,18 @@ def fit_plane(xy_world: FloatArray, uv_px: FloatArray) -> PlaneFit:
         raise CalibrationError("the fitted plane mapping is degenerate (points nearly collinear?)")
     t_world, t_px = normaliser(world), normaliser(uv)
     gn = t_px @ g @ np.linalg.inv(t_world)
-    j = _param_jacobian(np.asarray((gn / gn[2, 2]).ravel()[:N_PARAMS]), t_world, t_px, world).reshape(-1, N_PARAMS)
+    params = np.asarray((gn / gn[2, 2]).ravel()[:N_PARAMS])
+    # a few Gauss-Newton steps polish OpenCV's Levenberg-Marquardt result to the exact least-squares optimum
+    for _ in range(GAUSS_NEWTON_STEPS):
+        j = _param_jacobian(params, t_world, t_px, world).reshape(-1, N_PARAMS)
+        g_try = np.linalg.inv(t_px) @ np.append(params, 1.0).reshape(3, 3) @ t_world
+        r = (uv - apply_homography(g_try, world)).reshape(-1)
+        step, *_ = np.linalg.lstsq(j, r, rcond=None)
+        params = params + step
+        if np.linalg.norm(step) < 1e-12 * (1.0 + np.linalg.norm(params)):
+            break
+    g = np.linalg.inv(t_px) @ np.append(params, 1.0).reshape(3, 3) @ t_world
+    g = np.asarray(g / g[2, 2], dtype=np.float64)
+    j = _param_jacobian(params, t_world, t_px, world).reshape(-1, N_PARAMS)
     residuals = uv - apply_homography(g, world)
     return PlaneFit(g=g, t_world=t_world, t_px=t_px, information=j.T @ j, residuals_px=residuals)

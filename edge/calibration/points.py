@@ -40,6 +40,7 @@ FloatArray = NDArray[np.float64]
 COLUMNS = ("u", "v", "x", "y")
 MIN_POINTS = 4
 MIN_POINTS_FOR_OUTLIER_TEST = 7  # the LOO fit of 6 points still has 4 redundant coordinates
+MAX_POINTS_FOR_LINE_SEARCH = 200
 MIN_SIGMA_PX = 0.1  # nobody measures a pixel position better than this; keeps perfect synthetic data sane
 FALSE_ALARM_RATE = 0.01  # per calibration, under Gaussian noise
 MAX_REJECTED_FRACTION = 0.25
@@ -128,22 +129,30 @@ def _check_duplicates(table: PointTable, arr: FloatArray, what: str, tol: float)
 
 
 def _check_collinear(table: PointTable, arr: FloatArray, what: str) -> None:
+    """A plane mapping needs 4 points with no 3 on a line: refuse sets with at most one point off a line."""
+    n = arr.shape[0]
     centred = arr - arr.mean(axis=0)
-    _, s, vt = np.linalg.svd(centred, full_matrices=False)
-    extent = float(s[0]) if s.size else 0.0
-    normal = vt[-1]
-    dist = np.abs(centred @ normal)
-    scale = float(np.max(np.linalg.norm(centred, axis=1))) or 1.0
-    off = np.flatnonzero(dist > 1e-3 * scale)
-    if extent == 0.0 or off.size == 0:
+    scale = float(np.max(np.linalg.norm(centred, axis=1)))
+    tol = 1e-3 * scale
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    if scale == 0.0 or np.all(np.abs(centred @ vt[-1]) <= tol):
         raise CalibrationError(
-            f"{table.source}: all {len(table)} {what} points lie on one line; need points spread over the plane"
+            f"{table.source}: all {n} {what} points lie on one line; need points spread over the plane"
         )
-    if off.size == 1:
-        raise CalibrationError(
-            f"{table.source}: all {what} points but {table.where(int(off[0]))} lie on one line; "
-            "need at least two points off the line"
-        )
+    if n > MAX_POINTS_FOR_LINE_SEARCH:
+        return
+    for i in range(n):  # lines through two points: does one hold all points but one?
+        d = arr[i + 1 :] - arr[i]
+        lengths = np.linalg.norm(d, axis=1)
+        for k in np.flatnonzero(lengths > tol):
+            direction = d[k] / lengths[k]
+            dist = np.abs((arr - arr[i]) @ np.array([-direction[1], direction[0]]))
+            off = np.flatnonzero(dist > tol)
+            if off.size == 1:
+                raise CalibrationError(
+                    f"{table.source}: all {what} points but {table.where(int(off[0]))} lie on one line; "
+                    "need at least two points off the line"
+                )
 
 
 # -- fitting ---------------------------------------------------------------------------------------------------
