@@ -56,9 +56,7 @@ def pct(a: np.ndarray, q: float) -> float:
 
 
 def row(label: str, values: np.ndarray) -> str:
-    return (
-        f"| {label} | {values.mean():.3f} | {np.median(values):.3f} | {pct(values, 95):.3f} | {values.max():.3f} |"
-    )
+    return f"| {label} | {values.mean():.3f} | {np.median(values):.3f} | {pct(values, 95):.3f} | {values.max():.3f} |"
 
 
 def accuracy_runs(
@@ -204,9 +202,7 @@ def aruco_runs(seeds: range) -> None:
                 means.append(e.mean())
                 maxes.append(e.max())
             lens = "distorted" if any(dist) else "no distortion"
-            print(
-                f"| {lens} | {label} | {np.mean(means):.3f} | {np.median(maxes):.3f} | {np.max(maxes):.3f} |"
-            )
+            print(f"| {lens} | {label} | {np.mean(means):.3f} | {np.median(maxes):.3f} | {np.max(maxes):.3f} |")
 
 
 def main() -> None:
@@ -215,9 +211,11 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=None, help="survey seeds per configuration (default 500)")
     args = parser.parse_args()
     n = args.seeds or (60 if args.quick else 500)
-    print(f"## Calibration benchmark\n\n{datetime.now(UTC):%Y-%m-%d %H:%M} UTC, {platform.machine()}, "
-          f"Python {platform.python_version()}, OpenCV {cv2.__version__}, numpy {np.__version__}, "
-          f"{n} seeds per configuration")
+    print(
+        f"## Calibration benchmark\n\n{datetime.now(UTC):%Y-%m-%d %H:%M} UTC, {platform.machine()}, "
+        f"Python {platform.python_version()}, OpenCV {cv2.__version__}, numpy {np.__version__}, "
+        f"{n} seeds per configuration"
+    )
     plain = paper_camera()
     t0 = time.perf_counter()
     print_accuracy("No lens distortion, survey layout from plan_survey", accuracy_runs(plain, range(n), lambda s: None))

@@ -6,6 +6,7 @@ one-line message with exit code 2; nothing else in the package talks to the term
 
 from __future__ import annotations
 
+import io
 import sys
 from pathlib import Path
 from typing import Any
@@ -224,7 +225,8 @@ def calibrate_intrinsics_cmd(
     )
 
     pattern = parse_board(board)
-    with click.progressbar(images, label="finding the board", file=sys.stderr) as bar:
+    show = sys.stderr.isatty()  # a bar on a terminal; nothing in logs and pipes
+    with click.progressbar(images, label="finding the board", file=sys.stderr if show else io.StringIO()) as bar:
         photos = ((str(path), read_image(path)) for path in bar)  # read lazily: the bar follows the detection
         result = calibrate_intrinsics(photos, pattern, square_cm, allow_missing=allow_missing)
     for name, reason in result.skipped:
