@@ -239,6 +239,25 @@ def main() -> None:
         f"Lens distortion k1={DISTORTION[0]}, k2={DISTORTION[1]}, intrinsics from checkerboards",
         accuracy_runs(cam_d, range(n), lambda s: intrinsics[s % n_intr].intrinsics),
     )
+    other = PinholeCamera.look_at(
+        (175.0, -170.0, 300.0),
+        (200.0, 230.0, 0.0),
+        hfov_deg=74.0,
+        roll_deg=1.5,
+        principal_offset_px=(24.0, -18.0),
+        dist_coeffs=(-0.2, 0.09, -0.0006, 0.0009, -0.015),
+    )
+    other_intr = [
+        calibrate_intrinsics(
+            [(str(i), im) for i, im in enumerate(checkerboard_views(other, rng=3000 + k).images)], (9, 6), 2.5
+        ).intrinsics
+        for k in range(n_intr)
+    ]
+    print_accuracy(
+        "Another camera: 300 cm high, 170 cm back, 74 deg HFOV, 1.5 deg roll, principal point off by (24, -18) px, "
+        "stronger distortion (k1 -0.2, k2 0.09, k3 -0.015), intrinsics from checkerboards",
+        accuracy_runs(other, range(n // 2), lambda s: other_intr[s % n_intr]),
+    )
     outlier_runs(plain, range(n // 5 if not args.quick else 30))
     timing()
     aruco_runs(range(3 if args.quick else 10))

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.calibration.files import Calibration
-from edge.calibration.homography import PlaneFit, apply_homography
+from edge.calibration.homography import PlaneFit
 from edge.errors import CalibrationError
 
 FloatArray = NDArray[np.float64]
@@ -191,8 +191,3 @@ def write_error_map_png(
         raise CalibrationError(f"{path}: cannot write error map ({exc.strerror or exc})") from exc
     finally:
         plt.close(fig)
-
-
-def map_points(cal: Calibration, xy_world_cm: FloatArray) -> FloatArray:
-    """(N, 2) world points on the plane -> (N, 2) ideal pixels (helper for overlays)."""
-    return apply_homography(cal.homography_world_to_px, xy_world_cm)

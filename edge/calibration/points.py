@@ -14,7 +14,7 @@ threshold is removed and the test repeated, so one gross error cannot hide anoth
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -298,7 +298,7 @@ def fit_points(
     residual_px = uv - apply_homography(plane.g, world)
     mapped = apply_homography(np.linalg.inv(plane.g), uv)
     residual_cm = np.linalg.norm(mapped - world, axis=1)
-    rejected = [RejectedPoint(**{**r.__dict__, "error_cm": float(residual_cm[r.index])}) for r in rejected]
+    rejected = [replace(r, error_cm=float(residual_cm[r.index])) for r in rejected]
     loo_full: FloatArray | None = None
     loo_px_full: FloatArray | None = None
     if loo_err is not None and loo_resid is not None:
