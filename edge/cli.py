@@ -133,6 +133,11 @@ def calibrate_points_cmd(
     background = read_image(image) if image is not None else None
     intr = load_intrinsics(intrinsics) if intrinsics is not None else None
     given = _parse_size(size, "--size")
+    if background is not None and intr is not None and (intr.width_px, intr.height_px) != background.shape[1::-1]:
+        raise UserError(
+            f"{image} is {background.shape[1]}x{background.shape[0]} but {intrinsics} is for "
+            f"{intr.width_px}x{intr.height_px} images"
+        )
     if background is not None:
         image_size = (background.shape[1], background.shape[0])
     elif intr is not None:
