@@ -72,8 +72,8 @@ def _parse_size(text: str | None, option: str) -> tuple[float, float] | None:
         a, b = (float(p) for p in text.lower().replace(" ", "").split("x"))
     except ValueError:
         raise UserError(f"{option} {text!r}: expected WIDTHxHEIGHT, e.g. 1280x720") from None
-    if not (a > 0 and b > 0):
-        raise UserError(f"{option} {text!r}: both numbers must be positive")
+    if not (0 < a < 1e6 and 0 < b < 1e6):
+        raise UserError(f"{option} {text!r}: both numbers must be positive and finite")
     return a, b
 
 

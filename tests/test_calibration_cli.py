@@ -182,7 +182,24 @@ def test_unreadable_reference_image(tmp_path: Path) -> None:
     assert_user_error(run("calibrate", "points", points, "--image", junk, "--out", tmp_path / "c.json"), str(junk))
 
 
-@pytest.mark.parametrize("size", ["1280", "axb", "0x720", "1280x-5"])
+def test_non_finite_plane_height_is_refused(scene: dict[str, Path], tmp_path: Path) -> None:
+    result = run("calibrate", "points", scene["points"], "--height", "nan", "--out", tmp_path / "c.json")
+    assert_user_error(result, "plane height must be a finite number")
+    result = run(
+        "calibrate",
+        "aruco",
+        scene["floor"],
+        "--markers",
+        scene["markers"],
+        "--height",
+        "inf",
+        "--out",
+        tmp_path / "a.json",
+    )
+    assert_user_error(result, "plane height must be a finite number")
+
+
+@pytest.mark.parametrize("size", ["1280", "axb", "0x720", "1280x-5", "infx720", "nanx720"])
 def test_bad_size_option(tmp_path: Path, size: str) -> None:
     points = write_csv(tmp_path / "points.csv", "u,v,x,y", GOOD_ROWS)
     assert_user_error(run("calibrate", "points", points, "--size", size, "--out", tmp_path / "c.json"), "--size")

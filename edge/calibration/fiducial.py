@@ -13,6 +13,7 @@ distortion should be calibrated with checkerboards first.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -184,6 +185,8 @@ def calibrate_fiducial(
 ) -> FiducialResult:
     """Recover the camera from one image of the markers and map it onto the plane ``z = height_cm``."""
     h, w = image.shape[:2]
+    if not math.isfinite(height_cm):
+        raise CalibrationError(f"plane height must be a finite number of cm, got {height_cm}")
     if intrinsics is not None and (intrinsics.width_px, intrinsics.height_px) != (w, h):
         raise CalibrationError(
             f"{source}: image is {w}x{h} but the intrinsics are for {intrinsics.width_px}x{intrinsics.height_px}"

@@ -358,12 +358,17 @@ def calibrate_points(
             f"intrinsics are for {intrinsics.width_px}x{intrinsics.height_px} images, "
             f"the points for {image_size[0]}x{image_size[1]}"
         )
+    if not math.isfinite(height_cm):
+        raise CalibrationError(f"plane height must be a finite number of cm, got {height_cm}")
     fit = fit_points(table, image_size, intrinsics, detect_outliers=detect_outliers)
     if area_cm is None:
         kept = table.xy_world_cm[fit.used]
         lo, hi = kept.min(axis=0), kept.max(axis=0)
         area_cm = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
-    cal = Calibration(fit.plane.g, image_size[0], image_size[1], float(height_cm), area_cm, intrinsics)
+    try:
+        cal = Calibration(fit.plane.g, image_size[0], image_size[1], float(height_cm), area_cm, intrinsics)
+    except CalibrationError as exc:
+        raise CalibrationError(f"{table.source}: {exc}") from None
     emap = None
     notes: list[str] = []
     if fit.sigma_px is not None and fit.sigma_px > 0:
