@@ -203,3 +203,16 @@ def test_plan_survey_refuses_impossible_requests() -> None:
     cand = grid_candidates(60.0, 60.0, 30.0)
     with pytest.raises(CalibrationError, match="cannot choose 20 survey points out of 9"):
         plan_survey(paper_camera().plane_homography(13.0), cand, (0, 0, 60, 60), 20)
+
+
+def test_a_minimal_layout_still_gives_a_complete_record() -> None:
+    """Five points, three on a line: some points cannot be cross-checked; the file must still be written."""
+    from edge.calibration.points import calibrate_points
+
+    camera = paper_camera()
+    xy = np.array([[0.0, 0.0], [100.0, 0.0], [200.0, 0.0], [50.0, 300.0], [300.0, 400.0]])
+    uv = camera.project(np.column_stack([xy, np.full(5, 13.0)])) + np.random.default_rng(0).normal(0, 0.3, (5, 2))
+    result = calibrate_points(point_table(uv, xy), (1280, 720))
+    assert any("no outlier test" in n for n in result.stats.notes)
+    assert result.error_map is not None
+    assert '"kind":"edge-ips/calibration"' in result.record.model_dump_json()

@@ -198,10 +198,14 @@ class PointsFit:
         return int(np.count_nonzero(self.used))
 
     def loo_stats_cm(self) -> tuple[float, float, float] | None:
-        """(mean, max, rms) of the LOO errors of the points kept, or None when LOO is impossible (< 5 points)."""
+        """(mean, max, rms) of the LOO errors of the points kept, or None when LOO is impossible (< 5 points).
+        Points whose neighbours alone are degenerate (NaN) cannot be cross-checked and are left out."""
         if self.loo_error_cm is None:
             return None
         e = self.loo_error_cm[self.used]
+        e = e[np.isfinite(e)]
+        if e.size == 0:
+            return None
         return float(e.mean()), float(e.max()), float(np.sqrt(np.mean(e**2)))
 
 
@@ -218,11 +222,11 @@ def _loo(world: FloatArray, uv: FloatArray, full: PlaneFit) -> tuple[FloatArray,
         mask[i] = False
         try:
             part = fit_plane(world[mask], uv[mask])
-        except CalibrationError:
+        except CalibrationError:  # the others alone are degenerate: this point cannot be cross-checked
             mask[i] = True
             resid[i] = np.nan
-            d2[i] = np.inf
-            err_cm[i] = np.inf
+            d2[i] = np.nan
+            err_cm[i] = np.nan
             continue
         mask[i] = True
         pred = apply_homography(part.g, world[i : i + 1])[0]
@@ -268,9 +272,11 @@ def fit_points(
             if not run_test:
                 break
             finite = np.isfinite(d2)
+            if not np.any(finite):
+                break
             robust_sigma = max(MIN_SIGMA_PX, math.sqrt(float(np.median(d2[finite])) / CHI2_2_MEDIAN))
             threshold = 2.0 * math.log(idx.size / FALSE_ALARM_RATE)  # chi2(2) tail exp(-t/2) = alpha / N
-            score2 = d2 / robust_sigma**2
+            score2 = np.where(finite, d2, 0.0) / robust_sigma**2
             worst = int(np.argmax(score2))
             if score2[worst] <= threshold:
                 break
@@ -406,7 +412,9 @@ def calibrate_points(
             used=bool(fit.used[i]),
             residual_px=float(np.linalg.norm(fit.residual_px[i])),
             error_cm=float(fit.residual_cm[i]),
-            loo_error_cm=None if fit.loo_error_cm is None else float(fit.loo_error_cm[i]),
+            loo_error_cm=None
+            if fit.loo_error_cm is None or not np.isfinite(fit.loo_error_cm[i])
+            else float(fit.loo_error_cm[i]),
         )
         for i in range(len(table))
     ]
