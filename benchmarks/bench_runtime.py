@@ -125,6 +125,7 @@ class RunResult:
     rss_first_min_mb: float
     rss_last_min_mb: float
     rss_max_mb: float
+    per_minute_rss_mb: list[float]
     fps: float
     frames_dropped: int
     processing_p50_ms: float
@@ -264,6 +265,9 @@ def run_once(
         rss_first_min_mb=round(float(first.mean()), 1),
         rss_last_min_mb=round(float(last.mean()), 1),
         rss_max_mb=round(float(rss_a.max()), 1),
+        per_minute_rss_mb=[
+            round(float(rss_a[(rss_t_a > 60 * k) & (rss_t_a <= 60 * (k + 1))].mean()), 1) for k in range(minutes)
+        ],
         fps=round(_metric(metrics, "fps"), 1),
         frames_dropped=int(_metric(metrics, "frames_dropped_total")),
         processing_p50_ms=round(_metric(metrics, 'processing_seconds{quantile="0.5"}') * 1e3, 2),
@@ -290,6 +294,7 @@ def table(results: list[RunResult]) -> str:
             "RSS first min / last min / max (MiB)",
             lambda r: f"{r.rss_first_min_mb} / {r.rss_last_min_mb} / {r.rss_max_mb}",
         ),
+        ("RSS per minute (MiB)", lambda r: ", ".join(f"{v:g}" for v in r.per_minute_rss_mb)),
         ("frames dropped (overwritten)", lambda r: f"{r.frames_dropped}"),
     ]
     head = "| | " + " | ".join(f"{r.broker}" for r in results) + " |"

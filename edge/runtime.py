@@ -422,6 +422,9 @@ def prepare_appliance(
     from edge.recording import Recorder
 
     cam = config.camera
+    tls = TlsFiles(config.broker.ca_file, config.broker.cert_file, config.broker.key_file)
+    if broker_target(config.broker).tls:
+        tls.check()
     with contextlib.ExitStack() as started:
         http = None
         if config.http.enabled:
@@ -470,7 +473,7 @@ def prepare_appliance(
             keepalive_s=config.broker.keepalive_s,
             reconnect_min_s=config.broker.reconnect_min_s,
             reconnect_max_s=config.broker.reconnect_max_s,
-            tls=TlsFiles(config.broker.ca_file, config.broker.cert_file, config.broker.key_file),
+            tls=tls,
             tap=recorder.record if recorder is not None else None,
             on_connected=lambda: runtime_ref[0].status_now() if runtime_ref else None,
         )

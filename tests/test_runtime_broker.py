@@ -207,7 +207,7 @@ def test_broker_config_writes_secret_files_and_refuses_to_overwrite(tmp_path: Pa
     assert files.passwd.stat().st_mode & 0o077 == 0
     conf = files.conf.read_text()
     assert "allow_anonymous false" in conf and "password_file /etc/mosquitto/edge-ips/passwd" in conf
-    assert "listener 1883 0.0.0.0" in conf
+    assert "listener 1883 0.0.0.0" in conf and "set_tcp_nodelay true" in conf
     creds = files.credentials.read_text()
     assert creds.count("password = ") == 4
     with pytest.raises(BrokerError, match="already exist"):

@@ -74,7 +74,7 @@ def _one_line_error(result: Result, pattern: str) -> None:
         ("[camera]\nsource = '/dev/video9'\n", {}, [], r"no camera at /dev/video9 .*--source sim"),
         ("", {}, ["--source", "CLIP"], r"no calibration configured: set calibration.path in .*edge-ips.toml"),
         ("[calibration]\npath = 'cal.json'\n", {}, ["--source", "CLIP"], r"cal.json: calibration file not found"),
-        ("[broker]\nca_file = 'ca.pem'\nurl = 'mqtts://localhost'\n", {}, ["--source", "sim"], r"^Error: "),
+        ("[broker]\nca_file = 'ca.pem'\nurl = 'mqtts://localhost'\n", {}, [], r"broker.ca_file: .*ca.pem not found"),
     ],
 )
 def test_start_refuses_bad_setups_before_starting(

@@ -142,3 +142,36 @@ def test_memory_publisher_drops_when_switched_off() -> None:
     assert not pub.publish_pose("red", b"{}")
     assert pub.on(pose_topic("red")) == [b"{}"]
     assert (pub.stats.poses_sent, pub.stats.poses_dropped) == (1, 1)
+
+
+def test_publisher_sets_tcp_nodelay(mosquitto: Mosquitto) -> None:
+    import socket
+
+    pub = _publisher(mosquitto)
+    pub.start()
+    assert pub.wait_connected(10)
+    sock = pub._client.socket()
+    assert sock is not None and sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) == 1
+    pub.stop()
+
+
+def test_tls_broker_with_the_right_ca_gets_poses_and_a_wrong_ca_is_refused(tmp_path: Path) -> None:
+    from edge.config import BrokerTarget
+    from edge.publisher import TlsFiles, build_formation, send_formation
+    from tests.support.runtime import make_tls_files
+
+    good = make_tls_files(tmp_path / "good")
+    other = make_tls_files(tmp_path / "other", name="other-ca")
+    conf = tmp_path / "tls.conf"
+    conf.write_text(
+        "allow_anonymous true\npersistence false\n"
+        f"cafile {good['ca']}\ncertfile {good['cert']}\nkeyfile {good['key']}\n"
+    )
+    with Mosquitto(tmp_path / "run", conf_path=conf) as broker:
+        target = BrokerTarget(embedded=False, host="localhost", port=broker.port, tls=True)
+        pub = MqttPublisher(target, edge_id="edge-t", rovers=ROVERS, tls=TlsFiles(ca_file=good["ca"]))
+        pub.start()
+        assert pub.wait_connected(10)
+        pub.stop()
+        with pytest.raises(BrokerError, match="certificate verify failed"):
+            send_formation(target, lambda seq: build_formation("stop", ["red"], seq=seq), tls=TlsFiles(other["ca"]))

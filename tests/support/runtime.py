@@ -207,3 +207,54 @@ class MjpegServer:
             self._server.shutdown()
             self._server.server_close()
             self._server = None
+
+
+def make_tls_files(directory: Path, name: str = "ca") -> dict[str, Path]:
+    """A throw-away CA and a server certificate for ``localhost``/127.0.0.1, made with the openssl CLI."""
+    import subprocess
+
+    directory.mkdir(parents=True, exist_ok=True)
+    ca_key, ca_crt = directory / f"{name}.key", directory / f"{name}.crt"
+    key, csr, crt = directory / "server.key", directory / "server.csr", directory / "server.crt"
+    ext = directory / "san.ext"
+    ext.write_text("subjectAltName=DNS:localhost,IP:127.0.0.1\n")
+
+    def run(*args: str) -> None:
+        subprocess.run(["openssl", *args], check=True, capture_output=True)
+
+    run(
+        "req",
+        "-x509",
+        "-newkey",
+        "rsa:2048",
+        "-nodes",
+        "-days",
+        "2",
+        "-subj",
+        f"/CN={name}",
+        "-keyout",
+        str(ca_key),
+        "-out",
+        str(ca_crt),
+    )
+    run("req", "-newkey", "rsa:2048", "-nodes", "-subj", "/CN=localhost", "-keyout", str(key), "-out", str(csr))
+    run(
+        "x509",
+        "-req",
+        "-in",
+        str(csr),
+        "-CA",
+        str(ca_crt),
+        "-CAkey",
+        str(ca_key),
+        "-CAcreateserial",
+        "-days",
+        "2",
+        "-extfile",
+        str(ext),
+        "-out",
+        str(crt),
+    )
+    for path in (ca_key, key):
+        path.chmod(0o644)  # mosquitto drops privileges before reading them
+    return {"ca": ca_crt, "cert": crt, "key": key}
