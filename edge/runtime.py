@@ -352,11 +352,31 @@ def default_tracker_factory(inputs: TrackerInputs) -> Tracker:
     return Pipeline(inputs.config, inputs.calibration, inputs.info)  # type: ignore[no-any-return,unused-ignore]
 
 
+def exact_calibration(camera: Any, z_cm: float | None = None) -> Any:
+    """The exact :class:`edge.calibration.Calibration` of a known camera (the simulator's) on the marker plane."""
+    from edge.calibration import Calibration, Intrinsics
+    from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM, MARKER_HEIGHT_CM
+
+    z = MARKER_HEIGHT_CM if z_cm is None else z_cm
+    lens = Intrinsics(camera.camera_matrix, camera.dist_coeffs, camera.width_px, camera.height_px)
+    return Calibration(
+        camera.plane_homography(z),
+        camera.width_px,
+        camera.height_px,
+        z,
+        (0.0, 0.0, AREA_WIDTH_CM, AREA_LENGTH_CM),
+        lens,
+        camera,
+    )
+
+
 def load_calibration_for(config: EdgeConfig, source: FrameSource, info: SourceInfo, where: str) -> Any:
-    """The calibration for a real source (required), or the simulator's own (exact) one."""
+    """The calibration for a real source (required), or the simulator's own exact one (from its camera)."""
     if parse_source(config.camera.source).kind == "sim":
-        own = getattr(source, "calibration", None)
-        return own() if callable(own) else own
+        camera = getattr(source, "camera", None)
+        if camera is None:
+            raise CalibrationError("the simulated camera does not expose its camera model")
+        return exact_calibration(camera)
     path = config.calibration.path
     if path is None:
         raise CalibrationError(
@@ -365,10 +385,8 @@ def load_calibration_for(config: EdgeConfig, source: FrameSource, info: SourceIn
         )
     if not path.is_file():
         raise CalibrationError(f"{path}: calibration file not found (calibration.path in {where})")
-    try:
-        from edge.calibration import load_calibration  # type: ignore[import-not-found,unused-ignore]
-    except ImportError as exc:
-        raise CalibrationError("calibration support (edge.calibration) is not available in this build") from exc
+    from edge.calibration import load_calibration
+
     return load_calibration(path, expected_size=(info.width_px, info.height_px))
 
 

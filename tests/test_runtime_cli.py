@@ -86,6 +86,18 @@ def test_start_refuses_bad_setups_before_starting(
     _one_line_error(_run(["start", "--http-port", "0", *args], {**env, **extra_env}), pattern)
 
 
+def test_start_refuses_a_calibration_made_for_another_resolution(tmp_path: Path, env: dict[str, str]) -> None:
+    from edge.calibration import save_calibration
+    from edge.camera import paper_camera
+    from edge.runtime import exact_calibration
+
+    save_calibration(exact_calibration(paper_camera()), tmp_path / "cal.json")  # 1280x720
+    (tmp_path / "edge-ips.toml").write_text("[calibration]\npath = 'cal.json'\n")
+    clip = write_clip(tmp_path / "clip.avi", frames=3)  # 320x240
+    result = _run(["start", "--http-port", "0", "--source", str(clip)], env)
+    _one_line_error(result, r"cal.json: calibration is for 1280x720 images but the camera delivers 320x240")
+
+
 def test_start_says_when_the_http_port_is_taken(env: dict[str, str]) -> None:
     with socket.socket() as holder:
         holder.bind(("0.0.0.0", 0))
