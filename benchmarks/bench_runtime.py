@@ -64,7 +64,7 @@ def subscriber(host: str, port: int, out: Path) -> None:
 
     client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="bench-subscriber")
     client.on_connect, client.on_message = on_connect, on_message
-    client.reconnect_delay_set(0.1, 1)
+    client.reconnect_delay_set(1, 2)
     client.connect_async(host, port, keepalive=10)
     client.loop_start()
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
@@ -82,12 +82,28 @@ def render_clip(directory: Path, width: int, height: int, fps: float, seconds: f
     clip = directory / "clip.avi"
     frames = int(seconds * fps)
     writer = cv2.VideoWriter(str(clip), cv2.VideoWriter.fourcc(*"MJPG"), fps, (width, height))
-    # TODO(runtime): render with edge.sim (and write its exact calibration) once the simulator lands on main.
-    from tests.support.runtime import scene
+    try:
+        from edge.sim.source import SimSource  # type: ignore[import-not-found,unused-ignore]
+    except ImportError:
+        from tests.support.runtime import scene
 
-    for i in range(frames):
-        writer.write(scene(i, width, height))
-    calibration, what = None, "synthetic scene (simulator not available)"
+        for i in range(frames):
+            writer.write(scene(i, width, height))
+        calibration, what = None, "synthetic scene (simulator not available)"
+    else:
+        from edge.calibration import save_calibration
+        from edge.runtime import exact_calibration
+
+        sim = SimSource("lab", seed=0, realtime=False, frames=frames)
+        info = sim.open()
+        if (info.width_px, info.height_px) != (width, height):
+            raise SystemExit(f"the simulator renders {info.width_px}x{info.height_px}, not {width}x{height}")
+        while (frame := sim.read()) is not None:
+            writer.write(frame.image)
+        calibration = directory / "calibration.json"
+        save_calibration(exact_calibration(sim.setup.camera), calibration)
+        what = "simulator scenario 'lab', seed 0, with its exact calibration"
+        sim.close()
     writer.release()
     return clip, calibration, what
 

@@ -338,18 +338,19 @@ def default_sim_factory(config: EdgeConfig) -> SimFactory:
             from edge.sim.source import SimSource  # type: ignore[import-not-found,unused-ignore]
         except ImportError as exc:
             raise SourceError("the simulated camera (edge.sim) is not available in this build") from exc
-        return SimSource(scenario or None, seed=0, realtime=config.camera.realtime)  # type: ignore[no-any-return,unused-ignore]
+        return SimSource(scenario or "lab", seed=0, realtime=config.camera.realtime)  # type: ignore[no-any-return,unused-ignore]
 
     return make
 
 
 def default_tracker_factory(inputs: TrackerInputs) -> Tracker:
-    """The tracking pipeline (issue 5) built from the rovers, the tracker settings and the calibration."""
+    """The tracking pipeline (issue 5) built from the rovers, the ``[tracker]`` settings and the calibration."""
     try:
-        from edge.pipeline import Pipeline  # type: ignore[attr-defined,unused-ignore]
+        from edge.pipeline import Pipeline, TrackerConfig  # type: ignore[attr-defined,unused-ignore]
     except ImportError as exc:
         raise EdgeIpsError("the tracking pipeline (edge.pipeline.Pipeline) is not available in this build") from exc
-    return Pipeline(inputs.config, inputs.calibration, inputs.info)  # type: ignore[no-any-return,unused-ignore]
+    settings = TrackerConfig(rovers=tuple(inputs.config.rovers), **inputs.config.tracker)
+    return Pipeline(settings, inputs.calibration)  # type: ignore[no-any-return,unused-ignore]
 
 
 def exact_calibration(camera: Any, z_cm: float | None = None) -> Any:
@@ -373,7 +374,7 @@ def exact_calibration(camera: Any, z_cm: float | None = None) -> Any:
 def load_calibration_for(config: EdgeConfig, source: FrameSource, info: SourceInfo, where: str) -> Any:
     """The calibration for a real source (required), or the simulator's own exact one (from its camera)."""
     if parse_source(config.camera.source).kind == "sim":
-        camera = getattr(source, "camera", None)
+        camera = getattr(getattr(source, "setup", None), "camera", None) or getattr(source, "camera", None)
         if camera is None:
             raise CalibrationError("the simulated camera does not expose its camera model")
         return exact_calibration(camera)
