@@ -292,13 +292,13 @@ class SourceSpec:
 
 
 def parse_source(text: str) -> SourceSpec:
-    """``0`` / ``/dev/video0`` (camera), ``rtsp://``/``http(s)://`` (stream), ``sim[:SCENARIO]``, else a file."""
+    """``0`` / ``/dev/...`` (camera), ``rtsp://``/``http(s)://`` (stream), ``sim[:SCENARIO]``, else a file."""
     text = text.strip()
     if text == "sim" or text.startswith("sim:"):
         return SourceSpec("sim", text[4:])
     if text.isdigit():
         return SourceSpec("camera", f"/dev/video{int(text)}")
-    if text.startswith("/dev/video"):
+    if text.startswith("/dev/"):  # /dev/videoN or a stable name such as /dev/v4l/by-id/usb-...-video-index0
         return SourceSpec("camera", text)
     if re.match(r"^(rtsp|rtsps|http|https)://", text):
         return SourceSpec("stream", text)

@@ -37,6 +37,7 @@ def _frame(index: int) -> Frame:
         ("0", "camera", "/dev/video0"),
         ("2", "camera", "/dev/video2"),
         ("/dev/video1", "camera", "/dev/video1"),
+        ("/dev/v4l/by-id/usb-046d_C920-video-index0", "camera", "/dev/v4l/by-id/usb-046d_C920-video-index0"),
         ("rtsp://cam.local/stream1", "stream", "rtsp://cam.local/stream1"),
         ("http://10.0.0.5:8080/video.mjpg", "stream", "http://10.0.0.5:8080/video.mjpg"),
         ("clips/run1.mp4", "file", "clips/run1.mp4"),
