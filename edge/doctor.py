@@ -113,7 +113,7 @@ def _probe_broker(target: BrokerTarget, config: EdgeConfig, timeout_s: float) ->
     from paho.mqtt.reasoncodes import ReasonCode
 
     from edge.messages import dumps
-    from edge.publisher import TlsFiles, _connect_host, offline_status
+    from edge.publisher import TlsFiles, connect_host, offline_status
 
     client = mqtt.Client(
         mqtt.CallbackAPIVersion.VERSION2, client_id=f"edge-ips-doctor-{config.edge.id}", protocol=mqtt.MQTTv5
@@ -148,7 +148,7 @@ def _probe_broker(target: BrokerTarget, config: EdgeConfig, timeout_s: float) ->
     client.on_connect, client.on_message, client.on_publish = on_connect, on_message, on_publish
     shown = target.display()
     try:
-        client.connect(_connect_host(target), target.port, keepalive=10)
+        client.connect(connect_host(target), target.port, keepalive=10)
     except OSError as exc:
         hint = "is the broker running? check broker.url (or `systemctl status mosquitto`)"
         return Check("broker", "fail", f"cannot reach {shown}: {exc}", hint)

@@ -137,7 +137,7 @@ def _no_delay(client: mqtt.Client, userdata: Any, sock: Any) -> None:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
 
-def _connect_host(target: BrokerTarget) -> str:
+def connect_host(target: BrokerTarget) -> str:
     # The embedded broker listens on every interface; this process reaches it over loopback.
     return "127.0.0.1" if target.embedded and target.host in ("0.0.0.0", "::", "") else target.host
 
@@ -230,7 +230,7 @@ class MqttPublisher:
 
     def start(self) -> None:
         """Begin connecting in the background (paho's network thread retries with backoff)."""
-        host = _connect_host(self.target)
+        host = connect_host(self.target)
         try:
             self._client.connect_async(host, self.target.port, keepalive=self.keepalive_s)
         except ValueError as exc:
@@ -364,7 +364,7 @@ def _connect_blocking(client: mqtt.Client, target: BrokerTarget, timeout_s: floa
 
     client.on_connect = on_connect
     try:
-        client.connect(_connect_host(target), target.port, keepalive=10)
+        client.connect(connect_host(target), target.port, keepalive=10)
     except (OSError, ssl.SSLError) as exc:
         raise BrokerError(f"cannot reach broker {target.display()}: {exc}") from exc
     client.loop_start()

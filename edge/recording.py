@@ -81,7 +81,7 @@ class Recorder:
         except queue.Full:
             self.lines_dropped += 1
 
-    def _open_next(self) -> None:
+    def _open_next(self) -> IO[bytes]:
         if self._file is not None:
             self._file.close()
         self._serial += 1
@@ -92,6 +92,7 @@ class Recorder:
         while len(self.files_written) > self.max_files:
             old = self.files_written.pop(0)
             old.unlink(missing_ok=True)
+        return self._file
 
     def _run(self) -> None:
         while True:
@@ -100,14 +101,14 @@ class Recorder:
                 break
             line = record_line(*item)
             try:
-                if self._file is None or self._size + len(line) > self.max_bytes:
-                    self._open_next()
-                assert self._file is not None
-                self._file.write(line)
+                out = self._file
+                if out is None or self._size + len(line) > self.max_bytes:
+                    out = self._open_next()
+                out.write(line)
                 self._size += len(line)
                 self.lines_written += 1
                 if self._queue.empty():
-                    self._file.flush()
+                    out.flush()
             except OSError as exc:
                 self.lines_dropped += 1
                 log.error("recording: cannot write to %s: %s", self.directory, exc.strerror)
