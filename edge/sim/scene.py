@@ -129,7 +129,7 @@ class Scene:
     tape: TapeLook | None = TapeLook()
     lamps: tuple[Lamp, ...] = field(default_factory=default_lamps)
     ambient: float = 0.35
-    lamp_luminance: float = 30.0
+    lamp_luminance: float = 22.0
     texture_seed: int = 7
 
     def __post_init__(self) -> None:
