@@ -151,7 +151,7 @@ class Renderer:
         """The empty scene (no rovers, no people) as the camera captures it at ``frame_index``."""
         t_s = frame_index / self.fps
         frame = self._compose((), t_s, people=False)
-        return self._camera(frame, frame_index, t_s)
+        return self._camera(frame, frame_index, t_s, noise_stream=1)  # a capture of its own, not frame i's noise
 
     def marker_outline_px(self, rover: RoverState) -> FloatArray:
         """(N, 2) the rover's marker outline in distorted pixels (edges subdivided when the lens distorts)."""
@@ -219,7 +219,7 @@ class Renderer:
         self._dirty = dirty
         return work
 
-    def _camera(self, work: NDArray[np.uint16], frame_index: int, t_s: float) -> Image:
+    def _camera(self, work: NDArray[np.uint16], frame_index: int, t_s: float, noise_stream: int = 0) -> Image:
         """Exposure, tone, flicker, noise, compression: the camera's own processing of the composed light."""
         drift = drift_factor(self.effects.drift, t_s)
         gain = float(self._auto_exposure(frame_index))
@@ -234,7 +234,7 @@ class Renderer:
             sl = win.slices
             work[sl] = self._bg[sl]
         self._dirty = []
-        rng = np.random.default_rng(np.random.SeedSequence([self.seed, frame_index, 0xF8A3E]))
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, frame_index, noise_stream, 0xF8A3E]))
         if self._noise is not None and self.effects.noise is not None:
             key = round(gain * 1000)
             lut = self._sigma_luts.get(key)
