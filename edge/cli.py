@@ -95,10 +95,11 @@ def sim_render(scenario: str, out_dir: Path, frames: int | None, seed: int, rove
 
         edge-ips sim render lab --out runs/lab --frames 300 --seed 1
     """
-    from edge.sim.export import render_to_directory
-    from edge.sim.scenarios import get_scenario
+    from edge.sim.export import ensure_directory, render_to_directory
+    from edge.sim.scenarios import build
 
-    total = frames or get_scenario(scenario).default_frames
+    total = build(scenario, seed=seed, rovers=rovers, frames=frames).frames  # checks the request before starting
+    ensure_directory(out_dir)
     with click.progressbar(length=total, label=f"rendering {scenario}") as bar:
         summary = render_to_directory(
             scenario, out_dir, frames=frames, seed=seed, rovers=rovers, progress=lambda n: bar.update(n)

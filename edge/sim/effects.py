@@ -389,11 +389,12 @@ def noise_sigma_lut(noise: SensorNoise, gain: float, gamma: float) -> NDArray[np
 
     Output linear value ``l`` came from a sensor signal ``l / gain``; its noise ``gain * sqrt(read^2 +
     (l / gain) / full_well)`` is carried through the tone curve by its slope (capped near black, where real
-    cameras' curves turn linear).
+    cameras' curves turn linear). Value 255 gets none: it stands for every clipped (saturated) pixel.
     """
     values = np.arange(256, dtype=np.float64) / 255.0
     lin = values**gamma
     sigma_lin = gain * np.sqrt(noise.read_noise**2 + (lin / max(gain, 1e-9)) / noise.full_well)
     slope = np.minimum(255.0 / gamma * np.maximum(lin, 1e-12) ** (1.0 / gamma - 1.0), 1500.0)
     sigma_dn = sigma_lin * slope
+    sigma_dn[255] = 0.0  # a clipped pixel is saturated: full well, no noise left to see
     return np.clip(np.rint(sigma_dn * NoiseBank.SIGMA_SCALE), 0, 255).astype(np.uint8).reshape(1, 256)

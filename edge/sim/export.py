@@ -52,10 +52,7 @@ def render_to_directory(
 ) -> RenderSummary:
     """Render ``scenario`` into ``out_dir`` (created if needed); ``progress(n)`` is told of every ``n`` frames done."""
     setup = build(scenario, seed=seed, rovers=rovers, frames=frames)
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SimulationError(f"{out_dir}: cannot create the output directory ({exc.strerror})") from exc
+    ensure_directory(out_dir)
     renderer = setup.renderer()
     world = setup.world()
     cam = setup.camera
@@ -119,6 +116,14 @@ def _fixed(value: float, digits: int) -> str:
     """Fixed-point text without a negative zero."""
     text = f"{value:.{digits}f}"
     return text[1:] if text.startswith("-") and float(text) == 0.0 else text
+
+
+def ensure_directory(out_dir: Path) -> None:
+    """Create the output directory (and parents) or say why not."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SimulationError(f"{out_dir}: cannot create the output directory ({exc.strerror})") from exc
 
 
 def describe(setup: SimSetup, renderer: object | None = None) -> dict[str, object]:

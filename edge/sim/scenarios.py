@@ -253,7 +253,7 @@ def build_sun(seed: int, n: int, frames: int) -> SimSetup:
 
 
 def build_cross(seed: int, n: int, frames: int) -> SimSetup:
-    """Red and green pass head-on in adjacent lanes (1 cm between bodies); blue crosses red's lane right behind it.
+    """Red and green pass head-on in adjacent lanes (1 cm between bodies); blue crosses a lane right behind them.
 
     Twice: in the near half of the area, then at its far side (markers ~20 x 9 px).
     """
@@ -264,21 +264,22 @@ def build_cross(seed: int, n: int, frames: int) -> SimSetup:
     lane = look.body_width_cm + 1.0  # centre to centre: the bodies pass 1 cm apart
     gap = crossing_gap_s(look.body_length_cm, look.body_width_cm, look.body_length_cm, look.body_width_cm, v, 1.0)
     events = [
-        ((195.0 + _jitter(rng, 20), 170.0 + _jitter(rng, 20)), float(rng.uniform(-0.3, 0.3))),
+        ((195.0 + _jitter(rng, 20), 200.0 + _jitter(rng, 20)), float(rng.uniform(-0.3, 0.3))),
         ((195.0 + _jitter(rng, 20), 500.0 + _jitter(rng, 10)), float(rng.uniform(-0.3, 0.3))),
     ]
     runs: list[list[Run]] = []
-    for point, heading in events:
+    for k, (point, heading) in enumerate(events):
         c, s = math.cos(heading), math.sin(heading)
         red_pt = (point[0] - s * lane / 2, point[1] + c * lane / 2)
         green_pt = (point[0] + s * lane / 2, point[1] - c * lane / 2)
-        runs.append(
-            [
-                (red_pt, heading, 0.0, 70.0),
-                (green_pt, heading + math.pi, 0.0, 70.0),
-                (red_pt, heading - math.pi / 2, gap, 60.0),  # from beyond red's lane: clear of green
-            ]
+        # Directions alternate between events so each rover's next run starts on the side where its last one ended
+        # (nobody cuts across anybody between events). Blue crosses the outer lane's rover right behind it, coming
+        # from outside the lanes: first red's lane from beyond it, then green's from below it.
+        red_dir = heading if k % 2 == 0 else heading + math.pi
+        blue = (
+            (red_pt, heading - math.pi / 2, gap, 60.0) if k % 2 == 0 else (green_pt, heading + math.pi / 2, gap, 60.0)
         )
+        runs.append([(red_pt, red_dir, 0.0, 70.0), (green_pt, red_dir + math.pi, 0.0, 70.0), blue])
     plans = _choreography(runs, first_time_s=3.5 + float(rng.uniform(0, 0.5)), speed_cm_s=v)
     plans = _with_extras(plans, n, (0.0, 260.0, 90.0, 440.0), rng)
     return _setup("cross", seed, frames, looks, plans, lab_effects(rng))
@@ -335,8 +336,8 @@ def build_occlusion(seed: int, n: int, frames: int) -> SimSetup:
         speed_cm_s=18.0,
         start_angle_rad=float(rng.uniform(0, 2 * math.pi)),
     )
-    blue_start = Pose(300.0 + _jitter(rng, 15), 110.0 + _jitter(rng, 10), -math.pi / 2)
-    blue = leave_and_return(blue_start, (blue_start.x_cm + 20.0, -90.0), speed_cm_s=25.0, away_s=2.0)
+    blue_start = Pose(300.0 + _jitter(rng, 15), 70.0 + _jitter(rng, 10), -math.pi / 2)
+    blue = leave_and_return(blue_start, (blue_start.x_cm + 10.0, -75.0), speed_cm_s=30.0, away_s=1.5)
     green = stop_and_go(Pose(60.0, 420.0, 0.0), [(120.0, 500.0), (60.0, 420.0)], speed_cm_s=18.0, stop_s=1.5)
     plans = _with_extras([red, green, blue], n, (0.0, 0.0, 110.0, 350.0), rng)
     effects = lab_effects(rng)
@@ -415,7 +416,7 @@ SCENARIOS: dict[str, Scenario] = {
             build_sun,
         ),
         Scenario(
-            "cross", "head-on passes and crossings with 1 cm between bodies, near and far side", 3, 720, build_cross
+            "cross", "head-on passes and crossings with 1 cm between bodies, near and far side", 3, 840, build_cross
         ),
         Scenario(
             "occlusion",

@@ -111,14 +111,15 @@ def crossing_gap_s(
     speed_cm_s: float,
     clearance_cm: float,
 ) -> float:
-    """Delay between two perpendicular rovers passing the same point so their bodies clear by ``clearance_cm``.
+    """Delay between two perpendicular rovers (same speed) passing the same point so their bodies clear by
+    ``clearance_cm``.
 
-    The first (heading along its path) must have moved half its length, half the other's width and the clearance
-    past the crossing point before the second's front reaches the first's side.
+    With the first along x and the second along y, the gaps between the bodies along x and y (``dx``, ``dy``) sum to
+    a constant while both are positive: the corners pass diagonally, closest when ``dx = dy``, at a distance
+    ``(dx + dy) / sqrt(2)``.
     """
-    return ((first_length_cm + second_width_cm) / 2 + clearance_cm) / speed_cm_s + (
-        first_width_cm + second_length_cm
-    ) / (2 * speed_cm_s)
+    reach = (first_length_cm + second_width_cm) / 2 + (first_width_cm + second_length_cm) / 2
+    return (reach + math.sqrt(2.0) * clearance_cm) / speed_cm_s
 
 
 def grid_circles(
