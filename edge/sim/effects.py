@@ -324,14 +324,14 @@ def motion_kernel(displacement_px: FloatArray) -> NDArray[np.float32] | None:
         return None
     half = math.ceil(0.5 * max(abs(dx), abs(dy))) + 1
     size = 2 * half + 1
-    kernel = np.zeros((size, size), dtype=np.float64)
     n = max(8, int(6 * length))
     s = (np.arange(n) + 0.5) / n - 0.5
     xs, ys = half + s * dx, half + s * dy
     x0, y0 = np.floor(xs).astype(int), np.floor(ys).astype(int)
     fx, fy = xs - x0, ys - y0
-    for ox, oy, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-        np.add.at(kernel, (y0 + oy, x0 + ox), w)
+    index = np.concatenate([(y0 + oy) * size + x0 + ox for oy in (0, 1) for ox in (0, 1)])
+    weight = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
+    kernel = np.bincount(index, weights=weight, minlength=size * size).reshape(size, size)
     return (kernel / kernel.sum()).astype(np.float32)
 
 
@@ -368,20 +368,28 @@ class NoiseBank:
         self.negative = np.maximum(-q, 0).astype(np.uint8)
         self.shape = shape
 
-    def apply(self, image: NDArray[np.uint8], sigma_lut: NDArray[np.uint8], rng: np.random.Generator) -> None:
-        """Add noise to ``image`` in place; ``sigma_lut`` (256,) uint8 gives sigma per value in 1/16 DN."""
-        h, w, _ = self.shape
+    def draw(self, rng: np.random.Generator) -> tuple[int, int, bool]:
+        """This frame's read of the bank: row and column offsets and whether the sign is flipped."""
         oy, ox = (int(v) for v in rng.integers(0, self.MARGIN, 2))
-        pos = self.positive[oy : oy + h, ox : ox + w]
-        neg = self.negative[oy : oy + h, ox : ox + w]
-        if rng.random() < 0.5:
+        return oy, ox, bool(rng.random() < 0.5)
+
+    def add(
+        self, rows: NDArray[np.uint8], row0: int, sigma_lut: NDArray[np.uint8], draw: tuple[int, int, bool]
+    ) -> None:
+        """Add noise in place to ``rows`` (a band of the frame starting at row ``row0``); ``sigma_lut`` (1, 256)
+        uint8 gives sigma per value in 1/16 DN; ``draw`` from :meth:`draw` (the same for every band of a frame)."""
+        oy, ox, flip = draw
+        n, w = rows.shape[0], rows.shape[1]
+        pos = self.positive[oy + row0 : oy + row0 + n, ox : ox + w]
+        neg = self.negative[oy + row0 : oy + row0 + n, ox : ox + w]
+        if flip:
             pos, neg = neg, pos
-        sigma = cv2.LUT(image, sigma_lut)
+        sigma = cv2.LUT(rows, sigma_lut)
         scale = 1.0 / (self.Z_SCALE * self.SIGMA_SCALE)
         up = cv2.multiply(sigma, pos, scale=scale)
         down = cv2.multiply(sigma, neg, scale=scale)
-        cv2.add(image, up, dst=image)
-        cv2.subtract(image, down, dst=image)
+        cv2.add(rows, up, dst=rows)
+        cv2.subtract(rows, down, dst=rows)
 
 
 def noise_sigma_lut(noise: SensorNoise, gain: float, gamma: float) -> NDArray[np.uint8]:

@@ -187,9 +187,16 @@ def _hue_distance(a: float, b: float) -> float:
 def rectangle_cm(x_cm: float, y_cm: float, theta_rad: float, length_cm: float, width_cm: float) -> FloatArray:
     """(4, 2) corners of a rectangle centred at (x, y), ``length`` along the heading; counter-clockwise."""
     c, s = math.cos(theta_rad), math.sin(theta_rad)
-    hl, hw = 0.5 * length_cm, 0.5 * width_cm
-    local = np.array([[hl, -hw], [hl, hw], [-hl, hw], [-hl, -hw]])
-    return np.column_stack([x_cm + local[:, 0] * c - local[:, 1] * s, y_cm + local[:, 0] * s + local[:, 1] * c])
+    lc, ls = 0.5 * length_cm * c, 0.5 * length_cm * s
+    wc, ws = 0.5 * width_cm * c, 0.5 * width_cm * s
+    return np.array(
+        [
+            [x_cm + lc + ws, y_cm + ls - wc],
+            [x_cm + lc - ws, y_cm + ls + wc],
+            [x_cm - lc - ws, y_cm - ls + wc],
+            [x_cm - lc + ws, y_cm - ls - wc],
+        ]
+    )
 
 
 def aruco_cells(look: RoverLook) -> FloatArray:
