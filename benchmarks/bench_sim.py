@@ -16,18 +16,18 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
     os.environ[_var] = "1"
 
-import argparse
-import platform
-import sys
-import time
-from pathlib import Path
+import argparse  # noqa: E402 (after the thread limits)
+import platform  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
-import cv2
-import numpy as np
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from edge.sim.scenarios import SCENARIOS, build
+from edge.sim.scenarios import SCENARIOS, build  # noqa: E402
 
 
 def pin_one_core() -> str:
@@ -79,7 +79,8 @@ def main() -> None:
     where = pin_one_core()
     load = os.getloadavg()
     print(f"# simulator rendering speed, one core ({where}), cv2 {cv2.__version__}, numpy {np.__version__}")
-    print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} cpus, load average {load[0]:.2f} {load[1]:.2f}")
+    cpu = platform.processor() or platform.machine()
+    print(f"# {cpu}, {os.cpu_count()} cpus, load average {load[0]:.2f} {load[1]:.2f}")
     print(f"# {time.strftime('%Y-%m-%d %H:%M')}, {args.rounds} rounds x {args.frames} frames per row")
     print()
     print("| scenario | rovers | median ms | best-round median ms | p95 ms | mean ms | first frame setup s |")
@@ -101,7 +102,9 @@ def main() -> None:
     assert bar is not None
     verdict = "meets" if bar["median"] <= 10.0 else "MISSES"
     print()
-    print(f"lab, 1280x720, 3 rovers, default effects: median {bar['median']:.2f} ms per frame ({verdict} the 10 ms bar)")
+    print(
+        f"lab, 1280x720, 3 rovers, default effects: median {bar['median']:.2f} ms per frame ({verdict} the 10 ms bar)"
+    )
 
 
 if __name__ == "__main__":

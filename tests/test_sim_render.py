@@ -43,16 +43,19 @@ def _still(x: float, y: float, heading_deg: float, rover_id: str = "red") -> Rov
     return RoverState(rover_id, x, y, math.radians(heading_deg), 0.0, 0.0)
 
 
-@pytest.fixture(scope="module", params=["paper", "lens"])
+@pytest.fixture(scope="module", params=[("paper", None), ("lens", None), ("paper", 0.7), ("lens", 0.7)])
 def black_renderer(request):
-    camera = paper_camera() if request.param == "paper" else lens_camera()
-    return Renderer(camera, black_scene(fleet_looks(1)), clean_effects())
+    """Sharp (box-filtered pixels only) and with the lens's point spread, through both cameras."""
+    which, psf = request.param
+    camera = paper_camera() if which == "paper" else lens_camera()
+    return Renderer(camera, black_scene(fleet_looks(1)), clean_effects(psf_sigma_px=psf))
 
 
 @pytest.mark.parametrize("pose", POSES)
 def test_marker_is_drawn_where_the_camera_model_projects_it(black_renderer, pose):
     """Intensity-weighted centroid (linear light) of the rendered marker vs the area centroid of its projected
-    outline: within 0.05 px (the geometry is exact area coverage; the residue is the pixel grid's box filter)."""
+    outline: within 0.05 px (the geometry is exact area coverage; the residue is the pixel grid's box filter; the
+    lens's symmetric point spread moves no centroid)."""
     rover = _still(*pose)
     image = black_renderer.render(WorldState(0.0, (rover,)), 0)
     weight = linear(image)[..., 2]  # the red marker's own channel; floor and body are black
@@ -67,20 +70,22 @@ def test_marker_is_drawn_where_the_camera_model_projects_it(black_renderer, pose
 def test_far_marker_is_about_20_by_9_px(black_renderer):
     rover = _still(195.75, 549.5, 90.0)
     image = black_renderer.render(WorldState(0.0, (rover,)), 0)
-    rows, cols = np.nonzero(linear(image)[..., 2] > 0.02)
+    rows, cols = np.nonzero(linear(image)[..., 2] > 0.25 * linear(image)[..., 2].max())
     assert 18 <= cols.max() - cols.min() + 1 <= 24
     assert 8 <= rows.max() - rows.min() + 1 <= 12
 
 
-def test_area_centroid_is_not_the_projected_centre_but_maps_back_to_it():
-    """Perspective: the pixel area centroid of a far marker is not the projection of its centre, while the
-    outline mapped back to the marker plane has its area centroid exactly at the centre."""
+@pytest.mark.parametrize(("x", "y", "min_px"), [(195.75, 5.0, 0.5), (195.75, 540.0, 0.05)])
+def test_area_centroid_is_not_the_projected_centre_but_maps_back_to_it(x, y, min_px):
+    """Perspective: the pixel area centroid of a marker is not the projection of its centre (most visibly on the
+    near side, where the marker spans the widest angle), while the outline mapped back to the marker plane has its
+    area centroid exactly at the centre."""
     camera = paper_camera()
     renderer = Renderer(camera, black_scene(fleet_looks(1)), clean_effects())
-    rover = _still(195.75, 540.0, 90.0)
+    rover = _still(x, y, 90.0)
     outline = renderer.marker_outline_px(rover)
     centre_px = camera.project(np.array([[rover.x_cm, rover.y_cm, 13.0]]))[0]
-    assert np.hypot(*(polygon_centroid(outline) - centre_px)) > 0.05
+    assert np.hypot(*(polygon_centroid(outline) - centre_px)) > min_px
     on_plane = camera.pixel_to_plane(outline, 13.0)
     assert polygon_centroid(on_plane) == pytest.approx([rover.x_cm, rover.y_cm], abs=1e-6)
 
@@ -240,7 +245,12 @@ def test_motion_blur_smears_along_the_motion_and_keeps_the_centroid():
         camera,
         scene,
         Effects(
-            exposure=Exposure(exposure_s=1 / 30), auto_exposure=None, noise=None, vignetting=None, motion_blur=True
+            exposure=Exposure(exposure_s=1 / 30),
+            auto_exposure=None,
+            noise=None,
+            vignetting=None,
+            optics=None,
+            motion_blur=True,
         ),
     )
     rover = RoverState("red", 150.0, 60.0, 0.0, 30.0, 0.0)  # 30 cm/s along x, 1 cm during a 1/30 s exposure

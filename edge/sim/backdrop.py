@@ -17,7 +17,9 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass
+from typing import overload
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -79,13 +81,17 @@ def prerender(camera: PinholeCamera, scene: Scene, effects: Effects, supersample
         effects.vignetting,
         effects.sun,
         effects.glare,
+        effects.optics,
         supersample,
     )
     found = _CACHE.get(key)
     if found is not None:
         _CACHE.move_to_end(key)
         return found
-    made = _render(camera, scene, effects.exposure.scale, effects.vignetting, effects.sun, effects.glare, supersample)
+    psf = effects.optics.blur_sigma_px if effects.optics is not None else 0.0
+    made = _render(
+        camera, scene, effects.exposure.scale, effects.vignetting, effects.sun, effects.glare, supersample, psf
+    )
     _CACHE[key] = made
     while len(_CACHE) > _CACHE_SIZE:
         _CACHE.popitem(last=False)
@@ -100,6 +106,7 @@ def _render(
     sun: SunPatch | None,
     glare: Glare | None,
     ss: int,
+    psf_sigma_px: float,
 ) -> Backdrop:
     h, w = camera.height_px, camera.width_px
     texture = FloorTexture(scene.floor, scene.tape, scene.texture_seed)
@@ -152,7 +159,25 @@ def _render(
     if glare is not None:
         lit_fraction = sun_lit / (ss * ss) if sun is not None else 1.0
         glare_lin = (_glare_shape(xy_safe, camera, glare) * lit_fraction * valid * gain).astype(np.float32)
-    return Backdrop(room_lin, illum, vig, sun_lin, glare_lin, ratio)
+    return Backdrop(
+        _soften(room_lin, psf_sigma_px),
+        illum,
+        vig,
+        _soften(sun_lin, psf_sigma_px),
+        _soften(glare_lin, psf_sigma_px),
+        ratio,
+    )
+
+
+@overload
+def _soften(image: F32, sigma_px: float) -> F32: ...
+@overload
+def _soften(image: None, sigma_px: float) -> None: ...
+def _soften(image: F32 | None, sigma_px: float) -> F32 | None:
+    """The optics' point spread over a prerendered layer (in linear light, as a lens blurs light)."""
+    if image is None or sigma_px < 0.05:
+        return image
+    return np.asarray(cv2.GaussianBlur(image, (0, 0), sigma_px), dtype=np.float32)
 
 
 def _soft_convex(xy_cm: FloatArray, polygon_cm: FloatArray, blur_cm: float) -> FloatArray:

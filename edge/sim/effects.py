@@ -73,6 +73,14 @@ class SensorNoise:
 
 
 @dataclass(frozen=True)
+class Optics:
+    """Lens and demosaicing softness: a Gaussian point spread of ``blur_sigma_px`` pixels (an in-focus webcam lens
+    and Bayer interpolation: about half a pixel). Symmetric, so it moves no centroid."""
+
+    blur_sigma_px: float = 0.5
+
+
+@dataclass(frozen=True)
 class Vignetting:
     """Light fall-off towards the corners: ``1 - strength * (1 - cos^4(angle off axis))``."""
 
@@ -218,6 +226,7 @@ class Effects:
     auto_exposure: AutoExposure | None = AutoExposure()
     noise: SensorNoise | None = SensorNoise()
     vignetting: Vignetting | None = Vignetting()
+    optics: Optics | None = Optics()
     motion_blur: bool = True
     flicker: Flicker | None = None
     compression: Compression | None = None
@@ -229,7 +238,7 @@ class Effects:
     def describe(self) -> list[str]:
         """One line per active effect with its parameters (for ``scenario.json`` and the docs)."""
         lines = []
-        for name in ("exposure", "auto_exposure", "noise", "vignetting", "flicker", "compression", "drift"):
+        for name in ("exposure", "auto_exposure", "noise", "optics", "vignetting", "flicker", "compression", "drift"):
             value = getattr(self, name)
             if value is not None:
                 lines.append(f"{name}: {value}")
@@ -314,6 +323,22 @@ def vignetting_map(camera_matrix: FloatArray, width_px: int, height_px: int, vig
     r2 = v[:, None] ** 2 + u[None, :] ** 2
     cos4 = 1.0 / (1.0 + r2) ** 2
     return np.asarray(1.0 - vig.strength * (1.0 - cos4))
+
+
+def blur_kernel(displacement_px: FloatArray, psf_sigma_px: float) -> NDArray[np.float32] | None:
+    """The blur of a moving object: its motion during the exposure (``displacement_px`` (2,), x, y) convolved with
+    the optics' Gaussian point spread; normalised; None when both are negligible."""
+    motion = motion_kernel(displacement_px)
+    if psf_sigma_px < 0.05:
+        return motion
+    half = math.ceil(3.0 * psf_sigma_px)
+    g = cv2.getGaussianKernel(2 * half + 1, psf_sigma_px, cv2.CV_64F)
+    psf = g @ g.T
+    if motion is None:
+        return psf.astype(np.float32)
+    # the motion line spread by the point spread: a (m + 2 half) square kernel
+    full = cv2.filter2D(np.pad(motion.astype(np.float64), half), -1, psf, borderType=cv2.BORDER_CONSTANT)
+    return (full / full.sum()).astype(np.float32)
 
 
 def motion_kernel(displacement_px: FloatArray) -> NDArray[np.float32] | None:

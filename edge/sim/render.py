@@ -33,11 +33,11 @@ from edge.sim.effects import (
     NoiseBank,
     Occluder,
     auto_exposure_gains,
+    blur_kernel,
     drift_factor,
     flicker_amplitude,
     flicker_phase_rows,
     jpeg_roundtrip,
-    motion_kernel,
     noise_sigma_lut,
     sun_state,
 )
@@ -316,7 +316,7 @@ class Renderer:
         *polys, shadow_px = self._project_many([*quads, np.column_stack([shadow_cm, np.zeros(4)])])
 
         # Windows: the body's (exact coverage) inside the shadow's (blurred, so a fixed-point fill is enough).
-        kernel = self._motion_kernel(rover, hb) if self.effects.motion_blur else None
+        kernel = self._blur_kernel(rover, hb)
         blur_half = kernel.shape[0] // 2 if kernel is not None else 0
         sigma_px = max(SHADOW_SIGMA_CM * math.sqrt(abs(polygon_area(shadow_px)) / _area_cm(shadow_cm)), 0.5)
         n_drawn = len(polys) - (1 if sun is not None else 0)
@@ -344,6 +344,8 @@ class Renderer:
             hull = _sun_shadow(body, hb, sun.travel)
             (hull_px,) = self._project_many([np.column_stack([hull, np.zeros(len(hull))])])
             layer[..., 6] = self._fill(hull_px, window)
+        # Visibility is geometric (the marker's area at mid-exposure), so keep alpha and marker before any blur.
+        sharp_alpha, sharp_marker = layer[..., 3].astype(np.float64), layer[..., 4].astype(np.float64)
         if kernel is not None:
             layer = np.asarray(cv2.filter2D(layer, -1, kernel, borderType=cv2.BORDER_CONSTANT), dtype=np.float32)
         alpha = np.clip(layer[..., 3], 0.0, 1.0)
@@ -359,7 +361,7 @@ class Renderer:
         floor += layer[..., :3]
         work[sl] = self._encode_fast(floor)
         marker_area = abs(polygon_area(polys[marker_index]))
-        return window, alpha.astype(np.float64), layer[..., 4].astype(np.float64), marker_area
+        return window, np.clip(sharp_alpha, 0.0, 1.0), sharp_marker, marker_area
 
     def _project_many(self, quads: list[FloatArray]) -> list[FloatArray]:
         """Project several world polygons in one call (edges subdivided when the lens distorts)."""
@@ -399,10 +401,13 @@ class Renderer:
                 parts.append((world, INK_BGR - WHITE_BGR))
         return parts
 
-    def _motion_kernel(self, rover: RoverState, z_cm: float) -> NDArray[np.float32] | None:
+    def _blur_kernel(self, rover: RoverState, z_cm: float) -> NDArray[np.float32] | None:
+        """Motion during the exposure (if modelled) convolved with the optics' point spread."""
+        psf = self.effects.optics.blur_sigma_px if self.effects.optics is not None else 0.0
+        moving = self.effects.motion_blur and (rover.vx_cm_s != 0.0 or rover.vy_cm_s != 0.0)
+        if not moving:
+            return blur_kernel(np.zeros(2), psf)
         half_t = 0.5 * self.effects.exposure.exposure_s
-        if rover.vx_cm_s == 0.0 and rover.vy_cm_s == 0.0:
-            return None
         pts = np.array(
             [
                 [rover.x_cm - rover.vx_cm_s * half_t, rover.y_cm - rover.vy_cm_s * half_t, z_cm],
@@ -410,7 +415,7 @@ class Renderer:
             ]
         )
         uv = self.camera.project(pts)
-        return motion_kernel(uv[1] - uv[0])
+        return blur_kernel(uv[1] - uv[0], psf)
 
     def _window_around(self, points_px: FloatArray, margin: int) -> Window | None:
         lo = np.floor(points_px.min(axis=0)).astype(int) - margin
@@ -480,9 +485,10 @@ class Renderer:
         palette = np.vstack([np.zeros(3), np.array([f[2] for f in faces])])
         colour = palette[label]
         alpha = (label > 0).astype(np.float64)
-        # A person is out of focus and moving: soften the edges by half a pixel.
-        colour = np.asarray(cv2.GaussianBlur(colour * alpha[..., None], (0, 0), 0.6), dtype=np.float64)
-        alpha = np.asarray(cv2.GaussianBlur(alpha, (0, 0), 0.6), dtype=np.float64)
+        # The lens's point spread (a little more: a person walking is not in perfect focus, and moves).
+        sigma = 0.3 + (self.effects.optics.blur_sigma_px if self.effects.optics is not None else 0.0)
+        colour = np.asarray(cv2.GaussianBlur(colour * alpha[..., None], (0, 0), sigma), dtype=np.float64)
+        alpha = np.asarray(cv2.GaussianBlur(alpha, (0, 0), sigma), dtype=np.float64)
         sl = window.slices
         illum = self._backdrop.illumination[sl].astype(np.float64)
         floor = self._decode[work[sl]].astype(np.float64)

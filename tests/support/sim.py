@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.sim.effects import Effects, Exposure
+from edge.sim.effects import Effects, Exposure, Optics
 from edge.sim.scenarios import SimSetup
 from edge.sim.scene import FloorLook, RoverLook, Scene, rectangle_cm
 
@@ -28,13 +28,15 @@ def black_scene(looks: tuple[RoverLook, ...]) -> Scene:
     return Scene(bodies, floor=floor, tape=None, lamps=(), ambient=1.0)
 
 
-def clean_effects(gamma: float = 2.2) -> Effects:
-    """Only the camera's tone curve: no noise, vignetting, auto-exposure, blur, flicker or compression."""
+def clean_effects(gamma: float = 2.2, psf_sigma_px: float | None = None) -> Effects:
+    """Only the camera's tone curve (and, if given, the lens's point spread): no noise, vignetting, auto-exposure,
+    motion blur, flicker or compression."""
     return Effects(
         exposure=Exposure(gamma=gamma),
         auto_exposure=None,
         noise=None,
         vignetting=None,
+        optics=None if psf_sigma_px is None else Optics(psf_sigma_px),
         motion_blur=False,
     )
 
