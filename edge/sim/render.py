@@ -54,7 +54,7 @@ SHADOW_STRENGTH = 0.55  # ambient occlusion under and around a rover's body
 SHADOW_MARGIN_CM = 3.0
 SHADOW_SIGMA_CM = 2.0
 SIDE_LIGHT = 0.5  # vertical faces receive about half the irradiance of horizontal ones under ceiling lamps
-ROW_BAND = 48  # rows per band in the whole-frame camera stage (fits the caches)
+ROW_BAND = 32  # rows per band in the whole-frame camera stage (fits the caches)
 WHITE_BGR = np.array([0.80, 0.82, 0.82])
 INK_BGR = np.array([0.04, 0.04, 0.045])
 
@@ -138,6 +138,7 @@ class Renderer:
         self._aruco = {look.rover_id: aruco_cells(look) for look in scene.rovers if look.heading == "aruco"}
         self._subdivide = 6 if camera.has_distortion else 1
         self.visibility: dict[str, float] = {}
+        self._dirty: list[Window] = []
 
     # -- public ---------------------------------------------------------------------------------------------------
     def render(self, state: WorldState, frame_index: int) -> Image:
