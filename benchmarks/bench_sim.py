@@ -1,9 +1,10 @@
 """Rendering speed of the simulator on ONE core: the issue's bar is a 1280x720 frame with 3 rovers in <= 10 ms median
 (``lab`` scenario, its default effects), so that a closed loop runs faster than real time.
 
-Single core: OpenCV and BLAS limited to one thread and the process pinned to one CPU. The machine is shared, so the
-script also prints the load average it ran under; it measures in rounds and reports the best round's median as
-well as the median over all frames (the honest figure when the machine is busy).
+Single core: OpenCV and BLAS limited to one thread and the process pinned to one CPU. The machine is shared by
+several engineers, so wall-clock times per frame include time the process spent waiting for the CPU. The script
+reports both: the CPU time the rendering thread used per frame (``time.thread_time``: what a frame costs on one
+core) and the wall-clock time, with the load average it ran under.
 
     .venv/bin/python benchmarks/bench_sim.py            # lab bar + every scenario + crowd scaling
     .venv/bin/python benchmarks/bench_sim.py --quick    # lab bar only
@@ -46,25 +47,22 @@ def measure(name: str, seed: int, rovers: int | None, frames: int, rounds: int) 
     n = setup.frames
     for i in range(10):  # warm-up: caches, auto-exposure table
         renderer.render(world.state_at(i / setup.fps), i)
-    times: list[list[float]] = []
+    cpu, wall = [], []
     index = 10
-    for _ in range(rounds):
-        round_times = []
-        for _ in range(frames):
-            i = index % n
-            state = world.state_at(i / setup.fps)
-            t = time.perf_counter()
-            renderer.render(state, i)
-            round_times.append((time.perf_counter() - t) * 1000.0)
-            index += 1
-        times.append(round_times)
-    flat = np.concatenate(times)
+    for _ in range(rounds * frames):
+        i = index % n
+        state = world.state_at(i / setup.fps)
+        c, t = time.thread_time(), time.perf_counter()
+        renderer.render(state, i)
+        wall.append((time.perf_counter() - t) * 1000.0)
+        cpu.append((time.thread_time() - c) * 1000.0)
+        index += 1
     return {
         "rovers": len(setup.scene.rovers),
-        "median": float(np.median(flat)),
-        "best_round_median": float(min(np.median(r) for r in times)),
-        "p95": float(np.percentile(flat, 95)),
-        "mean": float(flat.mean()),
+        "cpu_median": float(np.median(cpu)),
+        "cpu_p95": float(np.percentile(cpu, 95)),
+        "wall_median": float(np.median(wall)),
+        "wall_p95": float(np.percentile(wall, 95)),
         "prerender_s": prerender_s,
     }
 
@@ -83,7 +81,7 @@ def main() -> None:
     print(f"# {cpu}, {os.cpu_count()} cpus, load average {load[0]:.2f} {load[1]:.2f}")
     print(f"# {time.strftime('%Y-%m-%d %H:%M')}, {args.rounds} rounds x {args.frames} frames per row")
     print()
-    print("| scenario | rovers | median ms | best-round median ms | p95 ms | mean ms | first frame setup s |")
+    print("| scenario | rovers | CPU ms median | CPU ms p95 | wall ms median | wall ms p95 | setup s |")
     print("|---|---:|---:|---:|---:|---:|---:|")
     rows = [("lab", None)]
     if not args.quick:
@@ -95,15 +93,17 @@ def main() -> None:
         if name == "lab" and rovers is None:
             bar = r
         print(
-            f"| {name} | {r['rovers']} | {r['median']:.2f} | {r['best_round_median']:.2f} | {r['p95']:.2f} | "
-            f"{r['mean']:.2f} | {r['prerender_s']:.2f} |",
+            f"| {name} | {r['rovers']} | {r['cpu_median']:.2f} | {r['cpu_p95']:.2f} | {r['wall_median']:.2f} | "
+            f"{r['wall_p95']:.2f} | {r['prerender_s']:.2f} |",
             flush=True,
         )
-    assert bar is not None
-    verdict = "meets" if bar["median"] <= 10.0 else "MISSES"
+    if bar is None:
+        return
+    verdict = "meets" if bar["cpu_median"] <= 10.0 else "MISSES"
     print()
     print(
-        f"lab, 1280x720, 3 rovers, default effects: median {bar['median']:.2f} ms per frame ({verdict} the 10 ms bar)"
+        f"lab, 1280x720, 3 rovers, default effects: median {bar['cpu_median']:.2f} ms of CPU per frame on one core "
+        f"({verdict} the 10 ms bar); wall clock {bar['wall_median']:.2f} ms at load {os.getloadavg()[0]:.2f}"
     )
 
 

@@ -57,17 +57,26 @@ def coverage(polygons_px: Sequence[FloatArray], origin_px: tuple[int, int], shap
     out = np.zeros((k_count, rows, cols))
     if k_count == 0 or rows <= 0 or cols <= 0:
         return out
-    shift = np.array([origin_px[0] - 0.5, origin_px[1] - 0.5])
-    starts, ends, owner, signs = [], [], [], np.empty(k_count)
-    for k, poly in enumerate(polygons_px):
-        p = np.asarray(poly, dtype=np.float64).reshape(-1, 2) - shift  # pixel (r, c) is now [c, c+1) x [r, r+1)
-        starts.append(p)
-        ends.append(_next(p))
-        owner.append(np.full(p.shape[0], k))
-        signs[k] = -1.0 if polygon_area(p) < 0 else 1.0
-    a = np.concatenate(starts)
-    b = np.concatenate(ends)
-    edge_owner = np.concatenate(owner)
+    shift = np.array([origin_px[0] - 0.5, origin_px[1] - 0.5])  # pixel (r, c) becomes [c, c+1) x [r, r+1)
+    lengths = {len(p) for p in polygons_px}
+    if len(lengths) == 1:  # the common case (quadrilaterals): all polygons at once
+        pts = np.asarray(polygons_px, dtype=np.float64) - shift  # (K, N, 2)
+        nxt = np.concatenate([pts[:, 1:], pts[:, :1]], axis=1)
+        doubled = np.sum(pts[..., 0] * nxt[..., 1] - nxt[..., 0] * pts[..., 1], axis=1)
+        signs = np.where(doubled < 0, -1.0, 1.0)
+        a, b = pts.reshape(-1, 2), nxt.reshape(-1, 2)
+        edge_owner = np.repeat(np.arange(k_count), pts.shape[1])
+    else:
+        starts, ends, owner, signs = [], [], [], np.empty(k_count)
+        for k, poly in enumerate(polygons_px):
+            p = np.asarray(poly, dtype=np.float64).reshape(-1, 2) - shift
+            starts.append(p)
+            ends.append(_next(p))
+            owner.append(np.full(p.shape[0], k))
+            signs[k] = -1.0 if polygon_area(p) < 0 else 1.0
+        a = np.concatenate(starts)
+        b = np.concatenate(ends)
+        edge_owner = np.concatenate(owner)
     xa, ya, xb, yb = a[:, 0], a[:, 1], b[:, 0], b[:, 1]
     keep = xa != xb  # vertical edges bound no area in x
     xa, ya, xb, yb, edge_owner = xa[keep], ya[keep], xb[keep], yb[keep], edge_owner[keep]

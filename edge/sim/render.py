@@ -54,6 +54,7 @@ SHADOW_STRENGTH = 0.55  # ambient occlusion under and around a rover's body
 SHADOW_MARGIN_CM = 3.0
 SHADOW_SIGMA_CM = 2.0
 SIDE_LIGHT = 0.5  # vertical faces receive about half the irradiance of horizontal ones under ceiling lamps
+MIN_MOTION_PX = 0.25  # shorter motion blurs are left to the optics' point spread
 ROW_BAND = 32  # rows per band in the whole-frame camera stage (fits the caches)
 WHITE_BGR = np.array([0.80, 0.82, 0.82])
 INK_BGR = np.array([0.04, 0.04, 0.045])
@@ -287,25 +288,17 @@ class Renderer:
         body = rectangle_cm(x, y, th, look.body_length_cm, look.body_width_cm)
         if not np.all(self.camera.in_front(np.column_stack([body, np.full(4, hb)]))):
             return None
-        cam = self.camera.position_cm
-        # The rover's visible faces and marker parts as world quadrilaterals; their coverage is computed exactly.
-        quads: list[FloatArray] = []
-        weights: list[FloatArray] = []  # per polygon: premultiplied albedo (3), alpha, marker coverage
-        body_albedo = look.body_bgr
-        for i in range(4):
-            a, b = body[i], body[(i + 1) % 4]
-            mid = 0.5 * (a + b)
-            if np.dot(mid - np.array([x, y]), cam[:2] - mid) <= 0:  # side faces away from the camera
-                continue
-            quads.append(np.array([[*a, 0.0], [*b, 0.0], [*b, hb], [*a, hb]]))
-            weights.append(np.array([*(c * SIDE_LIGHT for c in body_albedo), 1.0, 0.0]))
-        quads.append(np.column_stack([body, np.full(4, hb)]))
-        weights.append(np.array([*body_albedo, 1.0, 0.0]))
-        marker_index = len(quads)
+        # The body's silhouette (the visible faces of a convex box tile the hull of its projected corners), its top
+        # face and the marker parts; their coverage is computed exactly. Sides are lit at SIDE_LIGHT of the top.
+        body_albedo = np.asarray(look.body_bgr)
+        bottom_top = [np.column_stack([body, np.zeros(4)]), np.column_stack([body, np.full(4, hb)])]
+        quads: list[FloatArray] = [bottom_top[1]]
+        weights: list[FloatArray] = [np.array([*(body_albedo * (1.0 - SIDE_LIGHT)), 0.0, 0.0])]
+        marker_index = len(quads) + 1  # after the silhouette, which goes first
         for m, (part, albedo) in enumerate(self._marker_parts(look, x, y, th)):
             # Part 0 is the whole marker over the body's top; later parts are albedo changes within it.
             quads.append(np.column_stack([part, np.full(4, hb)]))
-            change = albedo - np.asarray(body_albedo) if m == 0 else albedo
+            change = albedo - body_albedo if m == 0 else albedo
             weights.append(np.array([*change, 0.0, 1.0 if m == 0 else 0.0]))
         sun = self.effects.sun if sun_rel > 0 else None
         if sun is not None:
@@ -314,11 +307,18 @@ class Renderer:
         shadow_cm = rectangle_cm(
             x, y, th, look.body_length_cm + 2 * SHADOW_MARGIN_CM, look.body_width_cm + 2 * SHADOW_MARGIN_CM
         )
-        *polys, shadow_px = self._project_many([*quads, np.column_stack([shadow_cm, np.zeros(4)])])
+        verticals = [np.array([[*c, 0.0], [*c, hb]]) for c in body] if self.camera.has_distortion else []
+        *projected, shadow_px = self._project_many(
+            [*bottom_top, *quads[1:], *verticals, np.column_stack([shadow_cm, np.zeros(4)])]
+        )
+        outline = np.vstack([projected[0], projected[1], *projected[2 + len(quads) - 1 :]])
+        silhouette = cv2.convexHull(outline.astype(np.float32)).reshape(-1, 2).astype(np.float64)
+        polys = [silhouette, projected[1], *projected[2 : 2 + len(quads) - 1]]
+        weights.insert(0, np.array([*(body_albedo * SIDE_LIGHT), 1.0, 0.0]))
 
         # Windows: the body's (exact coverage) inside the shadow's (blurred, so a fixed-point fill is enough).
-        kernel = self._blur_kernel(rover, hb)
-        blur_half = kernel.shape[0] // 2 if kernel is not None else 0
+        kernel, psf_sigma = self._blur_kernel(rover, hb)
+        blur_half = kernel.shape[0] // 2 if kernel is not None else math.ceil(3.0 * psf_sigma)
         sigma_px = max(SHADOW_SIGMA_CM * math.sqrt(abs(polygon_area(shadow_px)) / _area_cm(shadow_cm)), 0.5)
         n_drawn = len(polys) - (1 if sun is not None else 0)
         body_window = self._window_around(np.vstack(polys[:n_drawn]), blur_half + 1)
@@ -349,6 +349,10 @@ class Renderer:
         sharp_alpha, sharp_marker = layer[..., 3].astype(np.float64), layer[..., 4].astype(np.float64)
         if kernel is not None:
             layer = np.asarray(cv2.filter2D(layer, -1, kernel, borderType=cv2.BORDER_CONSTANT), dtype=np.float32)
+        elif psf_sigma > 0.05:
+            layer = np.asarray(
+                cv2.GaussianBlur(layer, (0, 0), psf_sigma, borderType=cv2.BORDER_CONSTANT), dtype=np.float32
+            )
         alpha = np.clip(layer[..., 3], 0.0, 1.0)
         seen = 1.0 - alpha  # how much of the floor shows through
         floor = self._decode[work[sl]]
@@ -402,12 +406,13 @@ class Renderer:
                 parts.append((world, INK_BGR - WHITE_BGR))
         return parts
 
-    def _blur_kernel(self, rover: RoverState, z_cm: float) -> NDArray[np.float32] | None:
-        """Motion during the exposure (if modelled) convolved with the optics' point spread."""
+    def _blur_kernel(self, rover: RoverState, z_cm: float) -> tuple[NDArray[np.float32] | None, float]:
+        """How to blur a rover's layer: (kernel, 0) for motion during the exposure convolved with the optics' point
+        spread, or (None, sigma) for the point spread alone (separable, cheaper) when the motion is under
+        ``MIN_MOTION_PX`` (its variance, L^2 / 12, is then below 2 % of the point spread's)."""
         psf = self.effects.optics.blur_sigma_px if self.effects.optics is not None else 0.0
-        moving = self.effects.motion_blur and (rover.vx_cm_s != 0.0 or rover.vy_cm_s != 0.0)
-        if not moving:
-            return blur_kernel(np.zeros(2), psf)
+        if not self.effects.motion_blur or (rover.vx_cm_s == 0.0 and rover.vy_cm_s == 0.0):
+            return None, psf
         half_t = 0.5 * self.effects.exposure.exposure_s
         pts = np.array(
             [
@@ -416,7 +421,9 @@ class Renderer:
             ]
         )
         uv = self.camera.project(pts)
-        return blur_kernel(uv[1] - uv[0], psf)
+        if math.hypot(*(uv[1] - uv[0])) < MIN_MOTION_PX and psf > 0.0:
+            return None, psf
+        return blur_kernel(uv[1] - uv[0], psf), 0.0
 
     def _window_around(self, points_px: FloatArray, margin: int) -> Window | None:
         lo = np.floor(points_px.min(axis=0)).astype(int) - margin
