@@ -8,14 +8,16 @@ Written into the output directory:
 * ``visibility.csv``: ``frame,id,visible``: the fraction of each marker's area in view and not hidden;
 * ``background.png``: the empty scene as the camera captures it (lossless), the paper's reference frame;
 * ``camera.json``: the camera model that rendered the scene (:func:`edge.camera.save_camera`);
-* ``points.csv``: the 34 surveyed calibration points (``u,v,x,y``) with measuring noise;
+* ``points.csv``: the 34 surveyed calibration points (``u,v,x,y``) with 0.5 px RMS measuring noise
+  (:func:`edge.sim.targets.survey_points`);
+* with ``kit``: ``check.csv``, ``floor.png`` + ``markers.csv`` (ArUco on the floor), ``boards/`` (checkerboards, when
+  the lens distorts): the rest of a calibration session;
 * ``scenario.json``: scenario, seed, frames, rovers (id, marker colour as seen, reflectance) and effects.
 """
 
 from __future__ import annotations
 
 import csv
-import importlib.util
 import json
 import time
 from collections.abc import Callable
@@ -28,6 +30,7 @@ from edge.camera import save_camera
 from edge.errors import SimulationError
 from edge.sim.scenarios import SimSetup, build
 from edge.sim.source import frame_truth
+from edge.sim.targets import aruco_floor_frame, check_points, checkerboard_views, survey_points, write_markers_csv
 
 TRUTH_COLUMNS = ("frame", "id", "x", "y", "theta", "vx", "vy")
 
@@ -37,7 +40,6 @@ class RenderSummary:
     out_dir: Path
     frames: int
     written: tuple[str, ...]
-    skipped: tuple[str, ...]
     render_ms_mean: float
 
 
@@ -48,9 +50,11 @@ def render_to_directory(
     frames: int | None = None,
     seed: int = 0,
     rovers: int | None = None,
+    kit: bool = False,
     progress: Callable[[int], None] | None = None,
 ) -> RenderSummary:
-    """Render ``scenario`` into ``out_dir`` (created if needed); ``progress(n)`` is told of every ``n`` frames done."""
+    """Render ``scenario`` into ``out_dir`` (created if needed); ``progress(n)`` is told of every ``n`` frames done.
+    ``kit``: also write the rest of a calibration session (:func:`write_calibration_kit`)."""
     setup = build(scenario, seed=seed, rovers=rovers, frames=frames)
     ensure_directory(out_dir)
     renderer = setup.renderer()
@@ -102,14 +106,13 @@ def render_to_directory(
     written.append("background.png")
     save_camera(cam, out_dir / "camera.json")
     written.append("camera.json")
-    skipped = []
-    if _write_points(setup, out_dir / "points.csv"):
-        written.append("points.csv")
-    else:
-        skipped.append("points.csv (edge.sim.targets is not on this branch yet)")
+    _write_points(setup, out_dir / "points.csv")
+    written.append("points.csv")
+    if kit:
+        written += write_calibration_kit(setup, out_dir)
     (out_dir / "scenario.json").write_text(json.dumps(describe(setup, renderer), indent=2) + "\n")
     written.append("scenario.json")
-    return RenderSummary(out_dir, setup.frames, tuple(written), tuple(skipped), 1000.0 * render_s / setup.frames)
+    return RenderSummary(out_dir, setup.frames, tuple(written), 1000.0 * render_s / setup.frames)
 
 
 def _fixed(value: float, digits: int) -> str:
@@ -152,15 +155,24 @@ def describe(setup: SimSetup, renderer: object | None = None) -> dict[str, objec
     }
 
 
-def _write_points(setup: SimSetup, path: Path) -> bool:
-    """The calibration survey (34 points on a 30 cm grid at 13 cm, 0.5 px RMS measuring noise) as ``points.csv``.
+def _write_points(setup: SimSetup, path: Path) -> None:
+    """The calibration survey as a person makes it (``edge.sim.targets``: 34 points on a 30 cm grid at 13 cm, their
+    pixels measured with 0.5 px RMS noise) as ``points.csv``."""
+    survey_points(setup.camera, rng=setup.seed).write_csv(path)
 
-    TODO(issue 3): the survey belongs to the calibration engineer's ``edge.sim.targets`` (``survey_points``), which
-    is not on main yet; until it is, no points.csv is written. Once it lands this becomes a plain import.
-    """
-    if importlib.util.find_spec("edge.sim.targets") is None:
-        return False
-    targets = importlib.import_module("edge.sim.targets")
-    survey = targets.survey_points(setup.camera, rng=setup.seed)
-    survey.write_csv(path)
-    return True
+
+def write_calibration_kit(setup: SimSetup, out_dir: Path) -> list[str]:
+    """The rest of a calibration session in this scene (``edge.sim.targets``): ``check.csv`` (20 independent
+    check points), ``floor.png`` with ``markers.csv`` (ArUco markers laid on the floor) and, when the lens
+    distorts, ``boards/board_NN.png`` (checkerboard photos for ``edge-ips calibrate intrinsics``)."""
+    check_points(setup.camera, rng=setup.seed + 1).write_csv(out_dir / "check.csv")
+    written = ["check.csv"]
+    floor = aruco_floor_frame(setup.camera, rng=setup.seed + 2)
+    if not cv2.imwrite(str(out_dir / "floor.png"), floor.image):
+        raise SimulationError(f"{out_dir / 'floor.png'}: cannot write")
+    write_markers_csv(out_dir / "markers.csv", floor.markers)
+    written += ["floor.png", "markers.csv"]
+    if setup.camera.has_distortion:
+        checkerboard_views(setup.camera, rng=setup.seed + 3).write(out_dir / "boards")
+        written.append("boards/")
+    return written
