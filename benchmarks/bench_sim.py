@@ -8,6 +8,7 @@ core) and the wall-clock time, with the load average it ran under.
 
     .venv/bin/python benchmarks/bench_sim.py            # lab bar + every scenario + crowd scaling
     .venv/bin/python benchmarks/bench_sim.py --quick    # lab bar only
+    .venv/bin/python benchmarks/bench_sim.py --exactness  # ground truth vs rendered marker centroids
 """
 
 from __future__ import annotations
@@ -67,12 +68,65 @@ def measure(name: str, seed: int, rovers: int | None, frames: int, rounds: int) 
     }
 
 
+def exactness(poses: int = 150) -> None:
+    """Rendered marker centroid (linear light, black scene, no noise) vs the projected outline's area centroid."""
+    import math
+
+    from edge.camera import paper_camera
+    from edge.sim.effects import Effects, Exposure, Optics
+    from edge.sim.raster import polygon_centroid
+    from edge.sim.render import Renderer
+    from edge.sim.scenarios import lens_camera
+    from edge.sim.scene import FloorLook, RoverLook, Scene
+    from edge.sim.world import RoverState, WorldState
+
+    black = (0.0, 0.0, 0.0)
+    floor = FloorLook(base_bgr=black, grout_bgr=black, speckle=0.0, tile_variation=0.0, specular=0.0)
+    scene = Scene(
+        (RoverLook("red", (0.07, 0.08, 0.62), body_bgr=black),), floor=floor, tape=None, lamps=(), ambient=1.0
+    )
+    print("| camera | point spread | max px | p95 px | mean px |")
+    print("|---|---|---:|---:|---:|")
+    for cam_name, camera in (("paper (ideal lens)", paper_camera()), ("lens scenario (distorting)", lens_camera())):
+        for psf in (None, 0.7):
+            effects = Effects(
+                exposure=Exposure(),
+                auto_exposure=None,
+                noise=None,
+                vignetting=None,
+                optics=None if psf is None else Optics(psf),
+                motion_blur=False,
+            )
+            renderer = Renderer(camera, scene, effects)
+            rng = np.random.default_rng(0)
+            errors = []
+            for _ in range(poses):
+                rover = RoverState(
+                    "red", rng.uniform(0, 391.5), rng.uniform(0, 549.5), rng.uniform(-math.pi, math.pi), 0.0, 0.0
+                )
+                image = renderer.render(WorldState(0.0, (rover,)), 0)
+                weight = (image[..., 2].astype(np.float64) / 255.0) ** 2.2
+                rows, cols = np.nonzero(weight > 0)
+                w = weight[rows, cols]
+                measured = np.array([np.sum(w * cols), np.sum(w * rows)]) / w.sum()
+                errors.append(np.hypot(*(measured - polygon_centroid(renderer.marker_outline_px(rover)))))
+            e = np.array(errors)
+            spread = "none" if psf is None else f"{psf} px"
+            print(
+                f"| {cam_name} | {spread} | {e.max():.4f} | {np.percentile(e, 95):.4f} | {e.mean():.4f} |", flush=True
+            )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="only the lab bar")
     parser.add_argument("--frames", type=int, default=150, help="frames per round")
     parser.add_argument("--rounds", type=int, default=4)
+    parser.add_argument("--exactness", action="store_true", help="only the ground-truth exactness table")
     args = parser.parse_args()
+    if args.exactness:
+        exactness()
+        return
     cv2.setNumThreads(1)
     where = pin_one_core()
     load = os.getloadavg()
