@@ -9,7 +9,7 @@ from __future__ import annotations
 import io
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import click
 
@@ -405,11 +405,20 @@ def sim() -> None:
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed: trajectories, lighting phases, noise.")
 @click.option("--rovers", type=click.IntRange(min=1, max=48), default=None, help="Number of rovers [scenario's].")
 @click.option(
+    "--heading",
+    type=click.Choice(["plain", "two_tone", "aruco"]),
+    default="plain",
+    show_default=True,
+    help="Markers that show heading: front 30% near-white (two_tone) or an ArUco tag (aruco).",
+)
+@click.option(
     "--kit",
     is_flag=True,
     help="Also write check.csv, floor.png + markers.csv (ArUco) and, for a distorting lens, checkerboard boards/.",
 )
-def sim_render(scenario: str, out_dir: Path, frames: int | None, seed: int, rovers: int | None, kit: bool) -> None:
+def sim_render(
+    scenario: str, out_dir: Path, frames: int | None, seed: int, rovers: int | None, heading: str, kit: bool
+) -> None:
     """Render SCENARIO to a 30 fps video with per-frame ground truth.
 
     truth.csv has one row per rover per frame: frame,id,x,y,theta,vx,vy (marker centre in world cm at marker
@@ -423,12 +432,21 @@ def sim_render(scenario: str, out_dir: Path, frames: int | None, seed: int, rove
     """
     from edge.sim.export import ensure_directory, render_to_directory
     from edge.sim.scenarios import build
+    from edge.sim.scene import Heading
 
-    total = build(scenario, seed=seed, rovers=rovers, frames=frames).frames  # checks the request before starting
+    look = cast("Heading", heading)
+    total = build(scenario, seed=seed, rovers=rovers, frames=frames, heading=look).frames  # check before starting
     ensure_directory(out_dir)
     with click.progressbar(length=total, label=f"rendering {scenario}") as bar:
         summary = render_to_directory(
-            scenario, out_dir, frames=frames, seed=seed, rovers=rovers, kit=kit, progress=lambda n: bar.update(n)
+            scenario,
+            out_dir,
+            frames=frames,
+            seed=seed,
+            rovers=rovers,
+            heading=look,
+            kit=kit,
+            progress=lambda n: bar.update(n),
         )
     click.echo(f"wrote {summary.frames} frames of {scenario} (seed {seed}) to {summary.out_dir}")
     click.echo(f"  files: {', '.join(summary.written)}")

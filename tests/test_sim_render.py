@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -347,3 +348,40 @@ def test_unknown_rover_is_a_clear_error():
     renderer = Renderer(paper_camera(), Scene((RoverLook("red", (0.1, 0.1, 0.6)),)), Effects(noise=None))
     with pytest.raises(SimulationError, match="'ghost' is not in the scene"):
         renderer.render(WorldState(0.0, (_still(10.0, 10.0, 0.0, "ghost"),)), 0)
+
+
+# -- heading markers --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("heading_deg", [0.0, 75.0, 200.0])
+def test_aruco_tag_is_readable_near_the_camera_and_points_to_the_front(heading_deg):
+    looks = fleet_looks(1, heading="aruco")
+    renderer = Renderer(paper_camera(), Scene(looks), Effects(auto_exposure=None))
+    rover = _still(150.0, 40.0, heading_deg)
+    image = renderer.render(WorldState(0.0, (rover,)), 0)
+    detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50))
+    corners, ids, _ = detector.detectMarkers(image)
+    assert ids is not None and ids.ravel().tolist() == [0]
+    c = corners[0].reshape(4, 2)
+    tag_up = 0.5 * (c[0] + c[1]) - c.mean(axis=0)  # the tag's top edge faces the rover's front
+    th = math.radians(heading_deg)
+    ends = paper_camera().project(np.array([[150.0, 40.0, 13.0], [150.0 + math.cos(th), 40.0 + math.sin(th), 13.0]]))
+    front = ends[1] - ends[0]
+    cos = np.dot(tag_up, front) / np.linalg.norm(tag_up) / np.linalg.norm(front)
+    assert cos > math.cos(math.radians(20))
+
+
+def test_two_tone_marker_has_a_pale_front():
+    looks = fleet_looks(1, heading="two_tone")
+    renderer = Renderer(paper_camera(), Scene(looks), Effects(auto_exposure=None, noise=None))
+    rover = _still(150.0, 60.0, 0.0)
+    image = renderer.render(WorldState(0.0, (rover,)), 0).astype(int)
+    front, back = paper_camera().project(np.array([[150.0 + 8.5, 60.0, 13.0], [150.0 - 5.0, 60.0, 13.0]]))
+    f = image[round(front[1]), round(front[0])]
+    b = image[round(back[1]), round(back[0])]
+    assert min(f) > 150 and max(f) - min(f) < 40  # near-white paper
+    assert b[2] > 2 * max(b[0], b[1])  # red
+
+
+def test_heading_option_applies_to_every_rover_of_a_scenario():
+    setup = build("crowd", rovers=5, heading="aruco")
+    assert [look.heading for look in setup.scene.rovers] == ["aruco"] * 5
+    assert [look.aruco_id for look in setup.scene.rovers] == [0, 1, 2, 3, 4]

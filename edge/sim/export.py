@@ -29,6 +29,7 @@ import cv2
 from edge.camera import save_camera
 from edge.errors import SimulationError
 from edge.sim.scenarios import SimSetup, build
+from edge.sim.scene import Heading
 from edge.sim.source import frame_truth
 from edge.sim.targets import aruco_floor_frame, check_points, checkerboard_views, survey_points, write_markers_csv
 
@@ -50,12 +51,13 @@ def render_to_directory(
     frames: int | None = None,
     seed: int = 0,
     rovers: int | None = None,
+    heading: Heading = "plain",
     kit: bool = False,
     progress: Callable[[int], None] | None = None,
 ) -> RenderSummary:
     """Render ``scenario`` into ``out_dir`` (created if needed); ``progress(n)`` is told of every ``n`` frames done.
     ``kit``: also write the rest of a calibration session (:func:`write_calibration_kit`)."""
-    setup = build(scenario, seed=seed, rovers=rovers, frames=frames)
+    setup = build(scenario, seed=seed, rovers=rovers, frames=frames, heading=heading)
     ensure_directory(out_dir)
     renderer = setup.renderer()
     world = setup.world()

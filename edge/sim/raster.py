@@ -45,15 +45,25 @@ def _next(a: FloatArray) -> FloatArray:
     return np.concatenate([a[1:], a[:1]])
 
 
-def coverage(polygons_px: Sequence[FloatArray], origin_px: tuple[int, int], shape: tuple[int, int]) -> FloatArray:
+def coverage(
+    polygons_px: Sequence[FloatArray],
+    origin_px: tuple[int, int],
+    shape: tuple[int, int],
+    groups: Sequence[int] | None = None,
+) -> FloatArray:
     """Exact fraction of each pixel of a window covered by each polygon.
 
     ``polygons_px``: K polygons, each (N_k, 2) float pixel coordinates (pixel centres at integers), either winding.
     ``origin_px``: ``(col, row)`` of the window's top-left pixel. ``shape``: ``(rows, cols)`` of the window.
-    Returns (K, rows, cols) float64 in [0, 1]. Parts of a polygon outside the window are simply not counted.
+    ``groups``: optional output index of each polygon, to get the summed coverage of disjoint polygons (e.g. the
+    black cells of a tag) in one map.
+    Returns (G, rows, cols) float64 in [0, 1], G = K without ``groups``. Parts of a polygon outside the window are
+    simply not counted.
     """
     rows, cols = shape
-    k_count = len(polygons_px)
+    n_polys = len(polygons_px)
+    group_of = np.arange(n_polys) if groups is None else np.asarray(groups, dtype=np.int64)
+    k_count = int(group_of.max()) + 1 if n_polys else 0
     out = np.zeros((k_count, rows, cols))
     if k_count == 0 or rows <= 0 or cols <= 0:
         return out
@@ -65,9 +75,9 @@ def coverage(polygons_px: Sequence[FloatArray], origin_px: tuple[int, int], shap
         doubled = np.sum(pts[..., 0] * nxt[..., 1] - nxt[..., 0] * pts[..., 1], axis=1)
         signs = np.where(doubled < 0, -1.0, 1.0)
         a, b = pts.reshape(-1, 2), nxt.reshape(-1, 2)
-        edge_owner = np.repeat(np.arange(k_count), pts.shape[1])
+        edge_owner = np.repeat(np.arange(n_polys), pts.shape[1])
     else:
-        starts, ends, owner, signs = [], [], [], np.empty(k_count)
+        starts, ends, owner, signs = [], [], [], np.empty(n_polys)
         for k, poly in enumerate(polygons_px):
             p = np.asarray(poly, dtype=np.float64).reshape(-1, 2) - shift
             starts.append(p)
@@ -104,7 +114,7 @@ def coverage(polygons_px: Sequence[FloatArray], origin_px: tuple[int, int], shap
     y_min = np.minimum(y_at_l, y_at_r)
     y_max = np.maximum(y_at_l, y_at_r)
     weight = edge_sign[e] * dx
-    k_of = edge_owner[e]
+    k_of = group_of[edge_owner[e]]
 
     # Rows wholly above the edge segment (y < floor(y_min)) are covered across the segment's whole dx.
     full_end = np.clip(np.floor(y_min), 0, rows).astype(np.int64)

@@ -293,16 +293,29 @@ class Renderer:
         body_albedo = np.asarray(look.body_bgr)
         bottom_top = [np.column_stack([body, np.zeros(4)]), np.column_stack([body, np.full(4, hb)])]
         quads: list[FloatArray] = [bottom_top[1]]
-        weights: list[FloatArray] = [np.array([*(body_albedo * (1.0 - SIDE_LIGHT)), 0.0, 0.0])]
-        marker_index = len(quads) + 1  # after the silhouette, which goes first
-        for m, (part, albedo) in enumerate(self._marker_parts(look, x, y, th)):
+        # Per output group (polygons in one group are disjoint and share a colour, like a tag's black cells):
+        # premultiplied albedo (3), alpha, marker coverage. Group 0 is the silhouette, 1 the top face.
+        weights: list[FloatArray] = [
+            np.array([*(body_albedo * SIDE_LIGHT), 1.0, 0.0]),
+            np.array([*(body_albedo * (1.0 - SIDE_LIGHT)), 0.0, 0.0]),
+        ]
+        groups = [0, 1]
+        marker_index = 2
+        shared_group = -1
+        for m, (part, albedo, shared) in enumerate(self._marker_parts(look, x, y, th)):
             # Part 0 is the whole marker over the body's top; later parts are albedo changes within it.
             quads.append(np.column_stack([part, np.full(4, hb)]))
+            if shared and shared_group >= 0:
+                groups.append(shared_group)
+                continue
+            groups.append(len(weights))
+            shared_group = len(weights) if shared else shared_group
             change = albedo - body_albedo if m == 0 else albedo
             weights.append(np.array([*change, 0.0, 1.0 if m == 0 else 0.0]))
         sun = self.effects.sun if sun_rel > 0 else None
         if sun is not None:
             quads.append(np.column_stack([sun.patch_cm(hb), np.full(4, hb)]))
+            groups.append(len(weights))
             weights.append(np.zeros(5))  # used for the lighting below, not drawn
         shadow_cm = rectangle_cm(
             x, y, th, look.body_length_cm + 2 * SHADOW_MARGIN_CM, look.body_width_cm + 2 * SHADOW_MARGIN_CM
@@ -314,7 +327,6 @@ class Renderer:
         outline = np.vstack([projected[0], projected[1], *projected[2 + len(quads) - 1 :]])
         silhouette = cv2.convexHull(outline.astype(np.float32)).reshape(-1, 2).astype(np.float64)
         polys = [silhouette, projected[1], *projected[2 : 2 + len(quads) - 1]]
-        weights.insert(0, np.array([*(body_albedo * SIDE_LIGHT), 1.0, 0.0]))
 
         # Windows: the body's (exact coverage) inside the shadow's (blurred, so a fixed-point fill is enough).
         kernel, psf_sigma = self._blur_kernel(rover, hb)
@@ -327,10 +339,12 @@ class Renderer:
             return None
         h, w = window.height, window.width
         layer = np.zeros((h, w, 7), dtype=np.float32)  # premultiplied colour (3), alpha, marker, shadow, sun shadow
-        cov = coverage(polys, (body_window.x0, body_window.y0), (body_window.height, body_window.width))
+        cov = coverage(polys, (body_window.x0, body_window.y0), (body_window.height, body_window.width), groups)
         inner = _local(body_window, window)
         wmat = np.asarray(weights)
-        layer[inner][..., :5] = (cov.reshape(len(polys), -1).T @ wmat).reshape(body_window.height, body_window.width, 5)
+        layer[inner][..., :5] = (cov.reshape(len(weights), -1).T @ wmat).reshape(
+            body_window.height, body_window.width, 5
+        )
         sl = window.slices
         light = self._backdrop.illumination[sl][..., None]
         if sun is not None:
@@ -386,24 +400,27 @@ class Renderer:
         cv2.fillPoly(canvas, [pts], 255, lineType=cv2.LINE_AA, shift=4)
         return canvas.astype(np.float32) * np.float32(1.0 / 255.0)
 
-    def _marker_parts(self, look: RoverLook, x: float, y: float, th: float) -> list[tuple[FloatArray, FloatArray]]:
-        """The marker as (world corners (4, 2), albedo) parts; the first part is the whole marker."""
+    def _marker_parts(
+        self, look: RoverLook, x: float, y: float, th: float
+    ) -> list[tuple[FloatArray, FloatArray, bool]]:
+        """The marker as (world corners (4, 2), albedo, shared) parts: the first is the whole marker with its albedo,
+        the others albedo changes within it; ``shared`` parts (a tag's black cells) are disjoint and alike."""
         albedo = np.asarray(look.marker_bgr)
         whole = rectangle_cm(x, y, th, look.marker_length_cm, look.marker_width_cm)
-        parts = [(whole, albedo)]
+        parts = [(whole, albedo, False)]
         if look.heading == "two_tone":
             front_len = look.front_fraction * look.marker_length_cm
             shift = 0.5 * (look.marker_length_cm - front_len)
             cx, cy = x + shift * math.cos(th), y + shift * math.sin(th)
             front = rectangle_cm(cx, cy, th, front_len, look.marker_width_cm)
-            parts.append((front, np.asarray(look.secondary_bgr) - albedo))
+            parts.append((front, np.asarray(look.secondary_bgr) - albedo, False))
         elif look.heading == "aruco":
             side = look.aruco_side_cm
-            parts.append((rectangle_cm(x, y, th, side, side), WHITE_BGR - albedo))
+            parts.append((rectangle_cm(x, y, th, side, side), WHITE_BGR - albedo, False))
             c, s = math.cos(th), math.sin(th)
             for cell in self._aruco[look.rover_id]:
                 world = np.column_stack([x + cell[:, 0] * c - cell[:, 1] * s, y + cell[:, 0] * s + cell[:, 1] * c])
-                parts.append((world, INK_BGR - WHITE_BGR))
+                parts.append((world, INK_BGR - WHITE_BGR, True))
         return parts
 
     def _blur_kernel(self, rover: RoverState, z_cm: float) -> tuple[NDArray[np.float32] | None, float]:

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -48,7 +48,7 @@ from edge.sim.effects import (
     sun_mirror_point,
 )
 from edge.sim.render import Renderer
-from edge.sim.scene import RoverLook, Scene, fleet_looks
+from edge.sim.scene import HEADINGS, Heading, RoverLook, Scene, fleet_looks
 from edge.sim.trajectories import (
     circle,
     crossing_gap_s,
@@ -113,14 +113,23 @@ class Scenario:
     default_frames: int
     builder: Builder
 
-    def build(self, seed: int = 0, rovers: int | None = None, frames: int | None = None) -> SimSetup:
+    def build(
+        self, seed: int = 0, rovers: int | None = None, frames: int | None = None, heading: Heading = "plain"
+    ) -> SimSetup:
+        """The run for ``seed``; ``heading`` puts heading markers (two-tone or ArUco) on every rover."""
         n = self.default_rovers if rovers is None else rovers
         f = self.default_frames if frames is None else frames
         if n < 1:
             raise SimulationError(f"scenario {self.name}: --rovers must be at least 1, got {n}")
         if f < 1:
             raise SimulationError(f"scenario {self.name}: --frames must be at least 1, got {f}")
-        return self.builder(seed, n, f)
+        setup = self.builder(seed, n, f)
+        if heading == "plain":
+            return setup
+        if heading not in HEADINGS:
+            raise SimulationError(f"scenario {self.name}: --heading must be one of {', '.join(HEADINGS)}")
+        looks = tuple(replace(look, heading=heading, aruco_id=k) for k, look in enumerate(setup.scene.rovers))
+        return replace(setup, scene=replace(setup.scene, rovers=looks))
 
 
 # -- shared pieces ----------------------------------------------------------------------------------------------
@@ -446,6 +455,9 @@ def get_scenario(name: str) -> Scenario:
     return found
 
 
-def build(name: str, seed: int = 0, rovers: int | None = None, frames: int | None = None) -> SimSetup:
-    """The :class:`SimSetup` of scenario ``name`` for ``seed`` (``rovers``/``frames`` default to the scenario's)."""
-    return get_scenario(name).build(seed, rovers, frames)
+def build(
+    name: str, seed: int = 0, rovers: int | None = None, frames: int | None = None, heading: Heading = "plain"
+) -> SimSetup:
+    """The :class:`SimSetup` of scenario ``name`` for ``seed`` (``rovers``/``frames`` default to the scenario's;
+    ``heading``: ``plain``, ``two_tone`` or ``aruco`` markers)."""
+    return get_scenario(name).build(seed, rovers, frames, heading)

@@ -26,6 +26,8 @@ from edge.errors import SimulationError
 
 FloatArray = NDArray[np.float64]
 Bgr = tuple[float, float, float]
+Heading = Literal["plain", "two_tone", "aruco"]
+HEADINGS: tuple[Heading, ...] = ("plain", "two_tone", "aruco")
 
 # Printed-paper marker colours (diffuse reflectance, B, G, R): saturated but not pure primaries, as paper and ink
 # are (a red sheet still reflects ~8% of green and blue).
@@ -61,7 +63,7 @@ class RoverLook:
 
     rover_id: str
     marker_bgr: Bgr
-    heading: Literal["plain", "two_tone", "aruco"] = "plain"
+    heading: Heading = "plain"
     secondary_bgr: Bgr = (0.80, 0.82, 0.82)
     front_fraction: float = 0.3
     aruco_id: int = 0
@@ -74,6 +76,8 @@ class RoverLook:
     body_bgr: Bgr = (0.035, 0.034, 0.032)
 
     def __post_init__(self) -> None:
+        if self.heading not in HEADINGS:
+            raise SimulationError(f"rover {self.rover_id!r}: heading marker must be one of {', '.join(HEADINGS)}")
         if self.marker_length_cm > self.body_length_cm or self.marker_width_cm > self.body_width_cm:
             raise SimulationError(f"rover {self.rover_id!r}: the marker must fit on the body's top")
         if not 0.0 < self.front_fraction < 1.0:
@@ -152,7 +156,7 @@ def marker_albedo_for_hue(hue_deg: float, saturation: float = 0.86, value: float
     return (round(b, 4), round(g, 4), round(r, 4))
 
 
-def fleet_looks(n_rovers: int, heading: Literal["plain", "two_tone", "aruco"] = "plain") -> tuple[RoverLook, ...]:
+def fleet_looks(n_rovers: int, heading: Heading = "plain") -> tuple[RoverLook, ...]:
     """Looks for ``n_rovers`` rovers with distinct hues.
 
     Up to three rovers: the paper's red, green and blue (ids ``red``, ``green``, ``blue``). More: hues spread evenly

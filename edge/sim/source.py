@@ -21,6 +21,7 @@ from edge.errors import SimulationError, SourceError
 from edge.pipeline import RoverConfig
 from edge.sim.render import Renderer
 from edge.sim.scenarios import SimSetup, build
+from edge.sim.scene import Heading
 from edge.sim.world import World, WorldState
 from edge.sources import Frame, SourceInfo
 
@@ -78,8 +79,8 @@ class SimSource:
 
     ``frames``: length of the stream; None (the default) plays forever, the scenario's run repeating every
     ``setup.frames`` frames (rovers jump back to their starts). ``realtime``: pace frames at the scenario's fps,
-    stamped when they are delivered; otherwise deliver them as fast as they render. ``history``: how many frames'
-    ground truth to keep.
+    stamped when they are delivered; otherwise deliver them as fast as they render. ``heading``: heading markers on
+    the rovers (``plain``, ``two_tone``, ``aruco``). ``history``: how many frames' ground truth to keep.
     """
 
     def __init__(
@@ -90,6 +91,7 @@ class SimSource:
         *,
         rovers: int | None = None,
         frames: int | None = None,
+        heading: Heading = "plain",
         history: int = 9000,
         clock: Callable[[], float] = time.monotonic,
         wall_clock: Callable[[], float] = time.time,
@@ -97,7 +99,7 @@ class SimSource:
     ) -> None:
         if frames is not None and frames < 1:
             raise SimulationError(f"sim source: frames must be at least 1, got {frames}")
-        self.setup: SimSetup = build(scenario, seed=seed, rovers=rovers)
+        self.setup: SimSetup = build(scenario, seed=seed, rovers=rovers, heading=heading)
         self.scenario = scenario
         self.seed = seed
         self.realtime = realtime
