@@ -229,7 +229,8 @@ def build_drift(seed: int, n: int, frames: int) -> SimSetup:
 
 def build_sun(seed: int, n: int, frames: int) -> SimSetup:
     """Red circles in the sunlit patch and through the glare; green drives in and out of the patch; blue stops and
-    goes under the lamps of the near side while the auto-exposure reacts to the passing clouds."""
+    goes under the lamps of the near side while the auto-exposure reacts to the passing clouds and to half the lamps
+    being switched off for 3 s."""
     rng = _rng("sun", seed)
     looks = fleet_looks(n)
     camera = paper_camera()
@@ -251,11 +252,14 @@ def build_sun(seed: int, n: int, frames: int) -> SimSetup:
             speed_cm_s=22.0,
         ),
     ]
+    t_off = float(rng.uniform(4.0, 6.0))
     effects = Effects(
         exposure=Exposure(exposure_s=1.0 / 60.0),
         auto_exposure=AutoExposure(),
         sun=sun,
         glare=Glare(x_cm=gx, y_cm=gy),
+        # someone switches half the lamps off for 3 s: the auto-exposure under-exposes, then over-exposes, a few frames
+        drift=IlluminationDrift(amplitude=0.0, switches=((t_off, t_off + 3.0, 0.6),)),
     )
     plans = _with_extras(designed, n, (0.0, 360.0, 210.0, AREA_LENGTH_CM), rng)
     return _setup("sun", seed, frames, looks, plans, effects, camera=camera)
@@ -419,7 +423,7 @@ SCENARIOS: dict[str, Scenario] = {
         ),
         Scenario(
             "sun",
-            "no curtains: sunlit window patch with passing clouds, floor glare, auto-exposure lag",
+            "no curtains: sunlit patch with passing clouds, floor glare, lamps switched, auto-exposure lag",
             3,
             450,
             build_sun,
