@@ -426,9 +426,9 @@ def sim_render(
 
     Example:
 
+    \b
         edge-ips sim render lab --out runs/lab --frames 300 --seed 1
-
-        edge-ips sim render lens --out runs/lens --kit    # with a calibration session for this lens
+        edge-ips sim render lens --out runs/lens --kit   # + a calibration session
     """
     from edge.sim.export import ensure_directory, render_to_directory
     from edge.sim.scenarios import build
