@@ -353,6 +353,18 @@ def default_tracker_factory(inputs: TrackerInputs) -> Tracker:
     return Pipeline(settings, inputs.calibration)  # type: ignore[no-any-return,unused-ignore]
 
 
+def _with_sim_rovers(config: EdgeConfig, source: FrameSource) -> EdgeConfig:
+    """With the simulated camera and no rovers configured, track the simulator's rovers in its colours."""
+    from edge.pipeline import DEFAULT_ROVERS
+
+    own = getattr(source, "rover_configs", None)
+    if parse_source(config.camera.source).kind != "sim" or not callable(own) or config.rovers != list(DEFAULT_ROVERS):
+        return config
+    rovers = list(own())
+    log.info("rovers: the simulator's, %s", ", ".join(f"{r.id} {r.color_bgr}" for r in rovers))
+    return config.model_copy(update={"rovers": rovers})
+
+
 def exact_calibration(camera: Any, z_cm: float | None = None) -> Any:
     """The exact :class:`edge.calibration.Calibration` of a known camera (the simulator's) on the marker plane."""
     from edge.calibration import Calibration, Intrinsics
@@ -471,6 +483,7 @@ def prepare_appliance(
         info = source.open()
         started.callback(source.close)
         log.info("source: %s", info.description)
+        config = _with_sim_rovers(config, source)
         calibration = (calibration_loader or load_calibration_for)(config, source, info, config_where)
         tracker = tracker_factory(TrackerInputs(config, source, info, calibration))
 

@@ -36,16 +36,19 @@ def test_broker_restart_mid_run_reconnects_republishes_status_and_sends_no_stale
 
         after = [json.loads(m.payload) for m in poses(rec.messages[n_before:])]
         t_connected = t_back + reconnect_s
-        stale = [p for p in after if p["t"] < t_connected - 0.2]
-        assert not stale, f"{len(stale)} poses captured while disconnected were sent later: {stale[:2]}"
-        assert not [p for p in before + after if t_down + 0.1 < p["t"] < t_back - 0.1]
+        # No backlog: of the poses sent after the reconnect, at most the frame in the tracker's hands when the
+        # connection came back (one per rover) was captured before it; nothing captured during the outage.
+        early = [p for p in after if p["t"] < t_connected]
+        assert len(early) <= 3 and len({p["id"] for p in early}) == len(early), f"backlog after reconnect: {early}"
+        outage = [p for p in before + after if t_down + 0.1 < p["t"] < t_back - 0.1]
+        assert not outage, f"poses captured while the broker was down were sent: {outage[:3]}"
         for rover in ("red", "green", "blue"):
             seq_before = [p["seq"] for p in before if p["id"] == rover]
             seq_after = [p["seq"] for p in after if p["id"] == rover]
-            # seq counts messages handed to the broker: it goes on where it was, with no gap after the reconnect
-            # (the few sent into the dying connection are lost, as QoS 0 allows)
+            # seq counts messages handed to the broker: it goes on where it was (those sent into the dying
+            # connection are lost, as QoS 0 allows), with no gap after the reconnect
             assert seq_after == list(range(seq_after[0], seq_after[0] + len(seq_after)))
-            assert seq_before[-1] < seq_after[0] <= seq_before[-1] + 5
+            assert seq_before[-1] < seq_after[0]
         fresh_status = [s for s in statuses(rec.messages[n_before:]) if s["t"] >= t_back - 0.1]
         assert fresh_status and fresh_status[0]["state"] in ("online", "degraded")
 
