@@ -83,13 +83,15 @@ def render_clip(directory: Path, width: int, height: int, fps: float, seconds: f
     frames = int(seconds * fps)
     writer = cv2.VideoWriter(str(clip), cv2.VideoWriter.fourcc(*"MJPG"), fps, (width, height))
     try:
+        if not real_pipeline_available():  # the stand-in tracker knows only the synthetic scene's colours
+            raise ImportError
         from edge.sim.source import SimSource  # type: ignore[import-not-found,unused-ignore]
     except ImportError:
         from tests.support.runtime import scene
 
         for i in range(frames):
             writer.write(scene(i, width, height))
-        calibration, what = None, "synthetic scene (simulator not available)"
+        calibration, what = None, "synthetic scene (for the stand-in tracker)"
     else:
         from edge.calibration import save_calibration
         from edge.runtime import exact_calibration
