@@ -204,7 +204,7 @@ def run_once(
     if real:
         config = workdir / f"{broker_kind}.toml"
         config.write_text(to_toml(settings))
-        cmd = [str(REPO / ".venv" / "bin" / "edge-ips"), "start", "--config", str(config)]
+        cmd = [sys.executable, "-m", "edge.cli", "start", "--config", str(config)]  # = edge-ips start, this checkout
     else:
         flat = [
             f"{sec}.{key}={json.dumps(v) if isinstance(v, bool) else v}"
