@@ -376,10 +376,10 @@ class Rover:
     def _control(self, now_ms, connected):
         if not connected:
             return self._stop(HALT_DISCONNECTED)
+        if self.formation is not None and self._kind == fm.STOP:
+            return self._stop(HALT_STOP)  # every rover, listed or not
         if self.formation is None or self._my_index < 0:
             return self._stop(HALT_IDLE)
-        if self._kind == fm.STOP:
-            return self._stop(HALT_STOP)
         me = self._me
         if not self._fresh(me, now_ms, self.stale_ms):
             if not self._fresh(me, now_ms, self.forget_ms):
