@@ -43,7 +43,7 @@ _modules: dict[str, ModuleType] = {}
 def firmware_modules() -> dict[str, ModuleType]:
     """Import the firmware's modules with the host stand-ins on ``sys.path`` (once per process).
 
-    Returns ``{"msg": ..., "formation": ..., "motors": ..., "link": ..., "rover": ..., "main": ...}``.
+    Returns ``{"msg": ..., "formation": ..., "config": ..., "motors": ..., "link": ..., "rover": ..., "main": ...}``.
     """
     with _lock:
         if _modules:
@@ -57,7 +57,7 @@ def firmware_modules() -> dict[str, ModuleType]:
         if not str(getattr(simple, "__file__", "")).startswith(str(HOST_DIR)):
             raise ImportError(f"umqtt.simple resolved to {simple.__file__}, not the host copy in {HOST_DIR}")
         simple.socket = importlib.import_module("mpsocket")  # type: ignore[attr-defined]
-        for name in ("msg", "formation", "motors", "link", "rover", "main"):
+        for name in ("msg", "formation", "config", "motors", "link", "rover", "main"):
             module = importlib.import_module(name)
             if not str(getattr(module, "__file__", "")).startswith(str(FIRMWARE_DIR)):
                 raise ImportError(f"firmware module {name} resolved to {module.__file__}, not {FIRMWARE_DIR}")
@@ -67,7 +67,7 @@ def firmware_modules() -> dict[str, ModuleType]:
 
 def load_rover_config(name_or_path: str | Path) -> dict[str, Any]:
     """One of the example configs (``red``, ``green``, ``blue``) or a config.json path, merged with the firmware
-    defaults and checked by the firmware's own ``check_config``; :class:`ConfigError` names the key at fault."""
+    defaults and checked by the firmware's own ``config.check``; :class:`ConfigError` names the key at fault."""
     import json
 
     path = Path(name_or_path)
@@ -84,11 +84,11 @@ def load_rover_config(name_or_path: str | Path) -> dict[str, Any]:
 
 def check_rover_config(given: Mapping[str, Any], where: str = "rover config") -> dict[str, Any]:
     """Merge with the firmware defaults and check; :class:`ConfigError` names the key at fault."""
-    rover = firmware_modules()["rover"]
+    config = firmware_modules()["config"]
     if not isinstance(given, Mapping):
         raise ConfigError(f"{where}: expected a JSON object")
     try:
-        return dict(rover.check_config(rover.merge(rover.DEFAULTS, dict(given))))
+        return dict(config.check(config.merge(config.DEFAULTS, dict(given))))
     except ValueError as exc:
         raise ConfigError(f"{where}: {exc}") from None
 

@@ -1,5 +1,7 @@
 # The board's entry point: MicroPython runs main.py after boot.py. Wires motors, rover and link, and runs the loop.
 # Everything else is precompiled (.mpy); this file stays small because the board compiles it at every boot.
+import gc
+import sys
 import time
 
 import link
@@ -10,7 +12,12 @@ import rover
 
 def run(path="config.json", steps=None):
     """Load the config, stop the motors, then step the rover every period_ms. `steps` bounds the loop (tests)."""
-    cfg = rover.load_config(path)
+    import config
+
+    cfg = config.load(path)
+    del config
+    del sys.modules["config"]  # the checks are done: give their RAM back
+    gc.collect()
     if cfg["cpu_mhz"] == 160:
         machine.freq(160000000)
     m = motors.Motors(cfg["motors"])
