@@ -8,7 +8,8 @@
 #     every structural character is counted (C-speed bytes.count) and found at its place, and each number token is
 #     checked for the two leniencies a lone number can still carry (leading zero, dot without a digit after it);
 #   - slow path, for anything else (spaces, other key order, escapes, formations): a byte-by-byte RFC 8259 scan.
-# The fast path costs about a tenth of the scan, which matters at 90 poses a second on an 80 MHz ESP8266.
+# The fast path costs about a third of the scan (benchmarks/bench_firmware.py), which matters at 90 poses a second
+# on an 80 MHz ESP8266.
 # Non-ASCII bytes are refused outright: in a valid v1 message they could only sit in a key or an id, and neither
 # may contain them. Booleans are not numbers (type(True) is not int on either interpreter), ints may stand for
 # floats and not the reverse, NaN and Infinity are not JSON.

@@ -266,6 +266,7 @@ def run_micropython(call: str, files: dict[str, bytes] | None = None) -> str:
         shutil.copytree(EXAMPLES, root / "examples")
         (root / "data").mkdir()
         for name, data in (files or {}).items():
+            (root / "data" / name).parent.mkdir(parents=True, exist_ok=True)
             (root / "data" / name).write_bytes(data)
         try:
             result = run(code, fuel=10**13, wall_timeout_seconds=None, readonly_dir=str(root), memory_bytes=64 << 20)

@@ -1,0 +1,103 @@
+# MicroPython driver: time per call of the parser and of one control step, in microseconds (ticks_us).
+# Collections happen between batches, are not timed, and run only from small frames (tests/support/firmware.py).
+import binascii
+import gc
+import json
+import time
+
+import msg
+import rover as rv
+from replay import Motors
+
+
+def _example(name):
+    with open("/input/examples/valid/" + name, "rb") as f:
+        return f.read().strip()
+
+
+POSE = _example("pose-red-moving.json")
+SPACED = _example("pose-reordered-spaced.json")
+FORMATION = _example("formation-line.json")
+GARBAGE = b'{"v":1,"id":"red","seq":42 "frame":1234}'
+
+_D = json.loads(POSE)
+
+
+def _scan(b):
+    msg._strict_object(b, 160)
+
+
+def _canonical(b):
+    msg._canonical_pose(b, _D)
+
+
+CASES = (
+    ("parse_pose_canonical_us", msg.parse_pose, POSE),
+    ("syntax_fast_path_us", _canonical, POSE),
+    ("syntax_strict_scan_us", _scan, POSE),
+    ("parse_pose_spaced_us", msg.parse_pose, SPACED),
+    ("parse_pose_invalid_us", msg.parse_pose, GARBAGE),
+    ("parse_formation_us", msg.parse_formation, FORMATION),
+    ("json_loads_us", json.loads, POSE),
+)
+BATCHES = 20
+N = 100
+
+_r = {}
+_s = {}
+
+
+def _parse_batch(k):
+    name, fn, arg = CASES[k]
+    t0 = time.ticks_us()
+    for _ in range(N):
+        fn(arg)
+    _r[name] = _r.get(name, 0) + time.ticks_diff(time.ticks_us(), t0)
+
+
+def _setup_rover():
+    # A rover that has a formation and three fresh poses (replay.py's input format).
+    with open("/input/data/events") as f:
+        lines = f.read().split("\n")
+    _s["rover"] = rv.Rover(json.loads(lines[0]), Motors(), log=lambda *a: None)
+    msgs = []
+    for line in lines[1:]:
+        p = line.split(" ")
+        if p[0] == "m":
+            msgs.append((p[2].encode(), binascii.unhexlify(p[3])))
+    _s["msgs"] = msgs
+    _s["t"] = 100000
+
+
+def _step_batch(unused):
+    r = _s["rover"]
+    msgs = _s["msgs"]
+    k = len(msgs) - 3
+    t = _s["t"]
+    t0 = time.ticks_us()
+    for i in range(N):
+        r._now = t
+        r.on_message(msgs[k][0], msgs[k][1])  # the three poses of a frame, then the step
+        r.on_message(msgs[k + 1][0], msgs[k + 1][1])
+        r.on_message(msgs[k + 2][0], msgs[k + 2][1])
+        r.step(t)
+        t += 20
+    _s["t"] = t
+    _r["three_poses_and_step_us"] = _r.get("three_poses_and_step_us", 0) + time.ticks_diff(time.ticks_us(), t0)
+
+
+def _repeat(job, k):
+    for _ in range(BATCHES):
+        job(k)
+        gc.collect()
+
+
+def main():
+    gc.disable()
+    for k in range(len(CASES)):
+        _repeat(_parse_batch, k)
+    _setup_rover()
+    _repeat(_step_batch, 0)
+    for name in _r:
+        _r[name] = _r[name] / (BATCHES * N)
+    print(json.dumps(_r))
