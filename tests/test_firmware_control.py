@@ -250,15 +250,20 @@ def test_the_fleet_converges_from_random_starts_and_bodies_never_touch(kind: str
     assert all(h == "none" for h in fleet.trace.halts[-1])
 
 
-@pytest.mark.parametrize("seed", range(3))
-def test_six_rovers_crowding_to_a_rendezvous_never_touch(seed: int) -> None:
+@pytest.mark.parametrize(("seed", "send_theta"), [(0, True), (1, True), (2, False), (3, False)])
+def test_six_rovers_crowding_to_a_rendezvous_never_touch(seed: int, send_theta: bool) -> None:
     ids = ["a", "b", "c", "d", "e", "f"]
     starts = random_starts(6, random.Random(seed), min_gap_cm=45.0)
-    fleet = KinematicFleet(rover_configs(ids), starts, seed=seed, noise_cm=0.5, latency_ms=60, motor_noise=0.1)
+    fleet = KinematicFleet(
+        rover_configs(ids), starts, seed=seed, noise_cm=0.5, latency_ms=60, motor_noise=0.1, send_theta=send_theta
+    )
     fleet.command(formation("rendezvous", ids))
-    fleet.run(25.0)  # six take longer than three to sort themselves round the ring
+    fleet.run(25.0)
     assert fleet.trace.min_distance_cm >= 2 * BODY_RADIUS_CM
-    assert enclosing_diameter(fleet.positions()) <= 2 * 31.0 + 4.0  # the ring of six, side safety + gap
+    # Gathered round the ring of six (side: safety + 4 gaps = 34 cm, 68 cm across), though a crowd whose poses
+    # carry no heading may still be sorting itself out: rovers that must re-learn their heading by driving wait
+    # until they have room.
+    assert enclosing_diameter(fleet.positions()) <= 100.0
 
 
 def test_two_rovers_swapping_ends_of_a_line_pass_each_other() -> None:

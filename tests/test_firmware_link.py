@@ -95,8 +95,6 @@ def step_until(rover: HostRover, done: Callable[[], bool], limit_s: float = 10.0
 
 def expected_command(cfg: dict[str, Any], world: dict[str, tuple[float, float, float]]) -> list[float]:
     """What the law gives for red in this static world, computed from formation.py directly."""
-    c = cfg["control"]
-    g = cfg["geometry"]
     ids = FORMATION["ids"]
     bx, by = [0.0] * 3, [0.0] * 3
     fm.offsets(fm.TRIANGLE, 3, 0.0, FORMATION["side"], 0.0, bx, by)
@@ -104,20 +102,7 @@ def expected_command(cfg: dict[str, Any], world: dict[str, tuple[float, float, f
     py = [world[r][1] for r in ids]
     cx, cy = [0.0] * 3, [0.0] * 3
     fm.orient(fm.TRIANGLE, None, px, py, bx, by, 3, cx, cy)
-    law = fm.Controller(
-        c["gain_per_s"],
-        c["anchor_gain_per_s"],
-        c["max_speed_cm_s"],
-        c["min_speed_cm_s"],
-        c["hold_cm"],
-        c["safety_cm"],
-        c["barrier_gain_per_s"],
-        c["slide_gain"],
-        g["lookahead_cm"],
-        g["wheel_radius_cm"],
-        g["track_cm"],
-        cfg["motors"]["max_wheel_rad_s"],
-    )
+    law = fw["rover"].make_law(cfg)
     others = [r for r in world if r != "red"]
     out = [0.0] * 6
     law.command(
@@ -133,6 +118,7 @@ def expected_command(cfg: dict[str, Any], world: dict[str, tuple[float, float, f
         [world[r][1] for r in others],
         2,
         world["red"][2],
+        0.05,  # the heading's spread once a pose has carried it
         out,
     )
     return out

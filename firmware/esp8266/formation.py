@@ -16,7 +16,8 @@
 #      budget): with h_ij = |p_i - p_j|^2 - Ds^2, every command keeps  -2 (p_i - p_j).pdot_i <= (gamma / 2) h_ij.
 #      The body centre moves along its heading only (pdot_i = v e), so each constraint bounds v alone; the QP
 #      "closest safe command" is then exact: clamp v into the interval all constraints allow, keep w (turning in
-#      place does not move the centre). No command brings two centres closer than Ds, whatever steps 1-4 asked;
+#      place does not move the centre). No command brings two centres closer than Ds, whatever steps 1-4 asked,
+#      as long as the true heading is within heading_margin of the estimate (the constraint holds for all of them);
 #   7. wheel speeds from wheel radius and track width, scaled down together (same curvature) to the motor limit;
 #      scaling v and w together keeps every barrier constraint that held (their bounds are >= 0 when h >= 0).
 from math import atan2, cos, pi, sin, sqrt
@@ -180,7 +181,7 @@ def at_least(ux, uy, vmin):
 
 
 # -- 4. keep clear ---------------------------------------------------------------------------------------------------
-def keep_clear(x, y, ux, uy, tx, ty, qx, qy, nq, safety_cm, gamma, slide_gain):
+def keep_clear(x, y, ux, uy, tx, ty, qx, qy, nq, safety_cm, gamma, slide_gain, side):
     """u shaped around the other rovers (qx, qy)[:nq], before the unicycle mapping.
 
     For each neighbour the single-integrator barrier -2 (p - q_j).u <= (gamma / 2) (|p - q_j|^2 - Ds^2) is enforced
@@ -188,6 +189,8 @@ def keep_clear(x, y, ux, uy, tx, ty, qx, qy, nq, safety_cm, gamma, slide_gain):
     drive around; what was removed is given back as a slide along the neighbour, on the side of the target
     (tx, ty) - or to the right when the neighbour stands straight in the way, so two rovers meeting head-on pass
     each other like people in a corridor. This shapes the path; the guarantee is safe_speed().
+    side: the side chosen last time (1 left, -1 right, 0 none), kept until the target is clearly on the other
+    side, so measurement noise cannot make the rover dither. Returns (ux, uy, side).
     """
     ddx = tx - x
     ddy = ty - y
@@ -213,14 +216,14 @@ def keep_clear(x, y, ux, uy, tx, ty, qx, qy, nq, safety_cm, gamma, slide_gain):
         ox = -dx / d  # unit vector towards the neighbour
         oy = -dy / d
         cross = (ox * ddy - oy * ddx) / dist_t
-        k = slide_gain * removed
         if cross > 0.17:  # target more than ~10 degrees to the left of the neighbour: go round on the left
-            ux -= k * oy
-            uy += k * ox
-        else:  # to the right, or straight behind it: keep right
-            ux += k * oy
-            uy -= k * ox
-    return ux, uy
+            side = 1
+        elif cross < -0.17 or side == 0:  # to the right, or straight behind it with no earlier choice: keep right
+            side = -1
+        k = slide_gain * removed * side
+        ux -= k * oy
+        uy += k * ox
+    return ux, uy, side
 
 
 # -- 5. unicycle -----------------------------------------------------------------------------------------------------
@@ -232,31 +235,57 @@ def unicycle(ux, uy, theta, lookahead_cm):
 
 
 # -- 6. safety -------------------------------------------------------------------------------------------------------
-def safe_speed(v, x, y, theta, qx, qy, nq, safety_cm, gamma):
+def _reach(c, cos_m, sin_m):
+    # cos of the angle between the motion and a neighbour, made worse by up to the heading margin m:
+    # cos(max(0, angle - m)), from c = cos(angle).
+    if c >= cos_m:
+        return 1.0
+    return c * cos_m + sqrt(1.0 - c * c) * sin_m
+
+
+def safe_speed(v, x, y, theta, qx, qy, nq, safety_cm, gamma, margin_rad=0.0, escape_cm_s=10.0):
     """Forward speed v clamped so that for every other rover j (decentralised barrier certificate):
 
-    -2 (p - q_j) . e v <= (gamma / 2) (|p - q_j|^2 - Ds^2),  e = (cos theta, sin theta).
-    Returns 0 when the constraints contradict each other (squeezed between two rovers already too close).
+    -2 (p - q_j) . e v <= (gamma / 2) (|p - q_j|^2 - Ds^2),  e = (cos theta, sin theta),
+    for every heading within margin_rad of theta: a heading learnt from positions can be a few degrees off, and the
+    certificate must hold for the rover's real heading. When measurement noise has put a neighbour inside Ds (h < 0)
+    the certificate asks the rover to back off; that demand is capped at escape_cm_s, since with the neighbour
+    nearly abeam it would otherwise be any speed at all. Returns 0 when the constraints contradict each other.
     """
     ex = cos(theta)
     ey = sin(theta)
+    cos_m = cos(margin_rad)
+    sin_m = sin(margin_rad)
     lo = -1e9
     hi = 1e9
     ds2 = safety_cm * safety_cm
     for j in range(nq):
-        dx = x - qx[j]
-        dy = y - qy[j]
-        h = dx * dx + dy * dy - ds2
-        a = -2.0 * (dx * ex + dy * ey)
-        b = 0.5 * gamma * h
-        if a > 1e-9:
-            bound = b / a
+        dx = qx[j] - x  # towards the neighbour
+        dy = qy[j] - y
+        d2 = dx * dx + dy * dy
+        if d2 <= 0.0:
+            continue
+        d = sqrt(d2)
+        c = (dx * ex + dy * ey) / d
+        if c > 1.0:
+            c = 1.0
+        elif c < -1.0:
+            c = -1.0
+        b = 0.5 * gamma * (d2 - ds2)
+        ahead = _reach(c, cos_m, sin_m)  # driving forwards closes in at up to v * ahead
+        behind = _reach(-c, cos_m, sin_m)  # driving backwards, at up to -v * behind
+        if ahead > 1e-9:
+            bound = b / (2.0 * d * ahead)
             if bound < hi:
                 hi = bound
-        elif a < -1e-9:
-            bound = b / a
+        if behind > 1e-9:
+            bound = -b / (2.0 * d * behind)
             if bound > lo:
                 lo = bound
+    if hi < -escape_cm_s:
+        hi = -escape_cm_s
+    if lo > escape_cm_s:
+        lo = escape_cm_s
     if lo > hi:
         return 0.0
     if v > hi:
@@ -264,17 +293,6 @@ def safe_speed(v, x, y, theta, qx, qy, nq, safety_cm, gamma):
     if v < lo:
         return lo
     return v
-
-
-def clearance_ahead(x, y, qx, qy, nq, radius_cm):
-    """True when no other rover is within radius_cm (used before driving blind to learn the heading)."""
-    r2 = radius_cm * radius_cm
-    for j in range(nq):
-        dx = qx[j] - x
-        dy = qy[j] - y
-        if dx * dx + dy * dy < r2:
-            return False
-    return True
 
 
 # -- 7. wheels -------------------------------------------------------------------------------------------------------
@@ -306,12 +324,18 @@ class Heading:
     fix_cm in one direction (forward or backward) since the last one: the chord's direction, plus half the turn
     made along it (an arc's chord points along the heading at its middle). Fixes after the first are blended in
     by half, since 0.5 cm of position noise over a 6 cm chord is ~5 degrees.
+
+    spread (rad) bounds how wrong theta may be: small after a pose heading or a fix, growing by turn_error of every
+    radian turned since (wheels that slip or motors that differ make dead reckoning drift while turning in place).
+    The safety layer widens its heading margin to the spread, and the rover re-learns its heading when it is large.
     """
 
-    def __init__(self, fix_cm):
+    def __init__(self, fix_cm, turn_error=0.15):
         self.fix_cm = fix_cm
+        self.turn_error = turn_error
         self.theta = 0.0
         self.known = False
+        self.spread = 4.0
         self._ax = 0.0
         self._ay = 0.0
         self._anchored = False
@@ -320,6 +344,7 @@ class Heading:
 
     def reset(self):
         self.known = False
+        self.spread = 4.0
         self._anchored = False
         self._sign = 0
         self._turned = 0.0
@@ -329,6 +354,7 @@ class Heading:
         if theta is not None:
             self.theta = theta
             self.known = True
+            self.spread = 0.05
             self._anchored = False
             return
         if not self._anchored or self._sign == 0:
@@ -344,11 +370,12 @@ class Heading:
         est = atan2(dy, dx) + 0.5 * self._turned
         if self._sign < 0:
             est += pi
-        if self.known:
+        if self.known and self.spread < 0.5:
             self.theta = wrap(self.theta + 0.5 * wrap(est - self.theta))
         else:
-            self.theta = wrap(est)
+            self.theta = wrap(est)  # first fix, or the old estimate is too uncertain to average with
             self.known = True
+        self.spread = 0.15 + self.turn_error * 0.5 * abs(self._turned)
         self._ax = x
         self._ay = y
         self._turned = 0.0
@@ -367,6 +394,7 @@ class Heading:
         self._turned += turn
         if self.known:
             self.theta = wrap(self.theta + turn)
+            self.spread += self.turn_error * abs(turn)
 
 
 # -- the whole step --------------------------------------------------------------------------------------------------
@@ -384,6 +412,7 @@ class Controller:
         safety_cm,
         barrier_gain_per_s,
         slide_gain,
+        heading_margin_rad,
         lookahead_cm,
         wheel_radius_cm,
         track_cm,
@@ -397,13 +426,16 @@ class Controller:
         self.safety = safety_cm
         self.gamma = barrier_gain_per_s
         self.slide_gain = slide_gain
+        self.margin = heading_margin_rad
+        self.side = 0
         self.lookahead = lookahead_cm
         self.radius = wheel_radius_cm
         self.track = track_cm
         self.max_wheel = max_wheel_rad_s
 
-    def command(self, i, px, py, cx, cy, m, anchor_x, anchor_y, qx, qy, nq, theta, out):
-        """Fill out[C_UX..C_RIGHT] for member i of the m present ones. anchor_x/_y: cm or None."""
+    def command(self, i, px, py, cx, cy, m, anchor_x, anchor_y, qx, qy, nq, theta, spread, out):
+        """Fill out[C_UX..C_RIGHT] for member i of the m present ones. anchor_x/_y: cm or None; theta: the heading
+        estimate, spread: how far off it may be (rad)."""
         x = px[i]
         y = py[i]
         ux, uy = consensus(i, px, py, cx, cy, m, self.gain)
@@ -423,10 +455,13 @@ class Controller:
             ty = y + uy / scale
             ux, uy = limit(ux, uy, self.max_speed)
             ux, uy = at_least(ux, uy, self.min_speed)
-            ux, uy = keep_clear(x, y, ux, uy, tx, ty, qx, qy, nq, self.safety, self.gamma, self.slide_gain)
+            ux, uy, self.side = keep_clear(
+                x, y, ux, uy, tx, ty, qx, qy, nq, self.safety, self.gamma, self.slide_gain, self.side
+            )
             ux, uy = limit(ux, uy, self.max_speed)
         v, w = unicycle(ux, uy, theta, self.lookahead)
-        v = safe_speed(v, x, y, theta, qx, qy, nq, self.safety, self.gamma)
+        margin = self.margin if self.margin > spread else spread
+        v = safe_speed(v, x, y, theta, qx, qy, nq, self.safety, self.gamma, margin)
         left, right = wheels(v, w, self.radius, self.track, self.max_wheel)
         out[C_UX] = ux
         out[C_UY] = uy

@@ -26,13 +26,34 @@ HALT_STOP = "stop"  # a stop formation
 HALT_STALE = "stale"  # own pose missing or older than stale_ms
 HALT_DISCONNECTED = "disconnected"  # broker link down
 HALT_ERROR = "error"  # exception in the step
-HALT_HEADING = "heading"  # heading unknown and no room to drive straight to learn it
+HALT_HEADING = "heading"  # heading unknown, and too close to another rover to drive straight and learn it
 HALT_PROBE = "probe"  # not halted: driving straight, slowly, to learn the heading
 
 
 def tdiff(a, b):
     """a - b for tick counts in ms that wrap at 2**30 (time.ticks_diff on the ESP8266)."""
     return ((a - b + _TICKS_HALF) & (_TICKS_PERIOD - 1)) - _TICKS_HALF
+
+
+def make_law(cfg):
+    """The formation law with the parameters of a (checked) config."""
+    c = cfg["control"]
+    g = cfg["geometry"]
+    return fm.Controller(
+        c["gain_per_s"],
+        c["anchor_gain_per_s"],
+        c["max_speed_cm_s"],
+        c["min_speed_cm_s"],
+        c["hold_cm"],
+        c["safety_cm"],
+        c["barrier_gain_per_s"],
+        c["slide_gain"],
+        c["heading_margin_rad"],
+        g["lookahead_cm"],
+        g["wheel_radius_cm"],
+        g["track_cm"],
+        cfg["motors"]["max_wheel_rad_s"],
+    )
 
 
 class Rover:
@@ -48,28 +69,13 @@ class Rover:
         self.link = link
         self.log = log
         c = cfg["control"]
-        g = cfg["geometry"]
-        m = cfg["motors"]
         self.stale_ms = c["stale_ms"]
         self.forget_ms = c["forget_ms"]
         self.safety_cm = c["safety_cm"]
-        self.ring_cm = c["safety_cm"] + c["ring_gap_cm"]
+        self.ring_gap_cm = c["ring_gap_cm"]
         self.probe_speed = c["probe_speed_cm_s"]
-        self.probe_clearance = c["safety_cm"] + c["heading_fix_cm"] + 2.0
-        self.law = fm.Controller(
-            c["gain_per_s"],
-            c["anchor_gain_per_s"],
-            c["max_speed_cm_s"],
-            c["min_speed_cm_s"],
-            c["hold_cm"],
-            c["safety_cm"],
-            c["barrier_gain_per_s"],
-            c["slide_gain"],
-            g["lookahead_cm"],
-            g["wheel_radius_cm"],
-            g["track_cm"],
-            m["max_wheel_rad_s"],
-        )
+        self.relearn_rad = 1.2  # heading spread beyond which the rover drives straight to fix it again (~70 deg)
+        self.law = make_law(cfg)
         self.heading = fm.Heading(c["heading_fix_cm"])
         # The fleet, one slot per rover id seen (preallocated: nothing grows per message).
         self._ids = [None] * MAX_ROVERS
@@ -174,12 +180,16 @@ class Rover:
         self._my_index = ids.index(self.id) if self.id in ids else -1
         spacing = f[msg.F_SPACING]
         side = f[msg.F_SIDE]
+        # The rendezvous ring: as tight as the safety distance allows, with a gap that grows with the number of
+        # rovers that must slide round each other to form it (3: safety + 1 gap; 6: safety + 4 gaps).
+        n = len(ids)
+        ring = self.safety_cm + self.ring_gap_cm * (n - 2 if n > 2 else 1)
         fm.offsets(
             self._kind,
-            len(ids),
-            spacing if spacing is not None else self.ring_cm,
-            side if side is not None else self.ring_cm,
-            self.ring_cm,
+            n,
+            spacing if spacing is not None else ring,
+            side if side is not None else ring,
+            ring,
             self._bx,
             self._by,
         )
@@ -254,11 +264,14 @@ class Rover:
                 nq += 1
         x = self._x[me]
         y = self._y[me]
-        if not self.heading.known:
-            # Learn the heading: straight ahead, slowly, for heading_fix_cm, with room around whichever way "ahead"
-            # turns out to be. Turning in place would not show it.
-            if fm.clearance_ahead(x, y, self._qx, self._qy, nq, self.probe_clearance):
-                self._drive_straight(self.probe_speed)
+        h = self.heading
+        if not h.known or h.spread > self.relearn_rad:
+            # Learn the heading: drive straight (turning in place would not show it), at a speed that keeps the
+            # barrier certificate for every possible heading, so it is safe whichever way "ahead" turns out to be.
+            law = self.law
+            speed = fm.safe_speed(self.probe_speed, x, y, 0.0, self._qx, self._qy, nq, law.safety, law.gamma, 4.0)
+            if speed > 1.0:
+                self._drive_straight(speed)
                 self.halt = HALT_PROBE
             else:
                 self._stop(HALT_HEADING)
@@ -291,6 +304,7 @@ class Rover:
             self._qy,
             nq,
             self.heading.theta,
+            self.heading.spread,
             self.command,
         )
         self.motors.drive(self.command[fm.C_LEFT], self.command[fm.C_RIGHT])
