@@ -167,10 +167,11 @@ def test_motors_stop_within_half_a_second_of_the_last_pose_when_the_publisher_st
 
     t_stop = step_until(rover, record)
     last_rx = times[-1][1]
-    assert rover.halt == "stale"
-    assert t_stop - last_rx > 500  # not before half a second...
+    story = f"halt={rover.halt}, steps (t, rx, running)={times[-8:]}, log={rover.log_lines[-4:]}"
+    assert rover.halt == "stale", story
+    assert t_stop - last_rx > 500, story  # not before half a second...
     running_after = [t - rx for t, rx, running in times if running and rx == last_rx]
-    assert all(age <= 500 for age in running_after)  # ...and at the first step after it
+    assert all(age <= 500 for age in running_after), story  # ...and at the first step after it
     rover.close()
 
 
