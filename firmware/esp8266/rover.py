@@ -85,6 +85,8 @@ class Rover:
         self._theta = [None] * MAX_ROVERS
         self._seq = [0] * MAX_ROVERS
         self._rx = [0] * MAX_ROVERS
+        self._raw = [None] * MAX_ROVERS  # newest pose bytes not parsed yet, and when they arrived
+        self._raw_at = [0] * MAX_ROVERS
         self._me = -1  # own slot
         # The formation applied, and scratch for one step.
         self.formation = None  # the parsed tuple (msg.F_*)
@@ -111,7 +113,8 @@ class Rover:
         self.steps = 0
         self._now = 0
         self._last_step = None
-        self._driving = False
+        self._law_rx = -1  # own pose and formation the standing command was computed from
+        self._law_for = None
         self._status_key = None
         self._status_at = 0
         self.status_topic = msg.status_topic(self.id)
@@ -128,6 +131,24 @@ class Rover:
             if self.formation is None or f[msg.F_SEQ] != self.formation[msg.F_SEQ]:
                 self._apply(f)
             return
+        # A pose: kept as bytes until the step (flush), so a rover that falls behind parses only the newest pose
+        # of each rover, not every one that queued up. A rover never seen before is parsed at once.
+        for s in range(MAX_ROVERS):
+            if self._topics[s] == topic:
+                self._raw[s] = payload
+                self._raw_at[s] = self._now
+                return
+        self._take(payload, self._now, topic)
+
+    def flush(self):
+        """Parse the newest pose received from each rover (stamped with the time it arrived)."""
+        for s in range(MAX_ROVERS):
+            payload = self._raw[s]
+            if payload is not None:
+                self._raw[s] = None
+                self._take(payload, self._raw_at[s], self._topics[s])
+
+    def _take(self, payload, at, topic):
         p = msg.parse_pose(payload)
         if p is None:
             self.rejected += 1
@@ -141,7 +162,7 @@ class Rover:
         self._y[slot] = p[msg.P_Y]
         self._theta[slot] = p[msg.P_THETA]
         self._seq[slot] = p[msg.P_SEQ]
-        self._rx[slot] = self._now
+        self._rx[slot] = at
         if slot == self._me:
             self.heading.measured(p[msg.P_X], p[msg.P_Y], p[msg.P_THETA])
 
@@ -217,6 +238,7 @@ class Rover:
             connected = True
             if self.link is not None:
                 connected = self.link.poll(now_ms)
+            self.flush()
             self._control(now_ms, connected)
             self.error = None
         except Exception as e:
@@ -262,6 +284,10 @@ class Rover:
                 self._qx[nq] = self._x[s]
                 self._qy[nq] = self._y[s]
                 nq += 1
+        if self.halt == HALT_NONE and self._rx[me] == self._law_rx and self.formation is self._law_for:
+            return  # nothing new since the last command: it stands (the next own pose comes within a frame)
+        self._law_rx = self._rx[me]
+        self._law_for = self.formation
         x = self._x[me]
         y = self._y[me]
         h = self.heading
