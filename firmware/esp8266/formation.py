@@ -249,8 +249,10 @@ def safe_speed(v, x, y, theta, qx, qy, nq, safety_cm, gamma, margin_rad=0.0, esc
     -2 (p - q_j) . e v <= (gamma / 2) (|p - q_j|^2 - Ds^2),  e = (cos theta, sin theta),
     for every heading within margin_rad of theta: a heading learnt from positions can be a few degrees off, and the
     certificate must hold for the rover's real heading. When measurement noise has put a neighbour inside Ds (h < 0)
-    the certificate asks the rover to back off; that demand is capped at escape_cm_s, since with the neighbour
-    nearly abeam it would otherwise be any speed at all. Returns 0 when the constraints contradict each other.
+    the certificate asks the rover to back off, judged on the estimated heading alone (with the margin, a neighbour
+    abeam would forbid both directions and freeze both rovers); that demand is capped at escape_cm_s, since with the
+    neighbour nearly abeam it would otherwise be any speed at all. Returns 0 when the constraints contradict each
+    other.
     """
     ex = cos(theta)
     ey = sin(theta)
@@ -272,8 +274,14 @@ def safe_speed(v, x, y, theta, qx, qy, nq, safety_cm, gamma, margin_rad=0.0, esc
         elif c < -1.0:
             c = -1.0
         b = 0.5 * gamma * (d2 - ds2)
-        ahead = _reach(c, cos_m, sin_m)  # driving forwards closes in at up to v * ahead
-        behind = _reach(-c, cos_m, sin_m)  # driving backwards, at up to -v * behind
+        if b >= 0.0:
+            ahead = _reach(c, cos_m, sin_m)  # driving forwards closes in at up to v * ahead
+            behind = _reach(-c, cos_m, sin_m)  # driving backwards, at up to -v * behind
+        else:
+            # Already inside Ds (noise, latency): trust the estimate, or a neighbour abeam would freeze both rovers
+            # (with the margin, forwards and backwards would both count as approaching).
+            ahead = c
+            behind = -c
         if ahead > 1e-9:
             bound = b / (2.0 * d * ahead)
             if bound < hi:
