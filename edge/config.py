@@ -3,7 +3,8 @@
 Lookup when no ``--config`` is given: ``$EDGE_IPS_CONFIG``, then ``./edge-ips.toml``, then
 ``/etc/edge-ips/config.toml``; with none of them the defaults apply (simulated camera, embedded broker).
 An environment variable ``EDGE_IPS_<SECTION>__<KEY>`` overrides one key (``EDGE_IPS_BROKER__URL=mqtt://pi:1883``);
-``EDGE_IPS_ROVERS`` takes a JSON list. Every error names the file (or the variable) and the key at fault.
+``EDGE_IPS_ROVERS`` takes a JSON list; other ``EDGE_IPS_`` names (the flasher's ``EDGE_IPS_WIFI_SSID``) are not
+ours. Every error names the file (or the variable) and the key at fault.
 
 Nothing here reads the process environment by itself: the caller passes the mapping in (STYLE point 7).
 """
@@ -242,12 +243,21 @@ def _env_value(text: str) -> Any:
 
 
 def env_overrides(env: Mapping[str, str]) -> dict[tuple[str, ...], tuple[str, Any]]:
-    """``{key path: (variable name, value)}`` for every ``EDGE_IPS_...`` variable except ``EDGE_IPS_CONFIG``."""
+    """``{key path: (variable name, value)}`` for the overriding ``EDGE_IPS_...`` variables.
+
+    An override is ``EDGE_IPS_<SECTION>__<KEY>`` or names a top-level key (``EDGE_IPS_ROVERS``). Other
+    ``EDGE_IPS_`` variables belong to other tools (the firmware flasher's ``EDGE_IPS_WIFI_SSID``...) and
+    ``EDGE_IPS_CONFIG`` names the file: they are left alone.
+    """
     found: dict[tuple[str, ...], tuple[str, Any]] = {}
+    top_level = {name.upper() for name in EdgeConfig.model_fields}
     for name, value in sorted(env.items()):
         if not name.startswith(ENV_PREFIX) or name == ENV_CONFIG_PATH:
             continue
-        path = tuple(part.lower() for part in name[len(ENV_PREFIX) :].split("__"))
+        rest = name[len(ENV_PREFIX) :]
+        if "__" not in rest and rest not in top_level:
+            continue
+        path = tuple(part.lower() for part in rest.split("__"))
         if not all(path):
             raise ConfigError(f"environment variable {name}: expected EDGE_IPS_<SECTION>__<KEY>")
         found[path] = (name, _env_value(value))

@@ -54,6 +54,7 @@ def test_starter_file_is_valid_and_names_a_real_camera(tmp_path: Path) -> None:
         ({"EDGE_IPS_HTTP__PORT": "9090"}, ("http", "port"), 9090),
         ({"EDGE_IPS_BROKER__EMBEDDED_PORT": "11883"}, ("broker", "embedded_port"), 11883),
         ({"OTHER_VAR": "x", "EDGE_IPS_CONFIG": "/nowhere"}, ("camera", "source"), "sim"),
+        ({"EDGE_IPS_WIFI_SSID": "lab", "EDGE_IPS_MQTT_PASSWORD": "x"}, ("camera", "source"), "sim"),  # the flasher's
     ],
 )
 def test_environment_overrides_one_key(env: dict[str, str], key: tuple[str, str], expected: object) -> None:
