@@ -346,11 +346,11 @@ def default_sim_factory(config: EdgeConfig) -> SimFactory:
 def default_tracker_factory(inputs: TrackerInputs) -> Tracker:
     """The tracking pipeline (issue 5) built from the rovers, the ``[tracker]`` settings and the calibration."""
     try:
-        from edge.pipeline import Pipeline, TrackerConfig  # type: ignore[attr-defined,unused-ignore]
+        from edge.pipeline import TrackerConfig, build_tracker  # type: ignore[attr-defined,unused-ignore]
     except ImportError as exc:
         raise EdgeIpsError("the tracking pipeline (edge.pipeline.Pipeline) is not available in this build") from exc
     settings = TrackerConfig(rovers=tuple(inputs.config.rovers), **inputs.config.tracker)
-    return Pipeline(settings, inputs.calibration)  # type: ignore[no-any-return,unused-ignore]
+    return build_tracker(settings, inputs.calibration)  # type: ignore[no-any-return,unused-ignore]
 
 
 def _with_sim_rovers(config: EdgeConfig, source: FrameSource) -> EdgeConfig:
