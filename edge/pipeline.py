@@ -1,18 +1,57 @@
-"""The tracking pipeline's interface: what a processed frame yields, and the typed tracker configuration.
+"""The tracking pipeline's interface and its implementation: frames in, rover poses out.
 
 The runtime (``edge-ips start``), the offline tracker (``edge-ips track``) and the closed-loop simulator all drive a
 :class:`Tracker` frame by frame and turn each :class:`RoverEstimate` into a pose v1 message.
+
+:class:`Pipeline` is the concrete tracker (see ``docs/tracking.md``):
+
+1. **Acquisition** (first frame, and whenever a rover is lost): one cheap pass over a 1/4-resolution copy of the
+   frame classifies pixels by hue and finds each lost rover's marker as a particle of plausible size.
+2. **Tracking**: every rover that is being tracked is measured in a small full-resolution window around where its
+   filter predicts it (the paper's segmentation stages, then the chosen tracker: centroid, particles or mean
+   shift), to a sub-pixel, perspective-correct marker centre on the world plane.
+3. **Filtering** (``edge.filtering``): a constant-velocity Kalman filter per rover gives velocity, rejects
+   spikes, and follows turns.
+4. **Identity** is the marker colour plus the filter's gate: a rover is only ever measured in its own colour near
+   where it is expected, so crossing rovers cannot swap. A rover unseen in its window is reported missing (no
+   pose) and after a few frames goes back to acquisition.
+5. **Heading** from the marker's second colour when it has one (two-tone marker), else the direction of motion
+   while moving faster than ``heading_min_speed_cm_s``, else null.
+
+No full-frame work is done per frame while all rovers are tracked, except refreshing one band of rows of the
+background reference.
 """
 
 from __future__ import annotations
 
+import math
+import time
+import tomllib
+from collections import deque
 from dataclasses import dataclass, field
-from typing import Protocol
+from pathlib import Path
+from typing import Literal, Protocol
 
-from pydantic import BaseModel, ConfigDict, Field
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from edge.errors import ConfigError
+from edge.filtering import ConstantVelocityFilter, FilterSettings
 from edge.messages import ID_PATTERN
+from edge.segmentation import BackgroundModel, ColorModel, opponent_planes, subtract_background
 from edge.sources import Frame
+from edge.trackers.base import (
+    LocalPlaneMap,
+    Measurement,
+    PlaneMapping,
+    RoverModel,
+    Window,
+    WindowTracker,
+)
+
+FloatArray = NDArray[np.float64]
 
 
 class RoverConfig(BaseModel):
@@ -22,6 +61,10 @@ class RoverConfig(BaseModel):
 
     id: str = Field(pattern=ID_PATTERN, description="Rover id, also the MQTT topic segment.")
     color_bgr: tuple[int, int, int] = Field(description="Nominal marker colour as seen by the camera, B, G, R 0-255.")
+    heading_color_bgr: tuple[int, int, int] | None = Field(
+        default=None,
+        description="Colour of the rear part of a two-tone marker (the front has color_bgr); None: one colour.",
+    )
 
 
 DEFAULT_ROVERS = (
@@ -43,6 +86,7 @@ class RoverEstimate:
     vy_cm_s: float | None
     quality: float
     uv_px: tuple[float, float]
+    box_px: tuple[int, int, int, int] | None = None  # the search window (x0, y0, x1, y1), for overlays
 
 
 @dataclass(frozen=True)
@@ -61,3 +105,430 @@ class Tracker(Protocol):
     """Frame in, rover estimates out. Keeps its own state (background model, filters, identities)."""
 
     def process(self, frame: Frame) -> FrameResult: ...
+
+
+Method = Literal["centroid", "particles", "meanshift", "paper"]
+
+
+class TrackerConfig(BaseModel):
+    """Everything the tracking pipeline can be tuned with (the ``[tracker]`` section of a configuration file)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    rovers: tuple[RoverConfig, ...] = Field(default=DEFAULT_ROVERS, min_length=1, max_length=32)
+    method: Method = Field(
+        default="particles",
+        description="centroid, particles or meanshift (the paper's three trackers, windowed); paper: the "
+        "straightforward full-frame version of the paper's pipeline, for comparison.",
+    )
+    marker_length_cm: float = Field(default=22.0, gt=0.0, le=200.0, description="Marker side along the rover.")
+    marker_width_cm: float = Field(default=17.0, gt=0.0, le=200.0, description="Marker side across the rover.")
+    hue_tolerance_deg: float = Field(default=30.0, gt=0.0, le=90.0, description="Largest hue error of a marker.")
+    min_saturation_fraction: float = Field(
+        default=0.35, gt=0.0, le=1.0, description="Least relative saturation, as a share of the markers' own."
+    )
+    threshold_fraction: float = Field(
+        default=0.5, gt=0.0, lt=1.0, description="k_min / k_max of the automatic threshold interval."
+    )
+    erosion_iterations: int = Field(default=1, ge=0, le=3, description="3x3 erosions before reconstruction.")
+    background_threshold: float = Field(
+        default=0.2, gt=0.0, description="eq. 2 threshold, in normalised chroma (lighting-invariant)."
+    )
+    background_refresh_s: float = Field(default=4.0, gt=0.0, description="Time to refresh the whole reference.")
+    window_margin_cm: float = Field(default=6.0, ge=0.0, description="Search window margin around the marker.")
+    lost_after_frames: int = Field(
+        default=3, ge=1, description="Frames unseen in its window before a rover is searched for everywhere."
+    )
+    acquire_scale: int = Field(default=4, ge=1, le=8, description="Downscale factor of the acquisition pass.")
+    min_area_fraction: float = Field(
+        default=0.6, gt=0.0, le=1.0, description="A marker showing less of its area is hidden: no pose."
+    )
+    max_area_fraction: float = Field(default=1.8, ge=1.0, description="A larger blob is not one marker: no pose.")
+    heading_min_speed_cm_s: float = Field(default=3.0, ge=0.0, description="Slowest motion that gives a heading.")
+    accel_sigma_cm_s2: float = Field(default=40.0, gt=0.0, description="Filter process noise (acceleration).")
+    measurement_sigma_px: float = Field(default=0.15, gt=0.0, description="Marker centre noise in pixels.")
+    fps: float = Field(default=30.0, gt=0.0, description="Frame rate assumed when frames carry no usable time.")
+
+    @field_validator("rovers")
+    @classmethod
+    def _unique_ids(cls, rovers: tuple[RoverConfig, ...]) -> tuple[RoverConfig, ...]:
+        ids = [r.id for r in rovers]
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        if dup:
+            raise ValueError(f"rover ids must be unique, repeated: {', '.join(dup)}")
+        return rovers
+
+    @property
+    def marker_area_cm2(self) -> float:
+        return self.marker_length_cm * self.marker_width_cm
+
+    @property
+    def marker_radius_cm(self) -> float:
+        return 0.5 * math.hypot(self.marker_length_cm, self.marker_width_cm)
+
+
+def load_tracker_config(path: Path) -> TrackerConfig:
+    """Read a TOML file: either a ``[tracker]`` table or the tracker keys at top level; ``[[rovers]]`` anywhere.
+
+    Example::
+
+        method = "particles"
+        [[rovers]]
+        id = "red"
+        color_bgr = [40, 40, 200]
+    """
+    try:
+        data = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from exc
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from exc
+    section = data.get("tracker", data)
+    if "tracker" in data and "rovers" in data and "rovers" not in section:
+        section = {**section, "rovers": data["rovers"]}
+    try:
+        return TrackerConfig.model_validate(section)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
+        raise ConfigError(f"{path}: {where}: {first['msg']}") from exc
+
+
+class StageTimes:
+    """Accumulated wall time per named stage within one frame (the rows of the paper's Table IV)."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    def add(self, stage: str, seconds: float) -> None:
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + seconds
+
+    def as_ms(self) -> dict[str, float]:
+        return {k: v * 1e3 for k, v in self.seconds.items()}
+
+
+@dataclass
+class _RoverTrack:
+    """The pipeline's mutable state for one rover."""
+
+    config: RoverConfig
+    index: int
+    filter: ConstantVelocityFilter | None = None
+    misses: int = 0
+    level: float = 0.0
+    areas: deque[float] = field(default_factory=lambda: deque(maxlen=31))
+    box: tuple[int, int, int, int] | None = None
+    theta_rad: float | None = None
+
+    @property
+    def lost(self) -> bool:
+        return self.filter is None
+
+
+class Pipeline:
+    """The tracker of ``docs/tracking.md``: windowed trackers, low-resolution reacquisition, filters, identity.
+
+    ``calibration``: the pixel <-> plane mapping (``edge.calibration.Calibration`` or any :class:`PlaneMapping`).
+    ``background``: an empty-scene frame (the paper's reference), or None to learn the reference from the video.
+    """
+
+    def __init__(
+        self,
+        config: TrackerConfig,
+        calibration: PlaneMapping,
+        background: NDArray[np.uint8] | None = None,
+        tracker: WindowTracker | None = None,
+    ) -> None:
+        from edge.trackers import make_tracker
+
+        if config.method == "paper":
+            raise ConfigError("method 'paper' is the full-frame baseline: build it with build_tracker()")
+        self.config = config
+        self.calibration = calibration
+        self.tracker = tracker if tracker is not None else make_tracker(config.method)
+        colors = [r.color_bgr for r in config.rovers]
+        try:
+            self.colors = ColorModel.from_colors(colors, config.hue_tolerance_deg, config.min_saturation_fraction)
+        except ValueError as exc:
+            raise ConfigError(f"rovers: {exc}") from exc
+        self.filter_settings = FilterSettings(accel_sigma_cm_s2=config.accel_sigma_cm_s2)
+        self.tracks = [_RoverTrack(r, i) for i, r in enumerate(config.rovers)]
+        self._empty_scene = background
+        self.background: BackgroundModel | None = None
+        self._last_t: float | None = None
+        self._frames = 0
+
+    # -- the frame loop -----------------------------------------------------------------------------------------
+    def process(self, frame: Frame) -> FrameResult:
+        t_start = time.perf_counter()
+        clock = StageTimes()
+        image = frame.image
+        if self.background is None:
+            self._start(image)
+        assert self.background is not None
+        dt = self._dt(frame)
+
+        t0 = time.perf_counter()
+        for tr in self.tracks:
+            if tr.filter is not None:
+                tr.filter.predict(dt)
+        clock.add("filter", time.perf_counter() - t0)
+
+        measured: dict[int, Measurement] = {}
+        for tr in self.tracks:
+            if tr.filter is None:
+                continue
+            m = self._track(image, tr, clock)
+            if m is not None:
+                measured[tr.index] = m
+            else:
+                tr.misses += 1
+                if tr.misses >= self.config.lost_after_frames:
+                    self._lose(tr)
+
+        acquired: dict[int, Measurement] = {}
+        if any(tr.lost for tr in self.tracks):
+            acquired = self._acquire(image, clock)
+
+        estimates = self._estimates(measured, acquired, clock)
+
+        t0 = time.perf_counter()
+        exclude = [self._exclusion_box(tr.box, image.shape) for tr in self.tracks if tr.box is not None]
+        self.background.refresh(image, exclude)
+        clock.add("reference", time.perf_counter() - t0)
+
+        self._frames += 1
+        seen = {e.rover_id for e in estimates}
+        missing = tuple(tr.config.id for tr in self.tracks if tr.config.id not in seen)
+        stage_ms = clock.as_ms()
+        stage_ms["total"] = (time.perf_counter() - t_start) * 1e3
+        return FrameResult(frame.index, frame.t_capture_s, frame.t_mono_s, estimates, missing, stage_ms)
+
+    def _start(self, image: NDArray[np.uint8]) -> None:
+        h, w = image.shape[:2]
+        if self._empty_scene is not None and self._empty_scene.shape[:2] != (h, w):
+            eh, ew = self._empty_scene.shape[:2]
+            raise ConfigError(f"background image is {ew}x{eh} but the frames are {w}x{h}")
+        period = max(1, round(self.config.background_refresh_s * self.config.fps))
+        self.background = BackgroundModel((h, w), period, self._empty_scene)
+
+    def _dt(self, frame: Frame) -> float:
+        nominal = 1.0 / self.config.fps
+        last, self._last_t = self._last_t, frame.t_capture_s
+        if last is None:
+            return nominal
+        dt = frame.t_capture_s - last
+        return dt if 0.0 < dt < 5.0 else nominal
+
+    # -- tracking in a window -----------------------------------------------------------------------------------
+    def _expected_area(self, tr: _RoverTrack) -> float:
+        if len(tr.areas) >= 10:
+            learned = float(np.median(tr.areas))
+            nominal = self.config.marker_area_cm2
+            return min(max(learned, 0.5 * nominal), 2.0 * nominal)
+        return self.config.marker_area_cm2
+
+    def _track(self, image: NDArray[np.uint8], tr: _RoverTrack, clock: StageTimes) -> Measurement | None:
+        assert tr.filter is not None
+        x, y = tr.filter.position
+        sigma = min(tr.filter.position_sigma_cm, 30.0)
+        radius = self.config.marker_radius_cm + self.config.window_margin_cm + 3.0 * sigma
+        t0 = time.perf_counter()
+        box, uv = self._window_box((x, y), radius, image.shape)
+        clock.add("window", time.perf_counter() - t0)
+        tr.box = box
+        if box is None:
+            return None
+        return self._measure(image, tr, box, uv, clock)
+
+    def _window_box(
+        self, xy_cm: tuple[float, float], radius_cm: float, shape: tuple[int, ...]
+    ) -> tuple[tuple[int, int, int, int] | None, tuple[float, float]]:
+        """Pixel box around the world circle ``xy_cm``/``radius_cm`` on the plane, clipped to the image."""
+        ang = np.linspace(0.0, 2.0 * math.pi, 8, endpoint=False)
+        pts = np.column_stack([xy_cm[0] + radius_cm * np.cos(ang), xy_cm[1] + radius_cm * np.sin(ang)])
+        pts = np.vstack([[xy_cm], pts])
+        uv = np.asarray(self.calibration.world_to_pixel(pts), dtype=np.float64)
+        if not np.all(np.isfinite(uv)):
+            return None, (math.nan, math.nan)
+        h, w = shape[:2]
+        x0 = max(0, math.floor(uv[1:, 0].min()) - 3)
+        y0 = max(0, math.floor(uv[1:, 1].min()) - 3)
+        x1 = min(w, math.ceil(uv[1:, 0].max()) + 4)
+        y1 = min(h, math.ceil(uv[1:, 1].max()) + 4)
+        if x1 - x0 < 4 or y1 - y0 < 4:
+            return None, (float(uv[0, 0]), float(uv[0, 1]))
+        return (x0, y0, x1, y1), (float(uv[0, 0]), float(uv[0, 1]))
+
+    def _measure(
+        self,
+        image: NDArray[np.uint8],
+        tr: _RoverTrack,
+        box: tuple[int, int, int, int],
+        uv: tuple[float, float],
+        clock: StageTimes,
+    ) -> Measurement | None:
+        assert self.background is not None
+        x0, y0, x1, y1 = box
+        t0 = time.perf_counter()
+        crop = image[y0:y1, x0:x1]
+        c1, c2, lum = opponent_planes(crop)  # RGB colour planes extraction, generalised
+        classes = self.colors.classify(c1, c2, lum)
+        plane = self.colors.plane(tr.index, c1, c2)
+        t1 = time.perf_counter()
+        clock.add("planes", t1 - t0)
+        valid = self.background.valid[y0:y1, x0:x1]
+        if valid.any():
+            fg = subtract_background(crop, self.background.reference[y0:y1, x0:x1], self.config.background_threshold)
+            fg &= valid
+        else:
+            fg = valid
+        t2 = time.perf_counter()
+        clock.add("subtraction", t2 - t1)
+        try:
+            local = LocalPlaneMap.fit(self.calibration, box)
+        except ValueError:
+            return None
+        clock.add("calibration", time.perf_counter() - t2)
+        window = Window(box, crop, c1, c2, lum, classes, plane, fg, valid, local, uv)
+        model = RoverModel(tr.index, self._expected_area(tr), tr.level)
+        m = self.tracker.measure(window, model, clock)
+        if m is None:
+            return None
+        ratio = m.area_cm2 / model.marker_area_cm2
+        if not self.config.min_area_fraction <= ratio <= self.config.max_area_fraction:
+            return None
+        return m
+
+    # -- acquisition (low resolution) ---------------------------------------------------------------------------
+    def _acquire(self, image: NDArray[np.uint8], clock: StageTimes) -> dict[int, Measurement]:
+        """Find lost rovers from a 1/``acquire_scale`` resolution pass, then measure them at full resolution."""
+        t0 = time.perf_counter()
+        s = self.config.acquire_scale
+        h, w = image.shape[:2]
+        small = (
+            np.asarray(cv2.resize(image, (w // s, h // s), interpolation=cv2.INTER_AREA), np.uint8) if s > 1 else image
+        )
+        c1, c2, lum = opponent_planes(small)
+        classes = self.colors.classify(c1, c2, lum)
+        clock.add("acquire", time.perf_counter() - t0)
+        found: dict[int, Measurement] = {}
+        taken = [tr.box for tr in self.tracks if tr.filter is not None and tr.box is not None]
+        for tr in self.tracks:
+            if tr.filter is not None:
+                continue
+            t1 = time.perf_counter()
+            mask = (classes == tr.index).view(np.uint8)
+            n, _, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+            order: list[int] = (np.argsort(-stats[1:, cv2.CC_STAT_AREA])[:4] + 1).tolist() if n > 1 else []
+            clock.add("acquire", time.perf_counter() - t1)
+            for label in order:
+                if stats[label, cv2.CC_STAT_AREA] < 1:
+                    continue
+                u, v = (float(cents[label, 0]) + 0.5) * s - 0.5, (float(cents[label, 1]) + 0.5) * s - 0.5
+                if any(b[0] <= u < b[2] and b[1] <= v < b[3] for b in taken):
+                    continue
+                xy = self.calibration.pixel_to_world(np.array([[u, v]]))[0]
+                if not np.all(np.isfinite(xy)):
+                    continue
+                radius = self.config.marker_radius_cm + self.config.window_margin_cm + 2.0 * s
+                box, _ = self._window_box((float(xy[0]), float(xy[1])), radius, image.shape)
+                if box is None:
+                    continue
+                reset = getattr(self.tracker, "reset", None)
+                if reset is not None:
+                    reset(tr.index)
+                m = self._measure(image, tr, box, (u, v), clock)
+                if m is None:
+                    continue
+                tr.box = box
+                found[tr.index] = m
+                taken.append(box)
+                break
+        return found
+
+    def _lose(self, tr: _RoverTrack) -> None:
+        tr.filter = None
+        tr.box = None
+        tr.theta_rad = None
+        reset = getattr(self.tracker, "reset", None)
+        if reset is not None:
+            reset(tr.index)
+
+    # -- filtering, identity, heading ---------------------------------------------------------------------------
+    def _measurement_noise(self, m: Measurement) -> FloatArray:
+        """Measurement covariance (cm^2): the pixel noise seen through the local scale of the plane mapping."""
+        u, v = m.uv_px
+        pts = np.array([[u, v], [u + 1.0, v], [u, v + 1.0]])
+        xy = np.asarray(self.calibration.pixel_to_world(pts), dtype=np.float64)
+        jac = np.column_stack([xy[1] - xy[0], xy[2] - xy[0]])
+        sigma = self.config.measurement_sigma_px
+        return np.asarray(jac @ jac.T) * sigma * sigma + np.eye(2) * 1e-4
+
+    def _estimates(
+        self, measured: dict[int, Measurement], acquired: dict[int, Measurement], clock: StageTimes
+    ) -> tuple[RoverEstimate, ...]:
+        """Fuse this frame's measurements into the filters (new filters for rovers just acquired)."""
+        t0 = time.perf_counter()
+        out: list[RoverEstimate] = []
+        for tr in self.tracks:
+            if tr.index in acquired:
+                m = acquired[tr.index]
+                tr.filter = ConstantVelocityFilter(self.filter_settings, m.xy_cm, self._measurement_noise(m))
+            elif tr.index in measured and tr.filter is not None:
+                m = measured[tr.index]
+                if not tr.filter.update(np.asarray(m.xy_cm), self._measurement_noise(m)):
+                    tr.misses += 1  # a spike: rejected, no pose this frame
+                    if tr.misses >= self.config.lost_after_frames:
+                        self._lose(tr)
+                    continue
+            else:
+                continue
+            assert tr.filter is not None
+            tr.misses = 0
+            tr.level = m.level if tr.level <= 0.0 else 0.8 * tr.level + 0.2 * m.level
+            if m.quality > 0.8:
+                tr.areas.append(m.area_cm2)
+            vel = tr.filter.velocity
+            theta = self._heading(tr, vel)
+            x, y = tr.filter.position
+            out.append(
+                RoverEstimate(
+                    tr.config.id,
+                    x,
+                    y,
+                    theta,
+                    vel[0] if vel else None,
+                    vel[1] if vel else None,
+                    round(m.quality, 2),
+                    m.uv_px,
+                    tr.box,
+                )
+            )
+        clock.add("filter", time.perf_counter() - t0)
+        return tuple(out)
+
+    def _heading(self, tr: _RoverTrack, vel: tuple[float, float] | None) -> float | None:
+        if vel is None:
+            return None
+        speed = math.hypot(*vel)
+        if speed < self.config.heading_min_speed_cm_s:
+            return None
+        return math.atan2(vel[1], vel[0])
+
+    def _exclusion_box(self, box: tuple[int, int, int, int], shape: tuple[int, ...]) -> tuple[int, int, int, int]:
+        """The search window grown to cover the rover's body below and around the marker."""
+        x0, y0, x1, y1 = box
+        gw, gh = (x1 - x0) // 2, (y1 - y0) // 2
+        return max(0, x0 - gw), max(0, y0 - gh), min(shape[1], x1 + gw), min(shape[0], y1 + 2 * gh)
+
+
+def build_tracker(
+    config: TrackerConfig, calibration: PlaneMapping, background: NDArray[np.uint8] | None = None
+) -> Tracker:
+    """The tracker ``config.method`` names: a :class:`Pipeline`, or the paper's full-frame baseline."""
+    if config.method == "paper":
+        from edge.trackers.paper import PaperPipeline
+
+        return PaperPipeline(config, calibration, background)
+    return Pipeline(config, calibration, background)
