@@ -50,7 +50,6 @@ class ConstantVelocityFilter:
         self.rejected = 0
         self.nis_avg = 2.0
         self._pending: list[FloatArray] = []
-        self._predicted_p = self.p.copy()
 
     # -- state ------------------------------------------------------------------------------------------------
     @property
@@ -65,7 +64,9 @@ class ConstantVelocityFilter:
     @property
     def position_sigma_cm(self) -> float:
         """1-sigma radius of the position uncertainty (largest axis)."""
-        return math.sqrt(max(float(np.linalg.eigvalsh(self.p[:2, :2]).max()), 0.0))
+        a, b, d = float(self.p[0, 0]), float(self.p[0, 1]), float(self.p[1, 1])
+        largest = 0.5 * (a + d) + math.sqrt(max(0.25 * (a - d) ** 2 + b * b, 0.0))
+        return math.sqrt(max(largest, 0.0))
 
     @property
     def manoeuvre_gain(self) -> float:
@@ -75,22 +76,14 @@ class ConstantVelocityFilter:
     def predict(self, dt_s: float) -> None:
         """Propagate the state by ``dt_s`` (constant velocity, white-noise acceleration of adaptive strength)."""
         dt = max(float(dt_s), 1e-4)
-        f = np.eye(4)
-        f[0, 2] = f[1, 3] = dt
-        q_acc = (self.settings.accel_sigma_cm_s2**2) * self.manoeuvre_gain
-        q1 = np.array([[dt**4 / 4.0, dt**3 / 2.0], [dt**3 / 2.0, dt**2]]) * q_acc
-        q = np.zeros((4, 4))
-        q[np.ix_([0, 2], [0, 2])] = q1
-        q[np.ix_([1, 3], [1, 3])] = q1
+        f, q_unit = _transition(dt)
         self.x = f @ self.x
-        self.p = f @ self.p @ f.T + q
-        self._predicted_p = self.p
+        self.p = f @ self.p @ f.T + q_unit * ((self.settings.accel_sigma_cm_s2**2) * self.manoeuvre_gain)
 
     def innovation_nis(self, z_cm: FloatArray, r_cm2: FloatArray) -> float:
         """Normalised innovation squared of a measurement against the current prediction."""
         nu = np.asarray(z_cm, dtype=np.float64) - self.x[:2]
-        s = self.p[:2, :2] + r_cm2
-        return float(nu @ np.linalg.solve(s, nu))
+        return float(nu @ _inv2(self.p[:2, :2] + r_cm2) @ nu)
 
     def update(self, z_cm: FloatArray, r_cm2: FloatArray) -> bool:
         """Fuse a measurement; returns False when it was rejected as a spike (the state is then unchanged).
@@ -99,8 +92,8 @@ class ConstantVelocityFilter:
         """
         z = np.asarray(z_cm, dtype=np.float64)
         nu = z - self.x[:2]
-        s = self.p[:2, :2] + r_cm2
-        nis = float(nu @ np.linalg.solve(s, nu))
+        s_inv = _inv2(self.p[:2, :2] + r_cm2)
+        nis = float(nu @ s_inv @ nu)
         if nis > self.settings.gate_nis:
             self._pending.append(z)
             self.rejected += 1
@@ -112,9 +105,9 @@ class ConstantVelocityFilter:
                 self._pending = self._pending[-1:]
             return False
         self._pending.clear()
-        k = self.p[:, :2] @ np.linalg.inv(s)
+        k = self.p[:, :2] @ s_inv
         self.x = self.x + k @ nu
-        self.p = (np.eye(4) - k[:, :2] @ np.eye(2, 4)) @ self.p
+        self.p = self.p - k @ self.p[:2, :]
         self.p = 0.5 * (self.p + self.p.T)
         a = self.settings.manoeuvre_alpha
         self.nis_avg = (1.0 - a) * self.nis_avg + a * nis
@@ -129,3 +122,31 @@ class ConstantVelocityFilter:
         self.updates = 1
         self.nis_avg = 2.0
         self._pending.clear()
+
+
+_TRANSITIONS: dict[float, tuple[FloatArray, FloatArray]] = {}
+
+
+def _transition(dt: float) -> tuple[FloatArray, FloatArray]:
+    """Constant-velocity transition F and the white-noise-acceleration Q for unit intensity, cached by dt."""
+    key = round(dt, 6)
+    hit = _TRANSITIONS.get(key)
+    if hit is not None:
+        return hit
+    f = np.eye(4)
+    f[0, 2] = f[1, 3] = dt
+    q = np.zeros((4, 4))
+    q[0, 0] = q[1, 1] = dt**4 / 4.0
+    q[0, 2] = q[2, 0] = q[1, 3] = q[3, 1] = dt**3 / 2.0
+    q[2, 2] = q[3, 3] = dt**2
+    if len(_TRANSITIONS) > 256:
+        _TRANSITIONS.clear()
+    _TRANSITIONS[key] = (f, q)
+    return f, q
+
+
+def _inv2(s: FloatArray) -> FloatArray:
+    """Inverse of a 2x2 matrix."""
+    a, b, c, d = float(s[0, 0]), float(s[0, 1]), float(s[1, 0]), float(s[1, 1])
+    det = a * d - b * c
+    return np.array([[d, -b], [-c, a]]) / det

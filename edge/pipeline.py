@@ -43,8 +43,8 @@ from edge.messages import ID_PATTERN
 from edge.segmentation import BackgroundModel, ColorModel, opponent_planes, subtract_background
 from edge.sources import Frame
 from edge.trackers.base import (
-    LocalPlaneMap,
     Measurement,
+    PlaneMapCache,
     PlaneMapping,
     RoverModel,
     Window,
@@ -207,6 +207,17 @@ class StageTimes:
         return {k: v * 1e3 for k, v in self.seconds.items()}
 
 
+_CIRCLE = np.vstack([[0.0, 0.0], np.column_stack([np.cos(np.arange(8) * np.pi / 4), np.sin(np.arange(8) * np.pi / 4)])])
+
+
+@dataclass(frozen=True)
+class _Observation:
+    """A measurement that passed the pipeline's checks, with its covariance on the plane (cm^2)."""
+
+    measurement: Measurement
+    r_cm2: FloatArray
+
+
 @dataclass
 class _RoverTrack:
     """The pipeline's mutable state for one rover."""
@@ -218,6 +229,7 @@ class _RoverTrack:
     level: float = 0.0
     areas: deque[float] = field(default_factory=lambda: deque(maxlen=31))
     box: tuple[int, int, int, int] | None = None
+    uv: tuple[float, float] | None = None
     theta_rad: float | None = None
 
     @property
@@ -245,6 +257,7 @@ class Pipeline:
             raise ConfigError("method 'paper' is the full-frame baseline: build it with build_tracker()")
         self.config = config
         self.calibration = calibration
+        self.maps = PlaneMapCache(calibration)
         self.tracker = tracker if tracker is not None else make_tracker(config.method)
         colors = [r.color_bgr for r in config.rovers]
         try:
@@ -274,7 +287,7 @@ class Pipeline:
                 tr.filter.predict(dt)
         clock.add("filter", time.perf_counter() - t0)
 
-        measured: dict[int, Measurement] = {}
+        measured: dict[int, _Observation] = {}
         for tr in self.tracks:
             if tr.filter is None:
                 continue
@@ -286,7 +299,7 @@ class Pipeline:
                 if tr.misses >= self.config.lost_after_frames:
                     self._lose(tr)
 
-        acquired: dict[int, Measurement] = {}
+        acquired: dict[int, _Observation] = {}
         if any(tr.lost for tr in self.tracks):
             acquired = self._acquire(image, clock)
 
@@ -328,13 +341,13 @@ class Pipeline:
             return min(max(learned, 0.5 * nominal), 2.0 * nominal)
         return self.config.marker_area_cm2
 
-    def _track(self, image: NDArray[np.uint8], tr: _RoverTrack, clock: StageTimes) -> Measurement | None:
+    def _track(self, image: NDArray[np.uint8], tr: _RoverTrack, clock: StageTimes) -> _Observation | None:
         assert tr.filter is not None
         x, y = tr.filter.position
         sigma = min(tr.filter.position_sigma_cm, 30.0)
         radius = self.config.marker_radius_cm + self.config.window_margin_cm + 3.0 * sigma
         t0 = time.perf_counter()
-        box, uv = self._window_box((x, y), radius, image.shape)
+        box, uv = self._window_box((x, y), radius, image.shape, tr.uv)
         clock.add("window", time.perf_counter() - t0)
         tr.box = box
         if box is None:
@@ -342,23 +355,41 @@ class Pipeline:
         return self._measure(image, tr, box, uv, clock)
 
     def _window_box(
-        self, xy_cm: tuple[float, float], radius_cm: float, shape: tuple[int, ...]
+        self,
+        xy_cm: tuple[float, float],
+        radius_cm: float,
+        shape: tuple[int, ...],
+        hint_uv: tuple[float, float] | None,
     ) -> tuple[tuple[int, int, int, int] | None, tuple[float, float]]:
-        """Pixel box around the world circle ``xy_cm``/``radius_cm`` on the plane, clipped to the image."""
-        ang = np.linspace(0.0, 2.0 * math.pi, 8, endpoint=False)
-        pts = np.column_stack([xy_cm[0] + radius_cm * np.cos(ang), xy_cm[1] + radius_cm * np.sin(ang)])
-        pts = np.vstack([[xy_cm], pts])
-        uv = np.asarray(self.calibration.world_to_pixel(pts), dtype=np.float64)
-        if not np.all(np.isfinite(uv)):
+        """Pixel box around the world circle ``xy_cm``/``radius_cm`` on the plane, clipped to the image.
+
+        Projected through the local plane map near ``hint_uv`` (the rover's last image position) instead of the
+        full calibration: a few multiplications instead of a lens model per point.
+        """
+        if hint_uv is None:
+            centre = np.asarray(self.calibration.world_to_pixel(np.array([xy_cm])), dtype=np.float64)[0]
+            hint_uv = (float(centre[0]), float(centre[1]))
+        local = self.maps.at(*hint_uv)
+        if local is None:
+            return None, (math.nan, math.nan)
+        cu, cv = local.to_pixel(np.array([xy_cm[0]]), np.array([xy_cm[1]]))
+        better = self.maps.at(float(cu[0]), float(cv[0]))
+        if better is not None and better is not local:
+            local = better
+        xs = xy_cm[0] + radius_cm * _CIRCLE[:, 0]
+        ys = xy_cm[1] + radius_cm * _CIRCLE[:, 1]
+        us, vs = local.to_pixel(xs, ys)
+        if not (np.all(np.isfinite(us)) and np.all(np.isfinite(vs))):
             return None, (math.nan, math.nan)
         h, w = shape[:2]
-        x0 = max(0, math.floor(uv[1:, 0].min()) - 3)
-        y0 = max(0, math.floor(uv[1:, 1].min()) - 3)
-        x1 = min(w, math.ceil(uv[1:, 0].max()) + 4)
-        y1 = min(h, math.ceil(uv[1:, 1].max()) + 4)
+        centre_uv = (float(us[0]), float(vs[0]))
+        x0 = max(0, math.floor(us[1:].min()) - 3)
+        y0 = max(0, math.floor(vs[1:].min()) - 3)
+        x1 = min(w, math.ceil(us[1:].max()) + 4)
+        y1 = min(h, math.ceil(vs[1:].max()) + 4)
         if x1 - x0 < 4 or y1 - y0 < 4:
-            return None, (float(uv[0, 0]), float(uv[0, 1]))
-        return (x0, y0, x1, y1), (float(uv[0, 0]), float(uv[0, 1]))
+            return None, centre_uv
+        return (x0, y0, x1, y1), centre_uv
 
     def _measure(
         self,
@@ -367,7 +398,7 @@ class Pipeline:
         box: tuple[int, int, int, int],
         uv: tuple[float, float],
         clock: StageTimes,
-    ) -> Measurement | None:
+    ) -> _Observation | None:
         assert self.background is not None
         x0, y0, x1, y1 = box
         t0 = time.perf_counter()
@@ -385,11 +416,10 @@ class Pipeline:
             fg = valid
         t2 = time.perf_counter()
         clock.add("subtraction", t2 - t1)
-        try:
-            local = LocalPlaneMap.fit(self.calibration, box)
-        except ValueError:
-            return None
+        local = self.maps.at(0.5 * (x0 + x1), 0.5 * (y0 + y1))
         clock.add("calibration", time.perf_counter() - t2)
+        if local is None:
+            return None
         window = Window(box, crop, c1, c2, lum, classes, plane, fg, valid, local, uv)
         model = RoverModel(tr.index, self._expected_area(tr), tr.level)
         m = self.tracker.measure(window, model, clock)
@@ -398,10 +428,13 @@ class Pipeline:
         ratio = m.area_cm2 / model.marker_area_cm2
         if not self.config.min_area_fraction <= ratio <= self.config.max_area_fraction:
             return None
-        return m
+        # Measurement covariance: the pixel noise seen through the local scale of the plane mapping.
+        jac = local.jacobian(*m.uv_px)
+        sigma = self.config.measurement_sigma_px
+        return _Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + np.eye(2) * 1e-4)
 
     # -- acquisition (low resolution) ---------------------------------------------------------------------------
-    def _acquire(self, image: NDArray[np.uint8], clock: StageTimes) -> dict[int, Measurement]:
+    def _acquire(self, image: NDArray[np.uint8], clock: StageTimes) -> dict[int, _Observation]:
         """Find lost rovers from a 1/``acquire_scale`` resolution pass, then measure them at full resolution."""
         t0 = time.perf_counter()
         s = self.config.acquire_scale
@@ -412,7 +445,7 @@ class Pipeline:
         c1, c2, lum = opponent_planes(small)
         classes = self.colors.classify(c1, c2, lum)
         clock.add("acquire", time.perf_counter() - t0)
-        found: dict[int, Measurement] = {}
+        found: dict[int, _Observation] = {}
         taken = [tr.box for tr in self.tracks if tr.filter is not None and tr.box is not None]
         for tr in self.tracks:
             if tr.filter is not None:
@@ -432,7 +465,7 @@ class Pipeline:
                 if not np.all(np.isfinite(xy)):
                     continue
                 radius = self.config.marker_radius_cm + self.config.window_margin_cm + 2.0 * s
-                box, _ = self._window_box((float(xy[0]), float(xy[1])), radius, image.shape)
+                box, _ = self._window_box((float(xy[0]), float(xy[1])), radius, image.shape, (u, v))
                 if box is None:
                     continue
                 reset = getattr(self.tracker, "reset", None)
@@ -450,34 +483,28 @@ class Pipeline:
     def _lose(self, tr: _RoverTrack) -> None:
         tr.filter = None
         tr.box = None
+        tr.uv = None
         tr.theta_rad = None
         reset = getattr(self.tracker, "reset", None)
         if reset is not None:
             reset(tr.index)
 
     # -- filtering, identity, heading ---------------------------------------------------------------------------
-    def _measurement_noise(self, m: Measurement) -> FloatArray:
-        """Measurement covariance (cm^2): the pixel noise seen through the local scale of the plane mapping."""
-        u, v = m.uv_px
-        pts = np.array([[u, v], [u + 1.0, v], [u, v + 1.0]])
-        xy = np.asarray(self.calibration.pixel_to_world(pts), dtype=np.float64)
-        jac = np.column_stack([xy[1] - xy[0], xy[2] - xy[0]])
-        sigma = self.config.measurement_sigma_px
-        return np.asarray(jac @ jac.T) * sigma * sigma + np.eye(2) * 1e-4
-
     def _estimates(
-        self, measured: dict[int, Measurement], acquired: dict[int, Measurement], clock: StageTimes
+        self, measured: dict[int, _Observation], acquired: dict[int, _Observation], clock: StageTimes
     ) -> tuple[RoverEstimate, ...]:
         """Fuse this frame's measurements into the filters (new filters for rovers just acquired)."""
         t0 = time.perf_counter()
         out: list[RoverEstimate] = []
         for tr in self.tracks:
             if tr.index in acquired:
-                m = acquired[tr.index]
-                tr.filter = ConstantVelocityFilter(self.filter_settings, m.xy_cm, self._measurement_noise(m))
+                obs = acquired[tr.index]
+                m = obs.measurement
+                tr.filter = ConstantVelocityFilter(self.filter_settings, m.xy_cm, obs.r_cm2)
             elif tr.index in measured and tr.filter is not None:
-                m = measured[tr.index]
-                if not tr.filter.update(np.asarray(m.xy_cm), self._measurement_noise(m)):
+                obs = measured[tr.index]
+                m = obs.measurement
+                if not tr.filter.update(np.asarray(m.xy_cm), obs.r_cm2):
                     tr.misses += 1  # a spike: rejected, no pose this frame
                     if tr.misses >= self.config.lost_after_frames:
                         self._lose(tr)
@@ -486,6 +513,7 @@ class Pipeline:
                 continue
             assert tr.filter is not None
             tr.misses = 0
+            tr.uv = m.uv_px
             tr.level = m.level if tr.level <= 0.0 else 0.8 * tr.level + 0.2 * m.level
             if m.quality > 0.8:
                 tr.areas.append(m.area_cm2)

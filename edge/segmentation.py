@@ -231,7 +231,8 @@ def auto_threshold(
     vals = plane_roi[candidates]
     if vals.size == 0:
         return ThresholdInterval(0.0, 0.0)
-    k_max = float(np.percentile(vals, percentile))
+    k = min(vals.size - 1, int(vals.size * percentile / 100.0))
+    k_max = float(np.partition(vals, k)[k])
     return ThresholdInterval(fraction * k_max, k_max)
 
 
@@ -351,20 +352,27 @@ def label_particles(mask: BoolArray, min_area_px: int = 1) -> tuple[NDArray[np.i
 
 # -- sub-pixel coverage ------------------------------------------------------------------------------------------
 def marker_level(plane_roi: F32, core: BoolArray) -> float:
-    """The marker's value in its colour plane: the median over the core's interior (its edge pixels are mixed)."""
+    """The marker's value in its colour plane: the mean over the core's interior (its edge pixels are mixed)."""
     interior = erode(core, 1)
     vals = plane_roi[interior] if interior.any() else plane_roi[core]
-    return float(np.median(vals)) if vals.size else 0.0
+    return float(vals.mean()) if vals.size else 0.0
 
 
-def coverage_weights(bgr_roi: U8, core: BoolArray, ring_px: int, exclude: BoolArray | None = None) -> F32:
+def coverage_weights(
+    bgr_roi: U8,
+    lum_roi: F32,
+    core: BoolArray,
+    ring_px: int,
+    exclude: BoolArray | None = None,
+    pure: BoolArray | None = None,
+) -> F32:
     """(h, w) float32 share of each pixel covered by the marker whose filled binary mask is ``core``.
 
     Pixels of the core's interior are fully covered (1, even under a glare spot that hole filling closed). A pixel
     within ``ring_px`` of the core's edge sees a mix of the marker ``M`` and what surrounds it: the bright floor
     ``F`` or the dark rover body ``D``. Its colour is ``p = a M + b F + (1 - a - b) D``, linear in the shares, so
-    three colour channels give the marker's share ``a`` by least squares (linear unmixing). ``M`` is the median
-    of the interior, ``D`` and ``F`` the medians of the darker and brighter halves of a band just outside the
+    three colour channels give the marker's share ``a`` by least squares (linear unmixing). ``M`` is the mean
+    of the interior's ``pure`` pixels (glare excluded), ``D`` and ``F`` the means of the darker and brighter halves of a band just outside the
     ring. Being linear, the shares keep the marker's centroid where it is under optical blur and under the
     half-resolution chroma of JPEG/H.264 (which a binary mask or a hue test would cut off on one side), to a small
     fraction of a pixel: a far-side marker is only 9 pixels tall. Shares below 0 are kept (down to -0.5) so noise
@@ -379,15 +387,15 @@ def coverage_weights(bgr_roi: U8, core: BoolArray, ring_px: int, exclude: BoolAr
     interior = erode(core, 1)
     if not interior.any():
         interior = core
-    if int(outer.sum()) < 4:
+    lum_outer = lum_roi[outer]
+    if lum_outer.size < 4:
         return weights
-    pix = bgr_roi.astype(np.float32)
-    marker = np.median(pix[interior], axis=0)
-    around = pix[outer]
-    lum = around.sum(axis=1)
-    cut = np.median(lum)
-    dark = np.median(around[lum <= cut], axis=0)
-    bright = np.median(around[lum >= cut], axis=0)
+    sample = interior & pure if pure is not None else interior
+    marker = _mean_bgr(bgr_roi, sample if sample.any() else interior)
+    half = lum_outer.size // 2
+    cut = np.float32(np.partition(lum_outer, half)[half])
+    dark = _mean_bgr(bgr_roi, outer & (lum_roi <= cut))
+    bright = _mean_bgr(bgr_roi, outer & (lum_roi >= cut))
     a_vec, b_vec = marker - dark, bright - dark
     aa, ab = float(a_vec @ a_vec), float(a_vec @ b_vec)
     bb = float(b_vec @ b_vec) + 1e-3 * aa  # ridge: floor and body alike (no floor in view) is not singular
@@ -395,8 +403,13 @@ def coverage_weights(bgr_roi: U8, core: BoolArray, ring_px: int, exclude: BoolAr
     if aa <= 1.0 or det <= 1e-9:
         return weights
     ring = region & ~interior
-    p = pix[ring] - dark
+    p = bgr_roi[ring].astype(np.float64) - dark
     share = ((p @ a_vec) * bb - (p @ b_vec) * ab) / det
     weights[ring] = np.clip(share, -0.5, 1.0)
     weights[interior] = 1.0
     return weights
+
+
+def _mean_bgr(bgr_roi: U8, mask: BoolArray) -> NDArray[np.float64]:
+    """(3,) mean colour of the masked pixels."""
+    return np.asarray(cv2.mean(bgr_roi, mask=mask.view(np.uint8))[:3], dtype=np.float64)

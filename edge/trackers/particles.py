@@ -69,7 +69,7 @@ class ParticleTracker:
         core = np.isin(labels, [p.label for p in chosen]) if len(chosen) > 1 else labels == chosen[0].label
         level = marker_level(window.plane, core)
         others = (window.classes >= 0) & ~candidates
-        weights = coverage_weights(window.bgr, core, self.ring_px, exclude=others)
+        weights = coverage_weights(window.bgr, window.lum, core, self.ring_px, exclude=others, pure=mask)
         t4 = time.perf_counter()
         clock.add("measure", t4 - t3)
         blob = world_blob(weights, window.offset, window.local)  # eq. 9-10 on the world plane
