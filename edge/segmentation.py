@@ -372,11 +372,12 @@ def coverage_weights(
     within ``ring_px`` of the core's edge sees a mix of the marker ``M`` and what surrounds it: the bright floor
     ``F`` or the dark rover body ``D``. Its colour is ``p = a M + b F + (1 - a - b) D``, linear in the shares, so
     three colour channels give the marker's share ``a`` by least squares (linear unmixing). ``M`` is the mean
-    of the interior's ``pure`` pixels (glare excluded), ``D`` and ``F`` the means of the darker and brighter halves of a band just outside the
-    ring. Being linear, the shares keep the marker's centroid where it is under optical blur and under the
-    half-resolution chroma of JPEG/H.264 (which a binary mask or a hue test would cut off on one side), to a small
-    fraction of a pixel: a far-side marker is only 9 pixels tall. Shares below 0 are kept (down to -0.5) so noise
-    on background pixels averages out instead of biasing. ``exclude``: pixels of something else (another marker).
+    of the interior's ``pure`` pixels (glare excluded), ``D`` and ``F`` the means of the darker and brighter
+    halves of a band just outside the ring. Being linear, the shares keep the marker's centroid where it is under
+    optical blur and under the half-resolution chroma of JPEG/H.264 (which a binary mask or a hue test would cut
+    off on one side), to a small fraction of a pixel: a far-side marker is only 9 pixels tall. Shares below 0 are
+    kept (down to -0.5) so noise on background pixels averages out instead of biasing. ``exclude``: pixels of
+    something else (another rover's marker).
     """
     weights = core.astype(np.float32)
     region = dilate(core, ring_px)
