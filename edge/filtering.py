@@ -3,12 +3,12 @@
 The paper's centroid tracker shows spikes and needs 'filtration' (Table V). Here every rover's world position is
 filtered by a constant-velocity Kalman filter (state ``x, y, vx, vy``, white-noise acceleration):
 
-* **Spikes**: a measurement whose normalised innovation squared (NIS) exceeds the gate is rejected and the
-  filter coasts on its prediction. A rover that really jumped (or was misplaced while lost) shows the same
-  offset again: after ``confirm_after`` consistent rejections the filter restarts at the new place.
-* **No lag in a turn**: the process noise adapts to the innovations (an exponential average of the NIS against
-  its expected value 2 scales the acceleration noise up to ``max_manoeuvre_gain`` times), so the filter follows
-  a turning or braking rover and smooths a straight one.
+* **Spikes**: a measurement whose normalised innovation squared (NIS) exceeds the gate, and which is more than
+  ``spike_min_cm`` away, is rejected and the filter coasts on its prediction. A rover that really jumped shows
+  the same offset again: after ``confirm_after`` consistent rejections the filter moves to the new place.
+* **No lag in a turn**: when an innovation is larger than the prediction's uncertainty explains (NIS above the
+  95% point), the prediction is trusted less for that step (its covariance is scaled by NIS / 6, a fading-memory
+  step), so the filter follows a turning or braking rover at once and still smooths a straight one.
 * **Velocity** is the filter's; it is reported only after two measurements.
 """
 
@@ -29,27 +29,28 @@ class FilterSettings:
 
     accel_sigma_cm_s2: float = 40.0
     gate_nis: float = 16.0  # chi-square with 2 dof: 16 is about 4 sigma, P(false reject) ~ 3e-4
+    spike_min_cm: float = 2.0  # innovations smaller than this are never spikes (a manoeuvre, not a glitch)
     confirm_after: int = 2
     confirm_radius_cm: float = 5.0
-    manoeuvre_alpha: float = 0.3
-    max_manoeuvre_gain: float = 50.0
+    fade_nis: float = 6.0  # chi-square with 2 dof at 95%: above it the prediction is trusted less
+    max_fade: float = 100.0
     initial_speed_sigma_cm_s: float = 50.0
 
 
 class ConstantVelocityFilter:
-    """One rover's filter. ``predict(dt_s)`` then ``update(z_cm, r_cm2)`` per frame; ``coast`` when unseen."""
+    """One rover's filter. ``predict(dt_s)`` then ``update(z_cm, r_cm2)`` per frame; only ``predict`` when unseen."""
 
     def __init__(self, settings: FilterSettings, xy_cm: tuple[float, float], r_cm2: FloatArray) -> None:
         self.settings = settings
         self.x = np.array([xy_cm[0], xy_cm[1], 0.0, 0.0])
-        v0 = settings.initial_speed_sigma_cm_s**2
         self.p = np.zeros((4, 4))
         self.p[:2, :2] = r_cm2
-        self.p[2, 2] = self.p[3, 3] = v0
+        self.p[2, 2] = self.p[3, 3] = settings.initial_speed_sigma_cm_s**2
         self.updates = 1
         self.rejected = 0
-        self.nis_avg = 2.0
+        self.last_fade = 1.0
         self._pending: list[FloatArray] = []
+        self._dt = 1.0 / 30.0
 
     # -- state ------------------------------------------------------------------------------------------------
     @property
@@ -68,17 +69,13 @@ class ConstantVelocityFilter:
         largest = 0.5 * (a + d) + math.sqrt(max(0.25 * (a - d) ** 2 + b * b, 0.0))
         return math.sqrt(max(largest, 0.0))
 
-    @property
-    def manoeuvre_gain(self) -> float:
-        return float(min(max(self.nis_avg / 2.0, 1.0), self.settings.max_manoeuvre_gain))
-
     # -- steps ------------------------------------------------------------------------------------------------
     def predict(self, dt_s: float) -> None:
-        """Propagate the state by ``dt_s`` (constant velocity, white-noise acceleration of adaptive strength)."""
-        dt = max(float(dt_s), 1e-4)
+        """Propagate the state by ``dt_s`` (constant velocity, white-noise acceleration)."""
+        self._dt = dt = max(float(dt_s), 1e-4)
         f, q_unit = _transition(dt)
         self.x = f @ self.x
-        self.p = f @ self.p @ f.T + q_unit * ((self.settings.accel_sigma_cm_s2**2) * self.manoeuvre_gain)
+        self.p = f @ self.p @ f.T + q_unit * (self.settings.accel_sigma_cm_s2**2)
 
     def innovation_nis(self, z_cm: FloatArray, r_cm2: FloatArray) -> float:
         """Normalised innovation squared of a measurement against the current prediction."""
@@ -88,39 +85,48 @@ class ConstantVelocityFilter:
     def update(self, z_cm: FloatArray, r_cm2: FloatArray) -> bool:
         """Fuse a measurement; returns False when it was rejected as a spike (the state is then unchanged).
 
-        A run of ``confirm_after`` rejected measurements that agree with each other restarts the filter there.
+        A measurement far outside the gate (and more than ``spike_min_cm`` away) is a spike. One that is merely
+        surprising (NIS above ``fade_nis``) means the rover is manoeuvring: the prediction's covariance is scaled
+        up by NIS / fade_nis before fusing (a fading-memory step), so the estimate follows at once instead of
+        lagging. A run of ``confirm_after`` spikes that agree with each other is a real jump: the filter moves
+        there, keeping the velocity the jump implies.
         """
         z = np.asarray(z_cm, dtype=np.float64)
         nu = z - self.x[:2]
         s_inv = _inv2(self.p[:2, :2] + r_cm2)
         nis = float(nu @ s_inv @ nu)
-        if nis > self.settings.gate_nis:
+        if nis > self.settings.gate_nis and math.hypot(nu[0], nu[1]) > self.settings.spike_min_cm:
             self._pending.append(z)
             self.rejected += 1
             if len(self._pending) >= self.settings.confirm_after:
                 spread = max(float(np.hypot(*(p - self._pending[-1]))) for p in self._pending)
                 if spread <= self.settings.confirm_radius_cm * len(self._pending):
-                    self._restart(z, r_cm2)
+                    self._jump(r_cm2)
                     return True
                 self._pending = self._pending[-1:]
             return False
         self._pending.clear()
+        self.last_fade = 1.0
+        if nis > self.settings.fade_nis:
+            self.last_fade = min(nis / self.settings.fade_nis, self.settings.max_fade)
+            self.p = self.p * self.last_fade
+            s_inv = _inv2(self.p[:2, :2] + r_cm2)
         k = self.p[:, :2] @ s_inv
         self.x = self.x + k @ nu
         self.p = self.p - k @ self.p[:2, :]
         self.p = 0.5 * (self.p + self.p.T)
-        a = self.settings.manoeuvre_alpha
-        self.nis_avg = (1.0 - a) * self.nis_avg + a * nis
         self.updates += 1
         return True
 
-    def _restart(self, z: FloatArray, r_cm2: FloatArray) -> None:
-        self.x = np.array([z[0], z[1], 0.0, 0.0])
+    def _jump(self, r_cm2: FloatArray) -> None:
+        z = self._pending[-1]
+        span = (len(self._pending) - 1) * self._dt
+        v = (z - self._pending[0]) / span if span > 0 else np.zeros(2)
+        self.x = np.array([z[0], z[1], v[0], v[1]])
         self.p = np.zeros((4, 4))
         self.p[:2, :2] = r_cm2
         self.p[2, 2] = self.p[3, 3] = self.settings.initial_speed_sigma_cm_s**2
-        self.updates = 1
-        self.nis_avg = 2.0
+        self.updates = 2 if span > 0 else 1
         self._pending.clear()
 
 

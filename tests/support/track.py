@@ -209,3 +209,23 @@ def three_rovers() -> list[SynthRover]:
         SynthRover("green", 250.0, 300.0, 1.2, COLORS["green"]),
         SynthRover("blue", 180.0, 500.0, -0.5, COLORS["blue"]),
     ]
+
+
+_SCENES: dict[int, Scene] = {}
+
+
+def shared_scene(seed: int = 0) -> Scene:
+    """One scene per seed for the whole test session (building the floor takes about a second)."""
+    if seed not in _SCENES:
+        _SCENES[seed] = Scene(seed=seed)
+    return _SCENES[seed]
+
+
+def hue_colors(n: int, saturation: float = 0.75, value: float = 200.0) -> list[tuple[int, int, int]]:
+    """``n`` marker colours evenly spaced in hue (for crowds), as BGR."""
+    out = []
+    for k in range(n):
+        hsv = np.uint8([[[int(180 * k / n), int(255 * saturation), int(value)]]])
+        b, g, r = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0, 0]
+        out.append((int(b), int(g), int(r)))
+    return out
