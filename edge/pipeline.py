@@ -44,9 +44,10 @@ from edge.segmentation import BackgroundModel, ColorModel, opponent_planes, subt
 from edge.sources import Frame
 from edge.trackers.base import (
     Measurement,
-    PlaneMapCache,
+    PlaneGrid,
     PlaneMapping,
     RoverModel,
+    StageClock,
     Window,
     WindowTracker,
 )
@@ -257,7 +258,7 @@ class Pipeline:
             raise ConfigError("method 'paper' is the full-frame baseline: build it with build_tracker()")
         self.config = config
         self.calibration = calibration
-        self.maps = PlaneMapCache(calibration)
+        self.maps: PlaneGrid | None = None
         self.tracker = tracker if tracker is not None else make_tracker(config.method)
         colors = [r.color_bgr for r in config.rovers]
         try:
@@ -322,6 +323,7 @@ class Pipeline:
         if self._empty_scene is not None and self._empty_scene.shape[:2] != (h, w):
             eh, ew = self._empty_scene.shape[:2]
             raise ConfigError(f"background image is {ew}x{eh} but the frames are {w}x{h}")
+        self.maps = PlaneGrid(self.calibration, (w, h))
         period = max(1, round(self.config.background_refresh_s * self.config.fps))
         self.background = BackgroundModel((h, w), period, self._empty_scene)
 
@@ -366,6 +368,7 @@ class Pipeline:
         Projected through the local plane map near ``hint_uv`` (the rover's last image position) instead of the
         full calibration: a few multiplications instead of a lens model per point.
         """
+        assert self.maps is not None
         if hint_uv is None:
             centre = np.asarray(self.calibration.world_to_pixel(np.array([xy_cm])), dtype=np.float64)[0]
             hint_uv = (float(centre[0]), float(centre[1]))
@@ -399,28 +402,12 @@ class Pipeline:
         uv: tuple[float, float],
         clock: StageTimes,
     ) -> _Observation | None:
-        assert self.background is not None
-        x0, y0, x1, y1 = box
-        t0 = time.perf_counter()
-        crop = image[y0:y1, x0:x1]
-        c1, c2, lum = opponent_planes(crop)  # RGB colour planes extraction, generalised
-        classes = self.colors.classify(c1, c2, lum)
-        plane = self.colors.plane(tr.index, c1, c2)
-        t1 = time.perf_counter()
-        clock.add("planes", t1 - t0)
-        valid = self.background.valid[y0:y1, x0:x1]
-        if valid.any():
-            fg = subtract_background(crop, self.background.reference[y0:y1, x0:x1], self.config.background_threshold)
-            fg &= valid
-        else:
-            fg = valid
-        t2 = time.perf_counter()
-        clock.add("subtraction", t2 - t1)
-        local = self.maps.at(0.5 * (x0 + x1), 0.5 * (y0 + y1))
-        clock.add("calibration", time.perf_counter() - t2)
-        if local is None:
+        assert self.background is not None and self.maps is not None
+        window = prepare_window(
+            image, box, tr.index, uv, self.colors, self.maps, self.background, self.config.background_threshold, clock
+        )
+        if window is None:
             return None
-        window = Window(box, crop, c1, c2, lum, classes, plane, fg, valid, local, uv)
         model = RoverModel(tr.index, self._expected_area(tr), tr.level)
         m = self.tracker.measure(window, model, clock)
         if m is None:
@@ -429,7 +416,7 @@ class Pipeline:
         if not self.config.min_area_fraction <= ratio <= self.config.max_area_fraction:
             return None
         # Measurement covariance: the pixel noise seen through the local scale of the plane mapping.
-        jac = local.jacobian(*m.uv_px)
+        jac = window.local.jacobian(*m.uv_px)
         sigma = self.config.measurement_sigma_px
         return _Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + np.eye(2) * 1e-4)
 
@@ -549,6 +536,40 @@ class Pipeline:
         x0, y0, x1, y1 = box
         gw, gh = (x1 - x0) // 2, (y1 - y0) // 2
         return max(0, x0 - gw), max(0, y0 - gh), min(shape[1], x1 + gw), min(shape[0], y1 + 2 * gh)
+
+
+def prepare_window(
+    image: NDArray[np.uint8],
+    box: tuple[int, int, int, int],
+    rover_index: int,
+    predicted_uv: tuple[float, float],
+    colors: ColorModel,
+    maps: PlaneGrid,
+    background: BackgroundModel,
+    background_threshold: float,
+    clock: StageClock,
+) -> Window | None:
+    """The per-window stages before a tracker runs: colour planes, hue classes, background subtraction (eq. 2)."""
+    x0, y0, x1, y1 = box
+    t0 = time.perf_counter()
+    crop = image[y0:y1, x0:x1]
+    c1, c2, lum = opponent_planes(crop)  # RGB colour planes extraction, generalised to N colours
+    classes = colors.classify(c1, c2, lum)
+    plane = colors.plane(rover_index, c1, c2)
+    t1 = time.perf_counter()
+    clock.add("planes", t1 - t0)
+    valid = background.valid[y0:y1, x0:x1]
+    if valid.any():
+        fg = subtract_background(crop, background.reference[y0:y1, x0:x1], background_threshold) & valid
+    else:
+        fg = valid
+    t2 = time.perf_counter()
+    clock.add("subtraction", t2 - t1)
+    local = maps.at(0.5 * (x0 + x1), 0.5 * (y0 + y1))
+    clock.add("calibration", time.perf_counter() - t2)
+    if local is None:
+        return None
+    return Window(box, crop, c1, c2, lum, classes, plane, fg, valid, maps, local, predicted_uv)
 
 
 def build_tracker(

@@ -56,7 +56,7 @@ class CentroidTracker:
         weights = coverage_weights(window.bgr, window.lum, core, self.ring_px, exclude=others, pure=mask)
         t4 = time.perf_counter()
         clock.add("measure", t4 - t3)
-        blob = world_blob(weights, window.offset, window.local)  # eq. 3-4
+        blob = world_blob(weights, window.offset, window.grid)  # eq. 3-4
         clock.add("calibration", time.perf_counter() - t4)
         if blob is None:
             return None

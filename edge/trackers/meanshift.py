@@ -9,7 +9,7 @@ when the light changes; pixels of other hues share bin 0.
 
 The kernel is an ellipse in the image: the marker's circumscribed circle on the plane, seen through the local
 plane mapping, so it is as wide as the marker everywhere in the field. The final position is the area centroid
-on the plane of the converged weights times each pixel's marker coverage.
+on the plane of the marker's coverage over the pixels of its colour under the converged kernel.
 """
 
 from __future__ import annotations
@@ -100,9 +100,9 @@ class MeanShiftTracker:
                 break
         t2 = time.perf_counter()
         clock.add("measure", t2 - t1)
-        weights = (wts / max(float(wts.max()), 1e-12)) * np.clip(coverage, -0.5, 1.0)
-        weights[feature == 0] = 0.0
-        blob = world_blob(weights.astype(np.float32), window.offset, window.local)
+        # The measurement: marker coverage of the pixels under the converged kernel that carry the marker's colour.
+        weights = np.where((wts > 0.0) & (feature > 0), np.clip(coverage, 0.0, 1.0), 0.0)
+        blob = world_blob(weights.astype(np.float32), window.offset, window.grid)
         clock.add("calibration", time.perf_counter() - t2)
         if blob is None or rho <= 0.0:
             return None

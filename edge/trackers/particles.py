@@ -72,7 +72,7 @@ class ParticleTracker:
         weights = coverage_weights(window.bgr, window.lum, core, self.ring_px, exclude=others, pure=mask)
         t4 = time.perf_counter()
         clock.add("measure", t4 - t3)
-        blob = world_blob(weights, window.offset, window.local)  # eq. 9-10 on the world plane
+        blob = world_blob(weights, window.offset, window.grid)  # eq. 9-10 on the world plane
         clock.add("calibration", time.perf_counter() - t4)
         if blob is None:
             return None

@@ -81,11 +81,16 @@ class Scene:
         jpeg_quality: int | None = None,
         blur_cm: tuple[float, float] = (0.0, 0.0),
         supersample: int = 8,
+        row_gain: NDArray[np.float32] | None = None,
+        sun: tuple[tuple[int, int, int, int], tuple[float, float, float]] | None = None,
+        glare: tuple[float, float, float] | None = None,
     ) -> U8:
-        """One frame: the floor, the rovers (far ones first), then gain, noise and compression.
+        """One frame: the floor, the rovers (far ones first), then light, noise and compression.
 
         ``blur_cm``: marker displacement during the exposure (motion blur, drawn as 5 sub-exposures centred on
-        the rover's position).
+        the rover's position). ``row_gain``: (H,) per-row light level (rolling-shutter mains flicker). ``sun``:
+        a pixel box ``(x0, y0, x1, y1)`` lit warmer and brighter by a BGR factor (a sunlit window patch).
+        ``glare``: ``(u, v, radius_px)`` of a bright, desaturated specular spot.
         """
         img = self.floor.astype(np.float32)
         cam_pos = self.camera.position_cm
@@ -98,7 +103,10 @@ class Scene:
             box = None
             for f in steps:
                 moved = SynthRover(**{**rover.__dict__, "x": rover.x + f * blur_cm[0], "y": rover.y + f * blur_cm[1]})
-                patch, box_f = _draw_rover(img, self.camera, moved, supersample, pad=8)
+                drawn = _draw_rover(img, self.camera, moved, supersample, pad=8)
+                if drawn is None:
+                    break
+                patch, box_f = drawn
                 if acc is None:
                     acc, box = patch, box_f
                 else:
@@ -108,6 +116,22 @@ class Scene:
             x0, y0, x1, y1 = box
             img[y0:y1, x0:x1] = acc / len(steps)
         img *= gain
+        if row_gain is not None:
+            img *= row_gain[:, None, None]
+        if sun is not None:
+            (x0, y0, x1, y1), factor = sun
+            yy, xx = np.mgrid[y0:y1, x0:x1]
+            soft = np.minimum.reduce([xx - x0, x1 - 1 - xx, yy - y0, y1 - 1 - yy]).astype(np.float32)
+            ramp = np.clip(soft / 20.0, 0.0, 1.0)[..., None]
+            img[y0:y1, x0:x1] *= 1.0 + ramp * (np.asarray(factor, np.float32) - 1.0)
+        if glare is not None:
+            gu, gv, gr = glare
+            r = int(4 * gr) + 1
+            y0, y1 = max(0, int(gv) - r), min(img.shape[0], int(gv) + r)
+            x0, x1 = max(0, int(gu) - r), min(img.shape[1], int(gu) + r)
+            yy, xx = np.mgrid[y0:y1, x0:x1]
+            spot = np.exp(-((xx - gu) ** 2 + (yy - gv) ** 2) / (2.0 * gr * gr)).astype(np.float32)[..., None]
+            img[y0:y1, x0:x1] = img[y0:y1, x0:x1] * (1.0 - spot) + 250.0 * spot
         if noise_sigma > 0.0:
             rng = rng or np.random.default_rng(0)
             img += rng.normal(0.0, noise_sigma, img.shape).astype(np.float32) * np.sqrt(np.maximum(img, 1.0) / 128.0)
@@ -121,7 +145,7 @@ class Scene:
 
 def _draw_rover(
     img: NDArray[np.float32], camera: PinholeCamera, rover: SynthRover, ss: int, pad: int
-) -> tuple[NDArray[np.float32], tuple[int, int, int, int]]:
+) -> tuple[NDArray[np.float32], tuple[int, int, int, int]] | None:
     """The rover drawn over ``img`` in its bounding box at ``ss`` x supersampling, area-averaged back."""
     bl, bw = rover.body_cm
     bottom = _rect(rover.x, rover.y, rover.theta, bl, bw, 0.0)
@@ -132,6 +156,8 @@ def _draw_rover(
     y0 = max(0, math.floor(uv_all[:, 1].min()) - pad)
     x1 = min(w, math.ceil(uv_all[:, 0].max()) + pad)
     y1 = min(h, math.ceil(uv_all[:, 1].max()) + pad)
+    if x1 <= x0 or y1 <= y0:
+        return None  # out of view
     base = img[y0:y1, x0:x1]
     big = cv2.resize(base, ((x1 - x0) * ss, (y1 - y0) * ss), interpolation=cv2.INTER_NEAREST)
 
