@@ -91,8 +91,9 @@ def test_plane_grid_follows_a_distorted_calibration_pixel_by_pixel(dist):
     assert valid.all()
     assert np.max(np.hypot(x - exact[:, 0], y - exact[:, 1])) < 0.02
     # The area per pixel is the Jacobian of the mapping: compare with finite differences of the calibration.
-    du = mapping.pixel_to_world(pts + [0.5, 0.0]) - mapping.pixel_to_world(pts - [0.5, 0.0])
-    dv = mapping.pixel_to_world(pts + [0.0, 0.5]) - mapping.pixel_to_world(pts - [0.0, 0.5])
+    half_u, half_v = np.array([0.5, 0.0]), np.array([0.0, 0.5])
+    du = mapping.pixel_to_world(pts + half_u) - mapping.pixel_to_world(pts - half_u)
+    dv = mapping.pixel_to_world(pts + half_v) - mapping.pixel_to_world(pts - half_v)
     jac = np.abs(du[:, 0] * dv[:, 1] - du[:, 1] * dv[:, 0])
     assert np.max(np.abs(area / jac - 1.0)) < 0.01
 
