@@ -114,19 +114,16 @@ def track(
     """
     import json
 
-    from edge.offline import VideoFrames, track_video
+    from edge.offline import open_track_job
     from edge.pipeline import TrackerConfig, load_tracker_config
 
     config = load_tracker_config(config_path) if config_path is not None else TrackerConfig()
     if method is not None:
         config = config.model_copy(update={"method": method})
-    probe = VideoFrames(video)
-    total = probe.frame_count
-    probe.close()
-    with click.progressbar(length=max(total, 1), label="tracking", file=None if not as_json else _null()) as bar:
-        summary = track_video(
-            video, calibration_path, out_path, config, background_path, on_frame=lambda _r: bar.update(1)
-        )
+    job = open_track_job(video, calibration_path, config, background_path)
+    total = max(job.frames.frame_count, 1)
+    with click.progressbar(length=total, label="tracking", file=_null() if as_json else None) as bar:
+        summary = job.run(out_path, on_frame=lambda _r: bar.update(1))
     if as_json:
         click.echo(json.dumps(summary.as_dict()))
         return

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from edge.errors import CalibrationError, ConfigError, SourceError
 from edge.messages import encode_pose
-from edge.pipeline import FrameResult, TrackerConfig, build_tracker
+from edge.pipeline import FrameResult, Tracker, TrackerConfig, build_tracker
 from edge.sources import Frame
 from edge.trackers.base import CameraPlaneMapping, PlaneMapping
 
@@ -144,6 +144,72 @@ class VideoFrames:
         self._cap.release()
 
 
+@dataclass
+class TrackJob:
+    """A video opened and a tracker built for it: everything checked before the first frame is tracked."""
+
+    frames: VideoFrames
+    tracker: Tracker
+    rovers: tuple[str, ...]
+
+    def run(self, out: Path, on_frame: Callable[[FrameResult], None] | None = None) -> TrackSummary:
+        """Track every frame; write one pose v1 line per rover per frame where it was seen to ``out``."""
+        summary = TrackSummary(rovers=self.rovers, per_rover=dict.fromkeys(self.rovers, 0))
+        seq = dict.fromkeys(self.rovers, 0)
+        stages: dict[str, list[float]] = {}
+        t_wall = time.perf_counter()
+        try:
+            handle = out.open("wb")
+        except OSError as exc:
+            raise ConfigError(f"{out}: cannot write poses ({exc.strerror})") from exc
+        try:
+            with handle:
+                for frame in self.frames:
+                    t0 = time.perf_counter()
+                    result = self.tracker.process(frame)
+                    summary.processing_s += time.perf_counter() - t0
+                    summary.frames += 1
+                    for name, ms in result.stage_ms.items():
+                        stages.setdefault(name, []).append(ms)
+                    for e in result.estimates:
+                        line = encode_pose(
+                            e.rover_id,
+                            seq[e.rover_id],
+                            frame.index,
+                            frame.t_capture_s,
+                            e.x_cm,
+                            e.y_cm,
+                            e.theta_rad,
+                            e.vx_cm_s,
+                            e.vy_cm_s,
+                            e.quality,
+                        )
+                        handle.write(line + b"\n")
+                        seq[e.rover_id] += 1
+                        summary.per_rover[e.rover_id] += 1
+                        summary.poses += 1
+                    if on_frame is not None:
+                        on_frame(result)
+        finally:
+            self.frames.close()
+        summary.wall_s = time.perf_counter() - t_wall
+        summary.stage_ms_median = {k: float(np.median(v)) for k, v in stages.items()}
+        return summary
+
+
+def open_track_job(video: Path, calibration: Path, config: TrackerConfig, background: Path | None = None) -> TrackJob:
+    """Open ``video``, load the calibration (checked against the video's size) and build the tracker."""
+    frames = VideoFrames(video)
+    try:
+        mapping = load_plane_mapping(calibration, frames.size)
+        empty = read_background(background, frames.size) if background is not None else None
+        tracker = build_tracker(config, mapping, empty)
+    except BaseException:
+        frames.close()
+        raise
+    return TrackJob(frames, tracker, tuple(r.id for r in config.rovers))
+
+
 def track_video(
     video: Path,
     calibration: Path,
@@ -152,50 +218,5 @@ def track_video(
     background: Path | None = None,
     on_frame: Callable[[FrameResult], None] | None = None,
 ) -> TrackSummary:
-    """Track every frame of ``video``; write one pose v1 line per rover per frame where it was seen to ``out``."""
-    frames = VideoFrames(video)
-    try:
-        mapping = load_plane_mapping(calibration, frames.size)
-        empty = read_background(background, frames.size) if background is not None else None
-        tracker = build_tracker(config, mapping, empty)
-        summary = TrackSummary(rovers=tuple(r.id for r in config.rovers))
-        summary.per_rover = dict.fromkeys(summary.rovers, 0)
-        seq = dict.fromkeys(summary.rovers, 0)
-        stages: dict[str, list[float]] = {}
-        t_wall = time.perf_counter()
-        try:
-            handle = out.open("wb")
-        except OSError as exc:
-            raise ConfigError(f"{out}: cannot write poses ({exc.strerror})") from exc
-        with handle:
-            for frame in frames:
-                t0 = time.perf_counter()
-                result = tracker.process(frame)
-                summary.processing_s += time.perf_counter() - t0
-                summary.frames += 1
-                for name, ms in result.stage_ms.items():
-                    stages.setdefault(name, []).append(ms)
-                for e in result.estimates:
-                    line = encode_pose(
-                        e.rover_id,
-                        seq[e.rover_id],
-                        frame.index,
-                        frame.t_capture_s,
-                        e.x_cm,
-                        e.y_cm,
-                        e.theta_rad,
-                        e.vx_cm_s,
-                        e.vy_cm_s,
-                        e.quality,
-                    )
-                    handle.write(line + b"\n")
-                    seq[e.rover_id] += 1
-                    summary.per_rover[e.rover_id] += 1
-                    summary.poses += 1
-                if on_frame is not None:
-                    on_frame(result)
-        summary.wall_s = time.perf_counter() - t_wall
-        summary.stage_ms_median = {k: float(np.median(v)) for k, v in stages.items()}
-        return summary
-    finally:
-        frames.close()
+    """Track every frame of ``video`` into pose JSON lines in ``out`` (:func:`open_track_job` then run it)."""
+    return open_track_job(video, calibration, config, background).run(out, on_frame)
