@@ -142,9 +142,21 @@ class TrackerConfig(BaseModel):
     )
     acquire_scale: int = Field(default=4, ge=1, le=8, description="Downscale factor of the acquisition pass.")
     min_area_fraction: float = Field(
-        default=0.6, gt=0.0, le=1.0, description="A marker showing less of its area is hidden: no pose."
+        default=0.9,
+        gt=0.0,
+        le=1.0,
+        description="A marker showing less of its usual area is partly hidden or cut off: no pose (its centre would "
+        "be biased).",
     )
-    max_area_fraction: float = Field(default=1.8, ge=1.0, description="A larger blob is not one marker: no pose.")
+    max_area_fraction: float = Field(default=1.3, ge=1.0, description="A larger blob is not one marker: no pose.")
+    acquire_area_range: tuple[float, float] = Field(
+        default=(0.5, 2.0),
+        description="Blob area, as a share of the nominal marker area, accepted before the "
+        "rover's own marker area has been learned.",
+    )
+    max_elongation_factor: float = Field(
+        default=1.5, ge=1.0, description="A blob more elongated than the marker's own aspect times this is not it."
+    )
     heading_min_speed_cm_s: float = Field(default=3.0, ge=0.0, description="Slowest motion that gives a heading.")
     accel_sigma_cm_s2: float = Field(default=40.0, gt=0.0, description="Filter process noise (acceleration).")
     measurement_sigma_px: float = Field(default=0.15, gt=0.0, description="Marker centre noise in pixels.")
@@ -408,17 +420,36 @@ class Pipeline:
         )
         if window is None:
             return None
+        learned = len(tr.areas) >= 10
         model = RoverModel(tr.index, self._expected_area(tr), tr.level)
         m = self.tracker.measure(window, model, clock)
-        if m is None:
-            return None
-        ratio = m.area_cm2 / model.marker_area_cm2
-        if not self.config.min_area_fraction <= ratio <= self.config.max_area_fraction:
+        if m is None or not self._plausible(m, model.marker_area_cm2, learned):
             return None
         # Measurement covariance: the pixel noise seen through the local scale of the plane mapping.
         jac = window.local.jacobian(*m.uv_px)
         sigma = self.config.measurement_sigma_px
         return _Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + np.eye(2) * 1e-4)
+
+    def _plausible(self, m: Measurement, expected_area_cm2: float, learned: bool) -> bool:
+        """Is this blob the whole marker? Its area on the plane, its shape, and not cut off by the image border.
+
+        A partly hidden or cut-off marker would give a biased centre, and a blob of the right hue but the wrong
+        size or shape (clothes, a poster, a reflection) is not a marker: both are reported as missing instead.
+        """
+        if m.at_image_edge:
+            return False
+        ratio = m.area_cm2 / expected_area_cm2
+        low, high = (
+            (self.config.min_area_fraction, self.config.max_area_fraction)
+            if learned
+            else self.config.acquire_area_range
+        )
+        if not low <= ratio <= high:
+            return False
+        aspect = max(self.config.marker_length_cm, self.config.marker_width_cm) / min(
+            self.config.marker_length_cm, self.config.marker_width_cm
+        )
+        return m.elongation <= aspect * self.config.max_elongation_factor
 
     # -- acquisition (low resolution) ---------------------------------------------------------------------------
     def _acquire(self, image: NDArray[np.uint8], clock: StageTimes) -> dict[int, _Observation]:
@@ -569,7 +600,8 @@ def prepare_window(
     clock.add("calibration", time.perf_counter() - t2)
     if local is None:
         return None
-    return Window(box, crop, c1, c2, lum, classes, plane, fg, valid, maps, local, predicted_uv)
+    size = (image.shape[1], image.shape[0])
+    return Window(box, crop, c1, c2, lum, classes, plane, fg, valid, maps, local, predicted_uv, size)
 
 
 def build_tracker(

@@ -260,7 +260,7 @@ class Window:
     index per pixel from the hue table (-1: none). ``plane``: the rover's colour plane (chroma projected on its
     hue). ``foreground``: eq. 2 against the background model (False where the reference is not yet valid).
     ``reference_valid``: where the background reference is trustworthy. ``grid``: the pixel-to-plane mapping;
-    ``local``: its homography at the window's centre (for point queries).
+    ``local``: its homography at the window's centre (for point queries). ``image_size``: (w, h) of the frame.
     ``predicted_uv``: where the filter expects the marker centre, in image pixels.
     """
 
@@ -276,6 +276,7 @@ class Window:
     grid: PlaneGrid
     local: LocalPlaneMap
     predicted_uv: tuple[float, float]
+    image_size: tuple[int, int]
 
     @property
     def offset(self) -> tuple[int, int]:
@@ -301,8 +302,10 @@ class Measurement:
 
     ``xy_cm``: marker centre on the plane; ``uv_px``: coverage-weighted image centroid; ``area_cm2``: measured
     marker area on the plane; ``level``: the marker's value in its colour plane (the next frame's threshold
-    reference); ``quality`` 0..1; ``axis_rad``: long-axis orientation modulo pi; ``foreground_fraction``: share
-    of its pixels that differ from the background reference (where valid).
+    reference); ``quality`` 0..1; ``axis_rad``: long-axis orientation modulo pi; ``elongation``: ratio of the
+    blob's principal standard deviations on the plane (1.28 for a 21.5 x 16.8 cm rectangle);
+    ``foreground_fraction``: share of its pixels that differ from the background reference (where valid);
+    ``at_image_edge``: the blob touches the border of the image (the marker may be cut off).
     """
 
     xy_cm: tuple[float, float]
@@ -311,7 +314,38 @@ class Measurement:
     level: float
     quality: float
     axis_rad: float
+    elongation: float
     foreground_fraction: float
+    at_image_edge: bool
+
+
+def make_measurement(blob: WorldBlob, window: Window, core: BoolArray, level: float, quality: float) -> Measurement:
+    """A :class:`Measurement` of the marker whose pixels are ``core`` in ``window``."""
+    valid = window.reference_valid[core]
+    fg = float(window.foreground[core].sum() / valid.sum()) if valid.any() else 1.0
+    x0, y0, x1, y1 = window.box
+    w, h = window.image_size
+    rows, cols = np.nonzero(core)
+    edge = bool(
+        rows.size
+        and (
+            (x0 == 0 and cols.min() == 0)
+            or (y0 == 0 and rows.min() == 0)
+            or (x1 == w and cols.max() == x1 - x0 - 1)
+            or (y1 == h and rows.max() == y1 - y0 - 1)
+        )
+    )
+    return Measurement(
+        (blob.x_cm, blob.y_cm),
+        (blob.u_px, blob.v_px),
+        blob.area_cm2,
+        level,
+        quality,
+        blob.axis_rad,
+        blob.elongation,
+        fg,
+        edge,
+    )
 
 
 class WindowTracker(Protocol):

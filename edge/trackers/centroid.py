@@ -19,7 +19,15 @@ from edge.segmentation import (
     marker_level,
     threshold,
 )
-from edge.trackers.base import Measurement, RoverModel, StageClock, Window, area_quality, world_blob
+from edge.trackers.base import (
+    Measurement,
+    RoverModel,
+    StageClock,
+    Window,
+    area_quality,
+    make_measurement,
+    world_blob,
+)
 
 
 class CentroidTracker:
@@ -60,14 +68,4 @@ class CentroidTracker:
         clock.add("calibration", time.perf_counter() - t4)
         if blob is None:
             return None
-        valid = window.reference_valid[core]
-        fg = float(window.foreground[core].sum() / valid.sum()) if valid.any() else 1.0
-        return Measurement(
-            (blob.x_cm, blob.y_cm),
-            (blob.u_px, blob.v_px),
-            blob.area_cm2,
-            level,
-            area_quality(blob.area_cm2, rover.marker_area_cm2),
-            blob.axis_rad,
-            fg,
-        )
+        return make_measurement(blob, window, core, level, area_quality(blob.area_cm2, rover.marker_area_cm2))

@@ -21,7 +21,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.segmentation import auto_threshold
-from edge.trackers.base import Measurement, RoverModel, StageClock, Window, area_quality, world_blob
+from edge.trackers.base import (
+    Measurement,
+    RoverModel,
+    StageClock,
+    Window,
+    area_quality,
+    make_measurement,
+    world_blob,
+)
 
 
 class MeanShiftTracker:
@@ -109,13 +117,8 @@ class MeanShiftTracker:
         fresh = self._target_model(feature, coverage, grid_u, grid_v, y, metric)
         if fresh is not None:
             self._models[rover.index] = (1.0 - self.blend) * q + self.blend * fresh
-        core = weights > 0.5
-        valid = window.reference_valid[core]
-        fg = float(window.foreground[core].sum() / valid.sum()) if valid.any() else 1.0
         quality = area_quality(blob.area_cm2, rover.marker_area_cm2) * min(1.0, rho)
-        return Measurement(
-            (blob.x_cm, blob.y_cm), (blob.u_px, blob.v_px), blob.area_cm2, level, quality, blob.axis_rad, fg
-        )
+        return make_measurement(blob, window, weights > 0.5, level, quality)
 
     def _kernel_metric(self, window: Window, rover: RoverModel) -> NDArray[np.float64]:
         """(2, 2) M such that ``d^T M d <= 1`` is the marker's circumscribed circle (times the kernel scale)."""

@@ -23,7 +23,15 @@ from edge.segmentation import (
     open_by_reconstruction,
     threshold,
 )
-from edge.trackers.base import Measurement, RoverModel, StageClock, Window, area_quality, world_blob
+from edge.trackers.base import (
+    Measurement,
+    RoverModel,
+    StageClock,
+    Window,
+    area_quality,
+    make_measurement,
+    world_blob,
+)
 
 
 class ParticleTracker:
@@ -76,17 +84,7 @@ class ParticleTracker:
         clock.add("calibration", time.perf_counter() - t4)
         if blob is None:
             return None
-        valid = window.reference_valid[core]
-        fg = float(window.foreground[core].sum() / valid.sum()) if valid.any() else 1.0
-        return Measurement(
-            (blob.x_cm, blob.y_cm),
-            (blob.u_px, blob.v_px),
-            blob.area_cm2,
-            level,
-            area_quality(blob.area_cm2, rover.marker_area_cm2),
-            blob.axis_rad,
-            fg,
-        )
+        return make_measurement(blob, window, core, level, area_quality(blob.area_cm2, rover.marker_area_cm2))
 
     def _choose(self, particles: list[Particle], window: Window, rover: RoverModel) -> list[Particle]:
         """The marker's particle, plus any fragments of it (a marker split by a glare band stays whole)."""
