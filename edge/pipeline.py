@@ -464,23 +464,24 @@ class Pipeline:
         classes = self.colors.classify(c1, c2, lum)
         clock.add("acquire", time.perf_counter() - t0)
         found: dict[int, _Observation] = {}
-        taken = [tr.box for tr in self.tracks if tr.filter is not None and tr.box is not None]
+        # Where the tracked rovers are: a candidate there is another rover's marker seen in a confusable hue.
+        taken = [tr.filter.position for tr in self.tracks if tr.filter is not None]
         for tr in self.tracks:
             if tr.filter is not None:
                 continue
             t1 = time.perf_counter()
             mask = (classes == tr.index).view(np.uint8)
             n, _, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
-            order: list[int] = (np.argsort(-stats[1:, cv2.CC_STAT_AREA])[:4] + 1).tolist() if n > 1 else []
+            order: list[int] = (np.argsort(-stats[1:, cv2.CC_STAT_AREA])[:6] + 1).tolist() if n > 1 else []
             clock.add("acquire", time.perf_counter() - t1)
             for label in order:
                 if stats[label, cv2.CC_STAT_AREA] < 1:
                     continue
                 u, v = (float(cents[label, 0]) + 0.5) * s - 0.5, (float(cents[label, 1]) + 0.5) * s - 0.5
-                if any(b[0] <= u < b[2] and b[1] <= v < b[3] for b in taken):
-                    continue
                 xy = self.calibration.pixel_to_world(np.array([[u, v]]))[0]
                 if not np.all(np.isfinite(xy)):
+                    continue
+                if any(math.hypot(xy[0] - p[0], xy[1] - p[1]) < self.config.marker_radius_cm for p in taken):
                     continue
                 radius = self.config.marker_radius_cm + self.config.window_margin_cm + 2.0 * s
                 box, _ = self._window_box((float(xy[0]), float(xy[1])), radius, image.shape, (u, v))
@@ -494,7 +495,7 @@ class Pipeline:
                     continue
                 tr.box = box
                 found[tr.index] = m
-                taken.append(box)
+                taken.append(m.measurement.xy_cm)
                 break
         return found
 

@@ -242,22 +242,28 @@ def threshold(plane_roi: F32, interval: ThresholdInterval) -> BoolArray:
 
 
 # -- morphology (P.M.O. erosion, A.M.O. hole filling) ------------------------------------------------------------
-_KERNEL_3 = cv2.getStructuringElement(cv2.MORPH_RECT, (3, 3))
+_SQUARES = {k: np.ones((2 * k + 1, 2 * k + 1), np.uint8) for k in range(1, 9)}
+
+
+def _square(k: int) -> NDArray[np.uint8]:
+    """The (2k+1)-square structuring element: one pass of it is k passes of the 3x3 square."""
+    kernel = _SQUARES.get(k)
+    return kernel if kernel is not None else np.ones((2 * k + 1, 2 * k + 1), np.uint8)
 
 
 def erode(mask: BoolArray, iterations: int = 1) -> BoolArray:
-    """Binary erosion with a 3x3 structuring element (the paper's P.M.O.)."""
+    """Binary erosion, ``iterations`` times with a 3x3 structuring element (the paper's P.M.O.)."""
     if iterations <= 0:
         return mask
-    out = cv2.erode(mask.view(np.uint8), _KERNEL_3, iterations=iterations, borderType=cv2.BORDER_REPLICATE)
+    out = cv2.erode(mask.view(np.uint8), _square(iterations), borderType=cv2.BORDER_REPLICATE)
     return out.view(bool)
 
 
 def dilate(mask: BoolArray, iterations: int = 1) -> BoolArray:
-    """Binary dilation with a 3x3 structuring element."""
+    """Binary dilation, ``iterations`` times with a 3x3 structuring element."""
     if iterations <= 0:
         return mask
-    return cv2.dilate(mask.view(np.uint8), _KERNEL_3, iterations=iterations).view(bool)
+    return cv2.dilate(mask.view(np.uint8), _square(iterations)).view(bool)
 
 
 def reconstruct(marker: BoolArray, mask: BoolArray, connectivity: int = 8) -> BoolArray:

@@ -157,6 +157,12 @@ class PlaneGrid:
         self.det += h[:, 2] * (h[:, 3] * h[:, 7] - h[:, 4] * h[:, 6])
         self.valid &= np.isfinite(self.det) & (self.det != 0.0)
         self._local: dict[int, LocalPlaneMap | None] = {}
+        # Every pixel's plane position and area, once: a window's centroid is then dense sums over slices.
+        pu, pv = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+        x, y, area, ok = self.map_pixels(pu.ravel(), pv.ravel())
+        self.x_cm = np.where(ok, x, 0.0).reshape(height, width)
+        self.y_cm = np.where(ok, y, 0.0).reshape(height, width)
+        self.area_cm2 = np.where(ok, area, 0.0).reshape(height, width)
 
     def tile_of(self, u: float, v: float) -> int | None:
         if not (math.isfinite(u) and math.isfinite(v)):
@@ -232,23 +238,31 @@ def world_blob(weights: F32, offset_xy: tuple[int, int], grid: PlaneGrid) -> Wor
     edge); ``offset_xy``: the window's top-left pixel in the image. Each pixel contributes its coverage times
     the world area it spans, at its centre mapped to the plane. Returns None when the weights sum to nothing.
     """
-    vs, us = np.nonzero(weights)
-    if us.size == 0:
-        return None
-    w = weights[vs, us].astype(np.float64)
-    u = us.astype(np.float64) + offset_xy[0]
-    v = vs.astype(np.float64) + offset_xy[1]
-    x, y, area, valid = grid.map_pixels(u, v)
-    jw = np.where(valid, w * area, 0.0)
+    h, w = weights.shape
+    x0, y0 = offset_xy
+    rows, cols = slice(y0, y0 + h), slice(x0, x0 + w)
+    wt = weights.astype(np.float64)
+    jw = wt * grid.area_cm2[rows, cols]  # zero off the plane
     total = float(jw.sum())
-    if total <= 1e-9:
+    wsum = float(wt.sum())
+    if total <= 1e-9 or wsum <= 1e-9:
         return None
-    x, y = np.where(valid, x, 0.0), np.where(valid, y, 0.0)
-    cx, cy = float(jw @ x) / total, float(jw @ y) / total
-    dx, dy = x - cx, y - cy
-    cov = (float(jw @ (dx * dx)) / total, float(jw @ (dx * dy)) / total, float(jw @ (dy * dy)) / total)
-    wsum = float(w.sum())
-    return WorldBlob(cx, cy, total, float(w @ u) / wsum, float(w @ v) / wsum, cov)
+    x = grid.x_cm[rows, cols]
+    y = grid.y_cm[rows, cols]
+    # Moments about a point inside the window keep the sums well conditioned.
+    ox, oy = float(x[h // 2, w // 2]), float(y[h // 2, w // 2])
+    dx, dy = x - ox, y - oy
+    mx, my = float((jw * dx).sum()) / total, float((jw * dy).sum()) / total
+    dx -= mx
+    dy -= my
+    cov = (
+        float((jw * dx * dx).sum()) / total,
+        float((jw * dx * dy).sum()) / total,
+        float((jw * dy * dy).sum()) / total,
+    )
+    u_px = float(wt.sum(axis=0) @ np.arange(x0, x0 + w)) / wsum
+    v_px = float(wt.sum(axis=1) @ np.arange(y0, y0 + h)) / wsum
+    return WorldBlob(ox + mx, oy + my, total, u_px, v_px, cov)
 
 
 @dataclass
