@@ -6,6 +6,8 @@ one-line message with exit code 2; nothing else in the package talks to the term
 
 from __future__ import annotations
 
+import io
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -157,6 +159,323 @@ def plot(poses: Path, out_path: Path, title: str | None) -> None:
 
     counts = plot_poses(poses, out_path, title)
     click.echo(f"wrote {out_path} ({', '.join(f'{k}: {v}' for k, v in counts.items())} poses)")
+
+
+# -- calibrate ---------------------------------------------------------------------------------------------------
+def _parse_size(text: str | None, option: str) -> tuple[float, float] | None:
+    if text is None:
+        return None
+    try:
+        a, b = (float(p) for p in text.lower().replace(" ", "").split("x"))
+    except ValueError:
+        raise UserError(f"{option} {text!r}: expected WIDTHxHEIGHT, e.g. 1280x720") from None
+    if not (0 < a < 1e6 and 0 < b < 1e6):
+        raise UserError(f"{option} {text!r}: both numbers must be positive and finite")
+    return a, b
+
+
+def _area(text: str | None) -> tuple[float, float, float, float] | None:
+    size = _parse_size(text, "--area")
+    return None if size is None else (0.0, 0.0, size[0], size[1])
+
+
+@main.group()
+def calibrate() -> None:
+    """Calibrate the camera: pixels to world cm on the marker plane.
+
+    Point pairs (`points`), lens intrinsics from checkerboards (`intrinsics`), ArUco floor markers (`aruco`), and
+    checking a calibration against independently measured points (`check`).
+
+    Example:
+
+        edge-ips calibrate points points.csv --out calibration.json --error-map map.png
+    """
+
+
+@calibrate.command("points")
+@click.argument("points_csv", type=click.Path(path_type=Path))
+@click.option("--out", "out", type=click.Path(path_type=Path), required=True, help="Calibration file to write.")
+@click.option("--image", "image", type=click.Path(path_type=Path), help="Reference image (size; map background).")
+@click.option("--error-map", "error_map", type=click.Path(path_type=Path), help="Write the error map PNG here.")
+@click.option("--height", "height_cm", type=float, default=13.0, show_default=True, help="Plane height, cm.")
+@click.option("--intrinsics", "intrinsics", type=click.Path(path_type=Path), help="Lens intrinsics (undistort).")
+@click.option("--size", "size", help="Image size WxH when no --image or --intrinsics is given.  [default: 1280x720]")
+@click.option("--area", "area", help="Working area WIDTHxLENGTH cm from the origin.  [default: the points' box]")
+@click.option("--no-outlier-test", is_flag=True, help="Keep every point (the outlier test is on by default).")
+def calibrate_points_cmd(
+    points_csv: Path,
+    out: Path,
+    image: Path | None,
+    error_map: Path | None,
+    height_cm: float,
+    intrinsics: Path | None,
+    size: str | None,
+    area: str | None,
+    no_outlier_test: bool,
+) -> None:
+    """Fit the image-to-world mapping to surveyed points (CSV with header u,v,x,y: pixels; world cm).
+
+    A mis-measured point is detected (leave-one-out), reported and left out. Accuracy is reported as
+    leave-one-out errors: each point predicted by a fit made without it.
+
+    Example:
+
+        edge-ips calibrate points points.csv --out calibration.json --image reference.png --error-map map.png
+    """
+    from edge.calibration.errormap import write_error_map_png
+    from edge.calibration.files import save_calibration
+    from edge.calibration.intrinsics import load_intrinsics, read_image
+    from edge.calibration.points import calibrate_points, read_points_csv
+
+    background = read_image(image) if image is not None else None
+    intr = load_intrinsics(intrinsics) if intrinsics is not None else None
+    given = _parse_size(size, "--size")
+    if background is not None and intr is not None and (intr.width_px, intr.height_px) != background.shape[1::-1]:
+        raise UserError(
+            f"{image} is {background.shape[1]}x{background.shape[0]} but {intrinsics} is for "
+            f"{intr.width_px}x{intr.height_px} images"
+        )
+    if background is not None:
+        image_size = (background.shape[1], background.shape[0])
+    elif intr is not None:
+        image_size = (intr.width_px, intr.height_px)
+    elif given is not None:
+        image_size = (int(given[0]), int(given[1]))
+    else:
+        image_size = (1280, 720)
+    if given is not None and (int(given[0]), int(given[1])) != image_size:
+        raise UserError(f"--size {size} does not match the {image_size[0]}x{image_size[1]} image/intrinsics")
+    table = read_points_csv(points_csv)
+    result = calibrate_points(
+        table,
+        image_size,
+        height_cm=height_cm,
+        intrinsics=intr,
+        area_cm=_area(area),
+        detect_outliers=not no_outlier_test,
+    )
+    fit, stats = result.fit, result.stats
+    click.echo(
+        f"calibrated from {len(table)} points in {points_csv} ({fit.n_used} used, {len(fit.rejected)} rejected), "
+        f"plane z = {height_cm:g} cm, {image_size[0]}x{image_size[1]} images"
+        + (", lens undistorted with " + str(intrinsics) if intrinsics else "")
+    )
+    for r in fit.rejected:
+        click.echo(
+            f"REJECTED {points_csv} row {r.row} (line {r.line}): u,v = {r.uv_px[0]:g},{r.uv_px[1]:g} "
+            f"x,y = {r.xy_world_cm[0]:g},{r.xy_world_cm[1]:g}: off by {r.loo_residual_px:.1f} px when fitted without "
+            f"it ({r.score:.1f} sigma); maps {r.error_cm:.2f} cm from its x,y. Re-measure it."
+        )
+    if stats.sigma_px is not None:
+        click.echo(
+            f"fit residuals: sigma {stats.sigma_px:.2f} px; mean {stats.residual_mean_cm:.3f} cm, "
+            f"max {stats.residual_max_cm:.3f} cm"
+        )
+    if stats.loo_mean_cm is not None:
+        click.echo(
+            f"leave-one-out error: mean {stats.loo_mean_cm:.3f} cm, max {stats.loo_max_cm:.3f} cm, "
+            f"rms {stats.loo_rms_cm:.3f} cm (each point predicted by a fit without it; includes its own "
+            "measuring noise)"
+        )
+    for note in stats.notes:
+        click.echo(f"note: {note}")
+    if result.error_map is not None:
+        em = result.error_map
+        where = ""
+        if error_map is not None:
+            rejected_uv = table.uv_px[~fit.used]
+            write_error_map_png(
+                error_map,
+                em,
+                result.calibration,
+                points_uv_px=table.uv_px[fit.used],
+                rejected_uv_px=rejected_uv,
+                background=background,
+            )
+            where = f" -> {error_map}"
+        click.echo(
+            f"error map (predicted 95% error of the mapping, working area): mean {em.mean_cm:.3f} cm, "
+            f"max {em.max_cm:.3f} cm{where}"
+        )
+    save_calibration(result.record, out)
+    click.echo(f"wrote {out}")
+
+
+@calibrate.command("intrinsics")
+@click.argument("images", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--board", default="9x6", show_default=True, help="Inner corners COLSxROWS.")
+@click.option("--square", "square_cm", type=float, default=2.5, show_default=True, help="Square side, cm.")
+@click.option("--out", "out", type=click.Path(path_type=Path), required=True, help="Intrinsics file to write.")
+@click.option("--allow-missing", is_flag=True, help="Skip (and list) photos where the board is not found.")
+def calibrate_intrinsics_cmd(
+    images: tuple[Path, ...], board: str, square_cm: float, out: Path, allow_missing: bool
+) -> None:
+    """Lens intrinsics (focal length, principal point, distortion) from photos of a printed checkerboard.
+
+    Hold the board at different tilts all over the image, the corners of the image included.
+
+    Example:
+
+        edge-ips calibrate intrinsics board_*.png --board 9x6 --square 2.5 --out intrinsics.json
+    """
+    from edge.calibration.intrinsics import (
+        calibrate_intrinsics,
+        intrinsics_record,
+        parse_board,
+        read_image,
+        save_intrinsics,
+    )
+
+    pattern = parse_board(board)
+    show = sys.stderr.isatty()  # a bar on a terminal; nothing in logs and pipes
+    with click.progressbar(images, label="finding the board", file=sys.stderr if show else io.StringIO()) as bar:
+        photos = ((str(path), read_image(path)) for path in bar)  # read lazily: the bar follows the detection
+        result = calibrate_intrinsics(photos, pattern, square_cm, allow_missing=allow_missing)
+    for name, reason in result.skipped:
+        click.echo(f"skipped {name}: {reason}")
+    k = result.intrinsics.camera_matrix
+    d = result.intrinsics.dist_coeffs
+    per_view = result.per_view_rms_px
+    click.echo(
+        f"board {pattern[0]}x{pattern[1]} found in {len(result.used)} of {len(images)} images; reprojection error "
+        f"RMS {result.rms_px:.3f} px (per image: mean {sum(per_view) / len(per_view):.3f} px, "
+        f"max {max(per_view):.3f} px)"
+    )
+    click.echo(
+        f"fx {k[0, 0]:.2f} px, fy {k[1, 1]:.2f} px, principal point ({k[0, 2]:.2f}, {k[1, 2]:.2f}); "
+        f"k1 {d[0]:.4f}, k2 {d[1]:.4f}, p1 {d[2]:.5f}, p2 {d[3]:.5f}, k3 {d[4]:.4f}"
+    )
+    save_intrinsics(intrinsics_record(result), out)
+    click.echo(f"wrote {out}")
+
+
+@calibrate.command("aruco")
+@click.argument("image", type=click.Path(path_type=Path))
+@click.option("--markers", "markers", type=click.Path(path_type=Path), required=True, help="CSV id,x,y,z[,size] cm.")
+@click.option("--out", "out", type=click.Path(path_type=Path), required=True, help="Calibration file to write.")
+@click.option("--marker-size", "marker_size", type=float, help="Black-square side, cm (when the CSV has no size).")
+@click.option("--intrinsics", "intrinsics", type=click.Path(path_type=Path), help="Lens intrinsics file.")
+@click.option("--height", "height_cm", type=float, default=13.0, show_default=True, help="Plane to map onto, cm.")
+@click.option("--dictionary", default="DICT_4X4_50", show_default=True, help="ArUco dictionary of the markers.")
+@click.option("--area", "area", help="Working area WIDTHxLENGTH cm from the origin.  [default: the markers' box]")
+def calibrate_aruco_cmd(
+    image: Path,
+    markers: Path,
+    out: Path,
+    marker_size: float | None,
+    intrinsics: Path | None,
+    height_cm: float,
+    dictionary: str,
+    area: str | None,
+) -> None:
+    """Calibrate from one image of ArUco markers laid flat at known positions (no clicking).
+
+    Each marker lies upright with its top edge toward +y. The camera pose is recovered, so a calibration made
+    with markers on the floor (z = 0) maps the rovers' marker plane (--height 13).
+
+    Example:
+
+        edge-ips calibrate aruco floor.png --markers markers.csv --intrinsics intrinsics.json --out calibration.json
+    """
+    from edge.calibration.fiducial import calibrate_fiducial, read_markers_csv
+    from edge.calibration.files import FitRecord, calibration_record, save_calibration
+    from edge.calibration.intrinsics import load_intrinsics, read_image
+
+    img = read_image(image)
+    table = read_markers_csv(markers, marker_size)
+    intr = load_intrinsics(intrinsics) if intrinsics is not None else None
+    result = calibrate_fiducial(
+        img, table, intrinsics=intr, height_cm=height_cm, dictionary=dictionary, area_cm=_area(area), source=str(image)
+    )
+    cam = result.camera
+    click.echo(
+        f"found {len(result.ids_used)} of {len(table.ids)} markers in {image} (ids {list(result.ids_used)}); "
+        f"camera at ({cam.position_cm[0]:.1f}, {cam.position_cm[1]:.1f}, {cam.position_cm[2]:.1f}) cm, "
+        f"mapping the plane z = {height_cm:g} cm"
+    )
+    if result.ids_missing:
+        click.echo(f"not found: ids {list(result.ids_missing)}")
+    if result.ids_unknown:
+        click.echo(f"ignored (not in {markers}): ids {list(result.ids_unknown)}")
+    click.echo(f"corner reprojection error: RMS {result.reprojection_rms_px:.3f} px")
+    loo = result.loo_error_cm
+    if loo is not None:
+        click.echo(
+            f"leave-one-marker-out error: mean {loo.mean():.3f} cm, max {loo.max():.3f} cm (each marker centre "
+            "predicted by a pose fitted without it)"
+        )
+    for note in result.notes:
+        click.echo(f"note: {note}")
+    stats = FitRecord(
+        n_points=len(table.ids),
+        n_used=len(result.ids_used),
+        reprojection_rms_px=result.reprojection_rms_px,
+        loo_mean_cm=None if loo is None else float(loo.mean()),
+        loo_max_cm=None if loo is None else float(loo.max()),
+        loo_rms_cm=None if loo is None else float((loo**2).mean() ** 0.5),
+        notes=list(result.notes),
+    )
+    save_calibration(calibration_record(result.calibration, method="aruco", source=str(image), fit=stats), out)
+    click.echo(f"wrote {out}")
+
+
+@calibrate.command("check")
+@click.argument("calibration_json", type=click.Path(path_type=Path))
+@click.argument("check_csv", type=click.Path(path_type=Path))
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object (mean_cm, max_cm, n, points...).")
+def calibrate_check_cmd(calibration_json: Path, check_csv: Path, as_json: bool) -> None:
+    """Check a calibration against points measured but not used in the fit (CSV u,v,x,y).
+
+    Maps each point's u,v and reports its distance to the surveyed x,y, and the mean and max.
+
+    Example:
+
+        edge-ips calibrate check calibration.json check.csv --json
+    """
+    import json
+
+    from edge.calibration.files import load_calibration
+    from edge.calibration.points import check_calibration, read_points_csv
+
+    cal = load_calibration(calibration_json)
+    result = check_calibration(cal, read_points_csv(check_csv))
+    t = result.table
+    if as_json:
+        points = [
+            {
+                "row": int(t.rows[i]),
+                "u": float(t.uv_px[i, 0]),
+                "v": float(t.uv_px[i, 1]),
+                "x": float(t.xy_world_cm[i, 0]),
+                "y": float(t.xy_world_cm[i, 1]),
+                "x_mapped": round(float(result.mapped_cm[i, 0]), 4),
+                "y_mapped": round(float(result.mapped_cm[i, 1]), 4),
+                "error_cm": round(float(result.error_cm[i]), 4),
+            }
+            for i in range(result.n)
+        ]
+        summary = {
+            "calibration": str(calibration_json),
+            "points_file": str(check_csv),
+            "n": result.n,
+            "mean_cm": round(result.mean_cm, 4),
+            "max_cm": round(result.max_cm, 4),
+            "rms_cm": round(result.rms_cm, 4),
+            "points": points,
+        }
+        click.echo(json.dumps(summary))
+        return
+    click.echo(f"{'row':>4} {'u':>9} {'v':>9} {'x':>8} {'y':>8} {'mapped x':>9} {'mapped y':>9} {'error cm':>8}")
+    for i in range(result.n):
+        click.echo(
+            f"{int(t.rows[i]):>4} {t.uv_px[i, 0]:>9.2f} {t.uv_px[i, 1]:>9.2f} {t.xy_world_cm[i, 0]:>8.2f} "
+            f"{t.xy_world_cm[i, 1]:>8.2f} {result.mapped_cm[i, 0]:>9.2f} {result.mapped_cm[i, 1]:>9.2f} "
+            f"{result.error_cm[i]:>8.3f}"
+        )
+    click.echo(
+        f"{result.n} check points from {check_csv} against {calibration_json}: mean {result.mean_cm:.3f} cm, "
+        f"max {result.max_cm:.3f} cm, rms {result.rms_cm:.3f} cm"
+    )
 
 
 if __name__ == "__main__":  # pragma: no cover
