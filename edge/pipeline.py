@@ -272,6 +272,8 @@ class Pipeline:
         self.calibration = calibration
         self.maps: PlaneGrid | None = None
         self.tracker = tracker if tracker is not None else make_tracker(config.method)
+        # Acquisition always chooses among particles (by area, shape and hue), whatever tracks the rover after.
+        self.acquirer = self.tracker if config.method == "particles" else make_tracker("particles")
         colors = [r.color_bgr for r in config.rovers]
         try:
             self.colors = ColorModel.from_colors(colors, config.hue_tolerance_deg, config.min_saturation_fraction)
@@ -413,6 +415,7 @@ class Pipeline:
         box: tuple[int, int, int, int],
         uv: tuple[float, float],
         clock: StageTimes,
+        tracker: WindowTracker | None = None,
     ) -> _Observation | None:
         assert self.background is not None and self.maps is not None
         window = prepare_window(
@@ -422,7 +425,7 @@ class Pipeline:
             return None
         learned = len(tr.areas) >= 10
         model = RoverModel(tr.index, self._expected_area(tr), tr.level)
-        m = self.tracker.measure(window, model, clock)
+        m = (tracker or self.tracker).measure(window, model, clock)
         if m is None or not self._plausible(m, model.marker_area_cm2, learned):
             return None
         # Measurement covariance: the pixel noise seen through the local scale of the plane mapping.
@@ -490,7 +493,7 @@ class Pipeline:
                 reset = getattr(self.tracker, "reset", None)
                 if reset is not None:
                     reset(tr.index)
-                m = self._measure(image, tr, box, (u, v), clock)
+                m = self._measure(image, tr, box, (u, v), clock, self.acquirer)
                 if m is None:
                     continue
                 tr.box = box

@@ -184,3 +184,22 @@ def test_every_new_command_has_help_with_an_example():
         result = invoke(command, "--help")
         assert result.exit_code == 0
         assert "Example:" in result.output
+
+
+def test_track_uses_a_calibration_file_made_by_edge_ips_calibrate(clip: Path, tmp_path: Path):
+    from edge.calibration import Calibration, save_calibration
+    from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM, MARKER_HEIGHT_CM
+
+    cam = shared_scene().camera
+    cal = Calibration(
+        cam.plane_homography(MARKER_HEIGHT_CM), 1280, 720, MARKER_HEIGHT_CM, (0.0, 0.0, AREA_WIDTH_CM, AREA_LENGTH_CM)
+    )
+    path = tmp_path / "calibration.json"
+    save_calibration(cal, path)
+    out = tmp_path / "poses.jsonl"
+    result = invoke("track", str(clip / "video.mp4"), "--calibration", str(path), "--out", str(out))
+    assert result.exit_code == 0, result.output
+    truth = {tuple(k.split(":")): v for k, v in json.loads((clip / "truth.json").read_text()).items()}
+    poses = [parse_pose(line) for line in out.read_bytes().splitlines()]
+    errors = [math.hypot(p.x - truth[(str(p.frame), p.id)][0], p.y - truth[(str(p.frame), p.id)][1]) for p in poses]
+    assert np.mean(errors) < 0.3
