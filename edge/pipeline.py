@@ -28,7 +28,7 @@ import math
 import time
 import tomllib
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal, Protocol
 
@@ -40,7 +40,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from edge.errors import ConfigError
 from edge.filtering import ConstantVelocityFilter, FilterSettings
 from edge.messages import ID_PATTERN
-from edge.segmentation import BackgroundModel, ColorModel, opponent_planes, subtract_background
+from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr, opponent_planes, subtract_background
 from edge.sources import Frame
 from edge.trackers.base import (
     Measurement,
@@ -62,10 +62,12 @@ class RoverConfig(BaseModel):
 
     id: str = Field(pattern=ID_PATTERN, description="Rover id, also the MQTT topic segment.")
     color_bgr: tuple[int, int, int] = Field(description="Nominal marker colour as seen by the camera, B, G, R 0-255.")
-    heading_color_bgr: tuple[int, int, int] | None = Field(
+    front_color_bgr: tuple[int, int, int] | None = Field(
         default=None,
-        description="Colour of the rear part of a two-tone marker (the front has color_bgr); None: one colour.",
+        description="Two-tone marker: colour of its front part as the camera sees it (the rest has color_bgr); "
+        "it gives the heading even when the rover stands still. None: a one-colour marker.",
     )
+    front_fraction: float = Field(default=0.3, gt=0.0, lt=1.0, description="Share of the marker's length in front.")
 
 
 DEFAULT_ROVERS = (
@@ -225,10 +227,12 @@ _CIRCLE = np.vstack([[0.0, 0.0], np.column_stack([np.cos(np.arange(8) * np.pi / 
 
 @dataclass(frozen=True)
 class _Observation:
-    """A measurement that passed the pipeline's checks, with its covariance on the plane (cm^2)."""
+    """A measurement that passed the pipeline's checks, with its covariance on the plane (cm^2) and, for a
+    two-tone marker, the heading it shows."""
 
     measurement: Measurement
     r_cm2: FloatArray
+    marker_heading_rad: float | None = None
 
 
 @dataclass
@@ -244,6 +248,7 @@ class _RoverTrack:
     box: tuple[int, int, int, int] | None = None
     uv: tuple[float, float] | None = None
     theta_rad: float | None = None
+    marker_heading: float | None = None
 
     @property
     def lost(self) -> bool:
@@ -428,10 +433,47 @@ class Pipeline:
         m = (tracker or self.tracker).measure(window, model, clock)
         if m is None or not self._plausible(m, model.marker_area_cm2, learned):
             return None
+        heading = None
+        if tr.config.front_color_bgr is not None:
+            front = self._front_part(window, m, tr.config)
+            if front is not None:
+                m, heading = front
         # Measurement covariance: the pixel noise seen through the local scale of the plane mapping.
         jac = window.local.jacobian(*m.uv_px)
         sigma = self.config.measurement_sigma_px
-        return _Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + np.eye(2) * 1e-4)
+        return _Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + np.eye(2) * 1e-4, heading)
+
+    def _front_part(self, window: Window, m: Measurement, rover: RoverConfig) -> tuple[Measurement, float] | None:
+        """A two-tone marker's front part: the heading from the main part's centre towards it, and the marker's
+        centre (the main part covers only the rear ``1 - front_fraction`` of the marker, so its centroid lies
+        ``front_fraction * length / 2`` behind the marker's centre).
+
+        Front pixels are those near the marker (on the plane) whose colour matches the front colour scaled by the
+        light the main part shows now, and that are not of any rover's hue.
+        """
+        assert rover.front_color_bgr is not None
+        nominal = math.hypot(*chroma_of_bgr(rover.color_bgr)[:2])
+        gain = m.level / nominal if nominal > 0 else 1.0
+        expected = np.asarray(rover.front_color_bgr, np.float32) * np.float32(gain)
+        diff = window.bgr.astype(np.float32) - expected
+        close = np.einsum("ijk,ijk->ij", diff, diff) <= (0.12 * float(np.linalg.norm(expected)) + 10.0) ** 2
+        x0, y0, x1, y1 = window.box
+        assert self.maps is not None
+        wx = self.maps.x_cm[y0:y1, x0:x1]
+        wy = self.maps.y_cm[y0:y1, x0:x1]
+        reach = (0.5 + 0.5 * rover.front_fraction) * self.config.marker_length_cm + 1.0  # main centroid to front edge
+        near = (wx - m.xy_cm[0]) ** 2 + (wy - m.xy_cm[1]) ** 2 <= reach**2
+        front = close & near & (window.classes < 0)
+        area = self.maps.area_cm2[y0:y1, x0:x1] * front
+        total = float(area.sum())
+        length, width = self.config.marker_length_cm, self.config.marker_width_cm
+        if total < 0.3 * rover.front_fraction * length * width:
+            return None
+        fx, fy = float((area * wx).sum()) / total, float((area * wy).sum()) / total
+        heading = math.atan2(fy - m.xy_cm[1], fx - m.xy_cm[0])
+        shift = 0.5 * rover.front_fraction * length
+        centre = (m.xy_cm[0] + shift * math.cos(heading), m.xy_cm[1] + shift * math.sin(heading))
+        return replace(m, xy_cm=centre), heading
 
     def _plausible(self, m: Measurement, expected_area_cm2: float, learned: bool) -> bool:
         """Is this blob the whole marker? Its area on the plane, its shape, and not cut off by the image border.
@@ -507,6 +549,7 @@ class Pipeline:
         tr.box = None
         tr.uv = None
         tr.theta_rad = None
+        tr.marker_heading = None
         reset = getattr(self.tracker, "reset", None)
         if reset is not None:
             reset(tr.index)
@@ -523,9 +566,11 @@ class Pipeline:
                 obs = acquired[tr.index]
                 m = obs.measurement
                 tr.filter = ConstantVelocityFilter(self.filter_settings, m.xy_cm, obs.r_cm2)
+                tr.marker_heading = obs.marker_heading_rad
             elif tr.index in measured and tr.filter is not None:
                 obs = measured[tr.index]
                 m = obs.measurement
+                tr.marker_heading = obs.marker_heading_rad
                 if not tr.filter.update(np.asarray(m.xy_cm), obs.r_cm2):
                     tr.misses += 1  # a spike: rejected, no pose this frame
                     if tr.misses >= self.config.lost_after_frames:
@@ -559,6 +604,9 @@ class Pipeline:
         return tuple(out)
 
     def _heading(self, tr: _RoverTrack, vel: tuple[float, float] | None) -> float | None:
+        """The marker's own heading (two-tone) when it shows one, else the direction of motion, else None."""
+        if tr.marker_heading is not None:
+            return tr.marker_heading
         if vel is None:
             return None
         speed = math.hypot(*vel)

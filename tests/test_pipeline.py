@@ -273,3 +273,28 @@ def test_a_bad_tracker_configuration_names_the_file_and_key(tmp_path: Path, text
     with pytest.raises(ConfigError, match=message) as info:
         load_tracker_config(path)
     assert str(path) in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("x", "y", "headings"),
+    [
+        (120.0, 90.0, (0.3, 2.2, -1.4)),
+        (250.0, 300.0, (0.3, 2.2, -1.4)),
+        # Far side: the front part of a marker facing the camera is only ~3 px tall; only across the view here.
+        (180.0, 500.0, (0.3, 2.9)),
+    ],
+)
+def test_a_two_tone_marker_gives_heading_and_centre_even_standing_still(x, y, headings):
+    white = (205, 208, 208)
+    scene = shared_scene()
+    for k, theta in enumerate(headings):
+        rover = SynthRover("red", x, y, theta, COLORS["red"], front_color_bgr=white)
+        config = TrackerConfig(rovers=(rover.config(),))
+        tracker = build_tracker(config, scene.mapping)
+        rng = np.random.default_rng(k)
+        for i in range(3):
+            result = tracker.process(frame(scene.render([rover], noise_sigma=2.0, rng=rng), i, FPS))
+        (e,) = result.estimates
+        assert e.theta_rad is not None
+        assert abs(math.degrees(math.remainder(e.theta_rad - theta, math.tau))) < 3.0
+        assert math.hypot(e.x_cm - x, e.y_cm - y) < 0.5

@@ -43,11 +43,17 @@ class SynthRover:
     color_bgr: tuple[int, int, int] = (50, 45, 190)
     marker_cm: tuple[float, float] = (22.0, 17.0)  # along heading, across
     body_cm: tuple[float, float] = (25.0, 20.0)
-    rear_color_bgr: tuple[int, int, int] | None = None  # two-tone: the rear half of the marker
+    front_color_bgr: tuple[int, int, int] | None = None  # two-tone: the front part of the marker
+    front_fraction: float = 0.3
     visible: bool = True
 
     def config(self) -> RoverConfig:
-        return RoverConfig(id=self.id, color_bgr=self.color_bgr, heading_color_bgr=self.rear_color_bgr)
+        return RoverConfig(
+            id=self.id,
+            color_bgr=self.color_bgr,
+            front_color_bgr=self.front_color_bgr,
+            front_fraction=self.front_fraction,
+        )
 
 
 def _rect(cx: float, cy: float, theta: float, length: float, width: float, z: float) -> NDArray[np.float64]:
@@ -178,13 +184,20 @@ def _draw_rover(
         fill(quad, (shade, shade, shade * 1.05))
     fill(top, (22.0, 22.0, 24.0))
     ml, mw = rover.marker_cm
-    if rover.rear_color_bgr is None:
+    if rover.front_color_bgr is None:
         fill(_rect(rover.x, rover.y, rover.theta, ml, mw, MARKER_HEIGHT_CM), rover.color_bgr)
     else:
         c, s = math.cos(rover.theta), math.sin(rover.theta)
-        q = ml / 4.0
-        fill(_rect(rover.x + q * c, rover.y + q * s, rover.theta, ml / 2.0, mw, MARKER_HEIGHT_CM), rover.color_bgr)
-        fill(_rect(rover.x - q * c, rover.y - q * s, rover.theta, ml / 2.0, mw, MARKER_HEIGHT_CM), rover.rear_color_bgr)
+        f = rover.front_fraction
+        front, rear = (0.5 - f / 2.0) * ml, -f / 2.0 * ml  # centres of the two parts along the heading
+        fill(
+            _rect(rover.x + front * c, rover.y + front * s, rover.theta, f * ml, mw, MARKER_HEIGHT_CM),
+            rover.front_color_bgr,
+        )
+        fill(
+            _rect(rover.x + rear * c, rover.y + rear * s, rover.theta, (1 - f) * ml, mw, MARKER_HEIGHT_CM),
+            rover.color_bgr,
+        )
     small = cv2.resize(big, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
     return small.astype(np.float32), (x0, y0, x1, y1)
 
