@@ -40,7 +40,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from edge.errors import ConfigError
 from edge.filtering import ConstantVelocityFilter, FilterSettings
 from edge.messages import ID_PATTERN
-from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr, opponent_planes, subtract_background
+from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr, opponent_planes
 from edge.sources import Frame
 from edge.trackers.base import (
     Measurement,
@@ -138,7 +138,9 @@ class TrackerConfig(BaseModel):
         default=0.2, gt=0.0, description="eq. 2 threshold, in normalised chroma (lighting-invariant)."
     )
     background_refresh_s: float = Field(default=4.0, gt=0.0, description="Time to refresh the whole reference.")
-    window_margin_cm: float = Field(default=6.0, ge=0.0, description="Search window margin around the marker.")
+    window_margin_cm: float = Field(
+        default=3.0, ge=0.0, description="Search window margin around the marker (plus 6 pixels for its edge band)."
+    )
     lost_after_frames: int = Field(
         default=3, ge=1, description="Frames unseen in its window before a rover is searched for everywhere."
     )
@@ -222,7 +224,7 @@ class StageTimes:
         return {k: v * 1e3 for k, v in self.seconds.items()}
 
 
-_CIRCLE = np.vstack([[0.0, 0.0], np.column_stack([np.cos(np.arange(8) * np.pi / 4), np.sin(np.arange(8) * np.pi / 4)])])
+_WINDOW_PAD_PX = 6  # room for the marker's edge band (2 px ring + 3 px outer band) where a centimetre is few pixels
 
 
 @dataclass(frozen=True)
@@ -394,24 +396,22 @@ class Pipeline:
         local = self.maps.at(*hint_uv)
         if local is None:
             return None, (math.nan, math.nan)
-        cu, cv = local.to_pixel(np.array([xy_cm[0]]), np.array([xy_cm[1]]))
-        better = self.maps.at(float(cu[0]), float(cv[0]))
-        if better is not None and better is not local:
-            local = better
-        xs = xy_cm[0] + radius_cm * _CIRCLE[:, 0]
-        ys = xy_cm[1] + radius_cm * _CIRCLE[:, 1]
-        us, vs = local.to_pixel(xs, ys)
-        if not (np.all(np.isfinite(us)) and np.all(np.isfinite(vs))):
-            return None, (math.nan, math.nan)
+        u, v, _, _ = local.pixel_of(*xy_cm)
+        better = self.maps.at(u, v)
+        if better is None:
+            return None, (u, v)
+        u, v, su, sv = better.pixel_of(*xy_cm)
+        # The image of the circle is an ellipse whose bounding box, to first order, is this (the margin covers
+        # the perspective's second order).
         h, w = shape[:2]
-        centre_uv = (float(us[0]), float(vs[0]))
-        x0 = max(0, math.floor(us[1:].min()) - 3)
-        y0 = max(0, math.floor(vs[1:].min()) - 3)
-        x1 = min(w, math.ceil(us[1:].max()) + 4)
-        y1 = min(h, math.ceil(vs[1:].max()) + 4)
+        pad = _WINDOW_PAD_PX
+        x0 = max(0, math.floor(u - radius_cm * su) - pad)
+        y0 = max(0, math.floor(v - radius_cm * sv) - pad)
+        x1 = min(w, math.ceil(u + radius_cm * su) + pad + 1)
+        y1 = min(h, math.ceil(v + radius_cm * sv) + pad + 1)
         if x1 - x0 < 4 or y1 - y0 < 4:
-            return None, centre_uv
-        return (x0, y0, x1, y1), centre_uv
+            return None, (u, v)
+        return (x0, y0, x1, y1), (u, v)
 
     def _measure(
         self,
@@ -642,18 +642,15 @@ def prepare_window(
     t1 = time.perf_counter()
     clock.add("planes", t1 - t0)
     valid = background.valid[y0:y1, x0:x1]
-    if valid.any():
-        fg = subtract_background(crop, background.reference[y0:y1, x0:x1], background_threshold) & valid
-    else:
-        fg = valid
-    t2 = time.perf_counter()
-    clock.add("subtraction", t2 - t1)
+    reference = background.reference[y0:y1, x0:x1] if valid.any() else None
     local = maps.at(0.5 * (x0 + x1), 0.5 * (y0 + y1))
-    clock.add("calibration", time.perf_counter() - t2)
+    clock.add("calibration", time.perf_counter() - t1)
     if local is None:
         return None
     size = (image.shape[1], image.shape[0])
-    return Window(box, crop, c1, c2, lum, classes, plane, fg, valid, maps, local, predicted_uv, size)
+    return Window(
+        box, crop, c1, c2, lum, classes, plane, reference, valid, maps, local, predicted_uv, size, background_threshold
+    )
 
 
 def build_tracker(

@@ -67,8 +67,8 @@ class ColorModel:
 
     ``directions``: (N, 2) float32 unit hue directions in the ``(c1, c2)`` plane, one per rover.
     ``saturations``: (N,) nominal relative saturation ``|c| / luminance`` of each marker colour.
-    ``hue_lut``: (HUE_BINS,) int16, for each hue bin the index of the rover whose hue is nearest, or
-    :data:`NO_ROVER` when no rover hue is within the tolerance.
+    ``hue_lut``: (HUE_BINS + 1,) int16, for each hue bin (angle 0..2pi) the index of the rover whose hue is
+    nearest, or :data:`NO_ROVER` when no rover hue is within the tolerance.
     """
 
     directions: F32
@@ -92,26 +92,25 @@ class ColorModel:
             dirs.append((c1 / mag, c2 / mag))
             sats.append(mag / max(lum, 1.0))
             angles.append(math.atan2(c2, c1))
-        centres = (np.arange(HUE_BINS) + 0.5) * (2.0 * math.pi / HUE_BINS) - math.pi
-        lut = np.full(HUE_BINS, NO_ROVER, dtype=np.int16)
+        centres = (np.arange(HUE_BINS) + 0.5) * (2.0 * math.pi / HUE_BINS)  # hue angles 0..2pi, as cv2.phase gives
+        lut = np.full(HUE_BINS + 1, NO_ROVER, dtype=np.int16)  # one extra bin: cv2.phase may return exactly 2pi
         if angles:
             diff = np.abs(np.angle(np.exp(1j * (centres[:, None] - np.asarray(angles)[None, :]))))
             nearest = np.argmin(diff, axis=1)
             ok = diff[np.arange(HUE_BINS), nearest] <= math.radians(hue_tolerance_deg)
-            lut[ok] = nearest[ok]
+            lut[:HUE_BINS][ok] = nearest[ok]
+            lut[HUE_BINS] = lut[0]
         min_sat = min_saturation_fraction * (min(sats) if sats else 1.0)
         return cls(np.asarray(dirs, dtype=np.float32).reshape(-1, 2), np.asarray(sats), lut, min_sat)
 
     def classify(self, c1: F32, c2: F32, lum: F32) -> NDArray[np.int16]:
         """(H, W) chroma planes -> (H, W) int16 rover index per pixel (NO_ROVER for grey/dark/other hues)."""
         hue = cv2.phase(c1, c2)  # 0..2pi, float32
-        bins = (hue * np.float32(HUE_BINS / (2.0 * math.pi))).astype(np.int32)
-        bins += HUE_BINS // 2  # phase is 0..2pi, the table is indexed from -pi
-        bins %= HUE_BINS
-        cls = self.hue_lut[bins]
+        cls = self.hue_lut[(hue * np.float32(HUE_BINS / (2.0 * math.pi))).astype(np.intp)]
         sat2 = c1 * c1 + c2 * c2
         thr = np.float32(self.min_relative_saturation) * np.maximum(lum, np.float32(4.0))
-        return np.where(sat2 >= thr * thr, cls, np.int16(NO_ROVER)).astype(np.int16)
+        cls[sat2 < thr * thr] = NO_ROVER
+        return cls
 
     def plane(self, index: int, c1: F32, c2: F32) -> F32:
         """Colour-plane extraction for rover ``index``: chroma projected on its hue direction, (H, W) float32."""

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.camera import PinholeCamera
-from edge.segmentation import F32, U8, BoolArray
+from edge.segmentation import F32, U8, BoolArray, subtract_background
 
 FloatArray = NDArray[np.float64]
 
@@ -84,6 +84,17 @@ class LocalPlaneMap:
         h = self.g_inv
         den = h[2, 0] * x_cm + h[2, 1] * y_cm + h[2, 2]
         return (h[0, 0] * x_cm + h[0, 1] * y_cm + h[0, 2]) / den, (h[1, 0] * x_cm + h[1, 1] * y_cm + h[1, 2]) / den
+
+    def pixel_of(self, x_cm: float, y_cm: float) -> tuple[float, float, float, float]:
+        """Pixel ``(u, v)`` of a plane point and the pixels per cm there along image u and v (half-widths of the
+        image of a 1 cm circle), in plain floats: cheap enough to place every search window every frame."""
+        h = self.g_inv
+        den = h[2, 0] * x_cm + h[2, 1] * y_cm + h[2, 2]
+        u = (h[0, 0] * x_cm + h[0, 1] * y_cm + h[0, 2]) / den
+        v = (h[1, 0] * x_cm + h[1, 1] * y_cm + h[1, 2]) / den
+        j00, j01 = (h[0, 0] - u * h[2, 0]) / den, (h[0, 1] - u * h[2, 1]) / den
+        j10, j11 = (h[1, 0] - v * h[2, 0]) / den, (h[1, 1] - v * h[2, 1]) / den
+        return float(u), float(v), math.hypot(j00, j01), math.hypot(j10, j11)
 
     def jacobian(self, u: float, v: float) -> FloatArray:
         """(2, 2) d(x, y)/d(u, v) in cm per pixel at one pixel."""
@@ -238,8 +249,12 @@ def world_blob(weights: F32, offset_xy: tuple[int, int], grid: PlaneGrid) -> Wor
     edge); ``offset_xy``: the window's top-left pixel in the image. Each pixel contributes its coverage times
     the world area it spans, at its centre mapped to the plane. Returns None when the weights sum to nothing.
     """
+    bx, by, bw, bh = cv2.boundingRect((weights != 0).view(np.uint8))
+    if bw == 0 or bh == 0:
+        return None
+    weights = weights[by : by + bh, bx : bx + bw]
     h, w = weights.shape
-    x0, y0 = offset_xy
+    x0, y0 = offset_xy[0] + bx, offset_xy[1] + by
     rows, cols = slice(y0, y0 + h), slice(x0, x0 + w)
     wt = weights.astype(np.float64)
     jw = wt * grid.area_cm2[rows, cols]  # zero off the plane
@@ -272,8 +287,9 @@ class Window:
     ``box``: ``(x0, y0, x1, y1)`` in the image (exclusive ends). ``bgr``: the (h, w, 3) crop (a view of the
     frame). ``c1``, ``c2``, ``lum``: opponent chroma and luminance (float32). ``classes``: (h, w) int16 rover
     index per pixel from the hue table (-1: none). ``plane``: the rover's colour plane (chroma projected on its
-    hue). ``foreground``: eq. 2 against the background model (False where the reference is not yet valid).
-    ``reference_valid``: where the background reference is trustworthy. ``grid``: the pixel-to-plane mapping;
+    hue). ``reference``: the background reference's crop (None where it is nowhere valid yet), compared by
+    :meth:`foreground_fraction` (eq. 2) only when a choice needs it. ``reference_valid``: where the background
+    reference is trustworthy. ``grid``: the pixel-to-plane mapping;
     ``local``: its homography at the window's centre (for point queries). ``image_size``: (w, h) of the frame.
     ``predicted_uv``: where the filter expects the marker centre, in image pixels.
     """
@@ -285,16 +301,29 @@ class Window:
     lum: F32
     classes: NDArray[np.int16]
     plane: F32
-    foreground: BoolArray
+    reference: U8 | None
     reference_valid: BoolArray
     grid: PlaneGrid
     local: LocalPlaneMap
     predicted_uv: tuple[float, float]
     image_size: tuple[int, int]
+    background_threshold: float = 0.2
 
     @property
     def offset(self) -> tuple[int, int]:
         return self.box[0], self.box[1]
+
+    def foreground_fraction(self, mask: BoolArray) -> float:
+        """Share of the ``mask`` pixels that differ from a valid background reference (eq. 2 in normalised
+        chroma); 1 where there is no valid reference to compare with."""
+        if self.reference is None:
+            return 1.0
+        sel = mask & self.reference_valid
+        n = int(sel.sum())
+        if n == 0:
+            return 1.0
+        fg = subtract_background(self.bgr[sel][None], self.reference[sel][None], self.background_threshold)
+        return float(fg.sum()) / n
 
 
 @dataclass(frozen=True)
@@ -318,7 +347,6 @@ class Measurement:
     marker area on the plane; ``level``: the marker's value in its colour plane (the next frame's threshold
     reference); ``quality`` 0..1; ``axis_rad``: long-axis orientation modulo pi; ``elongation``: ratio of the
     blob's principal standard deviations on the plane (1.28 for a 21.5 x 16.8 cm rectangle);
-    ``foreground_fraction``: share of its pixels that differ from the background reference (where valid);
     ``at_image_edge``: the blob touches the border of the image (the marker may be cut off).
     """
 
@@ -329,25 +357,18 @@ class Measurement:
     quality: float
     axis_rad: float
     elongation: float
-    foreground_fraction: float
     at_image_edge: bool
 
 
 def make_measurement(blob: WorldBlob, window: Window, core: BoolArray, level: float, quality: float) -> Measurement:
     """A :class:`Measurement` of the marker whose pixels are ``core`` in ``window``."""
-    valid = window.reference_valid[core]
-    fg = float(window.foreground[core].sum() / valid.sum()) if valid.any() else 1.0
     x0, y0, x1, y1 = window.box
     w, h = window.image_size
-    rows, cols = np.nonzero(core)
     edge = bool(
-        rows.size
-        and (
-            (x0 == 0 and cols.min() == 0)
-            or (y0 == 0 and rows.min() == 0)
-            or (x1 == w and cols.max() == x1 - x0 - 1)
-            or (y1 == h and rows.max() == y1 - y0 - 1)
-        )
+        (x0 == 0 and core[:, 0].any())
+        or (y0 == 0 and core[0, :].any())
+        or (x1 == w and core[:, -1].any())
+        or (y1 == h and core[-1, :].any())
     )
     return Measurement(
         (blob.x_cm, blob.y_cm),
@@ -357,7 +378,6 @@ def make_measurement(blob: WorldBlob, window: Window, core: BoolArray, level: fl
         quality,
         blob.axis_rad,
         blob.elongation,
-        fg,
         edge,
     )
 

@@ -12,6 +12,7 @@ import math
 import time
 
 import numpy as np
+from numpy.typing import NDArray
 
 from edge.segmentation import (
     Particle,
@@ -69,8 +70,9 @@ class ParticleTracker:
         filled = fill_holes(mask)  # A.M.O.
         t3 = time.perf_counter()
         clock.add("holes", t3 - t2)
-        labels, particles = label_particles(filled, min_area_px=2)
-        chosen = self._choose(particles, window, rover)
+        expected_px = self._expected_px(window, rover)
+        labels, particles = label_particles(filled, min_area_px=max(2, int(self.min_area_fraction * expected_px)))
+        chosen = self._choose(particles, labels, window, expected_px, clock)
         if not chosen:
             clock.add("measure", time.perf_counter() - t3)
             return None
@@ -86,13 +88,30 @@ class ParticleTracker:
             return None
         return make_measurement(blob, window, core, level, area_quality(blob.area_cm2, rover.marker_area_cm2))
 
-    def _choose(self, particles: list[Particle], window: Window, rover: RoverModel) -> list[Particle]:
-        """The marker's particle, plus any fragments of it (a marker split by a glare band stays whole)."""
+    @staticmethod
+    def _expected_px(window: Window, rover: RoverModel) -> float:
+        """The marker's expected area in pixels where it is predicted."""
+        pu, pv = window.predicted_uv
+        px_area = float(window.local.area_per_pixel(np.array([pu]), np.array([pv]))[0])
+        return rover.marker_area_cm2 / px_area if px_area > 0 else 0.0
+
+    def _choose(
+        self,
+        particles: list[Particle],
+        labels: NDArray[np.int32],
+        window: Window,
+        expected_px: float,
+        clock: StageClock,
+    ) -> list[Particle]:
+        """The marker's particle, plus any fragments of it (a marker split by a glare band stays whole).
+
+        Particles are scored by area (Table II) and solidity, and by nearness to the prediction; when several
+        qualify, background subtraction (eq. 2) breaks the tie: a particle that is part of the empty scene (a
+        sticker, a poster of the same hue) is not the rover.
+        """
         if not particles:
             return []
         pu, pv = window.predicted_uv
-        px_area = float(window.local.area_per_pixel(np.array([pu]), np.array([pv]))[0])
-        expected_px = rover.marker_area_cm2 / px_area if px_area > 0 else 0.0
         radius_px = math.sqrt(max(expected_px, 1.0) / math.pi)
 
         def score(p: Particle) -> float:
@@ -102,8 +121,15 @@ class ParticleTracker:
             dist = math.hypot(p.centre_px[0] - pu, p.centre_px[1] - pv) / radius_px
             return min(ratio, 1.0) * p.solidity - 0.25 * dist
 
-        best = max(particles, key=score)
-        if score(best) == -math.inf:
+        scores = {p.label: score(p) for p in particles}
+        plausible = [p for p in particles if scores[p.label] > -math.inf]
+        if len(plausible) > 1:
+            t0 = time.perf_counter()
+            for p in plausible:
+                scores[p.label] += 0.5 * window.foreground_fraction(labels == p.label)
+            clock.add("subtraction", time.perf_counter() - t0)
+        best = max(particles, key=lambda p: scores[p.label])
+        if scores[best.label] == -math.inf:
             return []
         bx, by = best.centre_px
         parts = [best]
