@@ -127,7 +127,7 @@ class Score:
     heading_errors: list[float] = field(default_factory=list)
     moving: int = 0
     ms: list[float] = field(default_factory=list)
-    stages: dict[str, list[float]] = field(default_factory=dict)
+    stages: list[dict[str, float]] = field(default_factory=list)  # per frame: stage -> ms (absent: did not run)
 
     def add(self, other: Score) -> None:
         self.errors += other.errors
@@ -139,8 +139,7 @@ class Score:
         self.heading_errors += other.heading_errors
         self.moving += other.moving
         self.ms += other.ms
-        for k, v in other.stages.items():
-            self.stages.setdefault(k, []).extend(v)
+        self.stages += other.stages
 
     def row(self) -> dict[str, float]:
         e = np.asarray(self.errors) if self.errors else np.array([math.nan])
@@ -189,8 +188,7 @@ def run_clip(clip: Clip, method: str, use_background: bool | None = None, calibr
         t0 = time.perf_counter()
         result = tracker.process(frame_of(image, i, clip.fps))
         score.ms.append((time.perf_counter() - t0) * 1e3)
-        for k, v in result.stage_ms.items():
-            score.stages.setdefault(k, []).append(v)
+        score.stages.append(dict(result.stage_ms))
         truth = clip.truth[i]
         got = {e.rover_id: e for e in result.estimates}
         for rid, (x, y, th, vx, vy, vis) in truth.items():
