@@ -226,27 +226,19 @@ def bench_stages(frames: int, seed: int) -> None:
     print(f"lab scenario seed {seed}, {len(clip.frames)} frames; median (and 95th percentile) ms per frame\n")
     print("| stage (paper's Table IV row) | windowed pipeline | full-frame paper pipeline | paper (Table IV) |")
     print("|---|---|---|---|")
+
+    def per_frame(s: Score, keys: tuple[str, ...]) -> np.ndarray:
+        return np.array([sum(frame.get(k, 0.0) for k in keys) for frame in s.stages])
+
     for name, keys in TABLE_IV:
-
-        def per_frame(s: Score, keys: tuple[str, ...] = keys) -> np.ndarray:
-            n = len(s.ms)
-            total = np.zeros(n)
-            for k in keys:
-                v = s.stages.get(k, [])
-                if len(v) == n:
-                    total += np.asarray(v)
-                elif v:  # a stage that ran in some frames only (acquisition)
-                    total[: len(v)] += 0.0
-            return total
-
-        ours = per_frame(score)
-        theirs = per_frame(paper)
+        ours = per_frame(score, keys)
+        theirs = per_frame(paper, keys)
         ref = PAPER_TABLE_IV_MS.get(name)
         print(
             f"| {name} | {np.median(ours):.3f} ({np.percentile(ours, 95):.3f}) | "
             f"{np.median(theirs):.3f} | {'' if ref is None else f'{ref:.1f}'} |"
         )
-    acquire = score.stages.get("acquire", [])
+    acquire = [frame["acquire"] for frame in score.stages if "acquire" in frame]
     print(
         f"| **total after decode** | **{np.median(score.ms):.2f}** ({np.percentile(score.ms, 95):.2f}) | "
         f"**{np.median(paper.ms):.2f}** | ~10 (rows after acquisition) |"
