@@ -5,6 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis.extra import numpy as hnp
 
 from edge.segmentation import (
     NO_ROVER,
@@ -219,3 +221,25 @@ def test_coverage_weights_give_the_sub_pixel_centroid_and_area(rect, jpeg):
     assert max(abs(binary[0] - true_centre[0]), abs(binary[1] - true_centre[1])) >= max(
         abs(centre[0] - true_centre[0]), abs(centre[1] - true_centre[1])
     )
+
+
+masks = hnp.arrays(np.bool_, hnp.array_shapes(min_dims=2, max_dims=2, min_side=1, max_side=24))
+
+
+@given(masks)
+def test_hole_filling_keeps_the_mask_and_is_idempotent(mask):
+    filled = fill_holes(mask)
+    assert np.all(filled[mask])
+    assert np.array_equal(fill_holes(filled), filled)
+    # Nothing connected to the border is ever filled.
+    border = np.zeros_like(mask)
+    border[0, :] = border[-1, :] = True
+    border[:, 0] = border[:, -1] = True
+    assert not np.any(filled & ~mask & border)
+
+
+@given(masks)
+def test_reconstruction_of_a_mask_by_itself_is_the_mask(mask):
+    assert np.array_equal(reconstruct(mask, mask), mask)
+    opened = open_by_reconstruction(mask)
+    assert np.all(mask[opened])
