@@ -89,6 +89,8 @@ def test_plane_grid_follows_a_distorted_calibration_pixel_by_pixel(dist):
     pts, exact = pts[near_area], exact[near_area]
     x, y, area, valid = grid.map_pixels(pts[:, 0], pts[:, 1])
     assert valid.all()
+    rows, cols = pts[:, 1].astype(int), pts[:, 0].astype(int)
+    assert np.array_equal(grid.x_cm[rows, cols], x) and np.array_equal(grid.area_cm2[rows, cols], area)
     assert np.max(np.hypot(x - exact[:, 0], y - exact[:, 1])) < 0.02
     # The area per pixel is the Jacobian of the mapping: compare with finite differences of the calibration.
     half_u, half_v = np.array([0.5, 0.0]), np.array([0.0, 0.5])

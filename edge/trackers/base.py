@@ -169,11 +169,25 @@ class PlaneGrid:
         self.valid &= np.isfinite(self.det) & (self.det != 0.0)
         self._local: dict[int, LocalPlaneMap | None] = {}
         # Every pixel's plane position and area, once: a window's centroid is then dense sums over slices.
-        pu, pv = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-        x, y, area, ok = self.map_pixels(pu.ravel(), pv.ravel())
-        self.x_cm = np.where(ok, x, 0.0).reshape(height, width)
-        self.y_cm = np.where(ok, y, 0.0).reshape(height, width)
-        self.area_cm2 = np.where(ok, area, 0.0).reshape(height, width)
+        # Evaluated tile by tile with broadcasting: (tile rows, tile cols, 8, 8) pixels, no per-pixel gather.
+        hh = self.h.reshape(nv, nu, 8)
+        d = np.arange(t, dtype=np.float64)
+        du, dv = d[None, None, None, :], d[None, None, :, None]
+
+        def c(k: int) -> FloatArray:
+            return hh[:, :, k, None, None]
+
+        den = c(6) * du + c(7) * dv + 1.0
+        origin = self.origin.reshape(nv, nu, 2)
+        ok = self.valid.reshape(nv, nu)[:, :, None, None]
+        xs = np.where(ok, origin[:, :, 0, None, None] + (c(0) * du + c(1) * dv + c(2)) / den, 0.0)
+        ys = np.where(ok, origin[:, :, 1, None, None] + (c(3) * du + c(4) * dv + c(5)) / den, 0.0)
+        areas = np.where(ok, np.abs(self.det.reshape(nv, nu)[:, :, None, None]) / np.abs(den) ** 3, 0.0)
+
+        def image(a: FloatArray) -> FloatArray:
+            return np.ascontiguousarray(a.transpose(0, 2, 1, 3).reshape(nv * t, nu * t)[:height, :width])
+
+        self.x_cm, self.y_cm, self.area_cm2 = image(xs), image(ys), image(areas)
 
     def tile_of(self, u: float, v: float) -> int | None:
         if not (math.isfinite(u) and math.isfinite(v)):
