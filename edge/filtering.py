@@ -77,11 +77,6 @@ class ConstantVelocityFilter:
         self.x = f @ self.x
         self.p = f @ self.p @ f.T + q_unit * (self.settings.accel_sigma_cm_s2**2)
 
-    def innovation_nis(self, z_cm: FloatArray, r_cm2: FloatArray) -> float:
-        """Normalised innovation squared of a measurement against the current prediction."""
-        nu = np.asarray(z_cm, dtype=np.float64) - self.x[:2]
-        return float(nu @ _inv2(self.p[:2, :2] + r_cm2) @ nu)
-
     def update(self, z_cm: FloatArray, r_cm2: FloatArray) -> bool:
         """Fuse a measurement; returns False when it was rejected as a spike (the state is then unchanged).
 

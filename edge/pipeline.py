@@ -13,13 +13,14 @@ The runtime (``edge-ips start``), the offline tracker (``edge-ips track``) and t
 3. **Filtering** (``edge.filtering``): a constant-velocity Kalman filter per rover gives velocity, rejects
    spikes, and follows turns.
 4. **Identity** is the marker colour plus the filter's gate: a rover is only ever measured in its own colour near
-   where it is expected, so crossing rovers cannot swap. A rover unseen in its window is reported missing (no
-   pose) and after a few frames goes back to acquisition.
+   where it is expected, so crossing rovers cannot swap. A blob that is not one whole marker (area on the plane,
+   shape, cut by the image border) is refused. A rover unseen in its window is reported missing (no pose) and
+   after a few frames goes back to acquisition.
 5. **Heading** from the marker's second colour when it has one (two-tone marker), else the direction of motion
    while moving faster than ``heading_min_speed_cm_s``, else null.
 
 No full-frame work is done per frame while all rovers are tracked, except refreshing one band of rows of the
-background reference.
+background reference. Build one with :func:`build_tracker` (``method="paper"`` gives the full-frame baseline).
 """
 
 from __future__ import annotations

@@ -144,11 +144,6 @@ def subtract_background(current: U8, reference: U8, threshold: float) -> BoolArr
     return np.asarray(d1 * d1 + d2 * d2 > np.float32(threshold * threshold))
 
 
-def subtract_plane(current: F32, reference: F32, threshold: float) -> BoolArray:
-    """eq. 2 as the paper writes it, on one colour plane: ``|I_c - I_r| > Th``."""
-    return np.asarray(cv2.absdiff(current, reference) > threshold)
-
-
 class BackgroundModel:
     """The reference frame ``I_r`` of eq. 2, refreshed periodically without absorbing tracked rovers.
 

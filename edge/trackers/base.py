@@ -54,30 +54,12 @@ class NullClock:
 
 @dataclass(frozen=True)
 class LocalPlaneMap:
-    """The image-to-plane mapping near one window, as a homography ``G`` (world ~ G @ (u, v, 1)).
-
-    Fitted to the calibration at a 3x3 grid of points over the window: exact for a plane homography, and for a
-    lens-distorted calibration the residual over a window of a hundred pixels is a few thousandths of a pixel.
-    """
+    """The image-to-plane mapping of one :class:`PlaneGrid` tile as a homography ``G`` (world ~ G @ (u, v, 1)),
+    for point queries near it: a search window's placement, a kernel's shape, a measurement's Jacobian."""
 
     g: FloatArray
     det: float
     g_inv: FloatArray
-
-    @classmethod
-    def fit(cls, mapping: PlaneMapping, box: tuple[int, int, int, int]) -> LocalPlaneMap:
-        x0, y0, x1, y1 = box
-        us = np.linspace(x0 - 0.5, x1 - 0.5, 3)
-        vs = np.linspace(y0 - 0.5, y1 - 0.5, 3)
-        uv = np.array([(u, v) for v in vs for u in us], dtype=np.float64)
-        xy = np.asarray(mapping.pixel_to_world(uv), dtype=np.float64)
-        if not np.all(np.isfinite(xy)):
-            raise ValueError(f"calibration gives no plane mapping near pixels {box}")
-        g, _ = cv2.findHomography(uv, xy, 0)
-        if g is None or not np.all(np.isfinite(g)):
-            raise ValueError(f"calibration gives no plane mapping near pixels {box}")
-        g64 = np.asarray(g, dtype=np.float64)
-        return cls(g64, float(np.linalg.det(g64)), np.asarray(np.linalg.inv(g64)))
 
     def to_pixel(self, x_cm: FloatArray, y_cm: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Plane points back to pixels (the inverse homography)."""
