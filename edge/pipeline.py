@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
 from edge.errors import ConfigError
 from edge.filtering import ConstantVelocityFilter, FilterSettings
 from edge.messages import ID_PATTERN
@@ -145,7 +146,13 @@ class TrackerConfig(BaseModel):
     lost_after_frames: int = Field(
         default=3, ge=1, description="Frames unseen in its window before a rover is searched for everywhere."
     )
-    acquire_scale: int = Field(default=4, ge=1, le=8, description="Downscale factor of the acquisition pass.")
+    acquire_scale: int = Field(
+        default=4,
+        ge=1,
+        le=8,
+        description="Largest downscale factor of the acquisition pass (smaller when the far side's markers are "
+        "too few pixels to survive it).",
+    )
     min_area_fraction: float = Field(
         default=0.9,
         gt=0.0,
@@ -291,6 +298,7 @@ class Pipeline:
         self.tracks = [_RoverTrack(r, i) for i, r in enumerate(config.rovers)]
         self._empty_scene = background
         self.background: BackgroundModel | None = None
+        self.acquire_scale = config.acquire_scale
         self._last_t: float | None = None
         self._frames = 0
 
@@ -348,6 +356,21 @@ class Pipeline:
         self.maps = PlaneGrid(self.calibration, (w, h))
         period = max(1, round(self.config.background_refresh_s * self.config.fps))
         self.background = BackgroundModel((h, w), period, self._empty_scene)
+        self.acquire_scale = self._acquisition_scale()
+
+    def _acquisition_scale(self) -> int:
+        """The acquisition pass's downscale: as coarse as ``acquire_scale`` allows while the smallest marker in
+        the working area stays two low-resolution pixels across or more (4 for the paper's 1280x720 view, whose
+        far-side markers are about 21 x 9 px; less for a smaller image or a farther camera)."""
+        assert self.maps is not None
+        x0, y0, x1, y1 = getattr(self.calibration, "area_cm", None) or (0.0, 0.0, AREA_WIDTH_CM, AREA_LENGTH_CM)
+        grid = self.maps
+        inside = (grid.area_cm2 > 0) & (grid.x_cm >= x0) & (grid.x_cm <= x1) & (grid.y_cm >= y0) & (grid.y_cm <= y1)
+        if not inside.any():
+            return self.config.acquire_scale
+        smallest_px = self.config.marker_area_cm2 / float(grid.area_cm2[inside].max())
+        short_side_px = math.sqrt(smallest_px / 2.5)  # perspective flattens far markers up to about 2.5:1
+        return max(1, min(self.config.acquire_scale, int(short_side_px / 2.0)))
 
     def _dt(self, frame: Frame) -> float:
         nominal = 1.0 / self.config.fps
@@ -501,7 +524,7 @@ class Pipeline:
     def _acquire(self, image: NDArray[np.uint8], clock: StageTimes) -> dict[int, _Observation]:
         """Find lost rovers from a 1/``acquire_scale`` resolution pass, then measure them at full resolution."""
         t0 = time.perf_counter()
-        s = self.config.acquire_scale
+        s = self.acquire_scale
         h, w = image.shape[:2]
         small = (
             np.asarray(cv2.resize(image, (w // s, h // s), interpolation=cv2.INTER_AREA), np.uint8) if s > 1 else image

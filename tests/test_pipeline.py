@@ -298,3 +298,23 @@ def test_a_two_tone_marker_gives_heading_and_centre_even_standing_still(x, y, he
         assert e.theta_rad is not None
         assert abs(math.degrees(math.remainder(e.theta_rad - theta, math.tau))) < 3.0
         assert math.hypot(e.x_cm - x, e.y_cm - y) < 0.5
+
+
+def test_a_smaller_image_is_tracked_with_a_finer_acquisition_pass():
+    from edge.camera import PinholeCamera, paper_camera
+    from tests.support.track import Scene, three_rovers
+
+    cam = paper_camera()
+    k = cam.camera_matrix.copy()
+    k[:2] /= 2.0
+    scene = Scene(camera=PinholeCamera(k, cam.dist_coeffs, cam.rvec, cam.tvec, 640, 360))
+    rovers = three_rovers()
+    tracker = Pipeline(TrackerConfig(rovers=tuple(r.config() for r in rovers)), scene.mapping)
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        result = tracker.process(frame(scene.render(rovers, noise_sigma=2.0, rng=rng), i, FPS))
+    assert tracker.acquire_scale == 2  # far-side markers are about 10 x 5 px here
+    truth = {r.id: (r.x, r.y) for r in rovers}
+    assert {e.rover_id for e in result.estimates} == set(truth)
+    for e in result.estimates:
+        assert math.hypot(e.x_cm - truth[e.rover_id][0], e.y_cm - truth[e.rover_id][1]) < 0.5

@@ -118,7 +118,9 @@ def test_a_calibration_for_another_image_size_is_a_one_line_error(clip: Path, tm
     cam = paper_camera()
     from edge.camera import PinholeCamera
 
-    save_camera(PinholeCamera(cam.camera_matrix / 2, cam.dist_coeffs, cam.rvec, cam.tvec, 640, 360), other)
+    k = cam.camera_matrix.copy()
+    k[:2] /= 2.0
+    save_camera(PinholeCamera(k, cam.dist_coeffs, cam.rvec, cam.tvec, 640, 360), other)
     out = tmp_path / "poses.jsonl"
     result = invoke("track", str(clip / "video.mp4"), "--calibration", str(other), "--out", str(out))
     _one_line_error(result, str(other), "640x360", "1280x720")
