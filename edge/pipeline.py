@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
-from edge.errors import ConfigError
+from edge.errors import ConfigError, SourceError
 from edge.filtering import ConstantVelocityFilter, FilterSettings
 from edge.messages import ID_PATTERN
 from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr, opponent_planes
@@ -310,6 +310,12 @@ class Pipeline:
         if self.background is None:
             self._start(image)
         assert self.background is not None
+        if image.shape[:2] != self.background.shape_hw:
+            h, w = self.background.shape_hw
+            raise SourceError(
+                f"frame {frame.index} is {image.shape[1]}x{image.shape[0]}, the stream started at {w}x{h} "
+                "(the calibration and the background are for one image size)"
+            )
         dt = self._dt(frame)
 
         t0 = time.perf_counter()

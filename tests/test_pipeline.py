@@ -318,3 +318,13 @@ def test_a_smaller_image_is_tracked_with_a_finer_acquisition_pass():
     assert {e.rover_id for e in result.estimates} == set(truth)
     for e in result.estimates:
         assert math.hypot(e.x_cm - truth[e.rover_id][0], e.y_cm - truth[e.rover_id][1]) < 0.5
+
+
+def test_a_frame_of_another_size_mid_stream_is_a_source_error():
+    from edge.errors import SourceError
+
+    scene = shared_scene()
+    tracker = Pipeline(TrackerConfig(), scene.mapping)
+    tracker.process(frame(scene.floor, 0))
+    with pytest.raises(SourceError, match="640x360"):
+        tracker.process(frame(np.zeros((360, 640, 3), np.uint8), 1))
