@@ -126,8 +126,10 @@ class TrackerConfig(BaseModel):
         description="centroid, particles or meanshift (the paper's three trackers, windowed); paper: the "
         "straightforward full-frame version of the paper's pipeline, for comparison.",
     )
-    marker_length_cm: float = Field(default=22.0, gt=0.0, le=200.0, description="Marker side along the rover.")
-    marker_width_cm: float = Field(default=17.0, gt=0.0, le=200.0, description="Marker side across the rover.")
+    marker_length_cm: float = Field(
+        default=21.5, gt=0.0, le=200.0, description="Marker side along the rover (21.5 x 16.8 cm: Table II, 361 cm^2)."
+    )
+    marker_width_cm: float = Field(default=16.8, gt=0.0, le=200.0, description="Marker side across the rover.")
     hue_tolerance_deg: float = Field(default=30.0, gt=0.0, le=90.0, description="Largest hue error of a marker.")
     min_saturation_fraction: float = Field(
         default=0.35, gt=0.0, le=1.0, description="Least relative saturation, as a share of the markers' own."
