@@ -168,6 +168,11 @@ class TrackerConfig(BaseModel):
         description="Blob area, as a share of the nominal marker area, accepted before the "
         "rover's own marker area has been learned.",
     )
+    level_range: tuple[float, float] = Field(
+        default=(0.4, 2.5),
+        description="A marker's colour strength (chroma along its hue) as a share of the configured colour's: the "
+        "light may change it this much; dark clothes of the same hue are far below.",
+    )
     max_elongation_factor: float = Field(
         default=1.5, ge=1.0, description="A blob more elongated than the marker's own aspect times this is not it."
     )
@@ -296,6 +301,7 @@ class Pipeline:
             self.colors = ColorModel.from_colors(colors, config.hue_tolerance_deg, config.min_saturation_fraction)
         except ValueError as exc:
             raise ConfigError(f"rovers: {exc}") from exc
+        self._nominal_levels = [math.hypot(*chroma_of_bgr(c)[:2]) for c in colors]
         self.filter_settings = FilterSettings(accel_sigma_cm_s2=config.accel_sigma_cm_s2)
         self.tracks = [_RoverTrack(r, i) for i, r in enumerate(config.rovers)]
         self._empty_scene = background
@@ -463,7 +469,7 @@ class Pipeline:
         learned = len(tr.areas) >= 10
         model = RoverModel(tr.index, self._expected_area(tr), tr.level)
         m = (tracker or self.tracker).measure(window, model, clock)
-        if m is None or not self._plausible(m, model.marker_area_cm2, learned):
+        if m is None or not self._plausible(m, model.marker_area_cm2, learned, tr):
             return None
         heading = None
         if tr.config.front_color_bgr is not None:
@@ -507,13 +513,22 @@ class Pipeline:
         centre = (m.xy_cm[0] + shift * math.cos(heading), m.xy_cm[1] + shift * math.sin(heading))
         return replace(m, xy_cm=centre), heading
 
-    def _plausible(self, m: Measurement, expected_area_cm2: float, learned: bool) -> bool:
-        """Is this blob the whole marker? Its area on the plane, its shape, and not cut off by the image border.
+    def _plausible(self, m: Measurement, expected_area_cm2: float, learned: bool, tr: _RoverTrack) -> bool:
+        """Is this blob the whole marker? Its area on the plane, its shape, its colour's strength, and not cut off
+        by the image border.
 
         A partly hidden or cut-off marker would give a biased centre, and a blob of the right hue but the wrong
-        size or shape (clothes, a poster, a reflection) is not a marker: both are reported as missing instead.
+        size, shape or colour strength (dark clothes, a poster, a reflection) is not a marker: both are reported
+        as missing instead. The colour strength (the marker's level in its plane) may follow the light within
+        ``level_range`` of the configured colour, and from frame to frame within a factor of two.
         """
         if m.at_image_edge:
+            return False
+        nominal = self._nominal_levels[tr.index]
+        low_level, high_level = self.config.level_range
+        if nominal > 0 and not low_level <= m.level / nominal <= high_level:
+            return False
+        if tr.level > 0 and not 0.5 <= m.level / tr.level <= 2.0:
             return False
         ratio = m.area_cm2 / expected_area_cm2
         low, high = (

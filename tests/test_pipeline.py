@@ -6,6 +6,7 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from pydantic import ValidationError
@@ -328,3 +329,24 @@ def test_a_frame_of_another_size_mid_stream_is_a_source_error():
     tracker.process(frame(scene.floor, 0))
     with pytest.raises(SourceError, match="640x360"):
         tracker.process(frame(np.zeros((360, 640, 3), np.uint8), 1))
+
+
+def test_a_dark_patch_of_the_markers_hue_is_not_taken_for_the_rover():
+    """Navy jeans are blue: right hue, but far too dark to be the blue marker under any plausible light."""
+    scene = shared_scene()
+    floor = scene.floor.copy()
+    corners = np.array([[240.0, 250.0, 13.0], [262.0, 250.0, 13.0], [262.0, 267.0, 13.0], [240.0, 267.0, 13.0]])
+    navy = tuple(int(c * 0.3) for c in COLORS["blue"])
+    cv2.fillPoly(floor, [np.rint(scene.camera.project(corners)).astype(np.int32)], navy)
+    rover = SynthRover("blue", 100.0, 120.0, 0.0, COLORS["blue"])
+    tracker = Pipeline(TrackerConfig(rovers=(rover.config(),)), scene.mapping)
+    for i in range(4):
+        rover.visible = i >= 2
+        base = scene.render([rover]) if rover.visible else scene.floor.copy()
+        image = np.where(np.all(floor == scene.floor, axis=2, keepdims=True), base, floor)
+        result = tracker.process(frame(image, i, FPS))
+        if rover.visible:
+            (e,) = result.estimates
+            assert math.hypot(e.x_cm - rover.x, e.y_cm - rover.y) < 0.3
+        else:
+            assert result.estimates == () and result.missing == ("blue",)
