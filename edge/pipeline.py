@@ -239,6 +239,7 @@ class StageTimes:
         return {k: v * 1e3 for k, v in self.seconds.items()}
 
 
+_MARKER_HEADING_HOLD = 5  # frames a two-tone heading is held when the front part is not seen (turns < 30 deg)
 _WINDOW_PAD_PX = 6  # room for the marker's edge band (2 px ring + 3 px outer band) where a centimetre is few pixels
 
 
@@ -266,6 +267,7 @@ class _RoverTrack:
     uv: tuple[float, float] | None = None
     theta_rad: float | None = None
     marker_heading: float | None = None
+    marker_heading_age: int = 0  # frames since a two-tone marker last showed its heading
 
     @property
     def lost(self) -> bool:
@@ -473,45 +475,78 @@ class Pipeline:
             return None
         heading = None
         if tr.config.front_color_bgr is not None:
-            front = self._front_part(window, m, tr.config)
-            if front is not None:
-                m, heading = front
+            two_tone = self._two_tone(window, m, tr)
+            if two_tone is None:
+                return None  # without a heading the centre of a two-tone marker is not known
+            m, heading = two_tone
         # Measurement covariance: the pixel noise seen through the local scale of the plane mapping.
         jac = window.local.jacobian(*m.uv_px)
         sigma = self.config.measurement_sigma_px
         return _Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + np.eye(2) * 1e-4, heading)
 
-    def _front_part(self, window: Window, m: Measurement, rover: RoverConfig) -> tuple[Measurement, float] | None:
-        """A two-tone marker's front part: the heading from the main part's centre towards it, and the marker's
-        centre (the main part covers only the rear ``1 - front_fraction`` of the marker, so its centroid lies
-        ``front_fraction * length / 2`` behind the marker's centre).
+    def _two_tone(self, window: Window, m: Measurement, tr: _RoverTrack) -> tuple[Measurement, float | None] | None:
+        """A two-tone marker: its heading, and its centre (the main colour covers only the rear
+        ``1 - front_fraction`` of the marker, so its centroid lies ``front_fraction * length / 2`` behind the
+        marker's centre, along the heading).
+
+        The heading is the direction from the main part's centroid to the front part's when the front part is
+        seen whole and where it should be; else the last heading the marker showed (a few frames old at most) or
+        the direction of motion shift the centre, and the heading is not reported. With none of these the centre
+        is unknown: None (no pose this frame).
+        """
+        shift = 0.5 * tr.config.front_fraction * self.config.marker_length_cm
+        heading = self._front_heading(window, m, tr)
+        reported: float | None = heading
+        if heading is None:
+            vel = tr.filter.velocity if tr.filter is not None else None
+            if tr.marker_heading is not None and tr.marker_heading_age <= _MARKER_HEADING_HOLD:
+                heading = tr.marker_heading
+            elif vel is not None and math.hypot(*vel) >= self.config.heading_min_speed_cm_s:
+                heading = math.atan2(vel[1], vel[0])
+            else:
+                return None
+        centre = (m.xy_cm[0] + shift * math.cos(heading), m.xy_cm[1] + shift * math.sin(heading))
+        return replace(m, xy_cm=centre), reported
+
+    def _front_heading(self, window: Window, m: Measurement, tr: _RoverTrack) -> float | None:
+        """Heading from the front part of a two-tone marker, or None when it is not seen whole and in place.
 
         Front pixels are those near the marker (on the plane) whose colour matches the front colour scaled by the
-        light the main part shows now, and that are not of any rover's hue.
+        light the main part shows now, and that are not of any rover's hue. The part must have about its
+        expected area and lie about half a marker length from the main part's centroid; and the rover cannot
+        have turned by more than 30 degrees since the last frame.
         """
-        assert rover.front_color_bgr is not None
-        nominal = math.hypot(*chroma_of_bgr(rover.color_bgr)[:2])
+        rover = tr.config
+        assert rover.front_color_bgr is not None and self.maps is not None
+        nominal = self._nominal_levels[tr.index]
         gain = m.level / nominal if nominal > 0 else 1.0
         expected = np.asarray(rover.front_color_bgr, np.float32) * np.float32(gain)
         diff = window.bgr.astype(np.float32) - expected
         close = np.einsum("ijk,ijk->ij", diff, diff) <= (0.12 * float(np.linalg.norm(expected)) + 10.0) ** 2
         x0, y0, x1, y1 = window.box
-        assert self.maps is not None
         wx = self.maps.x_cm[y0:y1, x0:x1]
         wy = self.maps.y_cm[y0:y1, x0:x1]
-        reach = (0.5 + 0.5 * rover.front_fraction) * self.config.marker_length_cm + 1.0  # main centroid to front edge
-        near = (wx - m.xy_cm[0]) ** 2 + (wy - m.xy_cm[1]) ** 2 <= reach**2
-        front = close & near & (window.classes < 0)
-        area = self.maps.area_cm2[y0:y1, x0:x1] * front
-        total = float(area.sum())
         length, width = self.config.marker_length_cm, self.config.marker_width_cm
-        if total < 0.3 * rover.front_fraction * length * width:
+        reach = (0.5 + 0.5 * rover.front_fraction) * length + 1.0  # main centroid to the front edge
+        near = (wx - m.xy_cm[0]) ** 2 + (wy - m.xy_cm[1]) ** 2 <= reach**2
+        area = self.maps.area_cm2[y0:y1, x0:x1] * (close & near & (window.classes < 0))
+        total = float(area.sum())
+        expected_area = rover.front_fraction * length * width
+        if not 0.4 * expected_area <= total <= 1.8 * expected_area:
             return None
         fx, fy = float((area * wx).sum()) / total, float((area * wy).sum()) / total
+        separation = math.hypot(fx - m.xy_cm[0], fy - m.xy_cm[1])
+        if not 0.6 <= separation / (0.5 * length) <= 1.4:
+            return None
         heading = math.atan2(fy - m.xy_cm[1], fx - m.xy_cm[0])
-        shift = 0.5 * rover.front_fraction * length
-        centre = (m.xy_cm[0] + shift * math.cos(heading), m.xy_cm[1] + shift * math.sin(heading))
-        return replace(m, xy_cm=centre), heading
+        last = tr.marker_heading
+        if (
+            last is not None
+            and tr.marker_heading_age <= 3 * _MARKER_HEADING_HOLD
+            and abs(math.remainder(heading - last, math.tau)) > math.radians(30.0)
+        ):
+            return None
+        return heading
 
     def _plausible(self, m: Measurement, expected_area_cm2: float, learned: bool, tr: _RoverTrack) -> bool:
         """Is this blob the whole marker? Its area on the plane, its shape, its colour's strength, and not cut off
@@ -597,6 +632,7 @@ class Pipeline:
         tr.uv = None
         tr.theta_rad = None
         tr.marker_heading = None
+        tr.marker_heading_age = 0
         reset = getattr(self.tracker, "reset", None)
         if reset is not None:
             reset(tr.index)
@@ -613,11 +649,11 @@ class Pipeline:
                 obs = acquired[tr.index]
                 m = obs.measurement
                 tr.filter = ConstantVelocityFilter(self.filter_settings, m.xy_cm, obs.r_cm2)
-                tr.marker_heading = obs.marker_heading_rad
+                self._note_marker_heading(tr, obs.marker_heading_rad)
             elif tr.index in measured and tr.filter is not None:
                 obs = measured[tr.index]
                 m = obs.measurement
-                tr.marker_heading = obs.marker_heading_rad
+                self._note_marker_heading(tr, obs.marker_heading_rad)
                 if not tr.filter.update(np.asarray(m.xy_cm), obs.r_cm2):
                     tr.misses += 1  # a spike: rejected, no pose this frame
                     if tr.misses >= self.config.lost_after_frames:
@@ -650,9 +686,17 @@ class Pipeline:
         clock.add("filter", time.perf_counter() - t0)
         return tuple(out)
 
+    @staticmethod
+    def _note_marker_heading(tr: _RoverTrack, heading: float | None) -> None:
+        if heading is not None:
+            tr.marker_heading, tr.marker_heading_age = heading, 0
+        elif tr.marker_heading is not None:
+            tr.marker_heading_age += 1
+
     def _heading(self, tr: _RoverTrack, vel: tuple[float, float] | None) -> float | None:
-        """The marker's own heading (two-tone) when it shows one, else the direction of motion, else None."""
-        if tr.marker_heading is not None:
+        """The marker's own heading (two-tone) when it showed one in the last few frames, else the direction of
+        motion while moving, else None."""
+        if tr.marker_heading is not None and tr.marker_heading_age <= _MARKER_HEADING_HOLD:
             return tr.marker_heading
         if vel is None:
             return None
