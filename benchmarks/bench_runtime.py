@@ -15,10 +15,8 @@ process on ``ips/v1/rovers/+/pose``.
 * CPU: the edge process (all its threads, the embedded broker included when used), sampled every second with
   psutil; 100 % = one core. Memory: resident set size, first and last minute.
 
-The clip comes from the simulator (``edge.sim``) with its exact calibration when available; otherwise a
-synthetic scene. The tracker is the real pipeline when ``edge.pipeline.Pipeline`` exists; otherwise the script
-says so and runs the same appliance code (``tests/support/edge_process.py``) with a cheap stand-in tracker, which
-measures the runtime's own overhead only.
+The clip is the simulator's ``lab`` scenario (seed 0), calibrated with the simulated camera's exact calibration;
+the edge runs its real tracking pipeline (``[tracker]`` defaults).
 """
 
 from __future__ import annotations
@@ -75,37 +73,27 @@ def subscriber(host: str, port: int, out: Path) -> None:
 
 
 # -- the clip ------------------------------------------------------------------------------------------------------
-def render_clip(directory: Path, width: int, height: int, fps: float, seconds: float) -> tuple[Path, Path | None, str]:
-    """An MJPG clip of 3 moving rovers and, with the simulator, its exact calibration file."""
+def render_clip(directory: Path, width: int, height: int, fps: float, seconds: float) -> tuple[Path, Path, str]:
+    """An MJPG clip of the simulator's 3 moving rovers and its exact calibration file."""
     import cv2
 
     clip = directory / "clip.avi"
     frames = int(seconds * fps)
     writer = cv2.VideoWriter(str(clip), cv2.VideoWriter.fourcc(*"MJPG"), fps, (width, height))
-    try:
-        if not real_pipeline_available():  # the stand-in tracker knows only the synthetic scene's colours
-            raise ImportError
-        from edge.sim.source import SimSource  # type: ignore[import-not-found,unused-ignore]
-    except ImportError:
-        from tests.support.runtime import scene
+    from edge.calibration import save_calibration
+    from edge.runtime import exact_calibration
+    from edge.sim.source import SimSource
 
-        for i in range(frames):
-            writer.write(scene(i, width, height))
-        calibration, what = None, "synthetic scene (for the stand-in tracker)"
-    else:
-        from edge.calibration import save_calibration
-        from edge.runtime import exact_calibration
-
-        sim = SimSource("lab", seed=0, realtime=False, frames=frames)
-        info = sim.open()
-        if (info.width_px, info.height_px) != (width, height):
-            raise SystemExit(f"the simulator renders {info.width_px}x{info.height_px}, not {width}x{height}")
-        while (frame := sim.read()) is not None:
-            writer.write(frame.image)
-        calibration = directory / "calibration.json"
-        save_calibration(exact_calibration(sim.setup.camera), calibration)
-        what = "simulator scenario 'lab', seed 0, with its exact calibration"
-        sim.close()
+    sim = SimSource("lab", seed=0, realtime=False, frames=frames)
+    info = sim.open()
+    if (info.width_px, info.height_px) != (width, height):
+        raise SystemExit(f"the simulator renders {info.width_px}x{info.height_px}, not {width}x{height}")
+    while (frame := sim.read()) is not None:
+        writer.write(frame.image)
+    calibration = directory / "calibration.json"
+    save_calibration(exact_calibration(sim.setup.camera), calibration)
+    what = "simulator scenario 'lab', seed 0, with its exact calibration"
+    sim.close()
     writer.release()
     return clip, calibration, what
 
@@ -115,14 +103,6 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def real_pipeline_available() -> bool:
-    try:
-        from edge.pipeline import Pipeline  # type: ignore[attr-defined]  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 
 @dataclass
@@ -173,7 +153,7 @@ def _wait_http(url: str, timeout_s: float) -> None:
 
 
 def run_once(
-    broker_kind: str, clip: Path, calibration: Path | None, duration_s: float, warmup_s: float, workdir: Path
+    broker_kind: str, clip: Path, calibration: Path, duration_s: float, warmup_s: float, workdir: Path
 ) -> RunResult:
     import psutil
 
@@ -187,8 +167,7 @@ def run_once(
         "http": {"enabled": True, "host": "127.0.0.1", "port": http_port},
         "broker": {"reconnect_max_s": 2.0},
     }
-    if calibration is not None:
-        settings["calibration"] = {"path": str(calibration)}
+    settings["calibration"] = {"path": str(calibration)}
     mosquitto = None
     if broker_kind == "mosquitto":
         conf = workdir / "mosquitto-bench.conf"  # what `edge-ips broker-config` writes, minus users and ACLs
@@ -200,18 +179,9 @@ def run_once(
         broker_port = free_port()
         settings["broker"].update(url="embedded", embedded_host="127.0.0.1", embedded_port=broker_port)
 
-    real = real_pipeline_available()
-    if real:
-        config = workdir / f"{broker_kind}.toml"
-        config.write_text(to_toml(settings))
-        cmd = [sys.executable, "-m", "edge.cli", "start", "--config", str(config)]  # = edge-ips start, this checkout
-    else:
-        flat = [
-            f"{sec}.{key}={json.dumps(v) if isinstance(v, bool) else v}"
-            for sec, d in settings.items()
-            for key, v in d.items()
-        ]
-        cmd = [sys.executable, "-m", "tests.support.edge_process", *flat]
+    config = workdir / f"{broker_kind}.toml"
+    config.write_text(to_toml(settings))
+    cmd = [sys.executable, "-m", "edge.cli", "start", "--config", str(config)]  # = edge-ips start, this checkout
     env = {k: v for k, v in os.environ.items() if not k.startswith("EDGE_IPS_")}
     edge_log = open(workdir / f"edge-{broker_kind}.log", "wb")  # noqa: SIM115 - closed below
     edge = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=edge_log, stderr=subprocess.STDOUT)
@@ -268,7 +238,7 @@ def run_once(
     last = rss_a[rss_t_a >= rss_t_a[-1] - 60]
     return RunResult(
         broker=broker_kind,
-        tracker="pipeline" if real else "stand-in (runtime overhead only)",
+        tracker="pipeline (particles)",
         duration_s=round(t_end - t_start, 1),
         poses_received=int(lat_ms.size),
         poses_per_s=round(lat_ms.size / (t_end - t_start), 1),

@@ -130,6 +130,22 @@ class EdgeConfig(BaseModel):
     recording: RecordingSection = Field(default_factory=RecordingSection)
     http: HttpSection = Field(default_factory=HttpSection)
 
+    @field_validator("tracker")
+    @classmethod
+    def _tracker_settings(cls, value: dict[str, Any]) -> dict[str, Any]:
+        from edge.pipeline import TrackerConfig
+
+        if "rovers" in value:
+            raise ValueError("the rovers are configured in [[rovers]] tables, not in [tracker]")
+        try:
+            TrackerConfig.model_validate(value)
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            key = ".".join(str(p) for p in first["loc"])
+            message = "unknown key" if first["type"] == "extra_forbidden" else first["msg"]
+            raise ValueError(f"{key}: {message}") from None
+        return value
+
     @field_validator("rovers")
     @classmethod
     def _unique_ids(cls, rovers: list[RoverConfig]) -> list[RoverConfig]:

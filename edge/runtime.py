@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from edge.config import BrokerTarget, EdgeConfig, broker_target
-from edge.errors import CalibrationError, EdgeIpsError, MessageError, SourceError
+from edge.errors import CalibrationError, MessageError
 from edge.messages import StatusV1, encode_pose
 from edge.metrics import Latency, LatencyWindow, RateMeter, RoverSnapshot, Snapshot
 from edge.pipeline import FrameResult, Tracker
@@ -334,23 +334,19 @@ def default_sim_factory(config: EdgeConfig) -> SimFactory:
     """The simulator's source (issue 4), paced in real time, for ``--source sim[:SCENARIO]``."""
 
     def make(scenario: str) -> FrameSource:
-        try:
-            from edge.sim.source import SimSource  # type: ignore[import-not-found,unused-ignore]
-        except ImportError as exc:
-            raise SourceError("the simulated camera (edge.sim) is not available in this build") from exc
-        return SimSource(scenario or "lab", seed=0, realtime=config.camera.realtime)  # type: ignore[no-any-return,unused-ignore]
+        from edge.sim.source import SimSource
+
+        return SimSource(scenario or "lab", seed=0, realtime=config.camera.realtime)
 
     return make
 
 
 def default_tracker_factory(inputs: TrackerInputs) -> Tracker:
     """The tracking pipeline (issue 5) built from the rovers, the ``[tracker]`` settings and the calibration."""
-    try:
-        from edge.pipeline import TrackerConfig, build_tracker  # type: ignore[attr-defined,unused-ignore]
-    except ImportError as exc:
-        raise EdgeIpsError("the tracking pipeline (edge.pipeline.Pipeline) is not available in this build") from exc
-    settings = TrackerConfig(rovers=tuple(inputs.config.rovers), **inputs.config.tracker)
-    return build_tracker(settings, inputs.calibration)  # type: ignore[no-any-return,unused-ignore]
+    from edge.pipeline import TrackerConfig, build_tracker
+
+    settings = TrackerConfig(rovers=tuple(inputs.config.rovers), **inputs.config.tracker)  # validated at load
+    return build_tracker(settings, inputs.calibration)
 
 
 def _with_sim_rovers(config: EdgeConfig, source: FrameSource) -> EdgeConfig:
