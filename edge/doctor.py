@@ -86,13 +86,15 @@ def check_calibration(config: EdgeConfig, source: Any, info: Any, where: str) ->
     if source is None:
         return Check("calibration", "warn", "not checked: no camera", "fix the camera first")
     try:
-        calibration = load_calibration_for(config, source, info, where)
+        load_calibration_for(config, source, info, where)
     except EdgeIpsError as exc:
         return Check("calibration", "fail", str(exc), "run `edge-ips calibrate` and set calibration.path")
     finally:
         source.close()
-    if calibration is None:
-        return Check("calibration", "ok", "simulated camera: exact calibration from the simulator")
+    from edge.sources import parse_source
+
+    if parse_source(config.camera.source).kind == "sim":
+        return Check("calibration", "ok", "simulated camera: its exact calibration")
     return Check("calibration", "ok", f"{config.calibration.path} loaded for {info.width_px}x{info.height_px}")
 
 

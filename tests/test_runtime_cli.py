@@ -242,3 +242,10 @@ def test_doctor_recognises_a_running_edge(mosquitto: Mosquitto, env: dict[str, s
         out = CliRunner().invoke(main, ["doctor", "--broker", mosquitto.url, "--source", "/dev/video7"], env=env)
     broker_line = next(ln for ln in out.output.splitlines() if ln.split()[1] == "broker")
     assert broker_line.startswith("OK") and "edge edge-1 is running" in broker_line
+
+
+def test_doctor_with_no_configuration_checks_the_simulator(env: dict[str, str]) -> None:
+    result = CliRunner().invoke(main, ["doctor"], env=env)
+    lines = {ln.split()[1]: ln for ln in result.output.strip().splitlines()}
+    assert lines["camera"].startswith("OK") and "sim:lab" in lines["camera"] and "1280x720" in lines["camera"]
+    assert lines["calibration"].startswith("OK") and "exact calibration" in lines["calibration"]
