@@ -24,7 +24,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from edge.config import BrokerTarget, EdgeConfig, broker_target
 from edge.errors import CalibrationError, MessageError
@@ -33,6 +33,10 @@ from edge.metrics import Latency, LatencyWindow, RateMeter, RoverSnapshot, Snaps
 from edge.pipeline import FrameResult, Tracker
 from edge.publisher import MqttPublisher, Publisher, TlsFiles, offline_status
 from edge.sources import CaptureThread, FrameSlot, FrameSource, SourceInfo, make_source, parse_source
+
+if TYPE_CHECKING:
+    from edge.calibration import Calibration
+    from edge.camera import PinholeCamera
 
 log = logging.getLogger("edge.runtime")
 
@@ -361,7 +365,7 @@ def _with_sim_rovers(config: EdgeConfig, source: FrameSource) -> EdgeConfig:
     return config.model_copy(update={"rovers": rovers})
 
 
-def exact_calibration(camera: Any, z_cm: float | None = None) -> Any:
+def exact_calibration(camera: PinholeCamera, z_cm: float | None = None) -> Calibration:
     """The exact :class:`edge.calibration.Calibration` of a known camera (the simulator's) on the marker plane."""
     from edge.calibration import Calibration, Intrinsics
     from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM, MARKER_HEIGHT_CM
@@ -379,7 +383,7 @@ def exact_calibration(camera: Any, z_cm: float | None = None) -> Any:
     )
 
 
-def load_calibration_for(config: EdgeConfig, source: FrameSource, info: SourceInfo, where: str) -> Any:
+def load_calibration_for(config: EdgeConfig, source: FrameSource, info: SourceInfo, where: str) -> Calibration:
     """The calibration for a real source (required), or the simulator's own exact one (from its camera)."""
     if parse_source(config.camera.source).kind == "sim":
         camera = getattr(getattr(source, "setup", None), "camera", None) or getattr(source, "camera", None)
