@@ -149,18 +149,23 @@ def trajectory_plans(kind: str, n: int, rng: np.random.Generator) -> list[Plan]:
     if kind == "diagonal":
         if n > 5:
             raise ConfigError(f"the diagonal test has room for 5 rovers, got {n}")
-        ux, uy = AREA_WIDTH_CM, AREA_LENGTH_CM
-        length = math.hypot(ux, uy)
-        ex, ey = ux / length, uy / length
+        length = math.hypot(AREA_WIDTH_CM, AREA_LENGTH_CM)
+        ex, ey = AREA_WIDTH_CM / length, AREA_LENGTH_CM / length
         nx, ny = -ey, ex  # across the diagonal
+        margin = 30.0
         plans = []
         for k in range(n):
-            off = (k - (n - 1) / 2) * 45.0  # 45 cm lanes: the 17.5 cm bodies never meet
-            sx, sy = 40.0 + off * nx, 40.0 + off * ny
+            off = (k - (n - 1) / 2) * 45.0  # 45 cm lanes: the 17.2 cm bodies never meet
+            cx, cy = AREA_WIDTH_CM / 2 + off * nx, AREA_LENGTH_CM / 2 + off * ny
+            # the stretch of this lane inside the area less the margin
+            lo, hi = -math.inf, math.inf
+            for c, e, size in ((cx, ex, AREA_WIDTH_CM), (cy, ey, AREA_LENGTH_CM)):
+                a, b = (margin - c) / e, (size - margin - c) / e
+                lo, hi = max(lo, min(a, b)), min(hi, max(a, b))
             plans.append(
                 diagonal(
-                    (sx + 20 * ex, sy + 20 * ey),
-                    (sx + (length - 100.0) * ex, sy + (length - 100.0) * ey),
+                    (cx + lo * ex, cy + lo * ey),
+                    (cx + hi * ex, cy + hi * ey),
                     speed_cm_s=float(rng.uniform(22.0, 28.0)),
                     wait_before_s=1.0 + 0.5 * k,
                 )
@@ -335,7 +340,7 @@ def run(
         plans = dict(zip(ids, trajectory_plans(config.kind, config.rovers, rng), strict=True))
         world = World(dict(plans), drive, seed=config.seed)
         if config.frames is None:
-            n_frames = int(math.ceil(max(p.duration_s for p in plans.values()) * FPS)) + 1
+            n_frames = math.ceil(max(p.duration_s for p in plans.values()) * FPS) + 1
     renderer = Renderer(camera, scene, effects, seed=config.seed, fps=FPS)
     tracker = build_tracker(camera, scene, effects, config.seed)
 
@@ -436,7 +441,7 @@ def _loop(
     snapshots: dict[int, NDArray[np.uint8]] = {}
     overlays: dict[int, list[tuple[str, float, float]]] = {}
     period_us = int(next(iter(rovers.values())).config["control"]["period_ms"]) * 1000 if rovers else 10**12
-    latency_us = int(round(config.latency_ms * 1000))
+    latency_us = round(config.latency_ms * 1000)
     pending: deque[tuple[int, int, float, list[Any]]] = deque()  # (due us, frame, capture time, estimates)
     wall0 = time.time()
     frame_k = 0
@@ -453,11 +458,11 @@ def _loop(
                 fresh[rid].append(t_ms)
 
     while frame_k < n_frames or pending:
-        t_frame = int(round(frame_k * US / FPS)) if frame_k < n_frames else math.inf
+        t_frame = round(frame_k * US / FPS) if frame_k < n_frames else math.inf
         t_step = step_j * period_us if rovers else math.inf
         t_deliver = pending[0][0] if pending else math.inf
         t_next = min(t_frame, t_step, t_deliver)
-        if frame_k >= n_frames and t_next != t_deliver:
+        if frame_k >= n_frames and not pending:
             break
         t_next_us = int(t_next)
         if t_next_us > now_us:
@@ -492,7 +497,7 @@ def _loop(
                 t_ms = now_us // 1000
                 for rid, hr in rovers.items():
                     ok = hr.pump(
-                        lambda hr=hr: _has_seen(hr, sent),
+                        lambda hr=hr, sent=sent: _has_seen(hr, sent),
                         timeout_s=config.deliver_timeout_s,
                         now_ms=t_ms,
                     )

@@ -190,7 +190,9 @@ def write_run(record: LoopRecord, out_dir: Path) -> dict[str, Any]:
     with (out_dir / "motors.csv").open("w") as f:
         f.write("t_ms,id,left_duty,left_forward,right_duty,right_forward,halt\n")
         for rid, log in record.motors.items():
-            for row in zip(log.t_ms, log.left_duty, log.left_forward, log.right_duty, log.right_forward, log.halt):
+            for row in zip(
+                log.t_ms, log.left_duty, log.left_forward, log.right_duty, log.right_forward, log.halt, strict=True
+            ):
                 t, ld, lf, rd, rf, halt = row
                 f.write(f"{t},{rid},{ld},{int(lf)},{rd},{int(rf)},{halt}\n")
     metrics = summarize(record)
