@@ -284,12 +284,15 @@ def _sample(
 def build_tracker(camera: PinholeCamera, scene: Scene, effects: Any, seed: int) -> Any:
     """The tracker `edge-ips start` runs on the simulated camera: :class:`edge.pipeline.Pipeline` with the default
     settings, the rovers' measured colours and the camera's exact calibration."""
-    from edge.pipeline import Pipeline, RoverConfig, TrackerConfig
+    # (the ignores: Pipeline, TrackerConfig and the two-tone fields land with the tracker's branch)
+    from edge.pipeline import Pipeline, RoverConfig, TrackerConfig  # type: ignore[attr-defined,unused-ignore]
     from edge.runtime import exact_calibration
 
     colors = marker_colors(camera, scene, effects, seed)
     rovers = tuple(
-        RoverConfig(id=rid, color_bgr=main, front_color_bgr=front, front_fraction=scene.look(rid).front_fraction)
+        RoverConfig(  # type: ignore[call-arg,unused-ignore]
+            id=rid, color_bgr=main, front_color_bgr=front, front_fraction=scene.look(rid).front_fraction
+        )
         for rid, (main, front) in colors.items()
     )
     return Pipeline(TrackerConfig(rovers=rovers), exact_calibration(camera))
