@@ -25,6 +25,8 @@ DEBIAN_FOR_TESTS = {
     "/usr/sbin/mosquitto": "mosquitto",
     "/usr/bin/mosquitto_sub": "mosquitto-clients",
     "/usr/bin/chromium": "chromium",
+    "/usr/bin/systemd-analyze": "systemd",  # checks deploy/edge-ips.service
+    "/usr/bin/openssl": "openssl",  # test certificates for the MQTT TLS test
 }
 
 

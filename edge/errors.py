@@ -33,3 +33,7 @@ class BrokerError(EdgeIpsError):
 
 class SimulationError(EdgeIpsError):
     """A simulator scenario or parameter that cannot be rendered."""
+
+
+class FlashError(EdgeIpsError):
+    """A rover board that cannot be reached, flashed or provisioned (tools/flash.py)."""

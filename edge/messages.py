@@ -36,6 +36,8 @@ RoverId = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
 Cm = Annotated[float, Field(ge=-MAX_ABS_CM, le=MAX_ABS_CM, allow_inf_nan=False)]
 CmPerS = Annotated[float, Field(ge=-MAX_ABS_CM_S, le=MAX_ABS_CM_S, allow_inf_nan=False)]
 Counter = Annotated[int, Field(ge=0, le=MAX_INT)]
+# An int field, not Literal[1]: strict ints refuse 1.0, which the contract forbids (the README's rule).
+Version = Annotated[int, Field(ge=VERSION, le=VERSION, json_schema_extra={"const": VERSION})]
 
 _STRICT = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
 
@@ -70,7 +72,7 @@ class PoseV1(BaseModel):
         json_schema_extra={"x-max-bytes": POSE_MAX_BYTES, "x-topic": "ips/v1/rovers/<id>/pose"},
     )
 
-    v: Literal[1] = Field(description="Message version, always 1.")
+    v: Version = Field(description="Message version, always 1.")
     id: RoverId = Field(description="Rover id, 1-16 characters of a-z, 0-9, _ and -.")
     seq: Counter = Field(description="Per-rover message counter, increments by one per message.")
     frame: Counter = Field(description="Index of the source frame the pose was measured in.")
@@ -97,7 +99,7 @@ class FormationV1(BaseModel):
         json_schema_extra={"x-max-bytes": FORMATION_MAX_BYTES, "x-topic": FORMATION_TOPIC, "x-retained": True},
     )
 
-    v: Literal[1] = Field(description="Message version, always 1.")
+    v: Version = Field(description="Message version, always 1.")
     seq: Counter = Field(description="Increments with every new formation command.")
     kind: FormationKind = Field(description="Which formation: line, rendezvous, triangle, or stop (all halt).")
     ids: list[RoverId] = Field(max_length=16, description="Ordered ids of the rovers taking part.")
@@ -128,7 +130,7 @@ class StatusV1(BaseModel):
         json_schema_extra={"x-max-bytes": STATUS_MAX_BYTES, "x-topic": "ips/v1/edge/<edge-id>/status"},
     )
 
-    v: Literal[1] = Field(description="Message version, always 1.")
+    v: Version = Field(description="Message version, always 1.")
     edge: RoverId = Field(description="Edge id (same alphabet as rover ids).")
     state: EdgeState = Field(description="online, degraded (camera or tracking trouble) or offline.")
     camera: CameraState = Field(description="State of the frame source.")

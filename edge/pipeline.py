@@ -1,18 +1,60 @@
-"""The tracking pipeline's interface: what a processed frame yields, and the typed tracker configuration.
+"""The tracking pipeline's interface and its implementation: frames in, rover poses out.
 
 The runtime (``edge-ips start``), the offline tracker (``edge-ips track``) and the closed-loop simulator all drive a
 :class:`Tracker` frame by frame and turn each :class:`RoverEstimate` into a pose v1 message.
+
+:class:`Pipeline` is the concrete tracker (see ``docs/tracking.md``):
+
+1. **Acquisition** (first frame, and whenever a rover is lost): one cheap pass over a 1/4-resolution copy of the
+   frame classifies pixels by hue and finds each lost rover's marker as a particle of plausible size.
+2. **Tracking**: every rover that is being tracked is measured in a small full-resolution window around where its
+   filter predicts it (the paper's segmentation stages, then the chosen tracker: centroid, particles or mean
+   shift), to a sub-pixel, perspective-correct marker centre on the world plane.
+3. **Filtering** (``edge.filtering``): a constant-velocity Kalman filter per rover gives velocity, rejects
+   spikes, and follows turns.
+4. **Identity** is the marker colour plus the filter's gate: a rover is only ever measured in its own colour near
+   where it is expected, so crossing rovers cannot swap. A blob that is not one whole marker (area on the plane,
+   shape, cut by the image border) is refused. A rover unseen in its window is reported missing (no pose) and
+   after a few frames goes back to acquisition.
+5. **Heading** from the marker's second colour when it has one (two-tone marker), else the direction of motion
+   while moving faster than ``heading_min_speed_cm_s``, else null.
+
+No full-frame work is done per frame while all rovers are tracked, except refreshing one band of rows of the
+background reference. Build one with :func:`build_tracker` (``method="paper"`` gives the full-frame baseline).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Protocol
+import math
+import time
+import tomllib
+from collections import deque
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Literal, Protocol
 
-from pydantic import BaseModel, ConfigDict, Field
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
+from edge.errors import ConfigError, SourceError
+from edge.filtering import ConstantVelocityFilter, FilterSettings
 from edge.messages import ID_PATTERN
+from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr, opponent_planes
 from edge.sources import Frame
+from edge.trackers.base import (
+    Measurement,
+    PlaneGrid,
+    PlaneMapping,
+    RoverModel,
+    StageClock,
+    Window,
+    WindowTracker,
+)
+
+FloatArray = NDArray[np.float64]
 
 
 class RoverConfig(BaseModel):
@@ -22,6 +64,12 @@ class RoverConfig(BaseModel):
 
     id: str = Field(pattern=ID_PATTERN, description="Rover id, also the MQTT topic segment.")
     color_bgr: tuple[int, int, int] = Field(description="Nominal marker colour as seen by the camera, B, G, R 0-255.")
+    front_color_bgr: tuple[int, int, int] | None = Field(
+        default=None,
+        description="Two-tone marker: colour of its front part as the camera sees it (the rest has color_bgr); "
+        "it gives the heading even when the rover stands still. None: a one-colour marker.",
+    )
+    front_fraction: float = Field(default=0.3, gt=0.0, lt=1.0, description="Share of the marker's length in front.")
 
 
 DEFAULT_ROVERS = (
@@ -43,6 +91,7 @@ class RoverEstimate:
     vy_cm_s: float | None
     quality: float
     uv_px: tuple[float, float]
+    box_px: tuple[int, int, int, int] | None = None  # the search window (x0, y0, x1, y1), for overlays
 
 
 @dataclass(frozen=True)
@@ -61,3 +110,646 @@ class Tracker(Protocol):
     """Frame in, rover estimates out. Keeps its own state (background model, filters, identities)."""
 
     def process(self, frame: Frame) -> FrameResult: ...
+
+
+Method = Literal["centroid", "particles", "meanshift", "paper"]
+
+
+class TrackerConfig(BaseModel):
+    """Everything the tracking pipeline can be tuned with (the ``[tracker]`` section of a configuration file)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    rovers: tuple[RoverConfig, ...] = Field(default=DEFAULT_ROVERS, min_length=1, max_length=32)
+    method: Method = Field(
+        default="particles",
+        description="centroid, particles or meanshift (the paper's three trackers, windowed); paper: the "
+        "straightforward full-frame version of the paper's pipeline, for comparison.",
+    )
+    marker_length_cm: float = Field(
+        default=21.5, gt=0.0, le=200.0, description="Marker side along the rover (21.5 x 16.8 cm: Table II, 361 cm^2)."
+    )
+    marker_width_cm: float = Field(default=16.8, gt=0.0, le=200.0, description="Marker side across the rover.")
+    hue_tolerance_deg: float = Field(default=30.0, gt=0.0, le=90.0, description="Largest hue error of a marker.")
+    min_saturation_fraction: float = Field(
+        default=0.35, gt=0.0, le=1.0, description="Least relative saturation, as a share of the markers' own."
+    )
+    threshold_fraction: float = Field(
+        default=0.5, gt=0.0, lt=1.0, description="k_min / k_max of the automatic threshold interval."
+    )
+    erosion_iterations: int = Field(default=1, ge=0, le=3, description="3x3 erosions before reconstruction.")
+    background_threshold: float = Field(
+        default=0.2, gt=0.0, description="eq. 2 threshold, in normalised chroma (lighting-invariant)."
+    )
+    background_refresh_s: float = Field(default=4.0, gt=0.0, description="Time to refresh the whole reference.")
+    window_margin_cm: float = Field(
+        default=3.0, ge=0.0, description="Search window margin around the marker (plus 6 pixels for its edge band)."
+    )
+    lost_after_frames: int = Field(
+        default=3, ge=1, description="Frames unseen in its window before a rover is searched for everywhere."
+    )
+    acquire_scale: int = Field(
+        default=4,
+        ge=1,
+        le=8,
+        description="Largest downscale factor of the acquisition pass (smaller when the far side's markers are "
+        "too few pixels to survive it).",
+    )
+    min_area_fraction: float = Field(
+        default=0.9,
+        gt=0.0,
+        le=1.0,
+        description="A marker showing less of its usual area is partly hidden or cut off: no pose (its centre would "
+        "be biased).",
+    )
+    max_area_fraction: float = Field(default=1.3, ge=1.0, description="A larger blob is not one marker: no pose.")
+    acquire_area_range: tuple[float, float] = Field(
+        default=(0.5, 2.0),
+        description="Blob area, as a share of the nominal marker area, accepted before the "
+        "rover's own marker area has been learned.",
+    )
+    level_range: tuple[float, float] = Field(
+        default=(0.4, 2.5),
+        description="A marker's colour strength (chroma along its hue) as a share of the configured colour's: the "
+        "light may change it this much; dark clothes of the same hue are far below.",
+    )
+    max_elongation_factor: float = Field(
+        default=1.5, ge=1.0, description="A blob more elongated than the marker's own aspect times this is not it."
+    )
+    heading_min_speed_cm_s: float = Field(default=3.0, ge=0.0, description="Slowest motion that gives a heading.")
+    accel_sigma_cm_s2: float = Field(default=40.0, gt=0.0, description="Filter process noise (acceleration).")
+    measurement_sigma_px: float = Field(default=0.15, gt=0.0, description="Marker centre noise in pixels.")
+    fps: float = Field(default=30.0, gt=0.0, description="Frame rate assumed when frames carry no usable time.")
+
+    @field_validator("rovers")
+    @classmethod
+    def _unique_ids(cls, rovers: tuple[RoverConfig, ...]) -> tuple[RoverConfig, ...]:
+        ids = [r.id for r in rovers]
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        if dup:
+            raise ValueError(f"rover ids must be unique, repeated: {', '.join(dup)}")
+        return rovers
+
+    @property
+    def marker_area_cm2(self) -> float:
+        return self.marker_length_cm * self.marker_width_cm
+
+    @property
+    def marker_radius_cm(self) -> float:
+        return 0.5 * math.hypot(self.marker_length_cm, self.marker_width_cm)
+
+
+def load_tracker_config(path: Path) -> TrackerConfig:
+    """Read a TOML file: either a ``[tracker]`` table or the tracker keys at top level; ``[[rovers]]`` anywhere.
+
+    Example::
+
+        method = "particles"
+        [[rovers]]
+        id = "red"
+        color_bgr = [40, 40, 200]
+    """
+    try:
+        data = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from exc
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from exc
+    section = data.get("tracker", data)
+    if "tracker" in data and "rovers" in data and "rovers" not in section:
+        section = {**section, "rovers": data["rovers"]}
+    try:
+        return TrackerConfig.model_validate(section)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
+        raise ConfigError(f"{path}: {where}: {first['msg']}") from exc
+
+
+class StageTimes:
+    """Accumulated wall time per named stage within one frame (the rows of the paper's Table IV)."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    def add(self, stage: str, seconds: float) -> None:
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + seconds
+
+    def as_ms(self) -> dict[str, float]:
+        return {k: v * 1e3 for k, v in self.seconds.items()}
+
+
+_MARKER_HEADING_HOLD = 5  # frames a two-tone heading is held when the front part is not seen (turns < 30 deg)
+_WINDOW_PAD_PX = 6  # room for the marker's edge band (2 px ring + 3 px outer band) where a centimetre is few pixels
+
+
+@dataclass(frozen=True)
+class _Observation:
+    """A measurement that passed the pipeline's checks, with its covariance on the plane (cm^2) and, for a
+    two-tone marker, the heading it shows."""
+
+    measurement: Measurement
+    r_cm2: FloatArray
+    marker_heading_rad: float | None = None
+
+
+@dataclass
+class _RoverTrack:
+    """The pipeline's mutable state for one rover."""
+
+    config: RoverConfig
+    index: int
+    filter: ConstantVelocityFilter | None = None
+    misses: int = 0
+    level: float = 0.0
+    areas: deque[float] = field(default_factory=lambda: deque(maxlen=31))
+    box: tuple[int, int, int, int] | None = None
+    uv: tuple[float, float] | None = None
+    theta_rad: float | None = None
+    marker_heading: float | None = None
+    marker_heading_age: int = 0  # frames since a two-tone marker last showed its heading
+
+    @property
+    def lost(self) -> bool:
+        return self.filter is None
+
+
+class Pipeline:
+    """The tracker of ``docs/tracking.md``: windowed trackers, low-resolution reacquisition, filters, identity.
+
+    ``calibration``: the pixel <-> plane mapping (``edge.calibration.Calibration`` or any :class:`PlaneMapping`).
+    ``background``: an empty-scene frame (the paper's reference), or None to learn the reference from the video.
+    """
+
+    def __init__(
+        self,
+        config: TrackerConfig,
+        calibration: PlaneMapping,
+        background: NDArray[np.uint8] | None = None,
+        tracker: WindowTracker | None = None,
+    ) -> None:
+        from edge.trackers import make_tracker
+
+        if config.method == "paper":
+            raise ConfigError("method 'paper' is the full-frame baseline: build it with build_tracker()")
+        self.config = config
+        self.calibration = calibration
+        self.maps: PlaneGrid | None = None
+        self.tracker = tracker if tracker is not None else make_tracker(config.method)
+        # Acquisition always chooses among particles (by area, shape and hue), whatever tracks the rover after.
+        self.acquirer = self.tracker if config.method == "particles" else make_tracker("particles")
+        colors = [r.color_bgr for r in config.rovers]
+        try:
+            self.colors = ColorModel.from_colors(colors, config.hue_tolerance_deg, config.min_saturation_fraction)
+        except ValueError as exc:
+            raise ConfigError(f"rovers: {exc}") from exc
+        self._nominal_levels = [math.hypot(*chroma_of_bgr(c)[:2]) for c in colors]
+        self.filter_settings = FilterSettings(accel_sigma_cm_s2=config.accel_sigma_cm_s2)
+        self.tracks = [_RoverTrack(r, i) for i, r in enumerate(config.rovers)]
+        self._empty_scene = background
+        self.background: BackgroundModel | None = None
+        self.acquire_scale = config.acquire_scale
+        self._last_t: float | None = None
+        self._frames = 0
+
+    # -- the frame loop -----------------------------------------------------------------------------------------
+    def process(self, frame: Frame) -> FrameResult:
+        t_start = time.perf_counter()
+        clock = StageTimes()
+        image = frame.image
+        if self.background is None:
+            self._start(image)
+        assert self.background is not None
+        if image.shape[:2] != self.background.shape_hw:
+            h, w = self.background.shape_hw
+            raise SourceError(
+                f"frame {frame.index} is {image.shape[1]}x{image.shape[0]}, the stream started at {w}x{h} "
+                "(the calibration and the background are for one image size)"
+            )
+        dt = self._dt(frame)
+
+        t0 = time.perf_counter()
+        for tr in self.tracks:
+            if tr.filter is not None:
+                tr.filter.predict(dt)
+        clock.add("filter", time.perf_counter() - t0)
+
+        measured: dict[int, _Observation] = {}
+        for tr in self.tracks:
+            if tr.filter is None:
+                continue
+            m = self._track(image, tr, clock)
+            if m is not None:
+                measured[tr.index] = m
+            else:
+                tr.misses += 1
+                if tr.misses >= self.config.lost_after_frames:
+                    self._lose(tr)
+
+        acquired: dict[int, _Observation] = {}
+        if any(tr.lost for tr in self.tracks):
+            acquired = self._acquire(image, clock)
+
+        estimates = self._estimates(measured, acquired, clock)
+
+        t0 = time.perf_counter()
+        exclude = [self._exclusion_box(tr.box, image.shape) for tr in self.tracks if tr.box is not None]
+        self.background.refresh(image, exclude)
+        clock.add("reference", time.perf_counter() - t0)
+
+        self._frames += 1
+        seen = {e.rover_id for e in estimates}
+        missing = tuple(tr.config.id for tr in self.tracks if tr.config.id not in seen)
+        stage_ms = clock.as_ms()
+        stage_ms["total"] = (time.perf_counter() - t_start) * 1e3
+        return FrameResult(frame.index, frame.t_capture_s, frame.t_mono_s, estimates, missing, stage_ms)
+
+    def _start(self, image: NDArray[np.uint8]) -> None:
+        h, w = image.shape[:2]
+        if self._empty_scene is not None and self._empty_scene.shape[:2] != (h, w):
+            eh, ew = self._empty_scene.shape[:2]
+            raise ConfigError(f"background image is {ew}x{eh} but the frames are {w}x{h}")
+        self.maps = PlaneGrid(self.calibration, (w, h))
+        period = max(1, round(self.config.background_refresh_s * self.config.fps))
+        self.background = BackgroundModel((h, w), period, self._empty_scene)
+        self.acquire_scale = self._acquisition_scale()
+
+    def _acquisition_scale(self) -> int:
+        """The acquisition pass's downscale: as coarse as ``acquire_scale`` allows while the smallest marker in
+        the working area stays two low-resolution pixels across or more (4 for the paper's 1280x720 view, whose
+        far-side markers are about 21 x 9 px; less for a smaller image or a farther camera)."""
+        assert self.maps is not None
+        x0, y0, x1, y1 = getattr(self.calibration, "area_cm", None) or (0.0, 0.0, AREA_WIDTH_CM, AREA_LENGTH_CM)
+        grid = self.maps
+        inside = (grid.area_cm2 > 0) & (grid.x_cm >= x0) & (grid.x_cm <= x1) & (grid.y_cm >= y0) & (grid.y_cm <= y1)
+        if not inside.any():
+            return self.config.acquire_scale
+        smallest_px = self.config.marker_area_cm2 / float(grid.area_cm2[inside].max())
+        short_side_px = math.sqrt(smallest_px / 2.5)  # perspective flattens far markers up to about 2.5:1
+        return max(1, min(self.config.acquire_scale, int(short_side_px / 2.0)))
+
+    def _dt(self, frame: Frame) -> float:
+        nominal = 1.0 / self.config.fps
+        last, self._last_t = self._last_t, frame.t_capture_s
+        if last is None:
+            return nominal
+        dt = frame.t_capture_s - last
+        return dt if 0.0 < dt < 5.0 else nominal
+
+    # -- tracking in a window -----------------------------------------------------------------------------------
+    def _expected_area(self, tr: _RoverTrack) -> float:
+        if len(tr.areas) >= 10:
+            learned = float(np.median(tr.areas))
+            nominal = self.config.marker_area_cm2
+            return min(max(learned, 0.5 * nominal), 2.0 * nominal)
+        return self.config.marker_area_cm2
+
+    def _track(self, image: NDArray[np.uint8], tr: _RoverTrack, clock: StageTimes) -> _Observation | None:
+        assert tr.filter is not None
+        x, y = tr.filter.position
+        sigma = min(tr.filter.position_sigma_cm, 30.0)
+        radius = self.config.marker_radius_cm + self.config.window_margin_cm + 3.0 * sigma
+        t0 = time.perf_counter()
+        box, uv = self._window_box((x, y), radius, image.shape, tr.uv)
+        clock.add("window", time.perf_counter() - t0)
+        tr.box = box
+        if box is None:
+            return None
+        return self._measure(image, tr, box, uv, clock)
+
+    def _window_box(
+        self,
+        xy_cm: tuple[float, float],
+        radius_cm: float,
+        shape: tuple[int, ...],
+        hint_uv: tuple[float, float] | None,
+    ) -> tuple[tuple[int, int, int, int] | None, tuple[float, float]]:
+        """Pixel box around the world circle ``xy_cm``/``radius_cm`` on the plane, clipped to the image.
+
+        Projected through the local plane map near ``hint_uv`` (the rover's last image position) instead of the
+        full calibration: a few multiplications instead of a lens model per point.
+        """
+        assert self.maps is not None
+        if hint_uv is None:
+            centre = np.asarray(self.calibration.world_to_pixel(np.array([xy_cm])), dtype=np.float64)[0]
+            hint_uv = (float(centre[0]), float(centre[1]))
+        local = self.maps.at(*hint_uv)
+        if local is None:
+            return None, (math.nan, math.nan)
+        u, v, _, _ = local.pixel_of(*xy_cm)
+        better = self.maps.at(u, v)
+        if better is None:
+            return None, (u, v)
+        u, v, su, sv = better.pixel_of(*xy_cm)
+        # The image of the circle is an ellipse whose bounding box, to first order, is this (the margin covers
+        # the perspective's second order).
+        h, w = shape[:2]
+        pad = _WINDOW_PAD_PX
+        x0 = max(0, math.floor(u - radius_cm * su) - pad)
+        y0 = max(0, math.floor(v - radius_cm * sv) - pad)
+        x1 = min(w, math.ceil(u + radius_cm * su) + pad + 1)
+        y1 = min(h, math.ceil(v + radius_cm * sv) + pad + 1)
+        if x1 - x0 < 4 or y1 - y0 < 4:
+            return None, (u, v)
+        return (x0, y0, x1, y1), (u, v)
+
+    def _measure(
+        self,
+        image: NDArray[np.uint8],
+        tr: _RoverTrack,
+        box: tuple[int, int, int, int],
+        uv: tuple[float, float],
+        clock: StageTimes,
+        tracker: WindowTracker | None = None,
+    ) -> _Observation | None:
+        assert self.background is not None and self.maps is not None
+        window = prepare_window(
+            image, box, tr.index, uv, self.colors, self.maps, self.background, self.config.background_threshold, clock
+        )
+        if window is None:
+            return None
+        learned = len(tr.areas) >= 10
+        model = RoverModel(tr.index, self._expected_area(tr), tr.level)
+        m = (tracker or self.tracker).measure(window, model, clock)
+        if m is None or not self._plausible(m, model.marker_area_cm2, learned, tr):
+            return None
+        heading = None
+        if tr.config.front_color_bgr is not None:
+            two_tone = self._two_tone(window, m, tr)
+            if two_tone is None:
+                return None  # without a heading the centre of a two-tone marker is not known
+            m, heading = two_tone
+        # Measurement covariance: the pixel noise seen through the local scale of the plane mapping.
+        jac = window.local.jacobian(*m.uv_px)
+        sigma = self.config.measurement_sigma_px
+        return _Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + np.eye(2) * 1e-4, heading)
+
+    def _two_tone(self, window: Window, m: Measurement, tr: _RoverTrack) -> tuple[Measurement, float | None] | None:
+        """A two-tone marker: its heading, and its centre (the main colour covers only the rear
+        ``1 - front_fraction`` of the marker, so its centroid lies ``front_fraction * length / 2`` behind the
+        marker's centre, along the heading).
+
+        The heading is the direction from the main part's centroid to the front part's when the front part is
+        seen whole and where it should be; else the last heading the marker showed (a few frames old at most) or
+        the direction of motion shift the centre, and the heading is not reported. With none of these the centre
+        is unknown: None (no pose this frame).
+        """
+        shift = 0.5 * tr.config.front_fraction * self.config.marker_length_cm
+        heading = self._front_heading(window, m, tr)
+        reported: float | None = heading
+        if heading is None:
+            vel = tr.filter.velocity if tr.filter is not None else None
+            if tr.marker_heading is not None and tr.marker_heading_age <= _MARKER_HEADING_HOLD:
+                heading = tr.marker_heading
+            elif vel is not None and math.hypot(*vel) >= self.config.heading_min_speed_cm_s:
+                heading = math.atan2(vel[1], vel[0])
+            else:
+                return None
+        centre = (m.xy_cm[0] + shift * math.cos(heading), m.xy_cm[1] + shift * math.sin(heading))
+        return replace(m, xy_cm=centre), reported
+
+    def _front_heading(self, window: Window, m: Measurement, tr: _RoverTrack) -> float | None:
+        """Heading from the front part of a two-tone marker, or None when it is not seen whole and in place.
+
+        Front pixels are those near the marker (on the plane) whose colour matches the front colour scaled by the
+        light the main part shows now, and that are not of any rover's hue. The part must have about its
+        expected area and lie about half a marker length from the main part's centroid; and the rover cannot
+        have turned by more than 30 degrees since the last frame.
+        """
+        rover = tr.config
+        assert rover.front_color_bgr is not None and self.maps is not None
+        nominal = self._nominal_levels[tr.index]
+        gain = m.level / nominal if nominal > 0 else 1.0
+        expected = np.asarray(rover.front_color_bgr, np.float32) * np.float32(gain)
+        diff = window.bgr.astype(np.float32) - expected
+        close = np.einsum("ijk,ijk->ij", diff, diff) <= (0.12 * float(np.linalg.norm(expected)) + 10.0) ** 2
+        x0, y0, x1, y1 = window.box
+        wx = self.maps.x_cm[y0:y1, x0:x1]
+        wy = self.maps.y_cm[y0:y1, x0:x1]
+        length, width = self.config.marker_length_cm, self.config.marker_width_cm
+        reach = (0.5 + 0.5 * rover.front_fraction) * length + 1.0  # main centroid to the front edge
+        near = (wx - m.xy_cm[0]) ** 2 + (wy - m.xy_cm[1]) ** 2 <= reach**2
+        area = self.maps.area_cm2[y0:y1, x0:x1] * (close & near & (window.classes < 0))
+        total = float(area.sum())
+        expected_area = rover.front_fraction * length * width
+        if not 0.4 * expected_area <= total <= 1.8 * expected_area:
+            return None
+        fx, fy = float((area * wx).sum()) / total, float((area * wy).sum()) / total
+        separation = math.hypot(fx - m.xy_cm[0], fy - m.xy_cm[1])
+        if not 0.6 <= separation / (0.5 * length) <= 1.4:
+            return None
+        heading = math.atan2(fy - m.xy_cm[1], fx - m.xy_cm[0])
+        last = tr.marker_heading
+        if (
+            last is not None
+            and tr.marker_heading_age <= 3 * _MARKER_HEADING_HOLD
+            and abs(math.remainder(heading - last, math.tau)) > math.radians(30.0)
+        ):
+            return None
+        return heading
+
+    def _plausible(self, m: Measurement, expected_area_cm2: float, learned: bool, tr: _RoverTrack) -> bool:
+        """Is this blob the whole marker? Its area on the plane, its shape, its colour's strength, and not cut off
+        by the image border.
+
+        A partly hidden or cut-off marker would give a biased centre, and a blob of the right hue but the wrong
+        size, shape or colour strength (dark clothes, a poster, a reflection) is not a marker: both are reported
+        as missing instead. The colour strength (the marker's level in its plane) may follow the light within
+        ``level_range`` of the configured colour, and from frame to frame within a factor of two.
+        """
+        if m.at_image_edge:
+            return False
+        nominal = self._nominal_levels[tr.index]
+        low_level, high_level = self.config.level_range
+        if nominal > 0 and not low_level <= m.level / nominal <= high_level:
+            return False
+        if tr.level > 0 and not 0.5 <= m.level / tr.level <= 2.0:
+            return False
+        ratio = m.area_cm2 / expected_area_cm2
+        low, high = (
+            (self.config.min_area_fraction, self.config.max_area_fraction)
+            if learned
+            else self.config.acquire_area_range
+        )
+        if not low <= ratio <= high:
+            return False
+        aspect = max(self.config.marker_length_cm, self.config.marker_width_cm) / min(
+            self.config.marker_length_cm, self.config.marker_width_cm
+        )
+        return m.elongation <= aspect * self.config.max_elongation_factor
+
+    # -- acquisition (low resolution) ---------------------------------------------------------------------------
+    def _acquire(self, image: NDArray[np.uint8], clock: StageTimes) -> dict[int, _Observation]:
+        """Find lost rovers from a 1/``acquire_scale`` resolution pass, then measure them at full resolution."""
+        t0 = time.perf_counter()
+        s = self.acquire_scale
+        h, w = image.shape[:2]
+        small = (
+            np.asarray(cv2.resize(image, (w // s, h // s), interpolation=cv2.INTER_AREA), np.uint8) if s > 1 else image
+        )
+        c1, c2, lum = opponent_planes(small)
+        classes = self.colors.classify(c1, c2, lum)
+        clock.add("acquire", time.perf_counter() - t0)
+        found: dict[int, _Observation] = {}
+        # Where the tracked rovers are: a candidate there is another rover's marker seen in a confusable hue.
+        taken = [tr.filter.position for tr in self.tracks if tr.filter is not None]
+        for tr in self.tracks:
+            if tr.filter is not None:
+                continue
+            t1 = time.perf_counter()
+            mask = (classes == tr.index).view(np.uint8)
+            n, _, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+            order: list[int] = (np.argsort(-stats[1:, cv2.CC_STAT_AREA])[:6] + 1).tolist() if n > 1 else []
+            clock.add("acquire", time.perf_counter() - t1)
+            for label in order:
+                if stats[label, cv2.CC_STAT_AREA] < 1:
+                    continue
+                u, v = (float(cents[label, 0]) + 0.5) * s - 0.5, (float(cents[label, 1]) + 0.5) * s - 0.5
+                xy = self.calibration.pixel_to_world(np.array([[u, v]]))[0]
+                if not np.all(np.isfinite(xy)):
+                    continue
+                if any(math.hypot(xy[0] - p[0], xy[1] - p[1]) < self.config.marker_radius_cm for p in taken):
+                    continue
+                radius = self.config.marker_radius_cm + self.config.window_margin_cm + 2.0 * s
+                box, _ = self._window_box((float(xy[0]), float(xy[1])), radius, image.shape, (u, v))
+                if box is None:
+                    continue
+                reset = getattr(self.tracker, "reset", None)
+                if reset is not None:
+                    reset(tr.index)
+                m = self._measure(image, tr, box, (u, v), clock, self.acquirer)
+                if m is None:
+                    continue
+                tr.box = box
+                found[tr.index] = m
+                taken.append(m.measurement.xy_cm)
+                break
+        return found
+
+    def _lose(self, tr: _RoverTrack) -> None:
+        tr.filter = None
+        tr.box = None
+        tr.uv = None
+        tr.theta_rad = None
+        tr.marker_heading = None
+        tr.marker_heading_age = 0
+        reset = getattr(self.tracker, "reset", None)
+        if reset is not None:
+            reset(tr.index)
+
+    # -- filtering, identity, heading ---------------------------------------------------------------------------
+    def _estimates(
+        self, measured: dict[int, _Observation], acquired: dict[int, _Observation], clock: StageTimes
+    ) -> tuple[RoverEstimate, ...]:
+        """Fuse this frame's measurements into the filters (new filters for rovers just acquired)."""
+        t0 = time.perf_counter()
+        out: list[RoverEstimate] = []
+        for tr in self.tracks:
+            if tr.index in acquired:
+                obs = acquired[tr.index]
+                m = obs.measurement
+                tr.filter = ConstantVelocityFilter(self.filter_settings, m.xy_cm, obs.r_cm2)
+                self._note_marker_heading(tr, obs.marker_heading_rad)
+            elif tr.index in measured and tr.filter is not None:
+                obs = measured[tr.index]
+                m = obs.measurement
+                self._note_marker_heading(tr, obs.marker_heading_rad)
+                if not tr.filter.update(np.asarray(m.xy_cm), obs.r_cm2):
+                    tr.misses += 1  # a spike: rejected, no pose this frame
+                    if tr.misses >= self.config.lost_after_frames:
+                        self._lose(tr)
+                    continue
+            else:
+                continue
+            assert tr.filter is not None
+            tr.misses = 0
+            tr.uv = m.uv_px
+            tr.level = m.level if tr.level <= 0.0 else 0.8 * tr.level + 0.2 * m.level
+            if m.quality > 0.8:
+                tr.areas.append(m.area_cm2)
+            vel = tr.filter.velocity
+            theta = self._heading(tr, vel)
+            x, y = tr.filter.position
+            out.append(
+                RoverEstimate(
+                    tr.config.id,
+                    x,
+                    y,
+                    theta,
+                    vel[0] if vel else None,
+                    vel[1] if vel else None,
+                    round(m.quality, 2),
+                    m.uv_px,
+                    tr.box,
+                )
+            )
+        clock.add("filter", time.perf_counter() - t0)
+        return tuple(out)
+
+    @staticmethod
+    def _note_marker_heading(tr: _RoverTrack, heading: float | None) -> None:
+        if heading is not None:
+            tr.marker_heading, tr.marker_heading_age = heading, 0
+        elif tr.marker_heading is not None:
+            tr.marker_heading_age += 1
+
+    def _heading(self, tr: _RoverTrack, vel: tuple[float, float] | None) -> float | None:
+        """The marker's own heading (two-tone) when it showed one in the last few frames, else the direction of
+        motion while moving, else None."""
+        if tr.marker_heading is not None and tr.marker_heading_age <= _MARKER_HEADING_HOLD:
+            return tr.marker_heading
+        if vel is None:
+            return None
+        speed = math.hypot(*vel)
+        if speed < self.config.heading_min_speed_cm_s:
+            return None
+        return math.atan2(vel[1], vel[0])
+
+    def _exclusion_box(self, box: tuple[int, int, int, int], shape: tuple[int, ...]) -> tuple[int, int, int, int]:
+        """The search window grown to cover the rover's body below and around the marker."""
+        x0, y0, x1, y1 = box
+        gw, gh = (x1 - x0) // 2, (y1 - y0) // 2
+        return max(0, x0 - gw), max(0, y0 - gh), min(shape[1], x1 + gw), min(shape[0], y1 + 2 * gh)
+
+
+def prepare_window(
+    image: NDArray[np.uint8],
+    box: tuple[int, int, int, int],
+    rover_index: int,
+    predicted_uv: tuple[float, float],
+    colors: ColorModel,
+    maps: PlaneGrid,
+    background: BackgroundModel,
+    background_threshold: float,
+    clock: StageClock,
+) -> Window | None:
+    """The per-window stages before a tracker runs: colour planes, hue classes, background subtraction (eq. 2)."""
+    x0, y0, x1, y1 = box
+    t0 = time.perf_counter()
+    crop = image[y0:y1, x0:x1]
+    c1, c2, lum = opponent_planes(crop)  # RGB colour planes extraction, generalised to N colours
+    classes = colors.classify(c1, c2, lum)
+    plane = colors.plane(rover_index, c1, c2)
+    t1 = time.perf_counter()
+    clock.add("planes", t1 - t0)
+    valid = background.valid[y0:y1, x0:x1]
+    reference = background.reference[y0:y1, x0:x1] if valid.any() else None
+    local = maps.at(0.5 * (x0 + x1), 0.5 * (y0 + y1))
+    clock.add("calibration", time.perf_counter() - t1)
+    if local is None:
+        return None
+    size = (image.shape[1], image.shape[0])
+    return Window(
+        box, crop, c1, c2, lum, classes, plane, reference, valid, maps, local, predicted_uv, size, background_threshold
+    )
+
+
+def build_tracker(
+    config: TrackerConfig, calibration: PlaneMapping, background: NDArray[np.uint8] | None = None
+) -> Tracker:
+    """The tracker ``config.method`` names: a :class:`Pipeline`, or the paper's full-frame baseline."""
+    if config.method == "paper":
+        from edge.trackers.paper import PaperPipeline
+
+        return PaperPipeline(config, calibration, background)
+    return Pipeline(config, calibration, background)

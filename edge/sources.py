@@ -3,15 +3,35 @@
 Every source yields :class:`Frame` objects through the small :class:`FrameSource` protocol. The capture timestamp
 is taken at grab (``time.time()`` for the wire, ``time.monotonic()`` for latency) and travels with the frame into
 the pose message's ``t``.
+
+Live capture runs on a :class:`CaptureThread` that writes into a :class:`FrameSlot` holding only the newest frame:
+the tracker always takes the newest frame, an older one it did not get to is overwritten (and counted), so no
+queue can grow and latency cannot creep up. When a camera vanishes or a stream stalls, the capture thread closes
+the source and reopens it with exponential backoff.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+import logging
+import os
+import re
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
+
+from edge.errors import SourceError
+
+log = logging.getLogger("edge.sources")
+
+# OpenCV and FFmpeg write their own warnings to stderr; our log already says what failed, in one line.
+os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 
 
 @dataclass(frozen=True)
@@ -47,3 +67,395 @@ class FrameSource(Protocol):
     def read(self) -> Frame | None: ...
 
     def close(self) -> None: ...
+
+
+# -- OpenCV-backed sources ---------------------------------------------------------------------------------------
+class _OpenCvSource:
+    """Shared grab/retrieve logic: the timestamp is taken when the frame is dequeued, before it is decoded."""
+
+    def __init__(self) -> None:
+        self._cap: Any = None
+        self._index = 0
+
+    def _grab(self, what: str) -> Frame | None:
+        """The next frame, or None when the backend has none (end of file, device gone, stalled stream)."""
+        import cv2
+
+        if self._cap is None:
+            raise SourceError(f"{what}: read before open")
+        try:
+            if not self._cap.grab():
+                return None
+            t_capture_s, t_mono_s = time.time(), time.monotonic()
+            ok, image = self._cap.retrieve()
+        except cv2.error as exc:
+            raise SourceError(f"{what}: {exc}") from exc
+        if not ok or image is None:
+            raise SourceError(f"{what}: frame could not be decoded")
+        if image.ndim == 2:
+            image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+        frame = Frame(image=image, index=self._index, t_capture_s=t_capture_s, t_mono_s=t_mono_s)
+        self._index += 1
+        return frame
+
+    def _grab_live(self, what: str) -> Frame:
+        frame = self._grab(what)
+        if frame is None:
+            raise SourceError(f"{what}: no frame (device gone or stream stalled)")
+        return frame
+
+    def close(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+
+def _fourcc_text(code: float) -> str:
+    value = int(code)
+    text = "".join(chr((value >> (8 * i)) & 0xFF) for i in range(4))
+    return text if text.isprintable() and text.strip() else f"0x{value:08x}"
+
+
+class CameraSource(_OpenCvSource):
+    """A V4L2 camera by index (``0``) or device path (``/dev/video0``).
+
+    Asks for ``width`` x ``height`` at ``fps`` in ``fourcc`` (MJPG: a USB 2.0 webcam such as the paper's C920
+    only reaches 1280x720 at 30 fps compressed) and reports what the driver granted.
+    """
+
+    def __init__(
+        self, device: int | str, *, width: int = 1280, height: int = 720, fps: float = 30.0, fourcc: str = "MJPG"
+    ) -> None:
+        super().__init__()
+        self.device = device
+        self.width, self.height, self.fps, self.fourcc = width, height, fps, fourcc
+
+    @property
+    def path(self) -> str:
+        return f"/dev/video{self.device}" if isinstance(self.device, int) else str(self.device)
+
+    def open(self) -> SourceInfo:
+        import cv2
+
+        if not Path(self.path).exists():
+            raise SourceError(f"no camera at {self.path} (is it plugged in? without a camera use --source sim)")
+        cap = cv2.VideoCapture(self.path, cv2.CAP_V4L2)
+        if not cap.isOpened():
+            cap.release()
+            raise SourceError(f"camera {self.path} exists but cannot be opened (in use, or no permission: video group)")
+        # Order matters for V4L2: the pixel format decides which sizes and rates exist.
+        cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter.fourcc(*self.fourcc))
+        cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.width)
+        cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.height)
+        cap.set(cv2.CAP_PROP_FPS, self.fps)
+        self._cap = cap
+        granted_w = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
+        granted_h = int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        granted_fps = float(cap.get(cv2.CAP_PROP_FPS)) or self.fps
+        granted_fourcc = _fourcc_text(cap.get(cv2.CAP_PROP_FOURCC))
+        asked = f"{self.width}x{self.height}@{self.fps:g} {self.fourcc}"
+        granted = f"{granted_w}x{granted_h}@{granted_fps:g} {granted_fourcc}"
+        note = "" if asked == granted else f" (asked {asked})"
+        return SourceInfo(granted_w, granted_h, granted_fps, f"camera {self.path}: {granted}{note}")
+
+    def read(self) -> Frame | None:
+        return self._grab_live(f"camera {self.path}")
+
+
+class VideoFileSource(_OpenCvSource):
+    """A video file, optionally looping; with ``realtime`` frames are delivered at the file's frame rate."""
+
+    def __init__(self, path: Path, *, loop: bool = False, realtime: bool = True, fps: float | None = None) -> None:
+        super().__init__()
+        self.path = Path(path)
+        self.loop = loop
+        self.realtime = realtime
+        self._fps_override = fps
+        self._period_s = 0.0
+        self._next_due = 0.0
+
+    def open(self) -> SourceInfo:
+        import cv2
+
+        if not self.path.is_file():
+            raise SourceError(f"{self.path}: video file not found")
+        cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
+        if not cap.isOpened():
+            cap.release()
+            raise SourceError(f"{self.path}: not a video file OpenCV can read")
+        self._cap = cap
+        fps = self._fps_override or float(cap.get(cv2.CAP_PROP_FPS)) or 30.0
+        self._period_s = 1.0 / fps
+        self._next_due = time.monotonic()
+        w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        mode = ", looping" if self.loop else ""
+        return SourceInfo(w, h, fps, f"video file {self.path}: {w}x{h}@{fps:g}{mode}")
+
+    def read(self) -> Frame | None:
+        import cv2
+
+        if self.realtime:
+            now = time.monotonic()
+            if self._next_due > now:
+                time.sleep(self._next_due - now)
+            # A slow reader does not build up a debt of frames to rush through.
+            self._next_due = max(self._next_due, now - self._period_s) + self._period_s
+        what = f"video file {self.path}"
+        frame = self._grab(what)
+        if frame is None and self.loop:
+            self._cap.set(cv2.CAP_PROP_POS_FRAMES, 0)
+            frame = self._grab(what)
+            if frame is None:
+                raise SourceError(f"{what}: cannot start again from the beginning")
+        return frame
+
+
+class StreamSource(_OpenCvSource):
+    """An RTSP or HTTP(S) stream (MJPEG over HTTP, H.264 over RTSP...) read with FFmpeg.
+
+    ``read_timeout_s`` bounds a stalled read: it then fails and the capture thread reopens the stream.
+    """
+
+    def __init__(self, url: str, *, open_timeout_s: float = 5.0, read_timeout_s: float = 2.0) -> None:
+        super().__init__()
+        self.url = url
+        self.open_timeout_s, self.read_timeout_s = open_timeout_s, read_timeout_s
+
+    @property
+    def shown_url(self) -> str:
+        return re.sub(r"//[^/@]*@", "//***@", self.url)  # never log stream credentials
+
+    def open(self) -> SourceInfo:
+        import cv2
+
+        params = [
+            cv2.CAP_PROP_OPEN_TIMEOUT_MSEC,
+            int(self.open_timeout_s * 1000),
+            cv2.CAP_PROP_READ_TIMEOUT_MSEC,
+            int(self.read_timeout_s * 1000),
+        ]
+        cap = cv2.VideoCapture(self.url, cv2.CAP_FFMPEG, params)
+        if not cap.isOpened():
+            cap.release()
+            raise SourceError(f"stream {self.shown_url}: cannot be opened (unreachable, or not a video stream)")
+        self._cap = cap
+        w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        fps = float(cap.get(cv2.CAP_PROP_FPS)) or 30.0
+        return SourceInfo(w, h, fps, f"stream {self.shown_url}: {w}x{h}@{fps:g}")
+
+    def read(self) -> Frame | None:
+        return self._grab_live(f"stream {self.shown_url}")
+
+
+class MemorySource:
+    """Frames from memory, in order, optionally paced at ``fps``: for tests and pre-rendered clips."""
+
+    def __init__(
+        self, images: Sequence[NDArray[np.uint8]], *, fps: float = 30.0, loop: bool = False, realtime: bool = False
+    ) -> None:
+        if not images:
+            raise SourceError("memory source: no frames")
+        self.images = images
+        self.fps, self.loop, self.realtime = fps, loop, realtime
+        self._index = 0
+        self._next_due = 0.0
+
+    def open(self) -> SourceInfo:
+        h, w = self.images[0].shape[:2]
+        self._next_due = time.monotonic()
+        return SourceInfo(w, h, self.fps, f"memory: {len(self.images)} frames {w}x{h}@{self.fps:g}")
+
+    def read(self) -> Frame | None:
+        if self._index >= len(self.images) and not self.loop:
+            return None
+        if self.realtime:
+            now = time.monotonic()
+            if self._next_due > now:
+                time.sleep(self._next_due - now)
+            self._next_due = max(self._next_due, now - 1.0 / self.fps) + 1.0 / self.fps
+        image = self.images[self._index % len(self.images)]
+        frame = Frame(image=image, index=self._index, t_capture_s=time.time(), t_mono_s=time.monotonic())
+        self._index += 1
+        return frame
+
+    def close(self) -> None:
+        pass
+
+
+# -- choosing a source -------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SourceSpec:
+    """A parsed ``--source`` value."""
+
+    kind: str  # "camera", "file", "stream", "sim"
+    target: str  # device path, file path, URL or scenario name ("" = the simulator's default)
+
+
+def parse_source(text: str) -> SourceSpec:
+    """``0`` / ``/dev/...`` (camera), ``rtsp://``/``http(s)://`` (stream), ``sim[:SCENARIO]``, else a file."""
+    text = text.strip()
+    if text == "sim" or text.startswith("sim:"):
+        return SourceSpec("sim", text[4:])
+    if text.isdigit():
+        return SourceSpec("camera", f"/dev/video{int(text)}")
+    if text.startswith("/dev/"):  # /dev/videoN or a stable name such as /dev/v4l/by-id/usb-...-video-index0
+        return SourceSpec("camera", text)
+    if re.match(r"^(rtsp|rtsps|http|https)://", text):
+        return SourceSpec("stream", text)
+    return SourceSpec("file", text)
+
+
+def make_source(
+    text: str,
+    *,
+    width: int = 1280,
+    height: int = 720,
+    fps: float = 30.0,
+    fourcc: str = "MJPG",
+    loop: bool = False,
+    realtime: bool = True,
+    stall_timeout_s: float = 2.0,
+    sim_factory: Callable[[str], FrameSource] | None = None,
+) -> FrameSource:
+    """Build (not open) the source named by ``text``; ``sim_factory(scenario)`` builds the simulator's."""
+    spec = parse_source(text)
+    if spec.kind == "camera":
+        return CameraSource(spec.target, width=width, height=height, fps=fps, fourcc=fourcc)
+    if spec.kind == "stream":
+        return StreamSource(spec.target, open_timeout_s=max(2.0, 2 * stall_timeout_s), read_timeout_s=stall_timeout_s)
+    if spec.kind == "sim":
+        if sim_factory is None:
+            raise SourceError("the simulated camera is not available in this build")
+        return sim_factory(spec.target)
+    return VideoFileSource(Path(spec.target), loop=loop, realtime=realtime)
+
+
+# -- the newest-frame slot and the capture thread ----------------------------------------------------------------
+class FrameSlot:
+    """Holds only the newest frame. ``put`` overwrites (counting a frame nobody took); ``take`` waits for a new one.
+
+    One writer (the capture thread) and one consumer (the tracker); ``peek`` lets others (a dashboard) look at the
+    newest frame without taking it.
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._frame: Frame | None = None
+        self._fresh = False
+        self._closed = False
+        self.put_count = 0
+        self.overwritten = 0
+
+    def put(self, frame: Frame) -> None:
+        with self._cond:
+            if self._fresh:
+                self.overwritten += 1
+            self._frame, self._fresh = frame, True
+            self.put_count += 1
+            self._cond.notify_all()
+
+    def take(self, timeout_s: float | None = None) -> Frame | None:
+        """The newest frame not yet taken, waiting up to ``timeout_s``; None on timeout or when closed."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._fresh or self._closed, timeout=timeout_s)
+            if not self._fresh:
+                return None
+            self._fresh = False
+            return self._frame
+
+    def peek(self) -> Frame | None:
+        with self._cond:
+            return self._frame
+
+    def close(self) -> None:
+        """No more frames will come: wake the consumer."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+
+class CaptureThread(threading.Thread):
+    """Reads an already opened source into a :class:`FrameSlot`; reopens it with backoff when it fails.
+
+    ``state``: ``ok`` while frames come, ``missing`` while the source cannot be (re)opened or read, ``stopped``
+    after a finite source ended or on stop. A stall (an open source that delivers nothing) is judged by the
+    reader of :attr:`last_frame_mono` against its own timeout: a blocked read cannot report itself.
+    """
+
+    def __init__(
+        self,
+        source: FrameSource,
+        slot: FrameSlot,
+        stop: threading.Event,
+        *,
+        info: SourceInfo,
+        reopen_min_s: float = 0.5,
+        reopen_max_s: float = 8.0,
+    ) -> None:
+        super().__init__(name="capture", daemon=True)
+        self.source, self.slot, self.stop_event = source, slot, stop
+        self.info = info
+        self.reopen_min_s, self.reopen_max_s = reopen_min_s, max(reopen_max_s, reopen_min_s)
+        self.state = "ok"
+        self.frames = 0
+        self.failures = 0
+        self.reopens = 0
+        self.ended = False
+        self.error: BaseException | None = None
+        self.last_frame_mono = time.monotonic()
+        self._last_index = -1
+        self._offset = 0
+
+    def _renumber(self, frame: Frame) -> Frame:
+        # Indices stay strictly increasing across reopens (a reopened camera counts from 0 again).
+        if frame.index + self._offset <= self._last_index:
+            self._offset = self._last_index + 1 - frame.index
+        self._last_index = frame.index + self._offset
+        return frame if self._offset == 0 else replace(frame, index=self._last_index)
+
+    def _reopen(self, reason: str) -> None:
+        self.failures += 1
+        self.state = "missing"
+        log.warning("source lost: %s; reopening with backoff", reason)
+        self.source.close()
+        delay = self.reopen_min_s
+        while not self.stop_event.wait(delay):
+            try:
+                self.info = self.source.open()
+            except SourceError as exc:
+                log.info("reopen failed, next try in %.1f s: %s", min(delay * 2, self.reopen_max_s), exc)
+                delay = min(delay * 2, self.reopen_max_s)
+                continue
+            self.reopens += 1
+            self.last_frame_mono = time.monotonic()
+            self.state = "ok"
+            log.info("source reopened: %s", self.info.description)
+            return
+
+    def run(self) -> None:
+        try:
+            while not self.stop_event.is_set():
+                try:
+                    frame = self.source.read()
+                except SourceError as exc:
+                    self._reopen(str(exc))
+                    continue
+                if frame is None:
+                    log.info("source ended: %s", self.info.description)
+                    self.ended = True
+                    break
+                self.slot.put(self._renumber(frame))
+                self.frames += 1
+                self.last_frame_mono = frame.t_mono_s
+                self.state = "ok"
+        except Exception as exc:  # not a source failure: a bug; the runtime stops and reports it
+            self.error = exc
+            log.error("capture thread failed: %s: %s", type(exc).__name__, exc)
+        finally:
+            self.state = "stopped"
+            self.source.close()
+            self.slot.close()

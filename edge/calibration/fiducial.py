@@ -1,0 +1,257 @@
+"""Fiducial calibration: one image of ArUco markers laid at known floor positions, no clicking.
+
+Markers lie flat, printed upright with their top edge toward +y (the far side of the area); the markers CSV gives
+each marker's ``id`` and centre ``x, y, z`` in cm, and its ``size`` (side of the black square, cm) as a column or
+one size for all. Detection (``cv2.aruco.ArucoDetector``, sub-pixel corners) gives 4 image points per marker; the
+camera pose follows from ``cv2.solvePnP`` (IPPE for coplanar markers, then Levenberg-Marquardt refinement). With
+the pose known the camera maps onto any plane: a calibration made on the floor (z = 0) serves markers at 13 cm.
+
+Without intrinsics the focal length is estimated from the same view (``cv2.calibrateCamera`` with the principal
+point fixed at the image centre, square pixels and no distortion); the output says so, and a lens with visible
+distortion should be calibrated with checkerboards first.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from edge.calibration.files import Calibration
+from edge.calibration.lens import Intrinsics
+from edge.calibration.tables import NumericTable, parse_table, read_text
+from edge.camera import MARKER_HEIGHT_CM, PinholeCamera
+from edge.errors import CalibrationError
+
+FloatArray = NDArray[np.float64]
+
+DEFAULT_DICTIONARY = "DICT_4X4_50"
+MIN_MARKERS_WITH_INTRINSICS = 2
+MIN_MARKERS_WITHOUT_INTRINSICS = 3
+
+
+@dataclass(frozen=True)
+class MarkerTable:
+    """``ids``: (M,) int; ``centres_cm``: (M, 3) x, y, z; ``sizes_cm``: (M,) black-square side."""
+
+    source: str
+    ids: NDArray[np.int64]
+    centres_cm: FloatArray
+    sizes_cm: FloatArray
+    table: NumericTable
+
+    def corners_cm(self, i: int) -> FloatArray:
+        """(4, 3) world corners of marker ``i`` in ArUco order: top-left, top-right, bottom-right, bottom-left
+        (top = +y side)."""
+        x, y, z = self.centres_cm[i]
+        h = self.sizes_cm[i] / 2.0
+        return np.array([[x - h, y + h, z], [x + h, y + h, z], [x + h, y - h, z], [x - h, y - h, z]])
+
+
+def read_markers_csv(path: Path, marker_size_cm: float | None = None) -> MarkerTable:
+    return parse_markers_csv(read_text(path, "markers file"), str(path), marker_size_cm)
+
+
+def parse_markers_csv(text: str, source: str, marker_size_cm: float | None = None) -> MarkerTable:
+    """Parse ``id,x,y,z[,size]``; ``marker_size_cm`` applies where the table has no ``size`` column."""
+    table = parse_table(text, source, ("id", "x", "y", "z"), ("size",))
+    c = table.columns
+    n = c["id"].size
+    if n == 0:
+        raise CalibrationError(f"{source}: no markers listed")
+    if "size" in c:
+        sizes = c["size"]
+    elif marker_size_cm is not None:
+        sizes = np.full(n, float(marker_size_cm))
+    else:
+        raise CalibrationError(f"{source}: no size column; give the marker size (side of the black square, cm)")
+    seen: dict[int, int] = {}
+    for i in range(n):
+        raw_id = c["id"][i]
+        if raw_id != int(raw_id) or raw_id < 0:
+            raise CalibrationError(f"{table.where(i)}: id must be a non-negative integer, got {raw_id:g}")
+        if not sizes[i] > 0:
+            raise CalibrationError(f"{table.where(i)}: marker size must be positive, got {sizes[i]:g}")
+        if int(raw_id) in seen:
+            raise CalibrationError(
+                f"{table.where(i)}: duplicate marker id {int(raw_id)} (also row {seen[int(raw_id)]})"
+            )
+        seen[int(raw_id)] = int(table.rows[i])
+    return MarkerTable(
+        source=source,
+        ids=c["id"].astype(np.int64),
+        centres_cm=np.column_stack([c["x"], c["y"], c["z"]]),
+        sizes_cm=np.asarray(sizes, dtype=np.float64),
+        table=table,
+    )
+
+
+def detect_markers(image: NDArray[np.uint8], dictionary: str = DEFAULT_DICTIONARY) -> dict[int, FloatArray]:
+    """id -> (4, 2) sub-pixel corners (top-left, top-right, bottom-right, bottom-left) of every marker found."""
+    name = dictionary.upper()
+    if not name.startswith("DICT_"):
+        name = "DICT_" + name
+    if not hasattr(cv2.aruco, name):
+        raise CalibrationError(f"unknown ArUco dictionary {dictionary!r} (e.g. DICT_4X4_50, DICT_6X6_250)")
+    params = cv2.aruco.DetectorParameters()
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    params.cornerRefinementWinSize = 4
+    params.cornerRefinementMinAccuracy = 0.01
+    params.cornerRefinementMaxIterations = 100
+    detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name)), params)
+    gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    corners, ids, _ = detector.detectMarkers(gray)
+    found: dict[int, FloatArray] = {}
+    if ids is None:
+        return found
+    for c, i in zip(corners, ids.ravel(), strict=True):
+        found[int(i)] = np.asarray(c, dtype=np.float64).reshape(4, 2)
+    return found
+
+
+@dataclass(frozen=True)
+class FiducialResult:
+    """The camera recovered from one marker image, and how well it explains the markers.
+
+    ``reprojection_rms_px``: RMS corner reprojection error. ``loo_error_cm``: per marker used, the distance between
+    its surveyed centre and where a pose fitted without it puts it (on its own plane); None with too few markers.
+    """
+
+    camera: PinholeCamera
+    calibration: Calibration
+    ids_used: tuple[int, ...]
+    ids_missing: tuple[int, ...]
+    ids_unknown: tuple[int, ...]
+    reprojection_rms_px: float
+    loo_error_cm: FloatArray | None
+    focal_estimated: bool
+    notes: tuple[str, ...]
+
+
+def _estimate_focal(obj: FloatArray, img: FloatArray, size: tuple[int, int]) -> FloatArray:
+    """(3, 3) K from one planar view: principal point at the centre, square pixels, no distortion."""
+    w, h = size
+    k0 = np.array([[float(max(w, h)), 0.0, (w - 1) / 2.0], [0.0, float(max(w, h)), (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+    flags = (
+        cv2.CALIB_USE_INTRINSIC_GUESS
+        | cv2.CALIB_FIX_PRINCIPAL_POINT
+        | cv2.CALIB_FIX_ASPECT_RATIO
+        | cv2.CALIB_ZERO_TANGENT_DIST
+        | cv2.CALIB_FIX_K1
+        | cv2.CALIB_FIX_K2
+        | cv2.CALIB_FIX_K3
+    )
+    _, k, _, _, _ = cv2.calibrateCamera(
+        [obj.astype(np.float32)], [img.astype(np.float32).reshape(-1, 1, 2)], size, k0, np.zeros(5), flags=flags
+    )
+    return np.asarray(k, dtype=np.float64)
+
+
+def _diagonal_crossing(corners_px: FloatArray) -> FloatArray:
+    """(2,) where the diagonals of a quadrilateral (4, 2) cross: the image of a square's centre under perspective."""
+    h = np.column_stack([corners_px, np.ones(4)])
+    p = np.cross(np.cross(h[0], h[2]), np.cross(h[1], h[3]))
+    return np.asarray(p[:2] / p[2])
+
+
+def _solve_pose(obj: FloatArray, img: FloatArray, k: FloatArray, dist: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """World -> camera (rvec, tvec) from point correspondences; IPPE when the points are coplanar in z."""
+    z0 = float(obj[:, 2].mean())
+    coplanar = bool(np.all(np.abs(obj[:, 2] - z0) < 1e-6))
+    shifted = obj - np.array([0.0, 0.0, z0]) if coplanar else obj
+    method = cv2.SOLVEPNP_IPPE if coplanar else cv2.SOLVEPNP_SQPNP
+    ok, rvec, tvec = cv2.solvePnP(shifted, img, k, dist, flags=method)
+    if not ok:
+        raise CalibrationError("cannot recover the camera pose from the markers (degenerate layout?)")
+    rvec, tvec = cv2.solvePnPRefineLM(shifted, img, k, dist, rvec, tvec)
+    r = cv2.Rodrigues(rvec)[0]
+    tvec = tvec.reshape(3) - r[:, 2] * z0 if coplanar else tvec.reshape(3)
+    return np.asarray(rvec, dtype=np.float64).reshape(3), np.asarray(tvec, dtype=np.float64)
+
+
+def calibrate_fiducial(
+    image: NDArray[np.uint8],
+    markers: MarkerTable,
+    *,
+    intrinsics: Intrinsics | None = None,
+    height_cm: float = MARKER_HEIGHT_CM,
+    dictionary: str = DEFAULT_DICTIONARY,
+    area_cm: tuple[float, float, float, float] | None = None,
+    source: str = "image",
+) -> FiducialResult:
+    """Recover the camera from one image of the markers and map it onto the plane ``z = height_cm``."""
+    h, w = image.shape[:2]
+    if not math.isfinite(height_cm):
+        raise CalibrationError(f"plane height must be a finite number of cm, got {height_cm}")
+    if intrinsics is not None and (intrinsics.width_px, intrinsics.height_px) != (w, h):
+        raise CalibrationError(
+            f"{source}: image is {w}x{h} but the intrinsics are for {intrinsics.width_px}x{intrinsics.height_px}"
+        )
+    found = detect_markers(image, dictionary)
+    if not found:
+        raise CalibrationError(f"{source}: no {dictionary} ArUco markers found in the image")
+    known = {int(i): k for k, i in enumerate(markers.ids)}
+    used = [i for i in sorted(found) if i in known]
+    unknown = tuple(i for i in sorted(found) if i not in known)
+    missing = tuple(int(i) for i in markers.ids if int(i) not in found)
+    need = MIN_MARKERS_WITH_INTRINSICS if intrinsics is not None else MIN_MARKERS_WITHOUT_INTRINSICS
+    if len(used) < need:
+        raise CalibrationError(
+            f"{source}: found {len(used)} of the markers listed in {markers.source} (ids {used or 'none'}), "
+            f"need at least {need}; missing ids {list(missing)}"
+        )
+    obj = np.vstack([markers.corners_cm(known[i]) for i in used])
+    img = np.vstack([found[i] for i in used])
+    notes: list[str] = []
+    if intrinsics is None:
+        obj_plane = obj - np.array([0.0, 0.0, obj[:, 2].mean()])
+        if np.ptp(obj[:, 2]) > 1e-6:
+            raise CalibrationError(
+                f"{markers.source}: markers at different heights need intrinsics (--intrinsics) to calibrate"
+            )
+        k = _estimate_focal(obj_plane, img, (w, h))
+        intrinsics = Intrinsics(k, np.zeros(5), w, h)
+        notes.append(
+            f"no intrinsics given: focal length estimated from this view ({k[0, 0]:.1f} px, principal point at the "
+            "image centre, no lens distortion)"
+        )
+        focal_estimated = True
+    else:
+        focal_estimated = False
+    k, dist = intrinsics.camera_matrix, intrinsics.dist_coeffs
+    rvec, tvec = _solve_pose(obj, img, k, dist)
+    proj, _ = cv2.projectPoints(obj, rvec, tvec, k, dist)
+    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img) ** 2, axis=1))))
+    camera = PinholeCamera(k, dist, rvec, tvec, w, h)
+    loo: FloatArray | None = None
+    if len(used) >= need + 1:
+        errs = []
+        for mid in used:
+            keep = np.array([m != mid for m in used for _ in range(4)])
+            rv, tv = _solve_pose(obj[keep], img[keep], k, dist)
+            cam_j = PinholeCamera(k, dist, rv, tv, w, h)
+            centre = markers.centres_cm[known[mid]]
+            centre_px = intrinsics.distort_px(_diagonal_crossing(intrinsics.undistort_px(found[mid]))[None])
+            seen = cam_j.pixel_to_plane(centre_px, float(centre[2]))[0]
+            errs.append(float(np.linalg.norm(seen - centre[:2])))
+        loo = np.asarray(errs)
+    if area_cm is None:
+        lo = markers.centres_cm[:, :2].min(axis=0)
+        hi = markers.centres_cm[:, :2].max(axis=0)
+        area_cm = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    cal = Calibration(camera.plane_homography(height_cm), w, h, float(height_cm), area_cm, intrinsics, camera)
+    return FiducialResult(
+        camera=camera,
+        calibration=cal,
+        ids_used=tuple(used),
+        ids_missing=missing,
+        ids_unknown=unknown,
+        reprojection_rms_px=rms,
+        loo_error_cm=loo,
+        focal_estimated=focal_estimated,
+        notes=tuple(notes),
+    )

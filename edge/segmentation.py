@@ -1,0 +1,416 @@
+"""Segmentation: the paper's section IV stages, each a pure function over numpy arrays.
+
+The paper extracts the R, G and B planes (one rover per plane), subtracts a reference frame refreshed on a timer
+(eq. 2), thresholds with an interval that follows the marker's maximum, erodes, and fills holes by morphological
+reconstruction (Fig. 13). Here the same stages are generalised and made lighting-robust:
+
+* **Colour planes** for N marker colours: each pixel's chroma is its BGR vector with the grey component removed,
+  written in an orthonormal opponent basis ``(c1, c2)``. A marker's *plane* is the projection of the chroma onto
+  the marker's hue direction. Chroma is linear in the light (a marker pixel half covered by a dark or grey
+  surround has half the projection), which gives sub-pixel *coverage* weights at the marker's edge; the hue
+  angle and the relative saturation ``|c| / luminance`` do not change with the illumination level, which makes
+  the marker *classification* independent of drift and flicker.
+* **Background model** (eq. 2): the reference is compared in normalised chroma (lighting-invariant), and is
+  refreshed a band of rows per frame, never inside the regions of rovers being tracked, so a parked rover is not
+  absorbed into the reference.
+* **Automatic threshold interval** (Fig. 11-12): ``k_max`` is the marker's current maximum in its plane (a
+  robust high percentile) and ``k_min`` a fixed fraction of it (the paper subtracts a constant; a fraction keeps
+  the interval right when the light changes by a third).
+* **Erosion** and **hole filling by reconstruction** (Fig. 13) on the binary marker mask.
+* **Particles** (Table II): connected components with area, holes, convex hull and bounding rectangle.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+U8 = NDArray[np.uint8]
+F32 = NDArray[np.float32]
+BoolArray = NDArray[np.bool_]
+
+_INV_SQRT2 = 1.0 / math.sqrt(2.0)
+_INV_SQRT6 = 1.0 / math.sqrt(6.0)
+HUE_BINS = 720  # 0.5 degree resolution of the hue look-up table
+NO_ROVER = -1
+
+
+# -- colour planes -----------------------------------------------------------------------------------------------
+def chroma_of_bgr(color_bgr: Sequence[float]) -> tuple[float, float, float]:
+    """``(c1, c2, luminance)`` of one BGR colour (0-255): the opponent chroma and the mean of the channels."""
+    b, g, r = (float(v) for v in color_bgr)
+    return (r - g) * _INV_SQRT2, (r + g - 2.0 * b) * _INV_SQRT6, (b + g + r) / 3.0
+
+
+def opponent_planes(bgr: U8) -> tuple[F32, F32, F32]:
+    """(H, W, 3) uint8 BGR -> chroma ``c1``, ``c2`` and luminance, each (H, W) float32.
+
+    ``c1 = (R - G) / sqrt 2``, ``c2 = (R + G - 2B) / sqrt 6`` span the plane orthogonal to grey, so a grey or
+    black surface has zero chroma whatever its brightness.
+    """
+    f = bgr.astype(np.float32)
+    b, g, r = f[..., 0], f[..., 1], f[..., 2]
+    c1 = (r - g) * np.float32(_INV_SQRT2)
+    c2 = (r + g - 2.0 * b) * np.float32(_INV_SQRT6)
+    lum = (b + g + r) * np.float32(1.0 / 3.0)
+    return c1, c2, lum
+
+
+@dataclass(frozen=True)
+class ColorModel:
+    """How the rovers' marker colours are told apart (built once from the configured colours).
+
+    ``directions``: (N, 2) float32 unit hue directions in the ``(c1, c2)`` plane, one per rover.
+    ``saturations``: (N,) nominal relative saturation ``|c| / luminance`` of each marker colour.
+    ``hue_lut``: (HUE_BINS + 1,) int16, for each hue bin (angle 0..2pi) the index of the rover whose hue is
+    nearest, or :data:`NO_ROVER` when no rover hue is within the tolerance.
+    """
+
+    directions: F32
+    saturations: NDArray[np.float64]
+    hue_lut: NDArray[np.int16]
+    min_relative_saturation: float
+
+    @classmethod
+    def from_colors(
+        cls, colors_bgr: Sequence[Sequence[float]], hue_tolerance_deg: float, min_saturation_fraction: float
+    ) -> ColorModel:
+        """``colors_bgr``: nominal marker colours. A pixel belongs to a rover's class when its hue is nearer to
+        that rover's hue than to any other and within ``hue_tolerance_deg``; it is saturated enough when its
+        relative saturation is at least ``min_saturation_fraction`` of the least saturated marker's."""
+        dirs, sats, angles = [], [], []
+        for color in colors_bgr:
+            c1, c2, lum = chroma_of_bgr(color)
+            mag = math.hypot(c1, c2)
+            if mag < 1e-6:
+                raise ValueError(f"marker colour {tuple(color)} is grey: it has no hue to track")
+            dirs.append((c1 / mag, c2 / mag))
+            sats.append(mag / max(lum, 1.0))
+            angles.append(math.atan2(c2, c1))
+        centres = (np.arange(HUE_BINS) + 0.5) * (2.0 * math.pi / HUE_BINS)  # hue angles 0..2pi, as cv2.phase gives
+        lut = np.full(HUE_BINS + 1, NO_ROVER, dtype=np.int16)  # one extra bin: cv2.phase may return exactly 2pi
+        if angles:
+            diff = np.abs(np.angle(np.exp(1j * (centres[:, None] - np.asarray(angles)[None, :]))))
+            nearest = np.argmin(diff, axis=1)
+            ok = diff[np.arange(HUE_BINS), nearest] <= math.radians(hue_tolerance_deg)
+            lut[:HUE_BINS][ok] = nearest[ok]
+            lut[HUE_BINS] = lut[0]
+        min_sat = min_saturation_fraction * (min(sats) if sats else 1.0)
+        return cls(np.asarray(dirs, dtype=np.float32).reshape(-1, 2), np.asarray(sats), lut, min_sat)
+
+    def classify(self, c1: F32, c2: F32, lum: F32) -> NDArray[np.int16]:
+        """(H, W) chroma planes -> (H, W) int16 rover index per pixel (NO_ROVER for grey/dark/other hues)."""
+        hue = cv2.phase(c1, c2)  # 0..2pi, float32
+        cls = self.hue_lut[(hue * np.float32(HUE_BINS / (2.0 * math.pi))).astype(np.intp)]
+        sat2 = c1 * c1 + c2 * c2
+        thr = np.float32(self.min_relative_saturation) * np.maximum(lum, np.float32(4.0))
+        cls[sat2 < thr * thr] = NO_ROVER
+        return cls
+
+    def plane(self, index: int, c1: F32, c2: F32) -> F32:
+        """Colour-plane extraction for rover ``index``: chroma projected on its hue direction, (H, W) float32."""
+        d = self.directions[index]
+        return np.asarray(c1 * d[0] + c2 * d[1], dtype=np.float32)
+
+
+def color_planes(bgr: U8, model: ColorModel) -> F32:
+    """(H, W, 3) uint8 -> (N, H, W) float32: one plane per marker colour (the paper's R, G, B planes for N)."""
+    c1, c2, _ = opponent_planes(bgr)
+    return np.stack([model.plane(i, c1, c2) for i in range(model.directions.shape[0])])
+
+
+# -- background model (eq. 2) ------------------------------------------------------------------------------------
+def normalised_chroma(bgr: U8) -> tuple[F32, F32]:
+    """Chroma divided by luminance: unchanged when the light level changes (drift, flicker, exposure)."""
+    c1, c2, lum = opponent_planes(bgr)
+    inv = np.float32(1.0) / np.maximum(lum, np.float32(8.0))
+    return np.asarray(c1 * inv, np.float32), np.asarray(c2 * inv, np.float32)
+
+
+def subtract_background(current: U8, reference: U8, threshold: float) -> BoolArray:
+    """eq. 2 in a lighting-invariant space: ``|chroma(I_c) - chroma(I_r)| > Th`` per pixel, (H, W) bool.
+
+    ``threshold`` is in units of normalised chroma (0.1 is a clearly different colour; a 35% change of the light
+    level changes nothing).
+    """
+    a1, a2 = normalised_chroma(current)
+    b1, b2 = normalised_chroma(reference)
+    d1, d2 = a1 - b1, a2 - b2
+    return np.asarray(d1 * d1 + d2 * d2 > np.float32(threshold * threshold))
+
+
+class BackgroundModel:
+    """The reference frame ``I_r`` of eq. 2, refreshed periodically without absorbing tracked rovers.
+
+    The paper replaces the whole reference on a timer. Here a band of rows is refreshed every frame so that the
+    whole reference is renewed once per ``period_frames`` at a constant, small cost, and pixels inside
+    ``exclude`` boxes (the rovers being tracked, parked or not) are never copied. ``valid`` marks pixels whose
+    reference is known to show the empty scene: all of them when an empty frame was given, else only those
+    refreshed at least once while no tracked rover covered them.
+    """
+
+    def __init__(self, shape_hw: tuple[int, int], period_frames: int, empty_scene: U8 | None = None) -> None:
+        h, w = shape_hw
+        self.period_frames = max(1, int(period_frames))
+        self.reference: U8 = np.zeros((h, w, 3), np.uint8)
+        self.valid: BoolArray = np.zeros((h, w), bool)
+        self._next_row = 0
+        self._band = max(1, math.ceil(h / self.period_frames))
+        if empty_scene is not None:
+            if empty_scene.shape[:2] != (h, w):
+                raise ValueError(f"empty scene is {empty_scene.shape[1]}x{empty_scene.shape[0]}, frames are {w}x{h}")
+            self.reference[...] = empty_scene
+            self.valid[...] = True
+        self._started = empty_scene is not None
+
+    @property
+    def shape_hw(self) -> tuple[int, int]:
+        return self.reference.shape[0], self.reference.shape[1]
+
+    def refresh(self, frame: U8, exclude: Sequence[tuple[int, int, int, int]]) -> None:
+        """Copy the next band of rows of ``frame`` into the reference, except inside ``exclude`` boxes.
+
+        ``exclude``: ``(x0, y0, x1, y1)`` pixel boxes (exclusive ends). The first call with no empty scene copies
+        the whole frame (so the reference is never black) but marks nothing valid under the boxes.
+        """
+        h = self.reference.shape[0]
+        if not self._started:
+            rows = slice(0, h)
+            self._started = True
+        else:
+            r0 = self._next_row
+            rows = slice(r0, min(h, r0 + self._band))
+            self._next_row = 0 if rows.stop >= h else rows.stop
+        keep = np.ones((rows.stop - rows.start, self.reference.shape[1]), bool)
+        for x0, y0, x1, y1 in exclude:
+            ya, yb = max(y0, rows.start), min(y1, rows.stop)
+            if ya < yb and x0 < x1:
+                keep[ya - rows.start : yb - rows.start, max(0, x0) : max(0, x1)] = False
+        if rows.start == 0 and rows.stop == h and not self.valid.any():
+            self.reference[...] = frame  # first frame: a reference to compare with, valid only where keep
+        else:
+            np.copyto(self.reference[rows], frame[rows], where=keep[..., None])
+        self.valid[rows] |= keep
+
+    def foreground(self, frame_roi: U8, roi: tuple[int, int, int, int], threshold: float) -> BoolArray:
+        """eq. 2 inside ``roi`` = ``(x0, y0, x1, y1)``: True where the frame differs from a *valid* reference."""
+        x0, y0, x1, y1 = roi
+        diff = subtract_background(frame_roi, self.reference[y0:y1, x0:x1], threshold)
+        return np.asarray(diff & self.valid[y0:y1, x0:x1])
+
+
+# -- automatic threshold interval (section IV.C) -----------------------------------------------------------------
+@dataclass(frozen=True)
+class ThresholdInterval:
+    """``k_min <= value <= k_max`` selects the marker (Fig. 11)."""
+
+    k_min: float
+    k_max: float
+
+
+def auto_threshold(
+    plane_roi: F32, candidates: BoolArray, fraction: float, percentile: float = 90.0
+) -> ThresholdInterval:
+    """The threshold interval updated from the marker's maximum (Fig. 12).
+
+    ``k_max`` is a high percentile of the plane over the candidate pixels (robust to a hot pixel, unlike the
+    paper's plain maximum) and ``k_min = fraction * k_max``: with ``fraction = 0.5`` the boundary sits where a
+    pixel is half covered by the marker. Returns ``k_max = 0`` when there are no candidates.
+    """
+    vals = plane_roi[candidates]
+    if vals.size == 0:
+        return ThresholdInterval(0.0, 0.0)
+    k = min(vals.size - 1, int(vals.size * percentile / 100.0))
+    k_max = float(np.partition(vals, k)[k])
+    return ThresholdInterval(fraction * k_max, k_max)
+
+
+def threshold(plane_roi: F32, interval: ThresholdInterval) -> BoolArray:
+    """Binary image of the pixels inside the interval (the upper bound is open: glare can only lower a plane)."""
+    return np.asarray(plane_roi >= np.float32(interval.k_min))
+
+
+# -- morphology (P.M.O. erosion, A.M.O. hole filling) ------------------------------------------------------------
+_SQUARES = {k: np.ones((2 * k + 1, 2 * k + 1), np.uint8) for k in range(1, 9)}
+
+
+def _square(k: int) -> NDArray[np.uint8]:
+    """The (2k+1)-square structuring element: one pass of it is k passes of the 3x3 square."""
+    kernel = _SQUARES.get(k)
+    return kernel if kernel is not None else np.ones((2 * k + 1, 2 * k + 1), np.uint8)
+
+
+def erode(mask: BoolArray, iterations: int = 1) -> BoolArray:
+    """Binary erosion, ``iterations`` times with a 3x3 structuring element (the paper's P.M.O.)."""
+    if iterations <= 0:
+        return mask
+    out = cv2.erode(mask.view(np.uint8), _square(iterations), borderType=cv2.BORDER_REPLICATE)
+    return out.view(bool)
+
+
+def dilate(mask: BoolArray, iterations: int = 1) -> BoolArray:
+    """Binary dilation, ``iterations`` times with a 3x3 structuring element."""
+    if iterations <= 0:
+        return mask
+    return cv2.dilate(mask.view(np.uint8), _square(iterations)).view(bool)
+
+
+def reconstruct(marker: BoolArray, mask: BoolArray, connectivity: int = 8) -> BoolArray:
+    """Binary morphological reconstruction ``R_mask(marker)``: the components of ``mask`` that ``marker`` touches.
+
+    Iterated conditional dilation of the marker inside the mask converges to exactly these components; labelling
+    them once is the same result in one pass.
+    """
+    n, labels = cv2.connectedComponents(mask.view(np.uint8), connectivity=connectivity)
+    if n <= 1:
+        return np.zeros_like(mask)
+    hit = np.zeros(n, bool)
+    hit[np.unique(labels[marker & mask])] = True
+    hit[0] = False
+    return hit[labels]
+
+
+def fill_holes(mask: BoolArray) -> BoolArray:
+    """Automatic hole filling by reconstruction (Fig. 13): ``H = [R_{I^c}(F)]^c``.
+
+    ``F`` is ``1 - I`` on the image border and 0 inside; reconstructing it inside the complement ``I^c`` reaches
+    every background pixel connected to the border (4-connectivity, so 8-connected marker outlines close holes);
+    everything else (the marker and its holes) is the filled result. A flood fill from a padded border is the
+    same reconstruction in one pass.
+    """
+    h, w = mask.shape
+    padded = np.zeros((h + 2, w + 2), np.uint8)
+    padded[1:-1, 1:-1] = mask
+    ff_mask = np.zeros((h + 4, w + 4), np.uint8)
+    cv2.floodFill(padded, ff_mask, (0, 0), 2, flags=4)
+    return np.asarray(padded[1:-1, 1:-1] != 2)
+
+
+def open_by_reconstruction(mask: BoolArray, iterations: int = 1) -> BoolArray:
+    """Erode to remove speckle noise, then reconstruct: surviving particles keep their exact outline."""
+    if iterations <= 0:
+        return mask
+    return reconstruct(erode(mask, iterations), mask)
+
+
+# -- particles (Table II) ----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Particle:
+    """One connected component of a binary image (pixel units, coordinates in the image it came from).
+
+    ``area_px``: pixels excluding holes; ``holes_px``: area of its holes; ``hull_px``: convex hull area;
+    ``bbox``: ``(x0, y0, x1, y1)`` exclusive; ``centre_px``: centre of mass (eq. 9-10); ``label``: its label in
+    the label image it came from.
+    """
+
+    label: int
+    area_px: int
+    holes_px: int
+    hull_px: float
+    bbox: tuple[int, int, int, int]
+    centre_px: tuple[float, float]
+
+    @property
+    def total_px(self) -> int:
+        """Particle area plus the area of its holes (Table II 'Total Area')."""
+        return self.area_px + self.holes_px
+
+    @property
+    def solidity(self) -> float:
+        """Total area over convex hull area: 1 for a convex marker, low for merged or ragged blobs."""
+        return self.total_px / self.hull_px if self.hull_px > 0 else 1.0
+
+
+def label_particles(mask: BoolArray, min_area_px: int = 1) -> tuple[NDArray[np.int32], list[Particle]]:
+    """Label the 8-connected particles of ``mask``; measure each as in Table II (holes, hull, bounding box).
+
+    Returns the (H, W) int32 label image and the particles with at least ``min_area_px`` pixels.
+    """
+    n, labels, stats, centroids = cv2.connectedComponentsWithStats(mask.view(np.uint8), connectivity=8)
+    out: list[Particle] = []
+    for i in range(1, n):
+        area = int(stats[i, cv2.CC_STAT_AREA])
+        if area < min_area_px:
+            continue
+        x, y, w, h = (int(stats[i, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, 3))
+        sub = labels[y : y + h, x : x + w] == i
+        filled = fill_holes(sub)
+        holes = int(filled.sum()) - area
+        contours, _ = cv2.findContours(filled.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        hull = float(cv2.contourArea(cv2.convexHull(np.vstack(contours)))) if contours else float(area)
+        hull = max(hull, float(area + holes))  # contourArea runs through pixel centres: never below the count
+        out.append(
+            Particle(i, area, holes, hull, (x, y, x + w, y + h), (float(centroids[i, 0]), float(centroids[i, 1])))
+        )
+    return np.asarray(labels, np.int32), out
+
+
+# -- sub-pixel coverage ------------------------------------------------------------------------------------------
+def marker_level(plane_roi: F32, core: BoolArray) -> float:
+    """The marker's value in its colour plane: the mean over the core's interior (its edge pixels are mixed)."""
+    interior = erode(core, 1)
+    vals = plane_roi[interior] if interior.any() else plane_roi[core]
+    return float(vals.mean()) if vals.size else 0.0
+
+
+def coverage_weights(
+    bgr_roi: U8,
+    lum_roi: F32,
+    core: BoolArray,
+    ring_px: int,
+    exclude: BoolArray | None = None,
+    pure: BoolArray | None = None,
+) -> F32:
+    """(h, w) float32 share of each pixel covered by the marker whose filled binary mask is ``core``.
+
+    Pixels of the core's interior are fully covered (1, even under a glare spot that hole filling closed). A pixel
+    within ``ring_px`` of the core's edge sees a mix of the marker ``M`` and what surrounds it: the bright floor
+    ``F`` or the dark rover body ``D``. Its colour is ``p = a M + b F + (1 - a - b) D``, linear in the shares, so
+    three colour channels give the marker's share ``a`` by least squares (linear unmixing). ``M`` is the mean
+    of the interior's ``pure`` pixels (glare excluded), ``D`` and ``F`` the means of the darker and brighter
+    halves of a band just outside the ring. Being linear, the shares keep the marker's centroid where it is under
+    optical blur and under the half-resolution chroma of JPEG/H.264 (which a binary mask or a hue test would cut
+    off on one side), to a small fraction of a pixel: a far-side marker is only 9 pixels tall. Shares below 0 are
+    kept (down to -0.5) so noise on background pixels averages out instead of biasing. ``exclude``: pixels of
+    something else (another rover's marker).
+    """
+    weights = core.astype(np.float32)
+    region = dilate(core, ring_px)
+    outer = dilate(core, ring_px + 3) & ~region
+    if exclude is not None:
+        region &= ~exclude | core
+        outer &= ~exclude
+    interior = erode(core, 1)
+    if not interior.any():
+        interior = core
+    lum_outer = lum_roi[outer]
+    if lum_outer.size < 4:
+        return weights
+    sample = interior & pure if pure is not None else interior
+    marker = _mean_bgr(bgr_roi, sample if sample.any() else interior)
+    half = lum_outer.size // 2
+    cut = np.float32(np.partition(lum_outer, half)[half])
+    dark = _mean_bgr(bgr_roi, outer & (lum_roi <= cut))
+    bright = _mean_bgr(bgr_roi, outer & (lum_roi >= cut))
+    a_vec, b_vec = marker - dark, bright - dark
+    aa, ab = float(a_vec @ a_vec), float(a_vec @ b_vec)
+    bb = float(b_vec @ b_vec) + 1e-3 * aa  # ridge: floor and body alike (no floor in view) is not singular
+    det = aa * bb - ab * ab
+    if aa <= 1.0 or det <= 1e-9:
+        return weights
+    ring = region & ~interior
+    p = bgr_roi[ring].astype(np.float64) - dark
+    share = ((p @ a_vec) * bb - (p @ b_vec) * ab) / det
+    weights[ring] = np.clip(share, -0.5, 1.0)
+    weights[interior] = 1.0
+    return weights
+
+
+def _mean_bgr(bgr_roi: U8, mask: BoolArray) -> NDArray[np.float64]:
+    """(3,) mean colour of the masked pixels."""
+    return np.asarray(cv2.mean(bgr_roi, mask=mask.view(np.uint8))[:3], dtype=np.float64)

@@ -1,0 +1,1 @@
+"""The camera-scene simulator: the paper's lab, rendered with ground truth."""

@@ -1,0 +1,433 @@
+"""Camera effects and scene effects: what real cameras and real rooms do to the picture.
+
+Each effect is a small frozen description with its physical parameters plus a pure function of time or of an
+image; the renderer (:mod:`edge.sim.render`) applies them. Light is handled in linear units (1.0 = sensor white at
+the nominal exposure); the camera's tone curve (a power law, gamma 2.2) turns it into 8-bit values.
+
+Camera effects
+    exposure and tone curve, auto-exposure with lag, sensor read and shot noise (spatially correlated by
+    demosaicing), vignetting, motion blur over the exposure time, rolling flicker from mains lighting (each row is
+    exposed at a different moment of the lamps' 100/120 Hz ripple), JPEG compression. Lens distortion is part of the
+    camera model (:class:`edge.camera.PinholeCamera`).
+Scene effects
+    global illumination drift and lamps switching, a sunlit window patch that changes strength and colour
+    temperature as clouds pass, a specular glare of the sun on the glossy floor, a person walking in and standing in
+    the view for a while. Rovers leaving and re-entering the view are trajectories (:mod:`edge.sim.world`).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from edge.errors import SimulationError
+
+FloatArray = NDArray[np.float64]
+Bgr = tuple[float, float, float]
+GAMMA = 2.2
+
+
+# -- camera effects ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Exposure:
+    """Fixed exposure: ``exposure_s`` integration time (sets motion blur and flicker), ``scale`` the linear value
+    of a white (albedo 1) surface under the room's mean illumination, ``gamma`` the tone curve's exponent."""
+
+    exposure_s: float = 1.0 / 60.0
+    scale: float = 0.72
+    gamma: float = GAMMA
+
+    def __post_init__(self) -> None:
+        if not (0 < self.exposure_s <= 1.0 and self.scale > 0 and self.gamma > 0):
+            raise SimulationError("exposure: exposure_s in (0, 1], scale and gamma positive")
+
+
+@dataclass(frozen=True)
+class AutoExposure:
+    """Auto-exposure with lag: each frame the gain moves ``rate`` of the way (in log terms) towards the gain that
+    would restore the mean brightness measured ``delay_frames`` ago, within [min_gain, max_gain]. After a sudden
+    change of light the picture is over- or under-exposed for a few frames."""
+
+    rate: float = 0.25
+    delay_frames: int = 2
+    min_gain: float = 0.35
+    max_gain: float = 3.0
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """Read and shot noise: variance ``read_noise^2 + signal / full_well`` (linear units, signal before gain).
+
+    ``full_well``: electrons at sensor white (shot noise ~ sqrt(signal)). ``correlation``: share of the noise
+    smoothed over 3x3 neighbours, as Bayer demosaicing spreads it.
+    """
+
+    read_noise: float = 0.003
+    full_well: float = 2000.0
+    correlation: float = 0.4
+
+
+@dataclass(frozen=True)
+class Optics:
+    """Lens and demosaicing softness: a Gaussian point spread of ``blur_sigma_px`` pixels (an in-focus webcam lens
+    and Bayer interpolation: about half a pixel). Symmetric, so it moves no centroid."""
+
+    blur_sigma_px: float = 0.5
+
+
+@dataclass(frozen=True)
+class Vignetting:
+    """Light fall-off towards the corners: ``1 - strength * (1 - cos^4(angle off axis))``."""
+
+    strength: float = 0.5
+
+
+@dataclass(frozen=True)
+class Flicker:
+    """Mains-powered lamps ripple at twice the mains frequency; a rolling shutter exposes row ``r`` at
+    ``t + r * line_time_s``, so the ripple shows as horizontal bands that roll from frame to frame. The band
+    amplitude is ``modulation * |sinc(2 f_mains * exposure_s)|`` (an exposure of whole ripple periods cancels it)."""
+
+    mains_hz: float = 50.0
+    modulation: float = 0.3
+    line_time_s: float = 1.0 / (30.0 * 750.0)  # 720 active rows + blanking at 30 fps
+    phase: float = 0.0
+
+
+@dataclass(frozen=True)
+class Compression:
+    """JPEG compression as an MJPG webcam delivers it, at ``quality`` (0-100)."""
+
+    quality: int = 85
+
+
+# -- scene effects ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class IlluminationDrift:
+    """Room light ``1 + amplitude * sin(2 pi t / period_s + phase)`` times any lamp banks switched off:
+    ``switches`` holds ``(t_off_s, t_on_s, factor)``: between those times the light is multiplied by ``factor``."""
+
+    amplitude: float = 0.35
+    period_s: float = 12.0
+    phase: float = 0.0
+    switches: tuple[tuple[float, float, float], ...] = ()
+
+
+@dataclass(frozen=True)
+class SunPatch:
+    """Sunlight through a window: the window's ``window_cm`` corners (world cm, a planar quadrilateral) cast a
+    sunlit patch on the floor along the sun's rays.
+
+    The sun stands at ``elevation_deg``; its light travels along azimuth ``azimuth_deg`` (0: towards +x, -90:
+    towards -y, i.e. from a window in the far wall towards the camera). ``strength``: irradiance of the clear beam on
+    a horizontal surface relative to the room's mean lamp light. Clouds pass every ``cloud_period_s`` and dim the
+    beam by up to ``cloud_depth``; its colour goes from ``clear_bgr`` (warm direct sun) towards ``cloudy_bgr``
+    (bluish skylight) as it dims: a change of colour temperature. ``penumbra_cm``: the soft edge (the sun's disc).
+    """
+
+    window_cm: tuple[tuple[float, float, float], ...] = (
+        (120.0, 700.0, 195.0),
+        (275.0, 700.0, 195.0),
+        (275.0, 700.0, 290.0),
+        (120.0, 700.0, 290.0),
+    )
+    elevation_deg: float = 30.0
+    azimuth_deg: float = -90.0
+    strength: float = 1.5
+    clear_bgr: Bgr = (0.74, 0.90, 1.0)
+    cloudy_bgr: Bgr = (1.0, 0.96, 0.88)
+    cloud_period_s: float = 7.0
+    cloud_depth: float = 0.75
+    cloud_phase: float = 0.0
+    penumbra_cm: float = 1.5
+
+    @property
+    def travel(self) -> FloatArray:
+        """(3,) unit direction the light travels (downwards)."""
+        el, az = math.radians(self.elevation_deg), math.radians(self.azimuth_deg)
+        return np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), -math.sin(el)])
+
+    def patch_cm(self, z_cm: float) -> FloatArray:
+        """(4, 2) the window's sunlit image on the horizontal plane at height ``z_cm``."""
+        d = self.travel
+        corners = np.asarray(self.window_cm, dtype=np.float64)
+        t = (z_cm - corners[:, 2]) / d[2]
+        return np.column_stack([corners[:, 0] + t * d[0], corners[:, 1] + t * d[1]])
+
+
+def sun_mirror_point(camera_cm: FloatArray, sun: SunPatch) -> tuple[float, float]:
+    """Floor point where the camera sees the sun reflected (the centre of the glare on a glossy floor)."""
+    d = sun.travel
+    up = np.array([d[0], d[1], -d[2]])  # the reflected ray, rising towards the camera
+    t = camera_cm[2] / up[2]
+    return float(camera_cm[0] - t * up[0]), float(camera_cm[1] - t * up[1])
+
+
+@dataclass(frozen=True)
+class Glare:
+    """A specular glare of the sun on the glossy floor: a bright, desaturated (clipping to white) spot centred at
+    ``(x_cm, y_cm)`` (where the camera sees the sun mirrored: :func:`sun_mirror_point`), spread by the floor's
+    roughness over ``radius_cm`` and stretched ``elongation`` times along the line of sight; ``peak`` linear units at
+    its core in the clear sun (it dims with the clouds). Only where the floor is sunlit."""
+
+    x_cm: float = 195.75
+    y_cm: float = 285.0
+    radius_cm: float = 16.0
+    elongation: float = 2.5
+    peak: float = 3.0
+    bgr: Bgr = (0.90, 0.96, 1.0)
+
+
+@dataclass(frozen=True)
+class Occluder:
+    """A person walking into the view, standing a while and leaving: ``keyframes`` ``(t_s, x_cm, y_cm)`` walked
+    in straight lines; absent before the first and after the last keyframe."""
+
+    keyframes: tuple[tuple[float, float, float], ...]
+    height_cm: float = 172.0
+    shirt_bgr: Bgr = (0.30, 0.30, 0.32)
+    trousers_bgr: Bgr = (0.12, 0.07, 0.05)
+    skin_bgr: Bgr = (0.28, 0.36, 0.52)
+
+    def __post_init__(self) -> None:
+        times = [k[0] for k in self.keyframes]
+        if len(times) < 2 or any(b < a for a, b in itertools.pairwise(times)):
+            raise SimulationError("occluder: at least two keyframes with non-decreasing times")
+
+    def pose(self, t_s: float) -> tuple[float, float, float, float] | None:
+        """(x_cm, y_cm, heading_rad, distance walked cm) at ``t_s``, or None when absent."""
+        keys = self.keyframes
+        if t_s < keys[0][0] or t_s > keys[-1][0]:
+            return None
+        walked = 0.0
+        heading = 0.0
+        for (t0, x0, y0), (t1, x1, y1) in itertools.pairwise(keys):
+            seg = math.hypot(x1 - x0, y1 - y0)
+            if seg > 1e-9:
+                heading = math.atan2(y1 - y0, x1 - x0)
+            if t_s <= t1:
+                f = 0.0 if t1 <= t0 else (t_s - t0) / (t1 - t0)
+                return x0 + f * (x1 - x0), y0 + f * (y1 - y0), heading, walked + f * seg
+            walked += seg
+        _, x, y = keys[-1]
+        return x, y, heading, walked
+
+
+@dataclass(frozen=True)
+class Effects:
+    """Every effect of a scenario. ``None`` switches an effect off."""
+
+    exposure: Exposure = Exposure()
+    auto_exposure: AutoExposure | None = AutoExposure()
+    noise: SensorNoise | None = SensorNoise()
+    vignetting: Vignetting | None = Vignetting()
+    optics: Optics | None = Optics()
+    motion_blur: bool = True
+    flicker: Flicker | None = None
+    compression: Compression | None = None
+    drift: IlluminationDrift | None = None
+    sun: SunPatch | None = None
+    glare: Glare | None = None
+    occluders: tuple[Occluder, ...] = field(default_factory=tuple)
+
+    def describe(self) -> list[str]:
+        """One line per active effect with its parameters (for ``scenario.json`` and the docs)."""
+        lines = []
+        for name in ("exposure", "auto_exposure", "noise", "optics", "vignetting", "flicker", "compression", "drift"):
+            value = getattr(self, name)
+            if value is not None:
+                lines.append(f"{name}: {value}")
+        if self.motion_blur:
+            lines.append(f"motion_blur: over the {self.exposure.exposure_s * 1000:.1f} ms exposure")
+        for name in ("sun", "glare"):
+            value = getattr(self, name)
+            if value is not None:
+                lines.append(f"{name}: {value}")
+        lines.extend(f"occluder: {o}" for o in self.occluders)
+        return lines
+
+
+# -- pure functions of time ------------------------------------------------------------------------------------
+def drift_factor(drift: IlluminationDrift | None, t_s: float) -> float:
+    """Room-light multiplier at ``t_s``."""
+    if drift is None:
+        return 1.0
+    f = 1.0 + drift.amplitude * math.sin(2.0 * math.pi * t_s / drift.period_s + drift.phase)
+    for t_off, t_on, factor in drift.switches:
+        if t_off <= t_s < t_on:
+            f *= factor
+    return f
+
+
+def sun_state(sun: SunPatch | None, t_s: float) -> tuple[float, FloatArray]:
+    """(beam strength relative to room light, (3,) BGR colour of the beam) at ``t_s``."""
+    if sun is None:
+        return 0.0, np.ones(3)
+    # Clouds: a smooth dip once per period, sharper than a sinusoid (a cloud passes, then clear sky).
+    phase = (t_s / sun.cloud_period_s + sun.cloud_phase) % 1.0
+    dip = math.exp(-(((phase - 0.5) / 0.16) ** 2))
+    clear = 1.0 - sun.cloud_depth * dip
+    mix = (1.0 - clear) / max(sun.cloud_depth, 1e-9) if sun.cloud_depth > 0 else 0.0
+    colour = (1.0 - mix) * np.asarray(sun.clear_bgr) + mix * np.asarray(sun.cloudy_bgr)
+    return sun.strength * clear, colour
+
+
+def auto_exposure_gains(levels: FloatArray, ae: AutoExposure | None) -> FloatArray:
+    """(N,) exposure gain per frame for the scene brightness ``levels`` (N,) (1.0 = nominal).
+
+    Starts converged on frame 0's light; then follows with the configured delay and rate (in log terms).
+    """
+    levels = np.asarray(levels, dtype=np.float64)
+    if ae is None:
+        return np.ones_like(levels)
+    target = np.clip(1.0 / np.maximum(levels, 1e-6), ae.min_gain, ae.max_gain)
+    gains = np.empty_like(levels)
+    g = float(target[0]) if len(levels) else 1.0
+    for i in range(len(levels)):
+        seen = target[max(i - ae.delay_frames, 0)]
+        g = g * (seen / g) ** ae.rate
+        gains[i] = g
+    return gains
+
+
+def flicker_amplitude(flicker: Flicker | None, exposure_s: float) -> float:
+    """Band amplitude (relative) seen by a rolling shutter exposing each row for ``exposure_s``."""
+    if flicker is None:
+        return 0.0
+    x = 2.0 * flicker.mains_hz * exposure_s
+    sinc = 1.0 if x == 0 else math.sin(math.pi * x) / (math.pi * x)
+    return flicker.modulation * abs(sinc)
+
+
+def flicker_phase_rows(flicker: Flicker, t_s: float) -> float:
+    """Row offset (in rows, modulo the band period) of the flicker pattern in the frame captured at ``t_s``."""
+    period_rows = 1.0 / (2.0 * flicker.mains_hz * flicker.line_time_s)
+    cycles = 2.0 * flicker.mains_hz * t_s + flicker.phase / (2.0 * math.pi)
+    return (cycles % 1.0) * period_rows
+
+
+# -- pure functions of images ----------------------------------------------------------------------------------
+def vignetting_map(camera_matrix: FloatArray, width_px: int, height_px: int, vig: Vignetting | None) -> FloatArray:
+    """(H, W) relative illumination of each pixel (1 on the optical axis)."""
+    if vig is None:
+        return np.ones((height_px, width_px))
+    fx, fy = camera_matrix[0, 0], camera_matrix[1, 1]
+    cx, cy = camera_matrix[0, 2], camera_matrix[1, 2]
+    u = (np.arange(width_px) - cx) / fx
+    v = (np.arange(height_px) - cy) / fy
+    r2 = v[:, None] ** 2 + u[None, :] ** 2
+    cos4 = 1.0 / (1.0 + r2) ** 2
+    return np.asarray(1.0 - vig.strength * (1.0 - cos4))
+
+
+def blur_kernel(displacement_px: FloatArray, psf_sigma_px: float) -> NDArray[np.float32] | None:
+    """The blur of a moving object: its motion during the exposure (``displacement_px`` (2,), x, y) convolved with
+    the optics' Gaussian point spread; normalised; None when both are negligible."""
+    motion = motion_kernel(displacement_px)
+    if psf_sigma_px < 0.05:
+        return motion
+    half = math.ceil(3.0 * psf_sigma_px)
+    g = cv2.getGaussianKernel(2 * half + 1, psf_sigma_px, cv2.CV_64F)
+    psf = g @ g.T
+    if motion is None:
+        return psf.astype(np.float32)
+    # the motion line spread by the point spread: a (m + 2 half) square kernel
+    full = cv2.filter2D(np.pad(motion.astype(np.float64), half), -1, psf, borderType=cv2.BORDER_CONSTANT)
+    return (full / full.sum()).astype(np.float32)
+
+
+def motion_kernel(displacement_px: FloatArray) -> NDArray[np.float32] | None:
+    """Normalised line kernel for a blur of ``displacement_px`` (2,) (x, y) during the exposure; None if tiny."""
+    dx, dy = float(displacement_px[0]), float(displacement_px[1])
+    length = math.hypot(dx, dy)
+    if length < 0.05:
+        return None
+    half = math.ceil(0.5 * max(abs(dx), abs(dy))) + 1
+    size = 2 * half + 1
+    n = max(8, int(6 * length))
+    s = (np.arange(n) + 0.5) / n - 0.5
+    xs, ys = half + s * dx, half + s * dy
+    x0, y0 = np.floor(xs).astype(int), np.floor(ys).astype(int)
+    fx, fy = xs - x0, ys - y0
+    index = np.concatenate([(y0 + oy) * size + x0 + ox for oy in (0, 1) for ox in (0, 1)])
+    weight = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
+    kernel = np.bincount(index, weights=weight, minlength=size * size).reshape(size, size)
+    return (kernel / kernel.sum()).astype(np.float32)
+
+
+def jpeg_roundtrip(image: NDArray[np.uint8], quality: int) -> NDArray[np.uint8]:
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise SimulationError("JPEG encoding failed")
+    return np.asarray(cv2.imdecode(buf, cv2.IMREAD_COLOR), dtype=np.uint8)
+
+
+class NoiseBank:
+    """Precomputed unit Gaussian noise for a frame of ``shape``, read at random offsets each frame.
+
+    Drawing a million Gaussians per frame costs more than the whole frame budget; instead a bank a little larger
+    than the frame is drawn once and each frame reads it at a random offset and sign. The noise is applied as
+    ``sigma(value) * z`` with ``sigma`` from a 256-entry table (signal-dependent shot noise), in saturating uint8
+    arithmetic split into positive and negative parts.
+    """
+
+    MARGIN = 64
+    Z_SCALE = 16.0  # z stored in 1/16 units: up to 6 sigma in a uint8
+    SIGMA_SCALE = 16.0  # sigma table in 1/16 DN: up to ~16 DN
+
+    def __init__(self, shape: tuple[int, int, int], correlation: float, seed: int) -> None:
+        h, w, c = shape
+        rng = np.random.default_rng(np.random.SeedSequence([seed, 0x0015E]))
+        z = rng.standard_normal((h + self.MARGIN, w + self.MARGIN, c)).astype(np.float32)
+        if correlation > 0:
+            smooth = cv2.GaussianBlur(z, (3, 3), 0.8)
+            z = (1.0 - correlation) * z + correlation * smooth
+            z /= float(np.std(z))
+        q = np.clip(np.rint(z * self.Z_SCALE), -6 * self.Z_SCALE, 6 * self.Z_SCALE)
+        self.positive = np.maximum(q, 0).astype(np.uint8)
+        self.negative = np.maximum(-q, 0).astype(np.uint8)
+        self.shape = shape
+
+    def draw(self, rng: np.random.Generator) -> tuple[int, int, bool]:
+        """This frame's read of the bank: row and column offsets and whether the sign is flipped."""
+        oy, ox = (int(v) for v in rng.integers(0, self.MARGIN, 2))
+        return oy, ox, bool(rng.random() < 0.5)
+
+    def add(
+        self, rows: NDArray[np.uint8], row0: int, sigma_lut: NDArray[np.uint8], draw: tuple[int, int, bool]
+    ) -> None:
+        """Add noise in place to ``rows`` (a band of the frame starting at row ``row0``); ``sigma_lut`` (1, 256)
+        uint8 gives sigma per value in 1/16 DN; ``draw`` from :meth:`draw` (the same for every band of a frame)."""
+        oy, ox, flip = draw
+        n, w = rows.shape[0], rows.shape[1]
+        pos = self.positive[oy + row0 : oy + row0 + n, ox : ox + w]
+        neg = self.negative[oy + row0 : oy + row0 + n, ox : ox + w]
+        if flip:
+            pos, neg = neg, pos
+        sigma = cv2.LUT(rows, sigma_lut)
+        scale = 1.0 / (self.Z_SCALE * self.SIGMA_SCALE)
+        up = cv2.multiply(sigma, pos, scale=scale)
+        down = cv2.multiply(sigma, neg, scale=scale)
+        cv2.add(rows, up, dst=rows)
+        cv2.subtract(rows, down, dst=rows)
+
+
+def noise_sigma_lut(noise: SensorNoise, gain: float, gamma: float) -> NDArray[np.uint8]:
+    """(1, 256) uint8: noise sigma (1/16 DN) of each output value for a camera at analogue ``gain``.
+
+    Output linear value ``l`` came from a sensor signal ``l / gain``; its noise ``gain * sqrt(read^2 +
+    (l / gain) / full_well)`` is carried through the tone curve by its slope (capped near black, where real
+    cameras' curves turn linear). Value 255 gets none: it stands for every clipped (saturated) pixel.
+    """
+    values = np.arange(256, dtype=np.float64) / 255.0
+    lin = values**gamma
+    sigma_lin = gain * np.sqrt(noise.read_noise**2 + (lin / max(gain, 1e-9)) / noise.full_well)
+    slope = np.minimum(255.0 / gamma * np.maximum(lin, 1e-12) ** (1.0 / gamma - 1.0), 1500.0)
+    sigma_dn = sigma_lin * slope
+    sigma_dn[255] = 0.0  # a clipped pixel is saturated: full well, no noise left to see
+    return np.clip(np.rint(sigma_dn * NoiseBank.SIGMA_SCALE), 0, 255).astype(np.uint8).reshape(1, 256)

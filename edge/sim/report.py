@@ -1,0 +1,237 @@
+"""What a closed-loop run leaves behind: ``metrics.json``, ``truth.csv``, ``poses.jsonl``, ``motors.csv``.
+
+``truth.csv`` (``frame,id,x,y,theta``) and ``poses.jsonl`` (every pose published to the rovers, the exact bytes, one
+per line) are enough to recompute every figure of ``metrics.json``; ``motors.csv`` (``t_ms,id,left_duty,
+left_forward,right_duty,right_forward,halt``, one row per firmware step) lets anyone check the safety bar.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from edge.messages import parse_pose
+from edge.sim.loop import LoopRecord
+from edge.sim.metrics import (
+    converged_frame,
+    enclosing_diameter_cm,
+    error_stats_cm,
+    formation_error,
+    line_errors,
+    min_body_gap_cm,
+    min_centre_distance_cm,
+    polygon_sides_cm,
+)
+from edge.sim.rover import BODY_LENGTH_CM, BODY_WIDTH_CM, max_wheel_speed_cm_s, rover_config
+
+
+def formation_errors(record: LoopRecord) -> list[float]:
+    """The bar's error (<= 0: holds) at every frame, on the ground truth."""
+    bar = record.config.bar
+    return [formation_error(bar, record.truth[k, :, :2]) for k in range(len(record.truth))]
+
+
+def shape(kind: str, xy_cm: np.ndarray) -> dict[str, Any]:
+    """The formation's own numbers for one frame."""
+    if kind == "line":
+        displacement, _, gaps = line_errors(xy_cm)
+        return {"line_x_cm": float(xy_cm[:, 0].mean()), "line_displacement_cm": displacement, "gaps_cm": gaps.tolist()}
+    if kind == "rendezvous":
+        return {"zone_diameter_cm": enclosing_diameter_cm(xy_cm)}
+    if kind == "triangle":
+        return {"sides_cm": polygon_sides_cm(xy_cm).tolist()}
+    return {}
+
+
+def ips_errors_cm(record: LoopRecord) -> np.ndarray:
+    """Distance between every published pose and the truth at its frame, cm."""
+    index = {rid: k for k, rid in enumerate(record.ids)}
+    out = []
+    for frame, rid, payload in record.published:
+        pose = parse_pose(payload)
+        tx, ty = record.truth[frame, index[rid], :2]
+        out.append(math.hypot(pose.x - tx, pose.y - ty))
+    return np.asarray(out)
+
+
+def safety(record: LoopRecord) -> dict[str, Any] | None:
+    """After the camera feed stopped or the broker died: for each rover, its last fresh own pose (receive time,
+    simulated ms), when its motors were cut for good (both duties 0 from then on), and when its body came to rest
+    (ground truth)."""
+    cfg = record.config
+    stop_frame = min(f for f in (cfg.feed_stop_frame, cfg.broker_stop_frame, len(record.truth)) if f is not None)
+    if stop_frame >= len(record.truth) or not record.motors:
+        return None
+    t_stop_ms = stop_frame * 1000.0 / record.fps
+    rovers: dict[str, Any] = {}
+    for k, rid in enumerate(record.ids):
+        log = record.motors[rid]
+        fresh = record.fresh_ms[rid]
+        last_fresh = fresh[-1] if fresh else 0
+        duty = np.asarray(log.left_duty) + np.asarray(log.right_duty)
+        t = np.asarray(log.t_ms)
+        running = np.flatnonzero(duty > 0)
+        off_ms = int(t[running[-1] + 1]) if running.size and running[-1] + 1 < len(t) else None
+        if not running.size:
+            off_ms = int(t[0])
+        driving_at_stop = bool(np.any((duty > 0) & (t <= t_stop_ms) & (t >= t_stop_ms - 100)))
+        xy = record.truth[:, k, :2]
+        moved = np.flatnonzero(np.hypot(*np.diff(xy, axis=0).T) > 0.01)
+        rest_ms = (moved[-1] + 1) * 1000.0 / record.fps if moved.size else 0.0
+        rovers[rid] = {
+            "last_fresh_pose_ms": last_fresh,
+            "driving_when_stopped": driving_at_stop,
+            "motors_off_ms": off_ms,
+            "motors_off_after_ms": None if off_ms is None else max(0, off_ms - last_fresh),
+            "at_rest_ms": rest_ms,
+            "at_rest_after_ms": max(0.0, rest_ms - last_fresh),
+            "halt": log.halt[-1] if log.halt else None,
+        }
+    worst = [r["motors_off_after_ms"] for r in rovers.values()]
+    return {
+        "event": "feed stopped" if cfg.feed_stop_frame == stop_frame else "broker killed",
+        "event_frame": stop_frame,
+        "event_ms": t_stop_ms,
+        "rovers": rovers,
+        "motors_off_after_ms_max": None if None in worst else max(worst),
+        "bar_ms": 500,
+        "passed": None not in worst and max(w for w in worst if w is not None) <= 500,
+    }
+
+
+def summarize(record: LoopRecord) -> dict[str, Any]:
+    """metrics.json of one run."""
+    cfg = record.config
+    truth = record.truth
+    n_frames = len(truth)
+    cfg0 = rover_config(record.ids[0])
+    centre = [min_centre_distance_cm(truth[k, :, :2]) for k in range(n_frames)]
+    gaps = [min_body_gap_cm(truth[k], BODY_LENGTH_CM, BODY_WIDTH_CM) for k in range(n_frames)]
+    missed = {
+        rid: int(np.isnan(record.measured[: record.frames_tracked, k, 0]).sum()) for k, rid in enumerate(record.ids)
+    }
+    out: dict[str, Any] = {
+        "experiment": cfg.kind,
+        "seed": cfg.seed,
+        "rovers": list(record.ids),
+        "frames": n_frames,
+        "fps": record.fps,
+        "heading_marker": cfg.heading,
+        "latency_ms": cfg.latency_ms,
+        "rover": {
+            "track_cm": cfg0["geometry"]["track_cm"],
+            "wheel_radius_cm": cfg0["geometry"]["wheel_radius_cm"],
+            "max_wheel_speed_cm_s": max_wheel_speed_cm_s(cfg0),
+            "body_cm": [BODY_LENGTH_CM, BODY_WIDTH_CM],
+            "body_radius_cm": cfg0["geometry"]["body_radius_cm"],
+            "safety_cm": cfg0["control"]["safety_cm"],
+            "max_speed_cm_s": cfg0["control"]["max_speed_cm_s"],
+            "stale_ms": cfg0["control"]["stale_ms"],
+        },
+        "starts": truth[0].round(2).tolist(),
+        "min_centre_distance_cm": float(min(centre)),
+        "min_body_gap_cm": float(min(gaps)),
+        "collision": bool(min(gaps) <= 0.0),
+        "ips_error_cm": error_stats_cm(ips_errors_cm(record)),
+        "messages": {
+            "frames_tracked": record.frames_tracked,
+            "poses_published": len(record.published),
+            "poses_dropped": record.poses_dropped,
+            "tracker_missed": missed,
+            "deliveries_late": dict(record.deliveries_late),
+        },
+        "wall_s": round(record.wall_s, 2),
+    }
+    if cfg.formation:
+        bar = cfg.bar
+        errors = formation_errors(record)
+        conv = converged_frame(errors)
+        out["formation"] = record.formation
+        out["bar"] = {
+            "tolerance_cm": bar.tol_cm,
+            "spacing_cm": bar.spacing_cm if cfg.kind == "line" else None,
+            "side_cm": bar.side_cm if cfg.kind == "triangle" else None,
+            "zone_cm": bar.zone_cm if cfg.kind == "rendezvous" else None,
+            "within_frames": bar.within_frames,
+        }
+        out["converged_frame"] = conv
+        out["converged_s"] = None if conv is None else conv / record.fps
+        out["final"] = shape(cfg.kind, truth[-1, :, :2])
+        out["final_error_cm"] = errors[-1]
+        out["passed"] = {
+            "formation": conv is not None,
+            "within_frames": conv is not None and conv <= bar.within_frames,
+            "no_collision": not out["collision"],
+        }
+    if record.plans is not None:
+        out["plans_s"] = {rid: p.duration_s for rid, p in record.plans.items()}
+    s = safety(record)
+    if s is not None:
+        out["safety"] = s
+    return out
+
+
+def write_run(record: LoopRecord, out_dir: Path) -> dict[str, Any]:
+    """Write truth.csv, poses.jsonl, motors.csv and metrics.json into ``out_dir``; returns the metrics."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with (out_dir / "truth.csv").open("w") as f:
+        f.write("frame,id,x,y,theta\n")
+        for k in range(len(record.truth)):
+            for j, rid in enumerate(record.ids):
+                x, y, th = record.truth[k, j]
+                f.write(f"{k},{rid},{x:.3f},{y:.3f},{th:.5f}\n")
+    with (out_dir / "poses.jsonl").open("wb") as fb:
+        for _, _, payload in record.published:
+            fb.write(payload + b"\n")
+    with (out_dir / "motors.csv").open("w") as f:
+        f.write("t_ms,id,left_duty,left_forward,right_duty,right_forward,halt\n")
+        for rid, log in record.motors.items():
+            for row in zip(
+                log.t_ms, log.left_duty, log.left_forward, log.right_duty, log.right_forward, log.halt, strict=True
+            ):
+                t, ld, lf, rd, rf, halt = row
+                f.write(f"{t},{rid},{ld},{int(lf)},{rd},{int(rf)},{halt}\n")
+    metrics = summarize(record)
+    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    return metrics
+
+
+def run_to_directory(
+    config: Any,
+    out_dir: Path,
+    *,
+    video: bool = False,
+    figures: bool = True,
+    progress: Any = None,
+) -> dict[str, Any]:
+    """Run one experiment (:class:`edge.sim.loop.LoopConfig`) and write everything it produces into ``out_dir``:
+    the files of :func:`write_run`, the figures and, with ``video``, ``camera.mp4`` (the annotated camera view)."""
+    from edge.sim.figures import draw_all
+    from edge.sim.loop import FPS, run
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    writer: Any = None
+    sink = None
+    if video:
+        import cv2
+
+        def sink(image: np.ndarray) -> None:
+            nonlocal writer
+            if writer is None:
+                fourcc = cv2.VideoWriter_fourcc(*"mp4v")  # type: ignore[attr-defined]
+                writer = cv2.VideoWriter(str(out_dir / "camera.mp4"), fourcc, FPS, (image.shape[1], image.shape[0]))
+            writer.write(image)
+
+    try:
+        record = run(config, progress=progress, video=sink)
+    finally:
+        if writer is not None:
+            writer.release()
+    metrics = write_run(record, out_dir)
+    if figures:
+        draw_all(record, metrics, out_dir, formation_errors(record) if config.formation else None)
+    return metrics

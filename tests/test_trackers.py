@@ -1,0 +1,172 @@
+"""The three window trackers and the geometry they share (perspective-correct, sub-pixel marker centres)."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from edge.camera import MARKER_HEIGHT_CM
+from edge.pipeline import StageTimes, TrackerConfig, prepare_window
+from edge.segmentation import BackgroundModel, ColorModel
+from edge.trackers import METHODS, make_tracker
+from edge.trackers.base import NullClock, PlaneGrid, RoverModel, world_blob
+from tests.support.track import COLORS, SynthRover, shared_scene
+
+MARKER_AREA = 22.0 * 17.0
+
+
+def measure(method, image, rover: SynthRover, offset_px=(0.0, 0.0), background=None, tracker=None):
+    """Run one tracker on a window around the rover's true position (as the pipeline prepares it)."""
+    scene = shared_scene()
+    config = TrackerConfig(rovers=(rover.config(), SynthRover("other", 0, 0, 0, COLORS["blue"]).config()))
+    colors = ColorModel.from_colors([r.color_bgr for r in config.rovers], 30.0, 0.35)
+    maps = PlaneGrid(scene.mapping, (image.shape[1], image.shape[0]))
+    uv = scene.camera.project(np.array([[rover.x, rover.y, MARKER_HEIGHT_CM]]))[0] + np.asarray(offset_px)
+    local = maps.at(*uv)
+    r = config.marker_radius_cm + 6.0
+    us, vs = local.to_pixel(rover.x + r * np.array([-1, 1, 1, -1.0]), rover.y + r * np.array([-1, -1, 1, 1.0]))
+    box = (int(us.min()) - 3, int(vs.min()) - 3, int(us.max()) + 4, int(vs.max()) + 4)
+    bg = BackgroundModel(image.shape[:2], 100, background)
+    window = prepare_window(image, box, 0, (float(uv[0]), float(uv[1])), colors, maps, bg, 0.2, NullClock())
+    assert window is not None
+    tracker = tracker or make_tracker(method)
+    return tracker.measure(window, RoverModel(0, MARKER_AREA, 0.0), StageTimes())
+
+
+PLACES = [(60.0, 30.0, 0.0), (200.0, 150.0, 0.7), (330.0, 280.0, 2.0), (120.0, 420.0, -1.2), (250.0, 535.0, 0.3)]
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize(("x", "y", "theta"), PLACES)
+def test_each_tracker_finds_the_marker_centre_to_a_fraction_of_a_centimetre(method, x, y, theta):
+    scene = shared_scene()
+    rover = SynthRover("red", x, y, theta, COLORS["red"])
+    image = scene.render([rover], noise_sigma=2.0, rng=np.random.default_rng(int(x)))
+    m = measure(method, image, rover)
+    assert m is not None
+    assert math.hypot(m.xy_cm[0] - x, m.xy_cm[1] - y) < 0.2
+    assert m.area_cm2 == pytest.approx(MARKER_AREA, rel=0.15)
+
+
+def test_world_centroid_removes_the_perspective_bias_of_the_pixel_centroid():
+    """Far side: the pixel centroid of the marker, mapped to the plane, is not the marker's centre."""
+    scene = shared_scene()
+    x, y = 200.0, 530.0
+    corners = np.array([[x - 8.5, y - 11, 13], [x + 8.5, y - 11, 13], [x + 8.5, y + 11, 13], [x - 8.5, y + 11, 13]])
+    uv = scene.camera.project(corners)
+    box = (int(uv[:, 0].min()) - 4, int(uv[:, 1].min()) - 4, int(uv[:, 0].max()) + 5, int(uv[:, 1].max()) + 5)
+    x0, y0, x1, y1 = box
+    # Coverage of the projected marker polygon, 64x supersampled.
+    ss = 64
+    big = np.zeros(((y1 - y0) * ss, (x1 - x0) * ss), np.uint8)
+    poly = ((uv - [x0, y0] + 0.5) * ss - 0.5) * 256
+    cv2.fillPoly(big, [np.rint(poly).astype(np.int32)], 255, shift=8)
+    coverage = cv2.resize(big.astype(np.float32) / 255.0, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
+    blob = world_blob(coverage, (x0, y0), PlaneGrid(scene.mapping, (1280, 720)))
+    assert blob is not None
+    vs, us = np.mgrid[y0:y1, x0:x1]
+    pixel_centroid = np.array([[(coverage * us).sum() / coverage.sum(), (coverage * vs).sum() / coverage.sum()]])
+    mapped = scene.mapping.pixel_to_world(pixel_centroid)[0]
+    assert math.hypot(blob.x_cm - x, blob.y_cm - y) < 0.03
+    assert math.hypot(mapped[0] - x, mapped[1] - y) > 5 * math.hypot(blob.x_cm - x, blob.y_cm - y)
+    assert blob.area_cm2 == pytest.approx(MARKER_AREA, rel=0.01)
+
+
+@pytest.mark.parametrize("dist", [(0.0, 0.0), (0.1, -0.2), (-0.3, 0.1), (-0.25, 0.08)])
+def test_plane_grid_follows_a_distorted_calibration_pixel_by_pixel(dist):
+    from edge.camera import paper_camera
+    from edge.trackers.base import CameraPlaneMapping
+
+    mapping = CameraPlaneMapping(paper_camera(dist_coeffs=(*dist, 0.0, 0.0, 0.0)))
+    grid = PlaneGrid(mapping, (1280, 720))
+    rng = np.random.default_rng(1)
+    pts = rng.integers([0, 110], [1280, 720], (4000, 2)).astype(np.float64)
+    exact = mapping.pixel_to_world(pts)
+    near_area = (exact[:, 0] > -50) & (exact[:, 0] < 440) & (exact[:, 1] > -50) & (exact[:, 1] < 600)
+    pts, exact = pts[near_area], exact[near_area]
+    x, y, area, valid = grid.map_pixels(pts[:, 0], pts[:, 1])
+    assert valid.all()
+    rows, cols = pts[:, 1].astype(int), pts[:, 0].astype(int)
+    assert np.array_equal(grid.x_cm[rows, cols], x) and np.array_equal(grid.area_cm2[rows, cols], area)
+    assert np.max(np.hypot(x - exact[:, 0], y - exact[:, 1])) < 0.02
+    # The area per pixel is the Jacobian of the mapping: compare with finite differences of the calibration.
+    half_u, half_v = np.array([0.5, 0.0]), np.array([0.0, 0.5])
+    du = mapping.pixel_to_world(pts + half_u) - mapping.pixel_to_world(pts - half_u)
+    dv = mapping.pixel_to_world(pts + half_v) - mapping.pixel_to_world(pts - half_v)
+    jac = np.abs(du[:, 0] * dv[:, 1] - du[:, 1] * dv[:, 0])
+    assert np.max(np.abs(area / jac - 1.0)) < 0.01
+
+
+def test_plane_grid_marks_pixels_above_the_horizon_invalid():
+    from edge.camera import PinholeCamera
+    from edge.trackers.base import CameraPlaneMapping
+
+    level = PinholeCamera.look_at((195.0, -200.0, 100.0), (195.0, 300.0, 60.0))  # horizon inside the image
+    grid = PlaneGrid(CameraPlaneMapping(level), (1280, 720))
+    assert grid.at(640.0, 5.0) is None
+    assert grid.at(640.0, 700.0) is not None
+
+
+@pytest.mark.parametrize(("method", "max_error_cm"), [("particles", 0.2), ("meanshift", 0.25)])
+def test_a_speck_of_the_same_hue_beside_the_marker_is_ignored(method, max_error_cm):
+    scene = shared_scene()
+    rover = SynthRover("red", 150.0, 200.0, 0.0, COLORS["red"])
+    image = scene.render([rover], noise_sigma=2.0)
+    u, v = scene.camera.project(np.array([[rover.x + 19.0, rover.y + 4.0, 0.0]]))[0]
+    image[int(v) - 3 : int(v) + 3, int(u) - 3 : int(u) + 3] = COLORS["red"]  # a red sticker on the floor
+    m = measure(method, image, rover)
+    assert m is not None
+    assert math.hypot(m.xy_cm[0] - rover.x, m.xy_cm[1] - rover.y) < max_error_cm
+
+
+def test_the_centroid_approach_is_pulled_by_a_speck_of_the_same_hue():
+    """Table V: the centroid approach is 'affected' by noise (the filter then rejects the spike)."""
+    scene = shared_scene()
+    rover = SynthRover("red", 150.0, 200.0, 0.0, COLORS["red"])
+    image = scene.render([rover], noise_sigma=2.0)
+    u, v = scene.camera.project(np.array([[rover.x + 19.0, rover.y + 4.0, 0.0]]))[0]
+    image[int(v) - 3 : int(v) + 3, int(u) - 3 : int(u) + 3] = COLORS["red"]
+    m = measure("centroid", image, rover)
+    assert m is not None
+    assert math.hypot(m.xy_cm[0] - rover.x, m.xy_cm[1] - rover.y) > 0.5
+
+
+@pytest.mark.parametrize("offset", [(6.0, 0.0), (-4.0, 5.0), (0.0, -7.0)])
+def test_mean_shift_climbs_to_the_marker_from_an_offset_prediction(offset):
+    scene = shared_scene()
+    rover = SynthRover("red", 180.0, 160.0, 0.4, COLORS["red"])
+    image = scene.render([rover], noise_sigma=2.0)
+    tracker = make_tracker("meanshift")
+    measure("meanshift", image, rover, tracker=tracker)  # the first frame models the target
+    m = measure("meanshift", image, rover, offset_px=offset, tracker=tracker)
+    assert m is not None
+    assert math.hypot(m.xy_cm[0] - rover.x, m.xy_cm[1] - rover.y) < 0.3
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_glare_spot_on_the_marker_is_filled_not_a_hole_in_the_estimate(method):
+    scene = shared_scene()
+    rover = SynthRover("green", 220.0, 140.0, 0.2, COLORS["green"])
+    u, v = scene.camera.project(np.array([[rover.x + 3.0, rover.y + 2.0, MARKER_HEIGHT_CM]]))[0]
+    image = scene.render([rover], noise_sigma=2.0, glare=(u, v, 3.0))
+    config_rover = SynthRover("green", rover.x, rover.y, rover.theta, COLORS["green"])
+    m = measure(method, image, config_rover)
+    assert m is not None
+    assert math.hypot(m.xy_cm[0] - rover.x, m.xy_cm[1] - rover.y) < 0.5
+    assert m.area_cm2 == pytest.approx(MARKER_AREA, rel=0.2)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_no_marker_in_the_window_gives_no_measurement(method):
+    scene = shared_scene()
+    rover = SynthRover("red", 150.0, 200.0, 0.0, COLORS["red"])
+    m = measure(method, scene.floor.copy(), rover)
+    assert m is None
+
+
+def test_unknown_tracker_name_is_refused():
+    with pytest.raises(ValueError, match="unknown tracking method"):
+        make_tracker("kalman")
