@@ -21,14 +21,15 @@ async function loadState() {
   const enabled = state.info.formation_enabled;
   for (const b of document.querySelectorAll("#formation-form button")) b.disabled = !enabled;
   $("formation-result").textContent = enabled ? "" : "formation controls are disabled: no dashboard token is configured";
-  if (state.info.calibration) {
-    const c = state.info.calibration;
-    $("calibration-info").textContent = c.mean_cm != null ? `mean ${c.mean_cm.toFixed(2)} cm, max ${c.max_cm.toFixed(2)} cm` : "";
-    $("errormap").src = "api/errormap.png";
+  const c = state.info.calibration;
+  if (c && c.exact) {
+    $("calibration-info").textContent = `(${c.note})`;
+  } else if (c && c.mean_cm != null) {
+    $("calibration-info").textContent = `${c.method}: predicted 95% error mean ${c.mean_cm.toFixed(2)} cm, max ${c.max_cm.toFixed(2)} cm`;
   } else {
-    $("calibration-info").textContent = "(no calibration file: simulator camera)";
-    $("errormap").src = "api/errormap.png";
+    $("calibration-info").textContent = c ? `(${c.note || c.method})` : "(no calibration known)";
   }
+  $("errormap").src = "api/errormap.png";
   showFormation();
 }
 
@@ -66,7 +67,8 @@ function drawCameraOverlay() {
     if (p.outline && p.outline.length > 2) {
       ctx.beginPath();
       p.outline.forEach(([u, v], i) => (i ? ctx.lineTo(u * sx, v * sy) : ctx.moveTo(u * sx, v * sy)));
-      ctx.closePath(); ctx.stroke();
+      ctx.closePath(); ctx.strokeStyle = "#ffffff"; ctx.lineWidth = 1.5; ctx.stroke();
+      ctx.strokeStyle = col; ctx.lineWidth = 2;
     } else {
       ctx.beginPath(); ctx.arc(p.u * sx, p.v * sy, 12, 0, 2 * Math.PI); ctx.stroke();
     }
@@ -91,19 +93,21 @@ function drawMap() {
   const cv = $("map");
   if (!state.info) return;
   const W = state.info.area.width_cm, L = state.info.area.length_cm, m = 30;
+  const x0 = state.info.area.x0_cm || 0, y0 = state.info.area.y0_cm || 0;
   const w = cv.clientWidth || 400;
   const scale = (w - 2 * m) / W;
   const h = Math.round(L * scale + 2 * m);
   if (cv.width !== w || cv.height !== h) { cv.width = w; cv.height = h; }
   const ctx = cv.getContext("2d");
-  const X = (x) => m + x * scale, Y = (y) => h - m - y * scale;
+  const X = (x) => m + (x - x0) * scale, Y = (y) => h - m - (y - y0) * scale;
   ctx.clearRect(0, 0, w, h);
   ctx.strokeStyle = "#223038"; ctx.lineWidth = 1;
-  for (let x = 0; x <= W; x += 50) { ctx.beginPath(); ctx.moveTo(X(x), Y(0)); ctx.lineTo(X(x), Y(L)); ctx.stroke(); }
-  for (let y = 0; y <= L; y += 50) { ctx.beginPath(); ctx.moveTo(X(0), Y(y)); ctx.lineTo(X(W), Y(y)); ctx.stroke(); }
-  ctx.strokeStyle = "#e0c341"; ctx.lineWidth = 2; ctx.strokeRect(X(0), Y(L), W * scale, L * scale);
+  const x1 = x0 + W, y1 = y0 + L;
+  for (let x = x0; x <= x1; x += 50) { ctx.beginPath(); ctx.moveTo(X(x), Y(y0)); ctx.lineTo(X(x), Y(y1)); ctx.stroke(); }
+  for (let y = y0; y <= y1; y += 50) { ctx.beginPath(); ctx.moveTo(X(x0), Y(y)); ctx.lineTo(X(x1), Y(y)); ctx.stroke(); }
+  ctx.strokeStyle = "#e0c341"; ctx.lineWidth = 2; ctx.strokeRect(X(x0), Y(y1), W * scale, L * scale);
   ctx.fillStyle = "#8a96a3"; ctx.font = "11px sans-serif";
-  ctx.fillText("(0, 0)", X(0) - 10, Y(0) + 14); ctx.fillText(`(${W}, ${L})`, X(W) - 60, Y(L) - 6);
+  ctx.fillText(`(${x0}, ${y0})`, X(x0) - 10, Y(y0) + 14); ctx.fillText(`(${x1}, ${y1})`, X(x1) - 60, Y(y1) - 6);
   drawFormationTarget(ctx, X, Y, scale);
   for (const [id, r] of state.rovers) {
     const col = colorOf(id);
