@@ -7,6 +7,7 @@ a slow client never touches the tracker.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import logging
 import threading
@@ -116,6 +117,11 @@ class HttpServer:
                     close = getattr(response.stream, "close", None)
                     if close is not None:
                         close()  # a generator's cleanup (an event stream unsubscribing) runs now, not at GC
+
+            def handle(self) -> None:
+                # a page closed while its keep-alive connection waited for the next request: nothing to report
+                with contextlib.suppress(BrokenPipeError, ConnectionResetError):
+                    super().handle()
 
             def do_GET(self) -> None:
                 self._serve("GET")

@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from edge.dashboard.threads import background_priority
+
 if TYPE_CHECKING:
     from edge.calibration import Calibration
     from edge.metrics import Snapshot
@@ -208,6 +210,7 @@ class EventHub:
             self._cond.notify_all()
 
     def _run(self) -> None:
+        background_priority()
         last: FrameResult | None = None
         next_status = 0.0
         while not self._closed.is_set():
@@ -235,6 +238,7 @@ class EventHub:
     def stream(self, first: Sequence[tuple[str, Any]] = (), keepalive_s: float = KEEPALIVE_S) -> Iterator[bytes]:
         """The body of one ``text/event-stream`` response: ``first`` events at once, then everything published,
         with a comment line as keep-alive. Ends when the hub closes (or the client goes away)."""
+        background_priority()  # this is the request's thread, which only serves the page
         viewer = _Viewer(self._queue_size)
         with self._cond:
             if self._closed.is_set():

@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from edge.dashboard.threads import background_priority
 from edge.metrics import LatencyWindow
 from edge.sources import Frame
 
@@ -41,7 +42,11 @@ def encode_jpeg(image: NDArray[np.uint8], *, max_width_px: int, quality: int) ->
     out = image
     if w > max_width_px:
         size = (max_width_px, max(1, round(h * max_width_px / w)))
-        out = np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), dtype=np.uint8)  # no aliasing
+        # Bilinear is enough down to half size and 4x cheaper than INTER_AREA at 0.75 (0.8 ms against 3.9 ms for
+        # 1280 -> 960 here, and OpenCV spreads a resize over every core, the tracker's included); further down,
+        # INTER_AREA avoids aliasing.
+        interpolation = cv2.INTER_LINEAR if max_width_px * 2 >= w else cv2.INTER_AREA
+        out = np.asarray(cv2.resize(image, size, interpolation=interpolation), dtype=np.uint8)
     ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
     if not ok:
         raise ValueError("JPEG encoding failed")
@@ -82,6 +87,7 @@ class FrameEncoder:
         return self._closed or time.monotonic() - self._last_request < self.idle_after_s
 
     def _run(self) -> None:
+        background_priority()
         last_frame: Frame | None = None
         next_allowed = 0.0
         while True:

@@ -25,6 +25,7 @@ from collections.abc import Callable, Sequence
 from importlib import resources
 from typing import TYPE_CHECKING, Any
 
+from edge.dashboard.threads import background_priority
 from edge.httpserver import HttpServer, Request, Response
 
 if TYPE_CHECKING:
@@ -151,6 +152,7 @@ class Dashboard:
         )
 
     def frame(self, request: Request) -> Response:
+        background_priority()  # the request's thread only serves the page
         encoded = self.encoder.next_frame()
         if encoded is None:
             return json_response(503, {"error": "no camera frame yet"})
