@@ -13,6 +13,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from edge.calibration import Calibration
 from edge.camera import MARKER_HEIGHT_CM, paper_camera
@@ -88,6 +90,30 @@ def test_bad_formation_requests_are_refused_naming_the_field(body: bytes, names:
     with pytest.raises(MessageError, match=r"formation request|formation:") as err:
         parse_request(body, ROVERS)
     assert names in str(err.value)
+
+
+JSON = st.recursive(
+    st.none() | st.booleans() | st.floats(allow_nan=False) | st.integers() | st.text(max_size=8),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4),
+    max_leaves=12,
+)
+REQUESTS = st.fixed_dictionaries(
+    {"kind": st.sampled_from(["line", "rendezvous", "triangle", "stop", "circle"]), "ids": st.lists(st.text())},
+    optional={"spacing": JSON, "side": JSON, "x": JSON, "theta": JSON},
+)
+
+
+BODIES = st.binary(max_size=64) | (JSON | REQUESTS).map(lambda v: json.dumps(v).encode())
+
+
+@given(BODIES)
+def test_any_body_is_accepted_or_refused_with_a_message_error(body: bytes) -> None:
+    try:
+        message = parse_request(body, ROVERS)(1)
+    except MessageError as exc:
+        assert str(exc).startswith(("formation request:", "formation:"))
+    else:
+        assert set(message.ids) <= set(ROVERS)
 
 
 @pytest.mark.parametrize(
