@@ -33,6 +33,11 @@ from edge.messages import rover_status_topic as _rover_status_topic
 log = logging.getLogger("edge.broker")
 
 
+def _not_shutdown_drops(record: logging.LogRecord) -> bool:
+    """amqtt warns of the QoS 0 messages still queued when it stops; dropping them on shutdown is the design."""
+    return "messages not broadcasted" not in record.getMessage()
+
+
 # -- the embedded broker -----------------------------------------------------------------------------------------
 def _make_broker(config: dict[str, Any]) -> Any:
     """An amqtt broker that sends a connecting client only the retained messages of its own subscriptions.
@@ -110,9 +115,13 @@ class EmbeddedBroker:
 
     def start(self, timeout_s: float = 10.0) -> EmbeddedBroker:
         """Start listening; raises :class:`BrokerError` (port taken, bad address) before returning."""
+        if self.running:
+            raise BrokerError(f"embedded broker on {self.host}:{self._port} is already running")
         for name in ("amqtt", "transitions"):
             if logging.getLogger(name).level == logging.NOTSET:
                 logging.getLogger(name).setLevel(logging.WARNING)  # amqtt logs every connection at INFO
+        if _not_shutdown_drops not in logging.getLogger("amqtt.broker").filters:
+            logging.getLogger("amqtt.broker").addFilter(_not_shutdown_drops)
         self._thread = threading.Thread(target=self._run, name="embedded-broker", daemon=True)
         self._thread.start()
         try:

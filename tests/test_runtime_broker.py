@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import socket
 import threading
 import time
@@ -114,6 +115,19 @@ def test_embedded_broker_says_when_the_port_is_taken() -> None:
         port = holder.getsockname()[1]
         with pytest.raises(BrokerError, match=rf"port {port} on 127.0.0.1 is already in use.*embedded_port"):
             EmbeddedBroker("127.0.0.1", port).start()
+
+
+def test_embedded_broker_refuses_a_second_start_and_is_quiet_about_qos0_drops_on_shutdown(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    with EmbeddedBroker("127.0.0.1", 0) as broker:
+        with pytest.raises(BrokerError, match="already running"):
+            broker.start()
+        amqtt_log = logging.getLogger("amqtt.broker")
+        with caplog.at_level(logging.WARNING):
+            amqtt_log.warning("3 messages not broadcasted")  # what amqtt says when it stops with poses queued
+            amqtt_log.warning("something else went wrong")
+    assert [r.getMessage() for r in caplog.records if r.name == "amqtt.broker"] == ["something else went wrong"]
 
 
 @pytest.mark.parametrize("broker_kind", ["mosquitto", "embedded"])
