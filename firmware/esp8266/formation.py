@@ -181,14 +181,17 @@ def at_least(ux, uy, vmin):
 
 
 # -- 4. keep clear ---------------------------------------------------------------------------------------------------
-def keep_clear(x, y, ux, uy, tx, ty, qx, qy, nq, safety_cm, gamma, slide_gain, side):
+def keep_clear(x, y, ux, uy, tx, ty, qx, qy, nq, safety_cm, gamma, slide_gain, side, pass_cm=0.0):
     """u shaped around the other rovers (qx, qy)[:nq], before the unicycle mapping.
 
     For each neighbour the single-integrator barrier -2 (p - q_j).u <= (gamma / 2) (|p - q_j|^2 - Ds^2) is enforced
     by projection (one neighbour after the other), so u never points into a neighbour the rover could not then
     drive around; what was removed is given back as a slide along the neighbour, on the side of the target
     (tx, ty) - or to the right when the neighbour stands straight in the way, so two rovers meeting head-on pass
-    each other like people in a corridor. This shapes the path; the guarantee is safe_speed().
+    each other like people in a corridor. A neighbour the rover must get past (the target lies beyond it) is kept
+    pass_cm farther than Ds: at Ds itself the certificate (safe_speed, with its heading margin) lets a rover that
+    faces sideways creep at ~2 cm/s, and two rovers swapping ends of a line would hover there for seconds. This
+    shapes the path; the guarantee is safe_speed().
     side: the side chosen last time (1 left, -1 right, 0 none), kept until the target is clearly on the other
     side, so measurement noise cannot make the rover dither. Returns (ux, uy, side).
     """
@@ -196,21 +199,24 @@ def keep_clear(x, y, ux, uy, tx, ty, qx, qy, nq, safety_cm, gamma, slide_gain, s
     ddy = ty - y
     dist_t = sqrt(ddx * ddx + ddy * ddy)
     ds2 = safety_cm * safety_cm
+    wide = safety_cm + pass_cm
+    wide2 = wide * wide
     for j in range(nq):
         dx = x - qx[j]
         dy = y - qy[j]
         d2 = dx * dx + dy * dy
         if d2 <= 0.0:
             continue
+        d = sqrt(d2)
+        beyond = dist_t > d
         # a = -2 d, b = gamma / 2 h: the constraint a.u <= b
-        excess = -2.0 * (dx * ux + dy * uy) - 0.5 * gamma * (d2 - ds2)
+        excess = -2.0 * (dx * ux + dy * uy) - 0.5 * gamma * (d2 - (wide2 if beyond else ds2))
         if excess <= 0.0:
             continue
         f = excess / (4.0 * d2)
         ux += f * 2.0 * dx
         uy += f * 2.0 * dy
-        d = sqrt(d2)
-        if dist_t <= d:
+        if not beyond:
             continue  # the target is on this side of the neighbour: stop short of it, no need to go round
         removed = excess / (2.0 * d)  # speed taken away towards the neighbour
         ox = -dx / d  # unit vector towards the neighbour
@@ -486,6 +492,7 @@ class Controller:
         safety_cm,
         barrier_gain_per_s,
         slide_gain,
+        pass_cm,
         heading_margin_rad,
         lookahead_cm,
         wheel_radius_cm,
@@ -500,6 +507,7 @@ class Controller:
         self.safety = safety_cm
         self.gamma = barrier_gain_per_s
         self.slide_gain = slide_gain
+        self.pass_cm = pass_cm
         self.margin = heading_margin_rad
         self.side = 0
         self.lookahead = lookahead_cm
@@ -530,7 +538,7 @@ class Controller:
             ux, uy = limit(ux, uy, self.max_speed)
             ux, uy = at_least(ux, uy, self.min_speed)
             ux, uy, self.side = keep_clear(
-                x, y, ux, uy, tx, ty, qx, qy, nq, self.safety, self.gamma, self.slide_gain, self.side
+                x, y, ux, uy, tx, ty, qx, qy, nq, self.safety, self.gamma, self.slide_gain, self.side, self.pass_cm
             )
             ux, uy = limit(ux, uy, self.max_speed)
         v, w = unicycle(ux, uy, theta, self.lookahead)
