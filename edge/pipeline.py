@@ -514,6 +514,8 @@ class Pipeline:
             jacobian,
             geometry,
             others,
+            m.weights,
+            self.maps.area_cm2[y0:y1, x0:x1],
         )
         heading = tr.two_tone.update(view)
         if heading is None:

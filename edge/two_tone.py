@@ -42,10 +42,11 @@ QUARTER = 0.5 * math.pi
 SPREAD_WEIGHT = 2.0  # score = relative brightness - SPREAD_WEIGHT * relative spread
 MIN_AXIS_STRENGTH = 0.3  # fourth-harmonic coherence below this: the edges do not show a rectangle
 EVIDENCE_CAP = 1.0  # evidence saturates here: a few frames of contrary evidence can overturn any heading
-EVIDENCE_STEP_CAP = 0.5  # one frame's contribution at most
+EVIDENCE_STEP = 0.2  # one frame's contribution at most: overturning a sure heading takes 7 clear frames
 AMBIGUOUS_MARGIN = 0.1  # score margins within this say nothing (sunlit floor behind, a shaded front part)
-REPORT_EVIDENCE = 0.25  # evidence needed to report the heading
-FLIP_EVIDENCE = -0.3  # evidence against the tracked end that makes the best other candidate the heading
+REPORT_EVIDENCE = 0.2  # evidence needed to report the heading: one clear frame
+FLIP_EVIDENCE = -0.3  # evidence against the tracked end that turns the heading round
+AXIS_PRIOR = 0.15  # weight of the coloured part's shape when a front is chosen anew
 HOLD_FRAMES = 5  # frames a heading is carried without a view of the marker's edges (turns < 30 deg at 30 fps)
 _KERNEL = np.ones((3, 3), np.uint8)
 CAMERA_GAMMA = 2.2  # webcams encode light with the sRGB tone curve, close to this power law
@@ -77,11 +78,14 @@ class TwoToneGeometry:
 @dataclass(frozen=True)
 class TwoToneView:
     """What one frame shows of a two-tone marker: its edges' axis (rad, modulo pi/2), how clearly the edges show a
-    rectangle (0..1), and the end-strip score of each candidate heading ``axis + k pi/2`` (NaN: not seen)."""
+    rectangle (0..1), the end-strip score of each candidate heading ``axis + k pi/2`` (NaN: not seen), and
+    ``axis_prior`` (-1..1): how much the coloured part's spread along and across ``axis`` says that the heading
+    lies along ``axis`` (+1) or across it (-1) (the part is shorter along the rover than across it)."""
 
     axis_rad: float
     axis_strength: float
     scores: tuple[float, float, float, float]
+    axis_prior: float = 0.0
 
     def candidate(self, k: int) -> float:
         return math.remainder(self.axis_rad + k * QUARTER, math.tau)
@@ -174,11 +178,15 @@ def view_marker(
     jacobian_cm_per_px: FloatArray,
     geometry: TwoToneGeometry,
     others: BoolArray | None = None,
+    coverage: F32 | None = None,
+    area_cm2: FloatArray | None = None,
 ) -> TwoToneView | None:
     """One frame's view of a two-tone marker in a tracker window (all arrays (h, w), the window's pixels).
 
     ``own``: pixels of the rover's hue class; ``others``: pixels of other rovers (their hue, or near their
-    positions). None when the coloured part is not in the window.
+    positions); ``coverage`` and ``area_cm2``: the tracker's coverage of each pixel by the coloured part and each
+    pixel's area on the plane (for the shape prior; none without them). None when the coloured part is not in the
+    window.
     """
     half_diag = 0.5 * math.hypot(geometry.coloured_length_cm, geometry.width_cm)
     d2 = (x_cm - centroid_cm[0]) ** 2 + (y_cm - centroid_cm[1]) ** 2
@@ -197,7 +205,20 @@ def view_marker(
     sample = inner if inner.any() else part
     reference = float(bgr[sample].max(axis=1).mean())
     scores = end_strip_scores(lum, x_cm, y_cm, centroid_cm, axis, geometry, reference, others)
-    return TwoToneView(axis, strength, scores)
+    prior = 0.0
+    expected = (geometry.width_cm**2 - geometry.coloured_length_cm**2) / 12.0  # across minus along, a rectangle's
+    if coverage is not None and area_cm2 is not None and abs(expected) > 0.5:
+        w = coverage.astype(np.float64) * area_cm2
+        total = float(w.sum())
+        if total > 0.0:
+            dx = x_cm - centroid_cm[0]
+            dy = y_cm - centroid_cm[1]
+            c, s = math.cos(axis), math.sin(axis)
+            along = dx * c + dy * s
+            across = dy * c - dx * s
+            spread = float((w * (across * across - along * along)).sum()) / total
+            prior = max(-1.0, min(1.0, spread / expected))
+    return TwoToneView(axis, strength, scores, prior)
 
 
 def footprint_cm(jacobian_cm_per_px: FloatArray, direction_rad: float) -> tuple[float, float]:
@@ -266,6 +287,14 @@ class TwoToneHeading:
 
     ``heading_rad``: the current estimate (None before the first view); ``evidence``: how strongly the strips have
     said that its end is the front (-1..1); ``confident``: strong enough to report.
+
+    Found anew (no heading, or none for more than ``HOLD_FRAMES``), the front is the best of the four candidates,
+    their strip scores helped a little by the coloured part's shape (:attr:`TwoToneView.axis_prior`). Tracked, the
+    axis is the candidate nearest the last heading, and the only question left is which *end*: each frame's
+    evidence is the tracked end's score against the opposite end's, margins within ``AMBIGUOUS_MARGIN`` count for
+    nothing and no frame counts for more than ``EVIDENCE_STEP``, so a person's legs hiding the front part or
+    sunlit floor behind the rover for a few frames wear the evidence down without turning the heading round; it is
+    turned round only when the opposite end has looked like the front, clearly, for several frames.
     """
 
     def __init__(self) -> None:
@@ -294,32 +323,30 @@ class TwoToneHeading:
         if view is None or view.axis_strength < MIN_AXIS_STRENGTH:
             return self.held()
         scores = [s if math.isfinite(s) else -math.inf for s in view.scores]
-        best = max(range(4), key=lambda k: scores[k])
         if self.heading_rad is not None and self.age <= HOLD_FRAMES:
             last = self.heading_rad
             k = min(range(4), key=lambda j: abs(math.remainder(view.candidate(j) - last, math.tau)))
+            step = _evidence(scores[k] - scores[(k + 2) % 4])
         else:
-            if scores[best] == -math.inf:
+            prior = [AXIS_PRIOR * view.axis_prior * (1 if j % 2 == 0 else -1) for j in range(4)]
+            total = [sc + pr for sc, pr in zip(scores, prior, strict=True)]
+            k = max(range(4), key=lambda j: total[j])
+            if total[k] == -math.inf:
                 return self.held()
-            k = best
+            rivals = [t for j, t in enumerate(total) if j != k and t > -math.inf]
+            step = _evidence(total[k] - max(rivals)) if rivals else 0.0
             self.evidence = 0.0
-        self.evidence = min(EVIDENCE_CAP, max(-EVIDENCE_CAP, self.evidence + self._margin(scores, k)))
-        if self.evidence <= FLIP_EVIDENCE and k != best:
-            k = best
+        self.evidence = min(EVIDENCE_CAP, max(-EVIDENCE_CAP, self.evidence + step))
+        if self.evidence <= FLIP_EVIDENCE:
+            k = (k + 2) % 4
             self.evidence = -FLIP_EVIDENCE  # what it took to overturn the old end now speaks for this one
         self.heading_rad = view.candidate(k)
         self.age = 0
         return self.heading_rad
 
-    @staticmethod
-    def _margin(scores: list[float], k: int) -> float:
-        """Evidence of one frame that candidate k is the front: its score against the best other one."""
-        mine = scores[k]
-        rivals = [s for j, s in enumerate(scores) if j != k and s > -math.inf]
-        if mine == -math.inf or not rivals:
-            return 0.0
-        margin = mine - max(rivals)
-        if abs(margin) <= AMBIGUOUS_MARGIN:
-            return 0.0
-        step = abs(margin) - AMBIGUOUS_MARGIN
-        return math.copysign(min(EVIDENCE_STEP_CAP, step), margin)
+
+def _evidence(margin: float) -> float:
+    """One frame's evidence from a score margin: nothing within the ambiguous band, at most EVIDENCE_STEP."""
+    if not math.isfinite(margin) or abs(margin) <= AMBIGUOUS_MARGIN:
+        return 0.0
+    return math.copysign(min(EVIDENCE_STEP, abs(margin) - AMBIGUOUS_MARGIN), margin)

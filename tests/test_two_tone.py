@@ -119,6 +119,28 @@ def test_the_front_flips_only_on_persistent_clear_evidence(contrary_margin: floa
     assert (abs(heading_deg(h) - 10.0) > 90.0) == flipped
 
 
+def test_a_tracked_heading_weighs_its_end_against_the_opposite_end_only() -> None:
+    """A person's legs beside the rover make a side strip look like the front: the axis is known by continuity, so
+    side candidates are not rivals, and the heading stays."""
+    h = TwoToneHeading()
+    h.update(view(0, 0.8))
+    for _ in range(30):
+        h.update(TwoToneView(math.radians(10.0), 0.8, (0.5, 0.9, 0.1, 0.9)))
+    assert heading_deg(h) == pytest.approx(10.0)
+    assert h.evidence == EVIDENCE_CAP
+
+
+@pytest.mark.parametrize(("prior", "front_deg"), [(1.0, 10.0), (-1.0, 100.0)])
+def test_a_front_found_anew_between_equal_strips_follows_the_coloured_parts_shape(
+    prior: float, front_deg: float
+) -> None:
+    """Two strips at right angles alike (a glare spot beside the rover): the coloured part, shorter along the rover
+    than across it, tells which axis is the rover's."""
+    h = TwoToneHeading()
+    h.update(TwoToneView(math.radians(10.0), 0.8, (0.8, 0.8, 0.1, 0.1), prior))
+    assert heading_deg(h) == pytest.approx(front_deg)
+
+
 def test_the_heading_follows_a_turn_by_continuity() -> None:
     """The axis is known modulo 90 degrees: the candidate nearest the last heading is taken, frame after frame,
     even where the strips cannot tell (a turn through a saturated sunlit patch)."""
