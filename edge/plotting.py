@@ -16,7 +16,7 @@ from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
 from edge.errors import ConfigError, MessageError
 from edge.messages import parse_pose
 
-_NAMED = {
+ROVER_COLORS = {  # matplotlib colours for the usual rover ids (marker colours)
     "red": "tab:red",
     "green": "tab:green",
     "blue": "tab:blue",
@@ -79,7 +79,7 @@ def plot_trajectories(trajectories: dict[str, Trajectory], out: Path, title: str
         matplotlib.patches.Rectangle((0, 0), AREA_WIDTH_CM, AREA_LENGTH_CM, fill=False, ls="--", color="0.5")
     )
     for rover_id, tr in sorted(trajectories.items()):
-        color: Any = _NAMED.get(rover_id)
+        color: Any = ROVER_COLORS.get(rover_id)
         t = np.asarray(tr.t) - t0
         x, y = np.asarray(tr.x), np.asarray(tr.y)
         # Break lines where the rover was missing for more than half a second.

@@ -17,24 +17,13 @@ from typing import Any
 import numpy as np
 
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
+from edge.plotting import ROVER_COLORS
 from edge.sim.loop import LoopRecord
 from edge.sim.metrics import polygon_sides_cm
 
-_COLORS = {
-    "red": "tab:red",
-    "green": "tab:green",
-    "blue": "tab:blue",
-    "yellow": "goldenrod",
-    "orange": "tab:orange",
-    "purple": "tab:purple",
-    "magenta": "m",
-    "cyan": "c",
-    "pink": "tab:pink",
-}
-
 
 def color(rover_id: str, k: int) -> str:
-    return _COLORS.get(rover_id, f"C{k % 10}")
+    return ROVER_COLORS.get(rover_id, f"C{k % 10}")
 
 
 def _pyplot() -> Any:
