@@ -16,7 +16,8 @@ The runtime (``edge-ips start``), the offline tracker (``edge-ips track``) and t
    where it is expected, so crossing rovers cannot swap. A blob that is not one whole marker (area on the plane,
    shape, cut by the image border) is refused. A rover unseen in its window is reported missing (no pose) and
    after a few frames goes back to acquisition.
-5. **Heading** from the marker's second colour when it has one (two-tone marker), else the direction of motion
+5. **Heading** from a two-tone marker's geometry (``edge.two_tone``: the coloured part's edges give the axis, the
+   light end the front, reported only while the evidence for that end is strong), else the direction of motion
    while moving faster than ``heading_min_speed_cm_s``, else null.
 
 No full-frame work is done per frame while all rovers are tracked, except refreshing one band of rows of the
@@ -68,8 +69,8 @@ class RoverConfig(BaseModel):
     color_bgr: tuple[int, int, int] = Field(description="Nominal marker colour as seen by the camera, B, G, R 0-255.")
     front_color_bgr: tuple[int, int, int] | None = Field(
         default=None,
-        description="Two-tone marker: colour of its front part as the camera sees it (the rest has color_bgr); "
-        "it gives the heading even when the rover stands still. None: a one-colour marker.",
+        description="Two-tone marker: colour of its light (white) front part as the camera sees it (the rest has "
+        "color_bgr); it gives the heading even when the rover stands still. None: a one-colour marker.",
     )
     front_fraction: float = Field(default=0.3, gt=0.0, lt=1.0, description="Share of the marker's length in front.")
 
