@@ -129,7 +129,10 @@ def _setup_logging(level: str) -> None:
 )
 @broker_option
 @click.option(
-    "--http-port", type=click.IntRange(0, 65535), default=None, help="Port of /healthz and /metrics (0: any)."
+    "--http-port",
+    type=click.IntRange(0, 65535),
+    default=None,
+    help="Port of the dashboard, /healthz and /metrics (0: any).",
 )
 @click.option(
     "--record",
@@ -140,6 +143,7 @@ def _setup_logging(level: str) -> None:
 )
 @click.option("--loop/--no-loop", default=None, help="Video files: start again at the end.")
 @click.option("--edge-id", default=None, help="Edge id (status topic ips/v1/edge/<id>/status).")
+@click.option("--no-dashboard", is_flag=True, help="Do not serve the live web page (dashboard.enabled = false).")
 def start(
     config_path: Path | None,
     source: str | None,
@@ -148,12 +152,14 @@ def start(
     record_dir: Path | None,
     loop: bool | None,
     edge_id: str | None,
+    no_dashboard: bool,
 ) -> None:
     """Run the appliance: capture, track, publish every rover's pose over MQTT until SIGTERM or Ctrl-C.
 
     With no configuration file and no --source it runs the simulated camera and the embedded MQTT broker, so
-    `mosquitto_sub -h localhost -t 'ips/v1/#' -v` in another terminal shows live poses. A configured camera that
-    is missing is an error (exit code 2) that suggests --source sim.
+    `mosquitto_sub -h localhost -t 'ips/v1/#' -v` in another terminal shows live poses, and http://localhost:8080/
+    the live dashboard (off with --no-dashboard). A configured camera that is missing is an error (exit code 2)
+    that suggests --source sim.
 
     Example:
 
@@ -173,6 +179,7 @@ def start(
             "recording.dir": str(record_dir) if record_dir is not None else None,
             "camera.loop": loop,
             "edge.id": edge_id,
+            "dashboard.enabled": False if no_dashboard else None,
         },
     )
     _setup_logging(config.edge.log_level)

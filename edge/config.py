@@ -107,13 +107,30 @@ class RecordingSection(BaseModel):
 
 
 class HttpSection(BaseModel):
-    """The small HTTP server: /healthz and /metrics (and the dashboard, later)."""
+    """The small HTTP server: /healthz, /metrics and the dashboard."""
 
     model_config = _SECTION
 
     enabled: bool = True
     host: str = "0.0.0.0"
     port: int = Field(default=8080, ge=0, le=65535, description="0 picks a free port (logged).")
+
+
+class DashboardSection(BaseModel):
+    """The live web page on the HTTP server (``/``): camera view, map, rover status, formation controls."""
+
+    model_config = _SECTION
+
+    enabled: bool = Field(default=True, description="Serve the dashboard at / on the HTTP server.")
+    token: SecretStr | None = Field(
+        default=None,
+        min_length=8,
+        description="Bearer token the formation controls require; unset = controls disabled.",
+    )
+    frame_fps: float = Field(default=10.0, gt=0.0, le=30.0, description="Most camera frames per second sent.")
+    jpeg_quality: int = Field(default=70, ge=10, le=95, description="JPEG quality of the camera view.")
+    max_width_px: int = Field(default=960, ge=160, le=4096, description="Camera view downscaled to this width.")
+    pose_hz: float = Field(default=15.0, gt=0.0, le=60.0, description="Most pose events per second per viewer.")
 
 
 class EdgeConfig(BaseModel):
@@ -129,6 +146,7 @@ class EdgeConfig(BaseModel):
     broker: BrokerSection = Field(default_factory=BrokerSection)
     recording: RecordingSection = Field(default_factory=RecordingSection)
     http: HttpSection = Field(default_factory=HttpSection)
+    dashboard: DashboardSection = Field(default_factory=DashboardSection)
 
     @field_validator("tracker")
     @classmethod
@@ -380,6 +398,8 @@ def masked(config: EdgeConfig) -> dict[str, Any]:
     target = urlsplit(config.broker.url)
     if target.password:
         data["broker"]["url"] = config.broker.url.replace(f":{target.password}@", f":{MASK}@", 1)
+    if config.dashboard.token is not None:
+        data["dashboard"]["token"] = MASK
     return data
 
 
@@ -493,9 +513,18 @@ max_bytes = 50000000          # a new file beyond this size
 max_files = 20                # oldest files deleted beyond this count
 
 [http]
-enabled = true                # /healthz and /metrics (Prometheus)
+enabled = true                # /healthz, /metrics (Prometheus) and the dashboard
 host = "0.0.0.0"
 port = 8080
+
+[dashboard]
+enabled = true                # the live page at http://<board>:8080/ (off: --no-dashboard)
+# token = "..."               # formation controls need it (at least 8 characters); unset = controls disabled.
+                              # Better: EDGE_IPS_DASHBOARD__TOKEN in the service environment
+frame_fps = 10.0              # camera view: at most this many JPEG frames per second, encoded once for all viewers
+jpeg_quality = 70
+max_width_px = 960            # camera view downscaled to this width (overlays are drawn by the browser)
+pose_hz = 15.0                # pose events per second sent to each page
 """
 
 

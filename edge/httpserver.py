@@ -1,4 +1,4 @@
-"""The appliance's small HTTP server (default port 8080): ``/healthz``, ``/metrics``, and room for the dashboard.
+"""The appliance's small HTTP server (default port 8080): ``/healthz``, ``/metrics`` and the dashboard (``/``).
 
 Routes are plain functions ``Request -> Response`` registered with :meth:`HttpServer.route`; a response may carry a
 ``stream`` of chunks (server-sent events, MJPEG) instead of a body. Runs on its own threads (one per request), so
@@ -7,6 +7,7 @@ a slow client never touches the tracker.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import logging
 import threading
@@ -18,6 +19,8 @@ from urllib.parse import parse_qs, urlsplit
 from edge.errors import EdgeIpsError
 
 log = logging.getLogger("edge.http")
+
+MAX_BODY_BYTES = 64 * 1024  # the largest request body read (the dashboard's commands are a few hundred bytes)
 
 
 @dataclass(frozen=True)
@@ -70,7 +73,14 @@ class HttpServer:
                     known = any(p == parts.path for _, p in routes)
                     self._send(Response(405 if known else 404, b"method not allowed\n" if known else b"not found\n"))
                     return
-                length = int(self.headers.get("Content-Length") or 0)
+                try:
+                    length = int(self.headers.get("Content-Length") or 0)
+                except ValueError:
+                    length = -1
+                if length < 0 or length > MAX_BODY_BYTES:
+                    self.close_connection = True  # the body is not read: the connection cannot be reused
+                    self._send(Response(413 if length > 0 else 400, b"request body too large or malformed\n"))
+                    return
                 body = self.rfile.read(length) if length > 0 else b""
                 request = Request(method, parts.path, parse_qs(parts.query), dict(self.headers.items()), body)
                 try:
@@ -89,7 +99,10 @@ class HttpServer:
                 if response.stream is None:
                     self.send_header("Content-Length", str(len(response.body)))
                     self.end_headers()
-                    self.wfile.write(response.body)
+                    try:
+                        self.wfile.write(response.body)
+                    except (BrokenPipeError, ConnectionResetError):
+                        self.close_connection = True  # the client went away before the answer (a closed page)
                     return
                 self.send_header("Connection", "close")
                 self.end_headers()
@@ -100,6 +113,15 @@ class HttpServer:
                         self.wfile.flush()
                 except (BrokenPipeError, ConnectionResetError):
                     pass  # the client went away: the normal end of a stream
+                finally:
+                    close = getattr(response.stream, "close", None)
+                    if close is not None:
+                        close()  # a generator's cleanup (an event stream unsubscribing) runs now, not at GC
+
+            def handle(self) -> None:
+                # a page closed while its keep-alive connection waited for the next request: nothing to report
+                with contextlib.suppress(BrokenPipeError, ConnectionResetError):
+                    super().handle()
 
             def do_GET(self) -> None:
                 self._serve("GET")

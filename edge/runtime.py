@@ -414,6 +414,7 @@ class Appliance:
     target: BrokerTarget
     broker: Any = None
     http: Any = None
+    dashboard: Any = None
 
     def run(self, stop: threading.Event) -> None:
         self.runtime.start()
@@ -427,6 +428,8 @@ class Appliance:
     def close(self) -> None:
         """Stop the runtime (offline status, recording flushed), then the HTTP server and the embedded broker."""
         self.runtime.stop()
+        if self.dashboard is not None:
+            self.dashboard.close()
         if self.http is not None:
             self.http.stop()
         if self.broker is not None:
@@ -538,8 +541,19 @@ def prepare_appliance(
                     content_type="text/plain; version=0.0.4; charset=utf-8",
                 ),
             )
+        dashboard = None
+        if http is not None and config.dashboard.enabled:
+            from edge.dashboard import start_dashboard
+
+            dashboard = start_dashboard(config, runtime, http, calibration=calibration, target=target, tls=tls)
+            started.callback(dashboard.close)
+            log.info("dashboard on http://%s:%d/", _display_host(http.host), http.port)
         started.pop_all()  # all checks passed: the appliance owns what was started
-    return Appliance(runtime=runtime, target=target, broker=broker, http=http)
+    return Appliance(runtime=runtime, target=target, broker=broker, http=http, dashboard=dashboard)
+
+
+def _display_host(host: str) -> str:
+    return "localhost" if host in ("0.0.0.0", "::", "") else host
 
 
 def run_until_signalled(appliance: Appliance) -> None:

@@ -1,0 +1,94 @@
+"""The live web dashboard served by ``edge-ips start`` (issue 9): camera view with overlays, top-down map, rover
+status, calibration error map, formation controls.
+
+The parts: ``server`` (routes on the appliance's HTTP server), ``events`` (server-sent events built from
+snapshots), ``frames`` (the JPEG camera view, on its own thread), ``formation`` (token-checked commands and the
+retained formation), ``calibration_view`` (the error map panel). The page itself is ``static/`` (no build step).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from edge.dashboard.server import Dashboard
+
+if TYPE_CHECKING:
+    from edge.config import BrokerTarget, EdgeConfig
+    from edge.httpserver import HttpServer
+    from edge.publisher import TlsFiles
+    from edge.runtime import EdgeRuntime
+
+__all__ = ["Dashboard", "start_dashboard"]
+
+
+def start_dashboard(
+    config: EdgeConfig,
+    runtime: EdgeRuntime,
+    http: HttpServer,
+    *,
+    calibration: Any,
+    target: BrokerTarget,
+    tls: TlsFiles | None = None,
+) -> Dashboard:
+    """Build the dashboard for a prepared runtime and register its routes on ``http``.
+
+    ``calibration``: the tracker's :class:`edge.calibration.Calibration` (None when unknown: no overlays).
+    ``target``: the broker the formation commands go to (the appliance's own, embedded port resolved).
+    """
+    from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
+    from edge.dashboard.calibration_view import CalibrationView
+    from edge.dashboard.events import EventHub, Overlay, pose_event, status_event
+    from edge.dashboard.formation import FormationDesk
+    from edge.dashboard.frames import FrameEncoder
+    from edge.pipeline import TrackerConfig
+    from edge.sources import parse_source
+
+    settings = config.dashboard
+    tracker = TrackerConfig(rovers=tuple(config.rovers), **config.tracker)
+    overlay = Overlay(calibration, tracker.marker_length_cm, tracker.marker_width_cm)
+    rover_ids = [r.id for r in config.rovers]
+    area_cm = calibration.area_cm if calibration is not None else (0.0, 0.0, AREA_WIDTH_CM, AREA_LENGTH_CM)
+
+    def background() -> Any:
+        frame = runtime.slot.peek()
+        return None if frame is None else frame.image
+
+    view = CalibrationView(
+        calibration,
+        simulated=parse_source(config.camera.source).kind == "sim",
+        path=config.calibration.path,
+        background=background,
+    )
+    hub = EventHub(
+        latest=lambda: runtime.latest_result,
+        make_pose=lambda result: pose_event(result, overlay, rover_ids),
+        make_status=lambda: status_event(runtime.snapshot()),
+        pose_hz=settings.pose_hz,
+    )
+    encoder = FrameEncoder(
+        runtime.slot.peek,
+        max_fps=settings.frame_fps,
+        quality=settings.jpeg_quality,
+        max_width_px=settings.max_width_px,
+    )
+    token = settings.token.get_secret_value() if settings.token is not None else None
+    desk = FormationDesk(
+        target,
+        edge_id=config.edge.id,
+        rover_ids=rover_ids,
+        token=token,
+        tls=tls,
+        on_change=lambda formation: hub.publish("formation", formation),
+    ).start()
+    dashboard = Dashboard(
+        runtime,
+        settings=settings,
+        rovers=config.rovers,
+        area_cm=area_cm,
+        overlay=overlay,
+        calibration=view,
+        hub=hub,
+        encoder=encoder,
+        formation=desk,
+    )
+    return dashboard.attach(http)

@@ -1,0 +1,197 @@
+"""The dashboard's formation controls: who may command (a bearer token), what a command may say, and the retained
+formation the broker holds now (watched, so commands from ``edge-ips formation`` show on the page too).
+
+Checks in this order, so nothing about the input leaks to someone without the token: controls disabled (no token
+configured: 403), token missing or wrong (401, compared in constant time), input invalid (400). Only then is the
+retained formation v1 message published with :func:`edge.publisher.send_formation` (its ``seq`` follows the one
+the broker holds).
+"""
+
+from __future__ import annotations
+
+import hmac
+import json
+import logging
+import threading
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import paho.mqtt.client as mqtt
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from edge.config import BrokerTarget
+from edge.errors import EdgeIpsError, MessageError
+from edge.messages import FORMATION_TOPIC, FormationKind, FormationV1, parse_formation
+from edge.publisher import FORMATION_QOS, TlsFiles, build_formation, connect_host, make_client, send_formation
+
+log = logging.getLogger("edge.dashboard")
+
+MAX_BODY_BYTES = 4096
+
+
+class FormationRequest(BaseModel):
+    """What the page posts to ``/api/formation``. ``spacing`` is used for a line, ``side`` for a triangle."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    kind: FormationKind
+    ids: list[str] = Field(max_length=16)
+    spacing: float | None = None
+    side: float | None = None
+    x: float | None = None
+    y: float | None = None
+    theta: float | None = None
+
+
+@dataclass(frozen=True)
+class Refusal:
+    status: int
+    error: str
+
+
+def authorize(token: str | None, headers: Mapping[str, str]) -> Refusal | None:
+    """None when ``Authorization: Bearer <token>`` matches the configured token; else why not (403 or 401)."""
+    if token is None:
+        return Refusal(403, "formation controls are disabled: no dashboard token is configured (dashboard.token)")
+    header = next((v for k, v in headers.items() if k.lower() == "authorization"), "")
+    scheme, _, given = header.strip().partition(" ")
+    if scheme.lower() != "bearer" or not given.strip():
+        return Refusal(401, "a token is required: Authorization: Bearer <dashboard token>")
+    if not hmac.compare_digest(given.strip().encode(), token.encode()):
+        return Refusal(401, "wrong token")
+    return None
+
+
+def parse_request(body: bytes, rover_ids: Sequence[str]) -> Callable[[int], FormationV1]:
+    """Validate a posted command; returns ``make(seq)`` for :func:`send_formation`. Raises :class:`MessageError`
+    naming the field at fault."""
+    if len(body) > MAX_BODY_BYTES:
+        raise MessageError(f"formation request: body of {len(body)} bytes exceeds {MAX_BODY_BYTES}")
+    try:
+        data = json.loads(body)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise MessageError(f"formation request: not JSON ({exc})") from None
+    try:
+        req = FormationRequest.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "(body)"
+        message = "unknown key" if first["type"] == "extra_forbidden" else first["msg"]
+        raise MessageError(f"formation request: {where}: {message}") from None
+    ids = [i.strip() for i in req.ids]
+    unknown = [i for i in ids if i not in rover_ids]
+    if unknown:
+        raise MessageError(f"formation request: ids: not configured rovers: {', '.join(unknown)}")
+    if len(set(ids)) != len(ids):
+        raise MessageError("formation request: ids: a rover is named twice")
+    if req.kind != "stop" and not ids:
+        raise MessageError(f"formation request: ids: a {req.kind} needs at least one rover")
+    spacing = (req.spacing if req.spacing is not None else 60.0) if req.kind == "line" else None
+    side = (req.side if req.side is not None else 100.0) if req.kind == "triangle" else None
+
+    def make(seq: int) -> FormationV1:
+        return build_formation(
+            req.kind, ids, seq=seq, spacing_cm=spacing, side_cm=side, x_cm=req.x, y_cm=req.y, theta_rad=req.theta
+        )
+
+    make(1)  # the message contract's own checks (spacing in range, ...), before anything is published
+    return make
+
+
+class FormationDesk:
+    """Publishes commands and keeps the retained formation (``current``) up to date from the broker.
+
+    ``on_change(formation dict or None)`` is called (on paho's thread) whenever the retained formation changes.
+    """
+
+    def __init__(
+        self,
+        target: BrokerTarget,
+        *,
+        edge_id: str,
+        rover_ids: Sequence[str],
+        token: str | None,
+        tls: TlsFiles | None = None,
+        on_change: Callable[[dict[str, Any] | None], None] | None = None,
+    ) -> None:
+        self.target = target
+        self.edge_id = edge_id
+        self.rover_ids = tuple(rover_ids)
+        self.token = token
+        self.tls = tls
+        self.on_change = on_change
+        self._lock = threading.Lock()  # one command at a time: each one's seq follows the last
+        self._current: FormationV1 | None = None
+        self._state_lock = threading.Lock()
+        self._client: mqtt.Client | None = None
+
+    @property
+    def enabled(self) -> bool:
+        return self.token is not None
+
+    @property
+    def current(self) -> dict[str, Any] | None:
+        with self._state_lock:
+            return None if self._current is None else self._current.model_dump(mode="json")
+
+    def _set(self, formation: FormationV1 | None) -> None:
+        with self._state_lock:
+            if formation == self._current:
+                return
+            self._current = formation
+        if self.on_change is not None:
+            self.on_change(None if formation is None else formation.model_dump(mode="json"))
+
+    # -- watching the retained message ------------------------------------------------------------------------
+    def start(self) -> FormationDesk:
+        """Subscribe to the retained formation in the background (paho reconnects by itself)."""
+        client = make_client(self.target, f"edge-ips-{self.edge_id}-dashboard", tls=self.tls)
+
+        def on_connect(c: mqtt.Client, u: Any, flags: Any, reason_code: Any, props: Any) -> None:
+            if not reason_code.is_failure:
+                c.subscribe(FORMATION_TOPIC, qos=FORMATION_QOS)
+
+        def on_message(c: mqtt.Client, u: Any, message: mqtt.MQTTMessage) -> None:
+            if not message.payload:
+                self._set(None)  # the retained formation was cleared
+                return
+            try:
+                self._set(parse_formation(bytes(message.payload)))
+            except EdgeIpsError as exc:
+                log.warning("dashboard: ignoring a formation message that breaks the contract: %s", exc)
+
+        client.on_connect = on_connect
+        client.on_message = on_message
+        client.connect_async(connect_host(self.target), self.target.port, keepalive=30)
+        client.loop_start()
+        self._client = client
+        return self
+
+    def close(self) -> None:
+        if self._client is not None:
+            self._client.disconnect()
+            self._client.loop_stop()
+            self._client = None
+
+    # -- commanding -----------------------------------------------------------------------------------------------
+    def command(self, headers: Mapping[str, str], body: bytes) -> tuple[int, dict[str, Any]]:
+        """Check and publish one posted command: (HTTP status, JSON body)."""
+        refused = authorize(self.token, headers)
+        if refused is not None:
+            return refused.status, {"error": refused.error}
+        try:
+            make = parse_request(body, self.rover_ids)
+        except MessageError as exc:
+            return 400, {"error": str(exc)}
+        with self._lock:
+            try:
+                sent = send_formation(
+                    self.target, make, client_id=f"edge-ips-{self.edge_id}-dashboard-cmd", tls=self.tls
+                )
+            except EdgeIpsError as exc:
+                log.error("dashboard: formation not published: %s", exc)
+                return 502, {"error": f"not published: {exc}"}
+        log.info("dashboard: formation %s %s published (seq %d)", sent.kind, ",".join(sent.ids), sent.seq)
+        self._set(sent)
+        return 200, {"ok": True, "seq": sent.seq, "formation": sent.model_dump(mode="json")}

@@ -1,0 +1,170 @@
+"""Helpers for the dashboard's tests: HTTP calls to a running appliance, an SSE reader, Debian's chromium through
+Playwright, a formation subscriber, and ``edge-ips start`` as a subprocess."""
+
+from __future__ import annotations
+
+import http.client
+import json
+import os
+import queue
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import paho.mqtt.client as mqtt
+
+from edge.messages import FORMATION_TOPIC
+from tests.conftest import REPO
+from tests.support.mosquitto import free_port, wait_for_port
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+
+
+@dataclass
+class Reply:
+    status: int
+    headers: dict[str, str]
+    body: bytes
+
+    def json(self) -> Any:
+        return json.loads(self.body)
+
+
+def call(port: int, method: str, path: str, body: bytes | None = None, headers: dict[str, str] | None = None) -> Reply:
+    """One HTTP request to 127.0.0.1:port."""
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+    try:
+        conn.request(method, path, body=body, headers=headers or {})
+        resp = conn.getresponse()
+        return Reply(resp.status, {k.lower(): v for k, v in resp.getheaders()}, resp.read())
+    finally:
+        conn.close()
+
+
+def read_events(port: int, wanted: dict[str, int], limit: int = 2000) -> dict[str, list[Any]]:
+    """Read ``/api/events`` until at least ``wanted[name]`` events of each name arrived; returns them by name."""
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+    got: dict[str, list[Any]] = {name: [] for name in wanted}
+    try:
+        conn.request("GET", "/api/events")
+        resp = conn.getresponse()
+        assert resp.status == 200
+        assert resp.getheader("Content-Type", "").startswith("text/event-stream")
+        name = ""
+        for _ in range(limit):
+            line = resp.fp.readline().decode().rstrip("\n")
+            if line.startswith("event: "):
+                name = line[len("event: ") :]
+            elif line.startswith("data: "):
+                got.setdefault(name, []).append(json.loads(line[len("data: ") :]))
+            if all(len(got[n]) >= k for n, k in wanted.items()):
+                return got
+        raise AssertionError(f"not enough events in {limit} lines: { ({n: len(v) for n, v in got.items()}) }")
+    finally:
+        conn.close()
+
+
+class FormationSubscriber:
+    """A separate paho client on the formation topic: every message it receives, in order."""
+
+    def __init__(self, host: str, port: int) -> None:
+        self.messages: queue.Queue[tuple[bytes, bool]] = queue.Queue()
+        self.subscribed = queue.Queue[bool]()
+        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"test-formation-{os.getpid()}")
+        self.client.on_connect = lambda c, u, f, rc, p: c.subscribe(FORMATION_TOPIC, qos=1)
+        self.client.on_subscribe = lambda c, u, mid, rcs, p: self.subscribed.put(True)
+        self.client.on_message = lambda c, u, m: self.messages.put((bytes(m.payload), bool(m.retain)))
+        self.client.connect(host, port)
+        self.client.loop_start()
+        self.subscribed.get(timeout=10)
+
+    def next(self, timeout_s: float = 20.0) -> tuple[dict[str, Any], bool]:
+        payload, retained = self.messages.get(timeout=timeout_s)
+        return json.loads(payload), retained
+
+    def close(self) -> None:
+        self.client.disconnect()
+        self.client.loop_stop()
+
+
+def clean_env(**extra: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("EDGE_IPS_")}
+    return {**env, "PYTHONPATH": str(REPO), **extra}
+
+
+@dataclass
+class EdgeProcess:
+    proc: subprocess.Popen[str]
+    http_port: int
+    log_path: Path
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.http_port}/"
+
+    def log(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+
+@contextmanager
+def edge_start(args: list[str], workdir: Path, env: dict[str, str]) -> Iterator[EdgeProcess]:
+    """``edge-ips start ARGS --http-port <free>`` in a subprocess; stopped with SIGTERM (the service's way)."""
+    port = free_port()
+    workdir.mkdir(parents=True, exist_ok=True)
+    log_path = workdir / "edge.log"
+    with log_path.open("w") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "edge.cli", "start", "--http-port", str(port), *args],
+            cwd=workdir,
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+    edge = EdgeProcess(proc, port, log_path)
+    try:
+        wait_for_port("127.0.0.1", port, timeout_s=60)
+        deadline = time.monotonic() + 120
+        while call(port, "GET", "/healthz").status != 200:  # online: frames tracked, broker connected
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise AssertionError(f"edge-ips start did not come online:\n{edge.log()}")
+            time.sleep(0.2)
+        yield edge
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+@contextmanager
+def chromium() -> Iterator[Any]:
+    """Debian's chromium (headless) driven by Playwright; no browser download involved. One per test module:
+    Playwright's sync API allows one running instance per thread."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            yield browser
+        finally:
+            browser.close()
