@@ -140,7 +140,10 @@ def test_motor_commands_are_the_ones_the_law_computes(mosquitto: Mosquitto, edge
         rover.step(t)
         if me() >= 0 and rover.rover._rx[me()] == (t & ((1 << 30) - 1)):
             heading = rover.rover.heading
-            assert abs(fm.wrap(heading.theta - WORLD["red"][2])) < 0.1
+            # The pose's heading was fused, not set aside as an outlier; how far odometry carried the estimate
+            # since the last pose depends on the wall time between steps (a loaded machine steps less often).
+            assert heading.rejected == 0
+            assert abs(fm.wrap(heading.theta - WORLD["red"][2])) < heading.gate
             want = expected_command(rover.config, WORLD, heading.theta, heading.spread)
             assert rover.rover.command == pytest.approx(want, abs=1e-9)
             m = rover.config["motors"]
