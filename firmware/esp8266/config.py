@@ -19,7 +19,7 @@ DEFAULTS = {
     "geometry": {"wheel_radius_cm": 3.25, "track_cm": 13.0, "body_radius_cm": 14.0, "lookahead_cm": 6.0},
     "control": {
         "period_ms": 20,
-        "stale_ms": 500,
+        "stale_ms": 400,
         "forget_ms": 10000,
         "gain_per_s": 1.0,
         "anchor_gain_per_s": 2.0,
