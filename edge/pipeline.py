@@ -16,7 +16,8 @@ The runtime (``edge-ips start``), the offline tracker (``edge-ips track``) and t
    where it is expected, so crossing rovers cannot swap. A blob that is not one whole marker (area on the plane,
    shape, cut by the image border) is refused. A rover unseen in its window is reported missing (no pose) and
    after a few frames goes back to acquisition.
-5. **Heading** from the marker's second colour when it has one (two-tone marker), else the direction of motion
+5. **Heading** from a two-tone marker's geometry (``edge.two_tone``: the coloured part's edges give the axis, the
+   light end the front, reported only while the evidence for that end is strong), else the direction of motion
    while moving faster than ``heading_min_speed_cm_s``, else null.
 
 No full-frame work is done per frame while all rovers are tracked, except refreshing one band of rows of the
@@ -52,7 +53,9 @@ from edge.trackers.base import (
     StageClock,
     Window,
     WindowTracker,
+    world_blob,
 )
+from edge.two_tone import TwoToneGeometry, TwoToneHeading, inner_edge_weights, view_marker
 
 FloatArray = NDArray[np.float64]
 
@@ -66,8 +69,8 @@ class RoverConfig(BaseModel):
     color_bgr: tuple[int, int, int] = Field(description="Nominal marker colour as seen by the camera, B, G, R 0-255.")
     front_color_bgr: tuple[int, int, int] | None = Field(
         default=None,
-        description="Two-tone marker: colour of its front part as the camera sees it (the rest has color_bgr); "
-        "it gives the heading even when the rover stands still. None: a one-colour marker.",
+        description="Two-tone marker: colour of its light (white) front part as the camera sees it (the rest has "
+        "color_bgr); it gives the heading even when the rover stands still. None: a one-colour marker.",
     )
     front_fraction: float = Field(default=0.3, gt=0.0, lt=1.0, description="Share of the marker's length in front.")
 
@@ -239,18 +242,15 @@ class StageTimes:
         return {k: v * 1e3 for k, v in self.seconds.items()}
 
 
-_MARKER_HEADING_HOLD = 5  # frames a two-tone heading is held when the front part is not seen (turns < 30 deg)
 _WINDOW_PAD_PX = 6  # room for the marker's edge band (2 px ring + 3 px outer band) where a centimetre is few pixels
 
 
 @dataclass(frozen=True)
 class _Observation:
-    """A measurement that passed the pipeline's checks, with its covariance on the plane (cm^2) and, for a
-    two-tone marker, the heading it shows."""
+    """A measurement that passed the pipeline's checks, with its covariance on the plane (cm^2)."""
 
     measurement: Measurement
     r_cm2: FloatArray
-    marker_heading_rad: float | None = None
 
 
 @dataclass
@@ -266,8 +266,7 @@ class _RoverTrack:
     box: tuple[int, int, int, int] | None = None
     uv: tuple[float, float] | None = None
     theta_rad: float | None = None
-    marker_heading: float | None = None
-    marker_heading_age: int = 0  # frames since a two-tone marker last showed its heading
+    two_tone: TwoToneHeading = field(default_factory=TwoToneHeading)  # a two-tone marker's heading through time
 
     @property
     def lost(self) -> bool:
@@ -473,80 +472,64 @@ class Pipeline:
         m = (tracker or self.tracker).measure(window, model, clock)
         if m is None or not self._plausible(m, model.marker_area_cm2, learned, tr):
             return None
-        heading = None
         if tr.config.front_color_bgr is not None:
             two_tone = self._two_tone(window, m, tr)
             if two_tone is None:
                 return None  # without a heading the centre of a two-tone marker is not known
-            m, heading = two_tone
+            m = two_tone
         # Measurement covariance: the pixel noise seen through the local scale of the plane mapping.
         jac = window.local.jacobian(*m.uv_px)
         sigma = self.config.measurement_sigma_px
-        return _Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + np.eye(2) * 1e-4, heading)
+        return _Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + np.eye(2) * 1e-4)
 
-    def _two_tone(self, window: Window, m: Measurement, tr: _RoverTrack) -> tuple[Measurement, float | None] | None:
-        """A two-tone marker: its heading, and its centre (the main colour covers only the rear
-        ``1 - front_fraction`` of the marker, so its centroid lies ``front_fraction * length / 2`` behind the
-        marker's centre, along the heading).
+    def _two_tone(self, window: Window, m: Measurement, tr: _RoverTrack) -> Measurement | None:
+        """A two-tone marker (``edge.two_tone``): the heading from the coloured part's edges and the light end, and
+        the marker's centre (the coloured part covers only the rear ``1 - front_fraction`` of the marker, so its
+        centroid lies ``front_fraction * length / 2`` behind the centre, along the heading).
 
-        The heading is the direction from the main part's centroid to the front part's when the front part is
-        seen whole and where it should be; else the last heading the marker showed (a few frames old at most) or
-        the direction of motion shift the centre, and the heading is not reported. With none of these the centre
-        is unknown: None (no pose this frame).
+        Returns the measurement moved to the marker's centre (the heading to report is in ``tr.two_tone``); None
+        when the heading is unknown even roughly (no pose this frame: the centre is not known).
         """
-        shift = 0.5 * tr.config.front_fraction * self.config.marker_length_cm
-        heading = self._front_heading(window, m, tr)
-        reported: float | None = heading
-        if heading is None:
-            vel = tr.filter.velocity if tr.filter is not None else None
-            if tr.marker_heading is not None and tr.marker_heading_age <= _MARKER_HEADING_HOLD:
-                heading = tr.marker_heading
-            elif vel is not None and math.hypot(*vel) >= self.config.heading_min_speed_cm_s:
-                heading = math.atan2(vel[1], vel[0])
-            else:
-                return None
-        centre = (m.xy_cm[0] + shift * math.cos(heading), m.xy_cm[1] + shift * math.sin(heading))
-        return replace(m, xy_cm=centre), reported
-
-    def _front_heading(self, window: Window, m: Measurement, tr: _RoverTrack) -> float | None:
-        """Heading from the front part of a two-tone marker, or None when it is not seen whole and in place.
-
-        Front pixels are those near the marker (on the plane) whose colour matches the front colour scaled by the
-        light the main part shows now, and that are not of any rover's hue. The part must have about its
-        expected area and lie about half a marker length from the main part's centroid; and the rover cannot
-        have turned by more than 30 degrees since the last frame.
-        """
-        rover = tr.config
-        assert rover.front_color_bgr is not None and self.maps is not None
-        nominal = self._nominal_levels[tr.index]
-        gain = m.level / nominal if nominal > 0 else 1.0
-        expected = np.asarray(rover.front_color_bgr, np.float32) * np.float32(gain)
-        diff = window.bgr.astype(np.float32) - expected
-        close = np.einsum("ijk,ijk->ij", diff, diff) <= (0.12 * float(np.linalg.norm(expected)) + 10.0) ** 2
+        assert self.maps is not None
         x0, y0, x1, y1 = window.box
         wx = self.maps.x_cm[y0:y1, x0:x1]
         wy = self.maps.y_cm[y0:y1, x0:x1]
-        length, width = self.config.marker_length_cm, self.config.marker_width_cm
-        reach = (0.5 + 0.5 * rover.front_fraction) * length + 1.0  # main centroid to the front edge
-        near = (wx - m.xy_cm[0]) ** 2 + (wy - m.xy_cm[1]) ** 2 <= reach**2
-        area = self.maps.area_cm2[y0:y1, x0:x1] * (close & near & (window.classes < 0))
-        total = float(area.sum())
-        expected_area = rover.front_fraction * length * width
-        if not 0.4 * expected_area <= total <= 1.8 * expected_area:
+        others = (window.classes >= 0) & (window.classes != tr.index)
+        reach = self.config.marker_radius_cm + 1.0
+        for other in self.tracks:
+            if other is tr or other.filter is None:
+                continue
+            ox, oy = other.filter.position
+            if abs(ox - m.xy_cm[0]) < 3.0 * reach and abs(oy - m.xy_cm[1]) < 3.0 * reach:
+                others |= (wx - ox) ** 2 + (wy - oy) ** 2 <= reach * reach
+        geometry = TwoToneGeometry(self.config.marker_length_cm, self.config.marker_width_cm, tr.config.front_fraction)
+        jacobian = window.local.jacobian(*m.uv_px)
+        view = view_marker(
+            window.bgr,
+            window.lum,
+            window.plane,
+            window.classes == tr.index,
+            wx,
+            wy,
+            m.xy_cm,
+            jacobian,
+            geometry,
+            others,
+            m.weights,
+            self.maps.area_cm2[y0:y1, x0:x1],
+        )
+        heading = tr.two_tone.update(view)
+        if heading is None:
             return None
-        fx, fy = float((area * wx).sum()) / total, float((area * wy).sum()) / total
-        separation = math.hypot(fx - m.xy_cm[0], fy - m.xy_cm[1])
-        if not 0.6 <= separation / (0.5 * length) <= 1.4:
-            return None
-        heading = math.atan2(fy - m.xy_cm[1], fx - m.xy_cm[0])
-        last = tr.marker_heading
-        if (
-            last is not None
-            and tr.marker_heading_age <= 3 * _MARKER_HEADING_HOLD
-            and abs(math.remainder(heading - last, math.tau)) > math.radians(30.0)
-        ):
-            return None
-        return heading
+        part = m.xy_cm
+        if view is not None and tr.two_tone.confident and m.weights is not None:
+            weights = inner_edge_weights(window.bgr, m.weights, wx, wy, part, heading, geometry, jacobian)
+            blob = world_blob(weights, window.offset, window.grid) if weights is not None else None
+            if blob is not None:
+                part = (blob.x_cm, blob.y_cm)
+        shift = geometry.centre_offset_cm
+        centre = (part[0] + shift * math.cos(heading), part[1] + shift * math.sin(heading))
+        return replace(m, xy_cm=centre)
 
     def _plausible(self, m: Measurement, expected_area_cm2: float, learned: bool, tr: _RoverTrack) -> bool:
         """Is this blob the whole marker? Its area on the plane, its shape, its colour's strength, and not cut off
@@ -631,8 +614,7 @@ class Pipeline:
         tr.box = None
         tr.uv = None
         tr.theta_rad = None
-        tr.marker_heading = None
-        tr.marker_heading_age = 0
+        tr.two_tone.reset()
         reset = getattr(self.tracker, "reset", None)
         if reset is not None:
             reset(tr.index)
@@ -649,11 +631,9 @@ class Pipeline:
                 obs = acquired[tr.index]
                 m = obs.measurement
                 tr.filter = ConstantVelocityFilter(self.filter_settings, m.xy_cm, obs.r_cm2)
-                self._note_marker_heading(tr, obs.marker_heading_rad)
             elif tr.index in measured and tr.filter is not None:
                 obs = measured[tr.index]
                 m = obs.measurement
-                self._note_marker_heading(tr, obs.marker_heading_rad)
                 if not tr.filter.update(np.asarray(m.xy_cm), obs.r_cm2):
                     tr.misses += 1  # a spike: rejected, no pose this frame
                     if tr.misses >= self.config.lost_after_frames:
@@ -678,7 +658,7 @@ class Pipeline:
                     theta,
                     vel[0] if vel else None,
                     vel[1] if vel else None,
-                    round(m.quality, 2),
+                    round(self._quality(tr, m), 2),
                     m.uv_px,
                     tr.box,
                 )
@@ -687,17 +667,19 @@ class Pipeline:
         return tuple(out)
 
     @staticmethod
-    def _note_marker_heading(tr: _RoverTrack, heading: float | None) -> None:
-        if heading is not None:
-            tr.marker_heading, tr.marker_heading_age = heading, 0
-        elif tr.marker_heading is not None:
-            tr.marker_heading_age += 1
+    def _quality(tr: _RoverTrack, m: Measurement) -> float:
+        """The measurement's quality; for a two-tone marker scaled down (to half) while the evidence for which end
+        is its front is weak, since the centre is placed by that end."""
+        if tr.config.front_color_bgr is None:
+            return m.quality
+        return m.quality * (0.5 + 0.5 * min(1.0, max(0.0, tr.two_tone.evidence)))
 
     def _heading(self, tr: _RoverTrack, vel: tuple[float, float] | None) -> float | None:
-        """The marker's own heading (two-tone) when it showed one in the last few frames, else the direction of
-        motion while moving, else None."""
-        if tr.marker_heading is not None and tr.marker_heading_age <= _MARKER_HEADING_HOLD:
-            return tr.marker_heading
+        """A two-tone marker's own heading while the evidence for its front end is strong (else None: the
+        direction of motion would be the opposite of the body's whenever the rover backs up); for a one-colour
+        marker the direction of motion while moving, else None."""
+        if tr.config.front_color_bgr is not None:
+            return tr.two_tone.heading_rad if tr.two_tone.confident else None
         if vel is None:
             return None
         speed = math.hypot(*vel)

@@ -288,7 +288,7 @@ def _moving_fleet() -> KinematicFleet:
     return fleet
 
 
-def test_motors_stop_when_the_own_pose_is_older_than_half_a_second_by_receive_time() -> None:
+def test_motors_stop_within_half_a_second_of_the_last_own_pose_by_receive_time() -> None:
     fleet = _moving_fleet()
     fleet.publishing = False
     fleet.run(0.2)
@@ -302,7 +302,7 @@ def test_motors_stop_when_the_own_pose_is_older_than_half_a_second_by_receive_ti
                 assert r.halt == "stale"
     latest_pose_rx = max(max(r.rover._rx) for r in fleet.rovers)
     for rid, t in stopped_at.items():
-        assert t - latest_pose_rx <= 500 + 20, rid  # 0.5 s, plus at most one 20 ms loop period
+        assert t - latest_pose_rx <= 500, rid  # stale_ms (0.4 s) plus at most one 20 ms loop period: inside 0.5 s
     assert set(stopped_at) == set(IDS)
 
 

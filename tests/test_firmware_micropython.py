@@ -21,14 +21,16 @@ from tests.support.firmware import FIRMWARE, KinematicFleet, random_starts, rove
 FIRMWARE_FILES = sorted(FIRMWARE.glob("*.py"))
 
 
-def _record(kind: str, seconds: float, seed: int) -> tuple[str, KinematicFleet]:
-    """A closed-loop run in CPython: the first rover's inputs as a replay file, and the fleet (its outputs)."""
+def _record(kind: str, seconds: float, seed: int, **poses: Any) -> tuple[str, KinematicFleet]:
+    """A closed-loop run in CPython: the first rover's inputs as a replay file, and the fleet (its outputs).
+    ``poses``: what the poses carry besides positions (KinematicFleet's heading options)."""
     fleet = KinematicFleet(
         rover_configs(["red", "green", "blue"]),
         random_starts(3, random.Random(seed)),
         seed=seed,
         noise_cm=0.3,
         latency_ms=40,
+        **poses,
     )
     ids = ["red", "green", "blue"]
     fleet.command(
@@ -86,7 +88,8 @@ def test_micropython_drives_exactly_as_cpython_on_the_same_inputs(kind: str, see
 
 
 def test_heap_does_not_grow_over_10000_steps_and_the_loop_fits_in_16_kb() -> None:
-    events, _ = _record("triangle", 3.0, 6)
+    # Pose headings that are the direction of motion, some of them wrong: every branch of the heading fusion runs.
+    events, _ = _record("triangle", 3.0, 6, motion_theta=True, theta_outliers=0.05)
     out = run_micropython("heap.main(10000, 100)", {"events": events.encode()})
     result: dict[str, Any] = json.loads(out)
     assert result["steps"] == 10000

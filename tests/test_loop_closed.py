@@ -97,7 +97,7 @@ def test_sim_formation_writes_what_recomputes_its_metrics(tmp_path: Path) -> Non
     rows = (out / "truth.csv").read_text().splitlines()
     assert rows[0] == "frame,id,x,y,theta" and len(rows) == 1 + 60 * 3
     last = np.array([[float(v) for v in r.split(",")[2:4]] for r in rows[-3:]])
-    assert formation_error(Bar("triangle"), last) == pytest.approx(metrics["final_error_cm"], abs=0.01)
+    assert formation_error(Bar("triangle"), last) == pytest.approx(metrics["final_beyond_bar_cm"], abs=0.01)
     poses = [parse_pose(line) for line in (out / "poses.jsonl").read_bytes().splitlines()]
     assert len(poses) == metrics["messages"]["poses_published"] > 0
     truth = {(int(r.split(",")[0]), r.split(",")[1]): r.split(",") for r in rows[1:]}

@@ -161,7 +161,7 @@ def summarize(record: LoopRecord) -> dict[str, Any]:
         out["converged_frame"] = conv
         out["converged_s"] = None if conv is None else conv / record.fps
         out["final"] = shape(cfg.kind, truth[-1, :, :2])
-        out["final_error_cm"] = errors[-1]
+        out["final_beyond_bar_cm"] = errors[-1]  # how far the last frame is from the bar: <= 0 holds
         out["passed"] = {
             "formation": conv is not None,
             "within_frames": conv is not None and conv <= bar.within_frames,

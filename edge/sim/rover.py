@@ -26,13 +26,6 @@ EXAMPLE_IDS = ("red", "green", "blue")
 BODY_LENGTH_CM = 22.0
 BODY_WIDTH_CM = 17.2
 
-# The closed-loop experiments run the example configs with these changes (why, per key):
-LOOP_CONTROL = {
-    # Stop 0.4 s after the last own pose (receive time): the firmware checks at every 20 ms step, so the motors are
-    # off at most 0.42 s after it; with the default 0.5 s the duty is cut up to 0.52 s after, past the issue's bar.
-    "stale_ms": 400,
-}
-
 
 @dataclass(frozen=True)
 class MotorPhysics:
@@ -51,12 +44,12 @@ class MotorPhysics:
 
 def rover_config(rover_id: str, control: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The config.json of one rover of the experiments: the example config of ``red``/``green``/``blue`` (others
-    copy red's pins), with :data:`LOOP_CONTROL` and ``control`` overrides; checked by the firmware's own rules."""
+    copy red's pins), as flashed, with ``control`` overrides; checked by the firmware's own rules."""
     from edge.rover_host import check_rover_config, load_rover_config
 
     base = load_rover_config(rover_id if rover_id in EXAMPLE_IDS else "red")
     base["id"] = rover_id
-    base["control"] = {**base["control"], **LOOP_CONTROL, **(control or {})}
+    base["control"] = {**base["control"], **(control or {})}
     return check_rover_config(base, where=f"rover {rover_id}")
 
 

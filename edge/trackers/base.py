@@ -13,7 +13,7 @@ of the image-to-plane mapping) and the pixel centres are mapped to the plane bef
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 import cv2
@@ -343,7 +343,9 @@ class Measurement:
     marker area on the plane; ``level``: the marker's value in its colour plane (the next frame's threshold
     reference); ``quality`` 0..1; ``axis_rad``: long-axis orientation modulo pi; ``elongation``: ratio of the
     blob's principal standard deviations on the plane (1.28 for a 21.5 x 16.8 cm rectangle);
-    ``at_image_edge``: the blob touches the border of the image (the marker may be cut off).
+    ``at_image_edge``: the blob touches the border of the image (the marker may be cut off); ``weights``: the
+    (h, w) float32 coverage of each window pixel by the marker that the centre was taken from (None if the tracker
+    has none), so a later step can re-weigh an edge it knows more about (a two-tone marker's inner edge).
     """
 
     xy_cm: tuple[float, float]
@@ -354,10 +356,14 @@ class Measurement:
     axis_rad: float
     elongation: float
     at_image_edge: bool
+    weights: F32 | None = field(default=None, compare=False, repr=False)
 
 
-def make_measurement(blob: WorldBlob, window: Window, core: BoolArray, level: float, quality: float) -> Measurement:
-    """A :class:`Measurement` of the marker whose pixels are ``core`` in ``window``."""
+def make_measurement(
+    blob: WorldBlob, window: Window, core: BoolArray, level: float, quality: float, weights: F32 | None = None
+) -> Measurement:
+    """A :class:`Measurement` of the marker whose pixels are ``core`` in ``window`` (``weights``: the coverage the
+    blob was computed from)."""
     x0, y0, x1, y1 = window.box
     w, h = window.image_size
     edge = bool(
@@ -375,6 +381,7 @@ def make_measurement(blob: WorldBlob, window: Window, core: BoolArray, level: fl
         blob.axis_rad,
         blob.elongation,
         edge,
+        weights,
     )
 
 

@@ -68,4 +68,5 @@ class CentroidTracker:
         clock.add("calibration", time.perf_counter() - t4)
         if blob is None:
             return None
-        return make_measurement(blob, window, core, level, area_quality(blob.area_cm2, rover.marker_area_cm2))
+        quality = area_quality(blob.area_cm2, rover.marker_area_cm2)
+        return make_measurement(blob, window, core, level, quality, weights)

@@ -109,8 +109,8 @@ class MeanShiftTracker:
         t2 = time.perf_counter()
         clock.add("measure", t2 - t1)
         # The measurement: marker coverage of the pixels under the converged kernel that carry the marker's colour.
-        weights = np.where((wts > 0.0) & (feature > 0), np.clip(coverage, 0.0, 1.0), 0.0)
-        blob = world_blob(weights.astype(np.float32), window.offset, window.grid)
+        weights = np.where((wts > 0.0) & (feature > 0), np.clip(coverage, 0.0, 1.0), 0.0).astype(np.float32)
+        blob = world_blob(weights, window.offset, window.grid)
         clock.add("calibration", time.perf_counter() - t2)
         if blob is None or rho <= 0.0:
             return None
@@ -118,7 +118,7 @@ class MeanShiftTracker:
         if fresh is not None:
             self._models[rover.index] = (1.0 - self.blend) * q + self.blend * fresh
         quality = area_quality(blob.area_cm2, rover.marker_area_cm2) * min(1.0, rho)
-        return make_measurement(blob, window, weights > 0.5, level, quality)
+        return make_measurement(blob, window, weights > 0.5, level, quality, weights)
 
     def _kernel_metric(self, window: Window, rover: RoverModel) -> NDArray[np.float64]:
         """(2, 2) M such that ``d^T M d <= 1`` is the marker's circumscribed circle (times the kernel scale)."""

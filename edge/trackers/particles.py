@@ -86,7 +86,8 @@ class ParticleTracker:
         clock.add("calibration", time.perf_counter() - t4)
         if blob is None:
             return None
-        return make_measurement(blob, window, core, level, area_quality(blob.area_cm2, rover.marker_area_cm2))
+        quality = area_quality(blob.area_cm2, rover.marker_area_cm2)
+        return make_measurement(blob, window, core, level, quality, weights)
 
     @staticmethod
     def _expected_px(window: Window, rover: RoverModel) -> float:

@@ -181,14 +181,17 @@ def at_least(ux, uy, vmin):
 
 
 # -- 4. keep clear ---------------------------------------------------------------------------------------------------
-def keep_clear(x, y, ux, uy, tx, ty, qx, qy, nq, safety_cm, gamma, slide_gain, side):
+def keep_clear(x, y, ux, uy, tx, ty, qx, qy, nq, safety_cm, gamma, slide_gain, side, pass_cm=0.0):
     """u shaped around the other rovers (qx, qy)[:nq], before the unicycle mapping.
 
     For each neighbour the single-integrator barrier -2 (p - q_j).u <= (gamma / 2) (|p - q_j|^2 - Ds^2) is enforced
     by projection (one neighbour after the other), so u never points into a neighbour the rover could not then
     drive around; what was removed is given back as a slide along the neighbour, on the side of the target
     (tx, ty) - or to the right when the neighbour stands straight in the way, so two rovers meeting head-on pass
-    each other like people in a corridor. This shapes the path; the guarantee is safe_speed().
+    each other like people in a corridor. A neighbour the rover must get past (the target lies beyond it) is kept
+    pass_cm farther than Ds: at Ds itself the certificate (safe_speed, with its heading margin) lets a rover that
+    faces sideways creep at ~2 cm/s, and two rovers swapping ends of a line would hover there for seconds. This
+    shapes the path; the guarantee is safe_speed().
     side: the side chosen last time (1 left, -1 right, 0 none), kept until the target is clearly on the other
     side, so measurement noise cannot make the rover dither. Returns (ux, uy, side).
     """
@@ -196,21 +199,24 @@ def keep_clear(x, y, ux, uy, tx, ty, qx, qy, nq, safety_cm, gamma, slide_gain, s
     ddy = ty - y
     dist_t = sqrt(ddx * ddx + ddy * ddy)
     ds2 = safety_cm * safety_cm
+    wide = safety_cm + pass_cm
+    wide2 = wide * wide
     for j in range(nq):
         dx = x - qx[j]
         dy = y - qy[j]
         d2 = dx * dx + dy * dy
         if d2 <= 0.0:
             continue
+        d = sqrt(d2)
+        beyond = dist_t > d
         # a = -2 d, b = gamma / 2 h: the constraint a.u <= b
-        excess = -2.0 * (dx * ux + dy * uy) - 0.5 * gamma * (d2 - ds2)
+        excess = -2.0 * (dx * ux + dy * uy) - 0.5 * gamma * (d2 - (wide2 if beyond else ds2))
         if excess <= 0.0:
             continue
         f = excess / (4.0 * d2)
         ux += f * 2.0 * dx
         uy += f * 2.0 * dy
-        d = sqrt(d2)
-        if dist_t <= d:
+        if not beyond:
             continue  # the target is on this side of the neighbour: stop short of it, no need to go round
         removed = excess / (2.0 * d)  # speed taken away towards the neighbour
         ox = -dx / d  # unit vector towards the neighbour
@@ -325,46 +331,100 @@ def body_motion(left, right, radius_cm, track_cm):
 
 
 # -- heading -----------------------------------------------------------------------------------------------------------
+_RELEARN = 1.2  # spread (rad) past which an estimate is not worth checking anything against
+
+
 class Heading:
-    """The rover's heading: from the pose when it carries one, else from successive positions while moving.
+    """The rover's heading, fused from three sources so that no single one is trusted blindly:
 
-    Between fixes the commanded turn rate is integrated. A fix from positions is taken when the rover has moved
-    fix_cm in one direction (forward or backward) since the last one: the chord's direction, plus half the turn
-    made along it (an arc's chord points along the heading at its middle). Fixes after the first are blended in
-    by half, since 0.5 cm of position noise over a 6 cm chord is ~5 degrees.
+    * odometry: between fixes the commanded turn rate is integrated (the rover knows its wheel commands);
+    * the pose's heading when it carries one, blended in by its spread against the estimate's (scalar Kalman);
+      a pose heading farther than gate + spread from the estimate is an outlier (a tracker's glare, a flipped
+      marker) and is set aside; when `recover` of them in a row agree with each other, they are the truth and the
+      estimate jumps to them. A rover that commanded reverse motion in the last 0.5 s also accepts a pose heading
+      opposite to its estimate as its own reversed: a tracker without heading markers reports the direction of
+      motion, which is the opposite of the body's heading while it backs up;
+    * the direction of motion from successive positions, SIGNED by the direction it commanded: when the rover has
+      moved fix_cm in one direction (forward or backward) since the last fix, the chord's direction plus half the
+      turn made along it (an arc's chord points along the heading at its middle), reversed when it drove
+      backwards; blended in like a pose heading, with a spread of its own (0.5 cm of position noise over a 6 cm
+      chord is ~5 degrees).
 
-    spread (rad) bounds how wrong theta may be: small after a pose heading or a fix, growing by turn_error of every
-    radian turned since (wheels that slip or motors that differ make dead reckoning drift while turning in place).
-    The safety layer widens its heading margin to the spread, and the rover re-learns its heading when it is large.
+    spread (rad) bounds how wrong theta may be: small after a fix, growing by turn_error of every radian turned since
+    (wheels that slip or motors that differ make dead reckoning drift while turning in place). The safety layer
+    widens its heading margin to the spread, and the rover re-learns its heading when it is large.
     """
 
-    def __init__(self, fix_cm, turn_error=0.15):
+    def __init__(self, fix_cm, turn_error=0.15, pose_spread=0.05, gate=0.35, recover=6):
         self.fix_cm = fix_cm
         self.turn_error = turn_error
+        self.pose_spread = pose_spread
+        self.gate = gate
+        self.recover = recover
         self.theta = 0.0
         self.known = False
         self.spread = 4.0
+        self.rejected = 0  # pose headings set aside in a row
+        self._outlier = 0.0  # the last of them
+        self._back_s = 9.0  # time since reverse motion was last commanded
         self._ax = 0.0
         self._ay = 0.0
         self._anchored = False
         self._sign = 0
         self._turned = 0.0
+        self._chord_rejected = 0
+        self._chord_outlier = 0.0
 
     def reset(self):
         self.known = False
         self.spread = 4.0
+        self.rejected = 0
         self._anchored = False
         self._sign = 0
         self._turned = 0.0
+        self._chord_rejected = 0
+
+    def _fuse(self, z, spread):
+        """Blend a heading measurement z (rad) of the given spread into the estimate; False if it is an outlier."""
+        if not self.known or self.spread > _RELEARN:
+            self.theta = wrap(z)  # nothing to check it against
+            self.spread = spread
+            self.known = True
+            return True
+        d = wrap(z - self.theta)
+        gate = self.gate + self.spread
+        if d > gate or d < -gate:
+            return False
+        s2 = self.spread * self.spread
+        k = s2 / (s2 + spread * spread)
+        self.theta = wrap(self.theta + k * d)
+        self.spread = sqrt(k) * spread  # = 1 / sqrt(1 / spread_old^2 + 1 / spread^2)
+        return True
 
     def measured(self, x, y, theta):
         """A fresh own pose: position (cm) and the pose's heading (rad) or None."""
         if theta is not None:
-            self.theta = theta
-            self.known = True
-            self.spread = 0.05
-            self._anchored = False
-            return
+            z = theta
+            if self.known and self._back_s < 0.5:
+                a = wrap(theta - self.theta)
+                b = wrap(theta + pi - self.theta)
+                if b * b < a * a:
+                    z = theta + pi  # the direction of motion of a rover that backs up
+            if self._fuse(z, self.pose_spread):
+                self.rejected = 0
+            else:
+                if self.rejected > 0 and abs(wrap(z - self._outlier)) <= self.gate:
+                    self.rejected += 1
+                else:
+                    self.rejected = 1
+                self._outlier = z
+                if self.rejected >= self.recover:  # they persist: they are right, the estimate is not
+                    self.theta = wrap(z)
+                    self.spread = self.pose_spread
+                    self.rejected = 0
+        self._chord(x, y)
+
+    def _chord(self, x, y):
         if not self._anchored or self._sign == 0:
             self._ax = x
             self._ay = y
@@ -375,15 +435,23 @@ class Heading:
         dy = y - self._ay
         if dx * dx + dy * dy < self.fix_cm * self.fix_cm:
             return
-        est = atan2(dy, dx) + 0.5 * self._turned
+        z = atan2(dy, dx) + 0.5 * self._turned
         if self._sign < 0:
-            est += pi
-        if self.known and self.spread < 0.5:
-            self.theta = wrap(self.theta + 0.5 * wrap(est - self.theta))
+            z += pi
+        spread = 0.15 + self.turn_error * 0.5 * abs(self._turned)
+        if self._fuse(z, spread):
+            self._chord_rejected = 0
+            self.rejected = 0  # its own motion confirms the estimate: earlier pose outliers were outliers
         else:
-            self.theta = wrap(est)  # first fix, or the old estimate is too uncertain to average with
-            self.known = True
-        self.spread = 0.15 + self.turn_error * 0.5 * abs(self._turned)
+            if self._chord_rejected > 0 and abs(wrap(z - self._chord_outlier)) <= self.gate + spread:
+                self._chord_rejected += 1
+            else:
+                self._chord_rejected = 1
+            self._chord_outlier = z
+            if self._chord_rejected >= 2:  # two chords in a row say otherwise: the rover moves that way
+                self.theta = wrap(z)
+                self.spread = spread
+                self._chord_rejected = 0
         self._ax = x
         self._ay = y
         self._turned = 0.0
@@ -398,6 +466,10 @@ class Heading:
         if sign != self._sign:
             self._anchored = False  # a new chord starts at the next pose
             self._sign = sign
+        if sign < 0:
+            self._back_s = 0.0
+        elif self._back_s < 9.0:
+            self._back_s += dt_s
         turn = w * dt_s
         self._turned += turn
         if self.known:
@@ -420,6 +492,7 @@ class Controller:
         safety_cm,
         barrier_gain_per_s,
         slide_gain,
+        pass_cm,
         heading_margin_rad,
         lookahead_cm,
         wheel_radius_cm,
@@ -434,6 +507,7 @@ class Controller:
         self.safety = safety_cm
         self.gamma = barrier_gain_per_s
         self.slide_gain = slide_gain
+        self.pass_cm = pass_cm
         self.margin = heading_margin_rad
         self.side = 0
         self.lookahead = lookahead_cm
@@ -464,7 +538,7 @@ class Controller:
             ux, uy = limit(ux, uy, self.max_speed)
             ux, uy = at_least(ux, uy, self.min_speed)
             ux, uy, self.side = keep_clear(
-                x, y, ux, uy, tx, ty, qx, qy, nq, self.safety, self.gamma, self.slide_gain, self.side
+                x, y, ux, uy, tx, ty, qx, qy, nq, self.safety, self.gamma, self.slide_gain, self.side, self.pass_cm
             )
             ux, uy = limit(ux, uy, self.max_speed)
         v, w = unicycle(ux, uy, theta, self.lookahead)

@@ -48,6 +48,7 @@ def make_law(cfg):
         c["safety_cm"],
         c["barrier_gain_per_s"],
         c["slide_gain"],
+        c["pass_cm"],
         c["heading_margin_rad"],
         g["lookahead_cm"],
         g["wheel_radius_cm"],

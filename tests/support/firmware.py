@@ -92,8 +92,11 @@ class Trace:
 class KinematicFleet:
     """Rovers running their firmware against a kinematic world, stepped on a simulated clock.
 
-    Every frame (30 fps) each rover's pose is measured (Gaussian noise ``noise_cm``, heading only when
-    ``send_theta``) and delivered to every rover ``latency_ms`` later; each firmware steps every ``period_ms``;
+    Every frame (30 fps) each rover's pose is measured (Gaussian noise ``noise_cm``) and delivered to every rover
+    ``latency_ms`` later. Its heading: the body's when ``send_theta`` (a two-tone marker), the direction of motion
+    over the last frame while faster than 3 cm/s when ``motion_theta`` (a one-colour marker: the opposite of the body's
+    heading while backing up), else none; with probability ``theta_outliers`` a heading sent is wrong by 40-180
+    degrees (a tracker fooled by glare); each firmware steps every ``period_ms``;
     the world integrates the wheel speeds the duties stand for, with an optional multiplicative motor noise.
     """
 
@@ -107,6 +110,8 @@ class KinematicFleet:
         latency_ms: int = 0,
         send_theta: bool = False,
         motor_noise: float = 0.0,
+        motion_theta: bool = False,
+        theta_outliers: float = 0.0,
     ) -> None:
         self.rovers = [HostRover(cfg, broker_host=None) for cfg in configs]
         self.bodies = [Body(b.x, b.y, b.theta) for b in bodies]
@@ -115,6 +120,10 @@ class KinematicFleet:
         self.noise_cm = noise_cm
         self.latency_ms = latency_ms
         self.send_theta = send_theta
+        self.motion_theta = motion_theta
+        self.theta_outliers = theta_outliers
+        self.last_xy = [(b.x, b.y) for b in bodies]
+        self.outliers_sent = 0
         self.motor_noise = motor_noise
         self.period_ms = int(configs[0]["control"]["period_ms"])
         self.now_ms = 0
@@ -138,10 +147,17 @@ class KinematicFleet:
             r.deliver(topic, payload, self.now_ms)
 
     def _measure(self) -> None:
-        for rid, b in zip(self.ids, self.bodies, strict=True):
+        for k, (rid, b) in enumerate(zip(self.ids, self.bodies, strict=True)):
             x = b.x + self.rng.gauss(0.0, self.noise_cm)
             y = b.y + self.rng.gauss(0.0, self.noise_cm)
             theta = b.theta if self.send_theta else None
+            lx, ly = self.last_xy[k]
+            self.last_xy[k] = (b.x, b.y)
+            if self.motion_theta and math.hypot(b.x - lx, b.y - ly) * FPS > 3.0:
+                theta = math.atan2(b.y - ly, b.x - lx)
+            if theta is not None and self.rng.random() < self.theta_outliers:
+                theta = math.remainder(theta + self.rng.choice((-1, 1)) * self.rng.uniform(0.7, math.pi), math.tau)
+                self.outliers_sent += 1
             payload = encode_pose(
                 rid, self.frame, self.frame, 1.7639e9 + self.now_ms / 1000, x, y, theta, None, None, 1.0
             )
