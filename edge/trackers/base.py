@@ -13,6 +13,7 @@ of the image-to-plane mapping) and the pixel centres are mapped to the plane bef
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
@@ -21,7 +22,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.camera import PinholeCamera
-from edge.segmentation import F32, U8, BoolArray, subtract_background
+from edge.segmentation import (
+    F32,
+    U8,
+    BoolArray,
+    auto_threshold,
+    coverage_weights,
+    marker_level,
+    subtract_background,
+    threshold,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -383,6 +393,47 @@ def make_measurement(
         edge,
         weights,
     )
+
+
+def threshold_marker(
+    window: Window, rover: RoverModel, fraction: float, clock: StageClock
+) -> tuple[BoolArray, BoolArray] | None:
+    """Stage ``threshold`` of the binary trackers: the window's pixels of the rover's hue class (``candidates``) and
+    those of them inside the automatic interval of its colour plane (``mask``); None when the window has none."""
+    t0 = time.perf_counter()
+    candidates = window.classes == rover.index
+    if not candidates.any():
+        clock.add("threshold", time.perf_counter() - t0)
+        return None
+    interval = auto_threshold(window.plane, candidates, fraction)
+    mask = candidates & threshold(window.plane, interval)
+    clock.add("threshold", time.perf_counter() - t0)
+    return candidates, mask
+
+
+def measure_core(
+    window: Window,
+    rover: RoverModel,
+    core: BoolArray,
+    candidates: BoolArray,
+    mask: BoolArray,
+    ring_px: int,
+    clock: StageClock,
+) -> Measurement | None:
+    """Stages ``measure`` and ``calibration`` of the binary trackers: the marker whose interior is ``core`` (its
+    thresholded pixels ``mask``), weighted by grey-level edge coverage (pixels of other rovers' hues left out) and
+    turned into its area centroid on the world plane."""
+    t0 = time.perf_counter()
+    level = marker_level(window.plane, core)
+    others = (window.classes >= 0) & ~candidates
+    weights = coverage_weights(window.bgr, window.lum, core, ring_px, exclude=others, pure=mask)
+    t1 = time.perf_counter()
+    clock.add("measure", t1 - t0)
+    blob = world_blob(weights, window.offset, window.grid)
+    clock.add("calibration", time.perf_counter() - t1)
+    if blob is None:
+        return None
+    return make_measurement(blob, window, core, level, area_quality(blob.area_cm2, rover.marker_area_cm2), weights)
 
 
 class WindowTracker(Protocol):

@@ -10,24 +10,8 @@ from __future__ import annotations
 
 import time
 
-from edge.segmentation import (
-    auto_threshold,
-    coverage_weights,
-    dilate,
-    erode,
-    fill_holes,
-    marker_level,
-    threshold,
-)
-from edge.trackers.base import (
-    Measurement,
-    RoverModel,
-    StageClock,
-    Window,
-    area_quality,
-    make_measurement,
-    world_blob,
-)
+from edge.segmentation import dilate, erode, fill_holes
+from edge.trackers.base import Measurement, RoverModel, StageClock, Window, measure_core, threshold_marker
 
 
 class CentroidTracker:
@@ -41,32 +25,17 @@ class CentroidTracker:
         self.ring_px = ring_px
 
     def measure(self, window: Window, rover: RoverModel, clock: StageClock) -> Measurement | None:
-        t0 = time.perf_counter()
-        candidates = window.classes == rover.index
-        if not candidates.any():
-            clock.add("threshold", time.perf_counter() - t0)
+        found = threshold_marker(window, rover, self.threshold_fraction, clock)
+        if found is None:
             return None
-        interval = auto_threshold(window.plane, candidates, self.threshold_fraction)
-        mask = candidates & threshold(window.plane, interval)
+        candidates, mask = found
         t1 = time.perf_counter()
-        clock.add("threshold", t1 - t0)
         # P.M.O.: erosion removes specks and leaves the marker's interior; the edge comes back as coverage weights.
         eroded = erode(mask, self.erosion_iterations)
         t2 = time.perf_counter()
         clock.add("erosion", t2 - t1)
         core = fill_holes(mask & dilate(eroded, self.erosion_iterations))  # A.M.O.
-        t3 = time.perf_counter()
-        clock.add("holes", t3 - t2)
+        clock.add("holes", time.perf_counter() - t2)
         if not core.any():
             return None
-        level = marker_level(window.plane, core)
-        others = (window.classes >= 0) & ~candidates
-        weights = coverage_weights(window.bgr, window.lum, core, self.ring_px, exclude=others, pure=mask)
-        t4 = time.perf_counter()
-        clock.add("measure", t4 - t3)
-        blob = world_blob(weights, window.offset, window.grid)  # eq. 3-4
-        clock.add("calibration", time.perf_counter() - t4)
-        if blob is None:
-            return None
-        quality = area_quality(blob.area_cm2, rover.marker_area_cm2)
-        return make_measurement(blob, window, core, level, quality, weights)
+        return measure_core(window, rover, core, candidates, mask, self.ring_px, clock)  # eq. 3-4 on the plane

@@ -14,25 +14,8 @@ import time
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.segmentation import (
-    Particle,
-    auto_threshold,
-    coverage_weights,
-    fill_holes,
-    label_particles,
-    marker_level,
-    open_by_reconstruction,
-    threshold,
-)
-from edge.trackers.base import (
-    Measurement,
-    RoverModel,
-    StageClock,
-    Window,
-    area_quality,
-    make_measurement,
-    world_blob,
-)
+from edge.segmentation import Particle, fill_holes, label_particles, open_by_reconstruction
+from edge.trackers.base import Measurement, RoverModel, StageClock, Window, measure_core, threshold_marker
 
 
 class ParticleTracker:
@@ -55,15 +38,11 @@ class ParticleTracker:
         self.max_area_fraction = max_area_fraction
 
     def measure(self, window: Window, rover: RoverModel, clock: StageClock) -> Measurement | None:
-        t0 = time.perf_counter()
-        candidates = window.classes == rover.index
-        if not candidates.any():
-            clock.add("threshold", time.perf_counter() - t0)
+        found = threshold_marker(window, rover, self.threshold_fraction, clock)
+        if found is None:
             return None
-        interval = auto_threshold(window.plane, candidates, self.threshold_fraction)
-        mask = candidates & threshold(window.plane, interval)
+        candidates, mask = found
         t1 = time.perf_counter()
-        clock.add("threshold", t1 - t0)
         mask = open_by_reconstruction(mask, self.erosion_iterations)  # P.M.O.
         t2 = time.perf_counter()
         clock.add("erosion", t2 - t1)
@@ -73,21 +52,11 @@ class ParticleTracker:
         expected_px = self._expected_px(window, rover)
         labels, particles = label_particles(filled, min_area_px=max(2, int(self.min_area_fraction * expected_px)))
         chosen = self._choose(particles, labels, window, expected_px, clock)
+        clock.add("measure", time.perf_counter() - t3)
         if not chosen:
-            clock.add("measure", time.perf_counter() - t3)
             return None
         core = np.isin(labels, [p.label for p in chosen]) if len(chosen) > 1 else labels == chosen[0].label
-        level = marker_level(window.plane, core)
-        others = (window.classes >= 0) & ~candidates
-        weights = coverage_weights(window.bgr, window.lum, core, self.ring_px, exclude=others, pure=mask)
-        t4 = time.perf_counter()
-        clock.add("measure", t4 - t3)
-        blob = world_blob(weights, window.offset, window.grid)  # eq. 9-10 on the world plane
-        clock.add("calibration", time.perf_counter() - t4)
-        if blob is None:
-            return None
-        quality = area_quality(blob.area_cm2, rover.marker_area_cm2)
-        return make_measurement(blob, window, core, level, quality, weights)
+        return measure_core(window, rover, core, candidates, mask, self.ring_px, clock)  # eq. 9-10 on the plane
 
     @staticmethod
     def _expected_px(window: Window, rover: RoverModel) -> float:
