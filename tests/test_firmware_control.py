@@ -6,6 +6,7 @@ differential-drive body; poses carry measurement noise and latency, motors a gai
 
 from __future__ import annotations
 
+import itertools
 import math
 import random
 from typing import Any
@@ -304,6 +305,29 @@ def test_motors_stop_within_half_a_second_of_the_last_own_pose_by_receive_time()
     for rid, t in stopped_at.items():
         assert t - latest_pose_rx <= 500, rid  # stale_ms (0.4 s) plus at most one 20 ms loop period: inside 0.5 s
     assert set(stopped_at) == set(IDS)
+
+
+def test_a_rover_whose_pose_ages_slows_down_along_its_command_and_is_still_when_cut() -> None:
+    fleet = _moving_fleet()
+    fleet.publishing = False
+    fleet.run(0.1)  # what was in flight (30 ms latency) has arrived
+    trace: dict[str, list[tuple[int, float, float]]] = {r.id: [] for r in fleet.rovers}  # (age ms, scale, duty)
+    while fleet.now_ms < max(max(r.rover._rx) for r in fleet.rovers) + 600:
+        fleet.run(0.02)
+        for r in fleet.rovers:
+            age = r.rover._last_step - r.rover._rx[r.rover._me]  # at its last step
+            trace[r.id].append((age, r.rover._scale, r.motor_state.left_duty + r.motor_state.right_duty))
+    control = fleet.rovers[0].config["control"]
+    fade, stale = control["fade_ms"], control["stale_ms"]
+    for rid, rows in trace.items():
+        fading = [(age, k, duty) for age, k, duty in rows if fade < age <= stale]
+        assert fading, rid
+        for age, k, _ in fading:  # the share of the command falls linearly from 1 at fade_ms to 0 at stale_ms
+            assert k == pytest.approx((stale - age) / (stale - fade), abs=0.1), (rid, age)
+        duties = [duty for _, _, duty in fading]
+        assert all(b <= a for a, b in itertools.pairwise(duties)), (rid, duties)
+        assert all(duty == 0 for age, _, duty in rows if age > stale), rid
+        assert [r.halt for r in fleet.rovers if r.id == rid] == ["stale"]
 
 
 def test_the_pose_time_field_is_not_trusted_for_staleness() -> None:

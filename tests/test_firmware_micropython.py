@@ -21,9 +21,10 @@ from tests.support.firmware import FIRMWARE, KinematicFleet, random_starts, rove
 FIRMWARE_FILES = sorted(FIRMWARE.glob("*.py"))
 
 
-def _record(kind: str, seconds: float, seed: int, **poses: Any) -> tuple[str, KinematicFleet]:
+def _record(kind: str, seconds: float, seed: int, pause_s: float = 0.0, **poses: Any) -> tuple[str, KinematicFleet]:
     """A closed-loop run in CPython: the first rover's inputs as a replay file, and the fleet (its outputs).
-    ``poses``: what the poses carry besides positions (KinematicFleet's heading options)."""
+    ``pause_s``: the poses stop for that long halfway. ``poses``: what the poses carry besides positions
+    (KinematicFleet's heading options)."""
     fleet = KinematicFleet(
         rover_configs(["red", "green", "blue"]),
         random_starts(3, random.Random(seed)),
@@ -36,7 +37,14 @@ def _record(kind: str, seconds: float, seed: int, **poses: Any) -> tuple[str, Ki
     fleet.command(
         {"seq": 1, "kind": kind, "ids": ids, "spacing": 60.0, "side": 100.0, "x": None, "y": None, "theta": None}
     )
-    fleet.run(seconds)
+    if pause_s:  # the poses stop for a while halfway: the rover slows down, halts as stale, then drives on
+        fleet.run(seconds / 2)
+        fleet.publishing = False
+        fleet.run(pause_s)
+        fleet.publishing = True
+        fleet.run(seconds / 2)
+    else:
+        fleet.run(seconds)
     events = json.dumps(fleet.rovers[0].config) + "\n" + "\n".join(fleet.events) + "\n"
     return events, fleet
 
@@ -76,15 +84,18 @@ def test_mutated_messages_get_the_contracts_verdict_inside_micropython() -> None
     assert 50 < accepted < len(corpus) - 50
 
 
-@pytest.mark.parametrize(("kind", "seed"), [("triangle", 3), ("line", 4), ("rendezvous", 5)])
-def test_micropython_drives_exactly_as_cpython_on_the_same_inputs(kind: str, seed: int) -> None:
-    events, fleet = _record(kind, 4.0, seed)
+@pytest.mark.parametrize(("kind", "seed", "pause_s"), [("triangle", 3, 0.0), ("line", 4, 0.0), ("rendezvous", 5, 0.6)])
+def test_micropython_drives_exactly_as_cpython_on_the_same_inputs(kind: str, seed: int, pause_s: float) -> None:
+    events, fleet = _record(kind, 4.0, seed, pause_s)
     rows = [json.loads(line) for line in run_micropython("replay.main()", {"events": events.encode()}).splitlines()]
     assert len(rows) == len(fleet.commands) > 150
-    for (t_ms, halt, command, _), row in zip(fleet.commands, rows, strict=True):
+    for (t_ms, halt, command, _), scale, row in zip(fleet.commands, fleet.scales, rows, strict=True):
         assert row[0] == t_ms and row[1] == halt
         assert row[2:8] == pytest.approx(command, abs=1e-9)
+        assert row[10] == pytest.approx(scale, abs=1e-9)
     assert {row[1] for row in rows} >= {"none"}  # the run got past learning the heading
+    if pause_s:
+        assert "stale" in {row[1] for row in rows} and any(0.0 < row[10] < 1.0 for row in rows)  # faded, then cut
 
 
 def test_heap_does_not_grow_over_10000_steps_and_the_loop_fits_in_16_kb() -> None:

@@ -20,8 +20,8 @@ from tests.support.mosquitto import Mosquitto
 
 
 def assert_safe_stop(record: LoopRecord) -> None:
-    """Every rover was driving when the poses stopped, and its motors were cut for good within 0.5 s of its last
-    fresh own pose (simulated clock, from the recorded duties)."""
+    """Every rover was driving when the poses stopped, and within 0.5 s of its last fresh own pose its motors were
+    cut for good (simulated clock, the recorded duties) and its body was at rest (the simulated world)."""
     s = safety(record)
     assert s is not None
     for rid, r in s["rovers"].items():
@@ -29,6 +29,7 @@ def assert_safe_stop(record: LoopRecord) -> None:
         assert r["driving_when_stopped"], f"{rid} was not driving when the poses stopped: the test proves nothing"
         assert r["motors_off_after_ms"] is not None, f"{rid} never stopped"
         assert r["motors_off_after_ms"] <= 500, f"{rid} stopped {r['motors_off_after_ms']} ms after its last pose"
+        assert r["at_rest_after_ms"] <= 500, f"{rid} came to rest {r['at_rest_after_ms']:.0f} ms after its last pose"
     log = record.motors[record.ids[0]]
     assert log.halt[-1] in ("stale", "disconnected")
 
@@ -128,3 +129,25 @@ def test_bad_experiment_options_are_one_line_errors(tmp_path: Path, args: list[s
     assert result.exit_code == 2
     assert message in result.output
     assert "Traceback" not in result.output
+    assert not (tmp_path / "x").exists()  # refused before anything was written
+
+
+def test_an_output_directory_that_cannot_be_made_is_a_one_line_error(tmp_path: Path) -> None:
+    (tmp_path / "file").write_text("not a directory")
+    result = CliRunner().invoke(main, ["sim", "formation", "line", "--frames", "2", "--out", str(tmp_path / "file/x")])
+    assert result.exit_code == 2
+    assert "cannot create the output directory" in result.output and "Traceback" not in result.output
+
+
+def test_a_run_that_misses_its_bar_exits_1_and_still_writes_everything(tmp_path: Path) -> None:
+    result = CliRunner().invoke(main, ["sim", "formation", "line", "--frames", "3", "--out", str(tmp_path / "r")])
+    assert result.exit_code == 1, result.output
+    assert "FAILS" in result.output
+    assert json.loads((tmp_path / "r" / "metrics.json").read_text())["passed"]["within_frames"] is False
+
+
+def test_more_rovers_than_fit_150_cm_apart_start_100_cm_apart() -> None:
+    record = run(LoopConfig("rendezvous", rovers=12, seed=0, frames=1))
+    xy = record.truth[0, :, :2]
+    d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    assert len(xy) == 12 and d[~np.eye(12, dtype=bool)].min() >= 100.0

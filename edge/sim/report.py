@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from edge.errors import SimulationError
 from edge.messages import parse_pose
 from edge.sim.loop import LoopRecord
 from edge.sim.metrics import (
@@ -131,6 +132,7 @@ def summarize(record: LoopRecord) -> dict[str, Any]:
             "safety_cm": cfg0["control"]["safety_cm"],
             "max_speed_cm_s": cfg0["control"]["max_speed_cm_s"],
             "stale_ms": cfg0["control"]["stale_ms"],
+            "fade_ms": cfg0["control"]["fade_ms"],
         },
         "starts": truth[0].round(2).tolist(),
         "min_centre_distance_cm": float(min(centre)),
@@ -213,7 +215,10 @@ def run_to_directory(
     from edge.sim.figures import draw_all
     from edge.sim.loop import FPS, run
 
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SimulationError(f"{out_dir}: cannot create the output directory ({exc.strerror})") from None
     writer: Any = None
     sink = None
     if video:

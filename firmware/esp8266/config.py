@@ -20,6 +20,7 @@ DEFAULTS = {
     "control": {
         "period_ms": 20,
         "stale_ms": 400,
+        "fade_ms": 100,
         "forget_ms": 10000,
         "gain_per_s": 1.0,
         "anchor_gain_per_s": 2.0,
@@ -54,6 +55,7 @@ _NUMBERS = (
     ("geometry", "lookahead_cm", 0.5, 50),
     ("control", "period_ms", 5, 200),
     ("control", "stale_ms", 50, 5000),
+    ("control", "fade_ms", 0, 5000),
     ("control", "forget_ms", 500, 600000),
     ("control", "gain_per_s", 0.001, 10),
     ("control", "anchor_gain_per_s", 0, 10),
@@ -135,6 +137,8 @@ def check(cfg):
     if type(cfg["watchdog"]) is not bool:
         raise ValueError("key watchdog: expected true or false")
     g = cfg["geometry"]
+    if cfg["control"]["fade_ms"] >= cfg["control"]["stale_ms"]:
+        raise ValueError("key control.fade_ms: must be below control.stale_ms (the rover slows down in between)")
     if cfg["control"]["safety_cm"] < 2 * g["body_radius_cm"]:
         raise ValueError("key control.safety_cm: must be at least 2 * geometry.body_radius_cm (bodies would touch)")
     return cfg

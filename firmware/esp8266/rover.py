@@ -71,6 +71,8 @@ class Rover:
         self.log = log
         c = cfg["control"]
         self.stale_ms = c["stale_ms"]
+        self.fade_ms = c["fade_ms"]
+        self._scale = 1.0  # share of the command driven: below 1 while the own pose ages past fade_ms
         self.forget_ms = c["forget_ms"]
         self.safety_cm = c["safety_cm"]
         self.ring_gap_cm = c["ring_gap_cm"]
@@ -235,7 +237,8 @@ class Rover:
         dt_s = 0.0 if self._last_step is None else tdiff(now_ms, self._last_step) * 0.001
         self._last_step = now_ms
         try:
-            self.heading.moved(self.command[fm.C_V], self.command[fm.C_W], dt_s, 0.5)
+            k = self._scale
+            self.heading.moved(self.command[fm.C_V] * k, self.command[fm.C_W] * k, dt_s, 0.5)
             connected = True
             if self.link is not None:
                 connected = self.link.poll(now_ms)
@@ -286,7 +289,17 @@ class Rover:
                 self._qy[nq] = self._y[s]
                 nq += 1
         if self.halt == HALT_NONE and self._rx[me] == self._law_rx and self.formation is self._law_for:
-            return  # nothing new since the last command: it stands (the next own pose comes within a frame)
+            # Nothing new since the last command: it stands (the next own pose comes within a frame). While the own
+            # pose ages from fade_ms to stale_ms the rover slows down along it, so it is at rest when the motors are
+            # cut instead of coasting on from full speed.
+            age = tdiff(now_ms, self._rx[me])
+            if age > self.fade_ms:
+                k = (self.stale_ms - age) / (self.stale_ms - self.fade_ms)
+                self._scale = k
+                c = self.command
+                self.motors.drive(c[fm.C_LEFT] * k, c[fm.C_RIGHT] * k)
+            return
+        self._scale = 1.0
         self._law_rx = self._rx[me]
         self._law_for = self.formation
         x = self._x[me]

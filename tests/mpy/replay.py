@@ -50,7 +50,8 @@ def _chunk(n):
             r.step(int(parts[1]))
             c = r.command
             m = r.motors
-            print(json.dumps([int(parts[1]), r.halt, c[0], c[1], c[2], c[3], c[4], c[5], m.left, m.right]))
+            row = [int(parts[1]), r.halt, c[0], c[1], c[2], c[3], c[4], c[5], m.left, m.right, r._scale]
+            print(json.dumps(row))
     _state["next"] = k
     return k < len(lines)
 

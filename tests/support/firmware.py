@@ -136,6 +136,7 @@ class KinematicFleet:
         self.gains = [1.0 + self.rng.gauss(0.0, motor_noise) for _ in configs]
         self.events: list[str] = []  # what the first rover got, in the format of tests/mpy/replay.py
         self.commands: list[tuple[int, str, list[float], tuple[float, float]]] = []  # and what it did
+        self.scales: list[float] = []  # the share of its command the first rover drove at each step
 
     def command(self, formation: dict[str, Any]) -> None:
         payload = json.dumps({"v": 1, **formation}, separators=(",", ":")).encode()
@@ -191,6 +192,7 @@ class KinematicFleet:
                 first = self.rovers[0]
                 self.events.append(f"s {self.now_ms}")
                 self.commands.append((self.now_ms, first.halt, list(first.rover.command), first.wheel_speeds_rad_s))
+                self.scales.append(first.rover._scale)
             for k, (r, b) in enumerate(zip(self.rovers, self.bodies, strict=True)):
                 left, right = r.wheel_speeds_rad_s
                 g = self.gains[k]
