@@ -75,7 +75,7 @@ class LoopConfig:
     feed_stop_frame: int | None = None
     broker_stop_frame: int | None = None
     physics: MotorPhysics = field(default_factory=MotorPhysics)
-    min_start_gap_cm: float = 150.0
+    min_start_gap_cm: float | None = None  # None: 150 cm, 100 cm for more than 8 rovers (no more fit 150 apart)
     start_margin_cm: float = 40.0
 
     def __post_init__(self) -> None:
@@ -91,6 +91,13 @@ class LoopConfig:
             raise ConfigError(f"--frames must be at least 1, got {self.frames}")
         if self.latency_ms < 0 or self.deliver_timeout_s <= 0:
             raise ConfigError("latency must not be negative and the delivery window must be positive")
+        if self.broker_url is not None:
+            from edge.config import parse_broker_url
+
+            try:
+                parse_broker_url(self.broker_url)  # a bad URL is said before anything is run or written
+            except ValueError as exc:
+                raise ConfigError(f"--broker: {exc}") from None
 
     @property
     def formation(self) -> bool:
@@ -110,8 +117,11 @@ def random_layout(
     n: int, rng: np.random.Generator, min_gap_cm: float = 150.0, margin_cm: float = 40.0, tries: int = 10000
 ) -> list[Pose]:
     """``n`` starts uniformly in the working area (``margin_cm`` from its edge), pairwise at least ``min_gap_cm``
-    apart, with random headings."""
-    for _ in range(tries):
+    apart, with random headings. All ``n`` are drawn at once and redrawn until they are apart; when that keeps
+    failing (a crowded area), they are placed one by one, each where it is clear of those already placed."""
+    lo = np.array([margin_cm, margin_cm])
+    hi = np.array([AREA_WIDTH_CM - margin_cm, AREA_LENGTH_CM - margin_cm])
+    for _ in range(tries if n <= 6 else 200):
         xy = np.column_stack(
             [
                 rng.uniform(margin_cm, AREA_WIDTH_CM - margin_cm, n),
@@ -123,6 +133,19 @@ def random_layout(
         if n < 2 or d.min() >= min_gap_cm:
             headings = rng.uniform(-math.pi, math.pi, n)
             return [Pose(float(x), float(y), float(h)) for (x, y), h in zip(xy, headings, strict=True)]
+    for _ in range(200):
+        placed: list[NDArray[np.float64]] = []
+        for _ in range(n):
+            for _ in range(500):
+                p = rng.uniform(lo, hi)
+                if all(math.hypot(*(p - q)) >= min_gap_cm for q in placed):
+                    placed.append(p)
+                    break
+            else:
+                break
+        if len(placed) == n:
+            headings = rng.uniform(-math.pi, math.pi, n)
+            return [Pose(float(p[0]), float(p[1]), float(h)) for p, h in zip(placed, headings, strict=True)]
     raise SimulationError(f"no layout of {n} rovers {min_gap_cm:g} cm apart fits in the working area")
 
 
@@ -337,7 +360,10 @@ def run(
     plans: dict[str, Plan] | None = None
     n_frames = config.n_frames
     if config.formation:
-        starts = random_layout(config.rovers, rng, config.min_start_gap_cm, config.start_margin_cm)
+        gap = config.min_start_gap_cm
+        if gap is None:
+            gap = 150.0 if config.rovers <= 8 else 100.0
+        starts = random_layout(config.rovers, rng, gap, config.start_margin_cm)
         world = World(dict(zip(ids, starts, strict=True)), drive, seed=config.seed)
     else:
         plans = dict(zip(ids, trajectory_plans(config.kind, config.rovers, rng), strict=True))

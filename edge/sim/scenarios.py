@@ -446,7 +446,7 @@ SCENARIOS: dict[str, Scenario] = {
             build_lens,
         ),
         Scenario(
-            "crowd", "twelve rovers with distinct hues circling at once (--rovers up to 32)", 12, 300, build_crowd
+            "crowd", "twelve rovers with distinct hues circling at once (--rovers up to 48)", 12, 300, build_crowd
         ),
     )
 }
