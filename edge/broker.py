@@ -33,9 +33,12 @@ from edge.messages import rover_status_topic as _rover_status_topic
 log = logging.getLogger("edge.broker")
 
 
-def _not_shutdown_drops(record: logging.LogRecord) -> bool:
-    """amqtt warns of the QoS 0 messages still queued when it stops; dropping them on shutdown is the design."""
-    return "messages not broadcasted" not in record.getMessage()
+def _amqtt_noise(record: logging.LogRecord) -> bool:
+    """False for what amqtt logs that this module says better: its traceback when it cannot listen (start() raises
+    a one-line BrokerError instead), and its warning of the QoS 0 messages still queued when it stops (dropping them
+    on shutdown is the design)."""
+    text = record.getMessage()
+    return text != "Broker startup failed" and "messages not broadcasted" not in text
 
 
 # -- the embedded broker -----------------------------------------------------------------------------------------
@@ -120,8 +123,8 @@ class EmbeddedBroker:
         for name in ("amqtt", "transitions"):
             if logging.getLogger(name).level == logging.NOTSET:
                 logging.getLogger(name).setLevel(logging.WARNING)  # amqtt logs every connection at INFO
-        if _not_shutdown_drops not in logging.getLogger("amqtt.broker").filters:
-            logging.getLogger("amqtt.broker").addFilter(_not_shutdown_drops)
+        if _amqtt_noise not in logging.getLogger("amqtt.broker").filters:
+            logging.getLogger("amqtt.broker").addFilter(_amqtt_noise)
         self._thread = threading.Thread(target=self._run, name="embedded-broker", daemon=True)
         self._thread.start()
         try:

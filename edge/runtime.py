@@ -445,7 +445,7 @@ def prepare_appliance(
     calibration_loader: CalibrationLoader | None = None,
     connect_timeout_s: float = 3.0,
 ) -> Appliance:
-    """Bind the ports, start the broker, open the source, load the calibration, build the tracker, connect.
+    """Open the source, load the calibration, build the tracker, bind the ports, start the broker, connect.
 
     Every user-fixable problem raises an :class:`EdgeIpsError` here, before any frame is published; whatever was
     already started is stopped again.
@@ -460,18 +460,8 @@ def prepare_appliance(
     if broker_target(config.broker).tls:
         tls.check()
     with contextlib.ExitStack() as started:
-        http = None
-        if config.http.enabled:
-            http = HttpServer(config.http.host, config.http.port).start()
-            started.callback(http.stop)
-
-        target = broker_target(config.broker)
-        broker = None
-        if target.embedded:
-            broker = EmbeddedBroker(target.host, target.port).start()
-            started.callback(broker.stop)
-            target = BrokerTarget(embedded=True, host=target.host, port=broker.port)
-
+        # The source, its calibration and the tracker first: a missing camera or a bad calibration is said before
+        # any port is bound (and not hidden behind a port that is taken).
         source = make_source(
             cam.source,
             width=cam.width,
@@ -489,6 +479,18 @@ def prepare_appliance(
         config = _with_sim_rovers(config, source)
         calibration = (calibration_loader or load_calibration_for)(config, source, info, config_where)
         tracker = tracker_factory(TrackerInputs(config, source, info, calibration))
+
+        http = None
+        if config.http.enabled:
+            http = HttpServer(config.http.host, config.http.port).start()
+            started.callback(http.stop)
+
+        target = broker_target(config.broker)
+        broker = None
+        if target.embedded:
+            broker = EmbeddedBroker(target.host, target.port).start()
+            started.callback(broker.stop)
+            target = BrokerTarget(embedded=True, host=target.host, port=broker.port)
 
         recorder = None
         if config.recording.dir is not None:

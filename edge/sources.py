@@ -13,7 +13,6 @@ the source and reopens it with exponential backoff.
 from __future__ import annotations
 
 import logging
-import os
 import re
 import threading
 import time
@@ -28,10 +27,6 @@ from numpy.typing import NDArray
 from edge.errors import SourceError
 
 log = logging.getLogger("edge.sources")
-
-# OpenCV and FFmpeg write their own warnings to stderr; our log already says what failed, in one line.
-os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
-os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 
 
 @dataclass(frozen=True)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import socket
 import subprocess
 import tomllib
@@ -107,13 +108,25 @@ def test_start_says_when_the_http_port_is_taken(env: dict[str, str]) -> None:
     _one_line_error(result, rf"http: port {port} on 0.0.0.0 is already in use; choose another with --http-port")
 
 
-def test_start_says_when_the_embedded_broker_port_is_taken(env: dict[str, str]) -> None:
+def test_start_says_when_the_embedded_broker_port_is_taken_without_a_traceback(tmp_path: Path) -> None:
+    # The real command, so that what amqtt logs on the way reaches stderr too (a Mosquitto service on 1883).
+    env = {k: v for k, v in os.environ.items() if not k.startswith("EDGE_IPS_")}
     with socket.socket() as holder:
         holder.bind(("0.0.0.0", 0))
         holder.listen()
         port = holder.getsockname()[1]
-        result = _run(["start", "--http-port", "0"], {**env, "EDGE_IPS_BROKER__EMBEDDED_PORT": str(port)})
-    _one_line_error(result, rf"embedded broker: port {port} .* in use .*embedded_port")
+        env["EDGE_IPS_BROKER__EMBEDDED_PORT"] = str(port)
+        result = subprocess.run(
+            [str(EDGE_IPS), "start", "--http-port", "0"],
+            cwd=tmp_path,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+    assert result.returncode == 2
+    assert re.match(rf"Error: embedded broker: port {port} .* in use .*embedded_port", result.stderr.splitlines()[-1])
+    assert "Traceback" not in result.stderr and "startup failed" not in result.stderr
 
 
 def test_a_missing_camera_is_a_one_line_error_from_the_real_command(tmp_path: Path) -> None:
@@ -197,6 +210,9 @@ def test_formation_publishes_the_retained_message(
     [
         (["line", "--spacing", "-5"], r"formation: spacing: Input should be greater than 0"),
         (["line", "--rovers", "Red"], r"formation: ids.0"),
+        (["line", "--rovers", "red,red,green"], r"formation: ids: red named more than once"),
+        (["rendezvous", "--rovers", ","], r"formation: ids: a rendezvous needs at least one rover"),
+        (["triangle", "--rovers", "red,green"], r"formation: ids: a triangle needs at least three rovers, got 2"),
         (["line", "--broker", "mqtt://127.0.0.1:PORT"], r"cannot reach broker mqtt://127.0.0.1:\d+"),
     ],
 )
