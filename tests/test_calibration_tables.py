@@ -66,3 +66,11 @@ def test_comments_blank_lines_and_extra_columns_are_allowed() -> None:
     np.testing.assert_allclose(table.uv_px, [[20, 10], [21, 11]])
     np.testing.assert_allclose(table.xy_world_cm, [[4, 3], [6, 5]])
     assert table.lines.tolist() == [4, 6] and table.where(1) == "p.csv row 2 (line 6)"
+
+
+def test_a_csv_saved_by_excel_with_a_byte_order_mark_reads_like_any_other(tmp_path: Path) -> None:
+    path = tmp_path / "points.csv"
+    path.write_bytes("u,v,x,y\r\n10,20,3,4\r\n11,21,5,6\r\n".encode("utf-8-sig"))  # Excel's "CSV UTF-8"
+    table = read_points_csv(path)
+    np.testing.assert_allclose(table.uv_px, [[10, 20], [11, 21]])
+    np.testing.assert_allclose(table.xy_world_cm, [[3, 4], [5, 6]])

@@ -72,8 +72,8 @@ def parse_markers_csv(text: str, source: str, marker_size_cm: float | None = Non
     seen: dict[int, int] = {}
     for i in range(n):
         raw_id = c["id"][i]
-        if raw_id != int(raw_id) or raw_id < 0:
-            raise CalibrationError(f"{table.where(i)}: id must be a non-negative integer, got {raw_id:g}")
+        if not 0 <= raw_id <= 999_999 or raw_id != int(raw_id):  # ArUco dictionaries hold at most 1024 ids
+            raise CalibrationError(f"{table.where(i)}: id must be an integer 0-999999, got {raw_id:g}")
         if not sizes[i] > 0:
             raise CalibrationError(f"{table.where(i)}: marker size must be positive, got {sizes[i]:g}")
         if int(raw_id) in seen:

@@ -38,7 +38,9 @@ def read_text(path: Path, what: str) -> str:
 
 def parse_table(text: str, source: str, required: tuple[str, ...], optional: tuple[str, ...] = ()) -> NumericTable:
     """Parse a CSV with a header naming at least ``required`` (any order, case-insensitive; other columns are
-    ignored; blank lines and lines starting with ``#`` are skipped). Every value must be a finite number."""
+    ignored; blank lines and lines starting with ``#`` are skipped). Every value must be a finite number. A
+    leading byte-order mark (Excel's "CSV UTF-8") is ignored."""
+    text = text.removeprefix("\ufeff")
     lines = [
         (n, line)
         for n, line in enumerate(text.splitlines(), start=1)
