@@ -387,11 +387,21 @@ def build_formation(
     y_cm: float | None = None,
     theta_rad: float | None = None,
 ) -> FormationV1:
-    """A validated formation message (raises :class:`MessageError` naming the bad field)."""
+    """A validated formation message (raises :class:`MessageError` naming the bad field).
+
+    Beyond the contract: every rover is named once, a formation other than ``stop`` names at least one rover, and a
+    triangle at least three (the firmware would make a 2-gon of two)."""
     from pydantic import ValidationError
 
     from edge.errors import MessageError
 
+    twice = sorted({i for i in ids if list(ids).count(i) > 1})
+    if twice:
+        raise MessageError(f"formation: ids: {', '.join(twice)} named more than once")
+    if kind != "stop" and not ids:
+        raise MessageError(f"formation: ids: a {kind} needs at least one rover")
+    if kind == "triangle" and len(ids) < 3:
+        raise MessageError(f"formation: ids: a triangle needs at least three rovers, got {len(ids)}")
     try:
         return FormationV1(
             v=1,
