@@ -9,6 +9,7 @@ it, and a screenshot is saved.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -151,6 +152,13 @@ def test_formation_button_publishes_with_the_token_and_is_refused_without(
             "() => document.getElementById('formation-current').textContent.startsWith('rendezvous')",
             timeout=WAIT_MS,
         )
+        # the map's target: the firmware's ring (31 cm sides for three rovers) round where the rovers are
+        page.wait_for_function("() => (state.lastPose?.targets || []).length === 3", timeout=WAIT_MS)
+        targets = page.evaluate("() => state.lastPose.targets")
+        assert sorted(t["id"] for t in targets) == sorted(ROVERS)
+        corners = [(t["x"], t["y"]) for t in targets]
+        sides = [math.dist(corners[k], corners[(k + 1) % 3]) for k in range(3)]
+        assert sides == pytest.approx([31.0] * 3, abs=0.05)
     finally:
         subscriber.close()
     late = FormationSubscriber("127.0.0.1", broker.port)  # a rover that connects later still gets it: retained

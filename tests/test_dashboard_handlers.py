@@ -20,7 +20,7 @@ from edge.calibration import Calibration
 from edge.camera import MARKER_HEIGHT_CM, paper_camera
 from edge.config import EdgeConfig, masked
 from edge.dashboard.events import EventHub, Overlay, pose_event, sse, status_event
-from edge.dashboard.formation import authorize, parse_request
+from edge.dashboard.formation import authorize, formation_targets, parse_request, with_targets
 from edge.dashboard.frames import FrameEncoder, encode_jpeg
 from edge.dashboard.server import hex_color, static_files
 from edge.errors import MessageError
@@ -423,3 +423,42 @@ def test_start_with_no_dashboard_serves_no_page(mosquitto: Mosquitto, tmp_path: 
         assert call(edge.http_port, "GET", "/api/events").status == 404
         assert call(edge.http_port, "GET", "/healthz").status == 200
     assert "dashboard on" not in edge.log()
+
+
+# -- formation target on the map ---------------------------------------------------------------------------------
+def _formation(kind: str, **fields: object) -> dict[str, object]:
+    base: dict[str, object] = {"v": 1, "seq": 1, "kind": kind, "ids": ["red", "green", "blue"]}
+    base.update({"spacing": None, "side": None, "x": None, "y": None, "theta": None, **fields})
+    return base
+
+
+def test_an_unanchored_triangle_is_drawn_turned_and_mirrored_to_fit_the_rovers() -> None:
+    # Rovers already nearly in a triangle that is upside down and mirrored against the formation frame.
+    at = {"red": (200.0, 150.0), "green": (150.0, 240.0), "blue": (250.0, 240.0)}
+    targets = formation_targets(_formation("triangle", side=100.0), at)
+    assert targets is not None and [t["id"] for t in targets] == ["red", "green", "blue"]
+    xy = {t["id"]: (t["x"], t["y"]) for t in targets}
+    sides = [math.dist(xy[a], xy[b]) for a, b in (("red", "green"), ("green", "blue"), ("blue", "red"))]
+    assert sides == pytest.approx([100.0] * 3, abs=0.01)
+    assert all(math.dist(xy[r], at[r]) < 15.0 for r in at)  # each corner is the one nearest its rover
+    mean = np.mean(list(at.values()), axis=0)
+    assert np.mean(list(xy.values()), axis=0) == pytest.approx(mean)  # placed on the rovers' mean
+
+
+def test_targets_of_a_line_an_anchored_formation_missing_rovers_and_stop() -> None:
+    at = {"red": (100.0, 100.0), "green": (200.0, 120.0), "blue": (150.0, 300.0)}
+    line = formation_targets(_formation("line", spacing=60.0), at)
+    assert line is not None and {t["x"] for t in line} == {150.0} and [t["y"] for t in line] == [113.33, 173.33, 233.33]
+    anchored = formation_targets(_formation("line", spacing=60.0, x=50.0, y=60.0, theta=0.0), at)
+    assert anchored is not None and [(t["x"], t["y"]) for t in anchored] == [(50.0, 0.0), (50.0, 60.0), (50.0, 120.0)]
+    two = formation_targets(_formation("rendezvous"), {"red": at["red"], "green": at["green"]})
+    assert two is not None and [t["id"] for t in two] == ["red", "green"]
+    assert formation_targets(_formation("stop"), at) is None and formation_targets(None, at) is None
+    assert formation_targets(_formation("line"), {}) is None
+
+
+def test_the_pose_event_carries_the_targets_of_the_rovers_it_places() -> None:
+    event = {"frame": 1, "t": 0.0, "missing": ["blue"], "rovers": [{"id": "red", "x": 10.0, "y": 20.0}]}
+    assert with_targets(event, None)["targets"] is None
+    placed = with_targets(event, _formation("rendezvous"))
+    assert placed["targets"] == [{"id": "red", "x": 10.0, "y": 20.0}] and placed["rovers"] == event["rovers"]

@@ -38,7 +38,7 @@ def start_dashboard(
     from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
     from edge.dashboard.calibration_view import CalibrationView
     from edge.dashboard.events import EventHub, Overlay, pose_event, status_event
-    from edge.dashboard.formation import FormationDesk
+    from edge.dashboard.formation import FormationDesk, with_targets
     from edge.dashboard.frames import FrameEncoder
     from edge.pipeline import TrackerConfig
     from edge.sources import parse_source
@@ -61,7 +61,7 @@ def start_dashboard(
     )
     hub = EventHub(
         latest=lambda: runtime.latest_result,
-        make_pose=lambda result: pose_event(result, overlay, rover_ids),
+        make_pose=lambda result: with_targets(pose_event(result, overlay, rover_ids), desk.current),
         make_status=lambda: status_event(runtime.snapshot()),
         pose_hz=settings.pose_hz,
     )

@@ -195,3 +195,48 @@ class FormationDesk:
         log.info("dashboard: formation %s %s published (seq %d)", sent.kind, ",".join(sent.ids), sent.seq)
         self._set(sent)
         return 200, {"ok": True, "seq": sent.seq, "formation": sent.model_dump(mode="json")}
+
+
+def formation_targets(
+    formation: Mapping[str, Any] | None, positions: Mapping[str, tuple[float, float]]
+) -> list[dict[str, Any]] | None:
+    """Where each member of ``formation`` (a formation v1 dict) is headed now, ``[{id, x, y}]`` in world cm, or
+    None (no formation, ``stop``, or no member seen).
+
+    Computed by the firmware's own ``formation.offsets`` and ``formation.orient`` (the rovers' example config for
+    the rendezvous ring), from the members' current ``positions``: so an unanchored triangle is drawn turned and
+    mirrored to fit the rovers, as they will form it, not upright. The shape is placed on the anchor (``x``, ``y``)
+    when the formation has one, else on the members' mean, which the consensus keeps.
+    """
+    from edge.rover_host import firmware_modules
+
+    if formation is None or formation.get("kind") not in ("line", "rendezvous", "triangle"):
+        return None
+    modules = firmware_modules()
+    fm, msg, defaults = modules["formation"], modules["msg"], modules["config"].DEFAULTS["control"]
+    ids = list(dict.fromkeys(formation["ids"]))  # the firmware's rule: a repeated id keeps its first place
+    n = len(ids)
+    if n == 0:
+        return None
+    kind = msg.KINDS.index(formation["kind"])
+    ring = defaults["safety_cm"] + defaults["ring_gap_cm"] * (n - 2 if n > 2 else 1)
+    spacing, side = formation.get("spacing"), formation.get("side")
+    bx, by = [0.0] * n, [0.0] * n
+    fm.offsets(kind, n, spacing if spacing is not None else ring, side if side is not None else ring, ring, bx, by)
+    present = [k for k, rid in enumerate(ids) if rid in positions]
+    if not present:
+        return None
+    m = len(present)
+    px = [positions[ids[k]][0] for k in present]
+    py = [positions[ids[k]][1] for k in present]
+    cx, cy = [0.0] * m, [0.0] * m
+    fm.orient(kind, formation.get("theta"), px, py, [bx[k] for k in present], [by[k] for k in present], m, cx, cy)
+    ax = formation["x"] if formation.get("x") is not None else sum(px) / m
+    ay = formation["y"] if formation.get("y") is not None else sum(py) / m
+    return [{"id": ids[k], "x": round(ax + cx[j], 2), "y": round(ay + cy[j], 2)} for j, k in enumerate(present)]
+
+
+def with_targets(event: dict[str, Any], formation: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The ``pose`` event with ``targets`` (:func:`formation_targets` for the rovers it places) added."""
+    positions = {r["id"]: (r["x"], r["y"]) for r in event["rovers"] if r["x"] is not None and r["y"] is not None}
+    return {**event, "targets": formation_targets(formation, positions)}

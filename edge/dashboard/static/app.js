@@ -2,7 +2,7 @@
 // are fetched one at a time as JPEG (the server caps the rate), overlays are drawn here, not on the camera board.
 "use strict";
 
-const TRAIL = 90;                 // points kept per rover trail (3 s at 30 fps)
+const TRAIL = 90;                 // points kept per rover trail (6 s at the default 15 pose events/s)
 const state = { info: null, rovers: new Map(), formation: null, frameSize: [1280, 720], lastPose: null };
 const $ = (id) => document.getElementById(id);
 
@@ -128,31 +128,21 @@ function drawMap() {
 }
 
 function drawFormationTarget(ctx, X, Y, scale) {
-  const f = state.formation;
-  if (!f || f.kind === "stop") return;
-  const pts = f.ids.map((id) => state.rovers.get(id)).filter((r) => r && r.last).map((r) => r.last);
-  if (!pts.length) return;
-  const cx = f.x != null ? f.x : pts.reduce((s, p) => s + p.x, 0) / pts.length;
-  const cy = f.y != null ? f.y : pts.reduce((s, p) => s + p.y, 0) / pts.length;
+  // The targets come with each pose event, computed on the board by the firmware's own formation code from where
+  // the rovers are: the shape is drawn turned and mirrored as the rovers will form it.
+  const f = state.formation, t = state.lastPose && state.lastPose.targets;
+  if (!f || f.kind === "stop" || !t || !t.length) return;
   ctx.strokeStyle = "rgba(255, 215, 0, 0.8)"; ctx.fillStyle = "rgba(255, 215, 0, 0.15)"; ctx.lineWidth = 2;
   ctx.setLineDash([6, 4]);
-  if (f.kind === "rendezvous") {
-    ctx.beginPath(); ctx.arc(X(cx), Y(cy), 20 * scale, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
-  } else if (f.kind === "line") {
-    const n = f.ids.length, s = f.spacing || 60, th = f.theta || 0;
-    const dx = -Math.sin(th), dy = Math.cos(th), half = ((n - 1) * s) / 2;
-    ctx.beginPath(); ctx.moveTo(X(cx - dx * half), Y(cy - dy * half)); ctx.lineTo(X(cx + dx * half), Y(cy + dy * half)); ctx.stroke();
-  } else if (f.kind === "triangle") {
-    const s = f.side || 100, rr = s / Math.sqrt(3), th = f.theta || 0;
-    ctx.beginPath();
-    for (let k = 0; k < 3; k++) {
-      const a = th + Math.PI / 2 + (k * 2 * Math.PI) / 3;
-      const x = cx + rr * Math.cos(a), y = cy + rr * Math.sin(a);
-      k ? ctx.lineTo(X(x), Y(y)) : ctx.moveTo(X(x), Y(y));
-    }
-    ctx.closePath(); ctx.fill(); ctx.stroke();
-  }
+  ctx.beginPath();
+  t.forEach((p, k) => (k ? ctx.lineTo(X(p.x), Y(p.y)) : ctx.moveTo(X(p.x), Y(p.y))));
+  if (f.kind !== "line" && t.length > 2) { ctx.closePath(); ctx.fill(); }
+  ctx.stroke();
   ctx.setLineDash([]);
+  for (const p of t) {
+    ctx.strokeStyle = colorOf(p.id);
+    ctx.beginPath(); ctx.arc(X(p.x), Y(p.y), Math.max(5, 7 * scale), 0, 2 * Math.PI); ctx.stroke();
+  }
 }
 
 // -- rovers table ----------------------------------------------------------------------------------------------------
