@@ -91,7 +91,7 @@ def test_sim_formation_writes_what_recomputes_its_metrics(tmp_path: Path) -> Non
     result = CliRunner().invoke(
         main, ["sim", "formation", "triangle", "--seed", "41", "--frames", "60", "--out", str(out)]
     )
-    assert result.exit_code == 0, result.output
+    assert result.exit_code == 1, result.output  # 60 frames (2 s) is too short to form: written, then exit 1
     for name in ("metrics.json", "truth.csv", "poses.jsonl", "motors.csv", "map.png", "snapshots.png", "xy_time.png"):
         assert (out / name).stat().st_size > 0, name
     metrics = json.loads((out / "metrics.json").read_text())
