@@ -107,14 +107,24 @@ def test_sim_formation_writes_what_recomputes_its_metrics(tmp_path: Path) -> Non
     assert "converged at frame" in result.output or "FAILS" in result.output
 
 
-def test_sim_trajectory_tracks_a_scripted_circle(tmp_path: Path) -> None:
-    out = tmp_path / "circle"
-    result = CliRunner().invoke(main, ["sim", "trajectory", "circle", "--frames", "90", "--out", str(out), "--json"])
+@pytest.mark.parametrize("kind", ["circle", "diagonal"])
+def test_sim_trajectory_tracks_a_scripted_path(tmp_path: Path, kind: str) -> None:
+    out = tmp_path / kind
+    args = ["sim", "trajectory", kind, "--frames", "90", "--out", str(out), "--json"]
+    result = CliRunner().invoke(main, [*args, *(["--video"] if kind == "diagonal" else [])])
     assert result.exit_code == 0, result.output
     metrics = json.loads(result.output[result.output.index("{") :])
     assert metrics["ips_error_cm"]["n"] >= 0.95 * 90 * 3
     assert metrics["ips_error_cm"]["p95"] < 2.0
     assert (out / "xy_time.png").stat().st_size > 0
+    if kind == "diagonal":  # the annotated camera view: every frame, readable
+        import cv2
+
+        video = cv2.VideoCapture(str(out / "camera.mp4"))
+        assert video.isOpened() and int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == 90
+        ok, image = video.read()
+        video.release()
+        assert ok and image.shape[:2] == (720, 1280)
 
 
 @pytest.mark.parametrize(
