@@ -188,7 +188,14 @@ def start(
     if source:
         why = "from --source"
     elif config_path is None and where.startswith("no configuration"):
-        why = "no configuration found, so the simulated camera"
+        import glob
+
+        cameras = sorted(glob.glob("/dev/video*"))
+        why = "no configuration found, so the simulated camera; " + (
+            f"a camera is attached at {cameras[0]}: calibrate it (edge-ips calibrate) and use --source {cameras[0]}"
+            if cameras
+            else "no camera is attached: plug one in and use --source /dev/video0"
+        )
     else:
         why = f"camera.source in {where}"
     log.info(

@@ -563,7 +563,8 @@ def run_until_signalled(appliance: Appliance) -> None:
     stop = threading.Event()
 
     def on_signal(signum: int, frame: Any) -> None:
-        log.info("%s received: stopping", signal.Signals(signum).name)
+        if not stop.is_set():  # a signal sent to the process and to its group arrives twice
+            log.info("%s received: stopping", signal.Signals(signum).name)
         stop.set()
 
     signal.signal(signal.SIGTERM, on_signal)
