@@ -108,41 +108,43 @@ def test_start_says_when_the_http_port_is_taken(env: dict[str, str]) -> None:
     _one_line_error(result, rf"http: port {port} on 0.0.0.0 is already in use; choose another with --http-port")
 
 
-def test_start_says_when_the_embedded_broker_port_is_taken_without_a_traceback(tmp_path: Path) -> None:
-    # The real command, so that what amqtt logs on the way reaches stderr too (a Mosquitto service on 1883).
+def _real_start(tmp_path: Path, *args: str, **env_vars: str) -> subprocess.CompletedProcess[str]:
+    """``edge-ips start ARGS`` as its own process (what amqtt or OpenCV log on the way reaches stderr too)."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("EDGE_IPS_")}
-    with socket.socket() as holder:
+    return subprocess.run(
+        [str(EDGE_IPS), "start", *args, "--http-port", "0"],
+        cwd=tmp_path,
+        env={**env, **env_vars},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def test_start_says_when_the_embedded_broker_port_is_taken_without_a_traceback(tmp_path: Path) -> None:
+    with socket.socket() as holder:  # a Mosquitto service on 1883
         holder.bind(("0.0.0.0", 0))
         holder.listen()
         port = holder.getsockname()[1]
-        env["EDGE_IPS_BROKER__EMBEDDED_PORT"] = str(port)
-        result = subprocess.run(
-            [str(EDGE_IPS), "start", "--http-port", "0"],
-            cwd=tmp_path,
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
+        result = _real_start(tmp_path, EDGE_IPS_BROKER__EMBEDDED_PORT=str(port))
     assert result.returncode == 2
     assert re.match(rf"Error: embedded broker: port {port} .* in use .*embedded_port", result.stderr.splitlines()[-1])
     assert "Traceback" not in result.stderr and "startup failed" not in result.stderr
 
 
 def test_a_missing_camera_is_a_one_line_error_from_the_real_command(tmp_path: Path) -> None:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("EDGE_IPS_")}
-    env["EDGE_IPS_BROKER__EMBEDDED_PORT"] = "0"
-    result = subprocess.run(
-        [str(EDGE_IPS), "start", "--source", "/dev/video7", "--http-port", "0"],
-        cwd=tmp_path,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    result = _real_start(tmp_path, "--source", "/dev/video7", EDGE_IPS_BROKER__EMBEDDED_PORT="0")
     assert result.returncode == 2
     assert result.stderr.strip().splitlines()[-1].startswith("Error: no camera at /dev/video7")
     assert "Traceback" not in result.stderr
+
+
+def test_a_file_that_is_not_a_video_is_a_one_line_error_without_opencv_noise(tmp_path: Path) -> None:
+    (tmp_path / "junk.mp4").write_text("not a video")
+    result = _real_start(tmp_path, "--source", str(tmp_path / "junk.mp4"), EDGE_IPS_BROKER__EMBEDDED_PORT="0")
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines()[-1] == f"Error: {tmp_path / 'junk.mp4'}: not a video file OpenCV can read"
+    assert "WARN" not in result.stderr and "moov atom" not in result.stderr and "Traceback" not in result.stderr
 
 
 # -- config ------------------------------------------------------------------------------------------------------
