@@ -32,7 +32,7 @@ from edge.messages import StatusV1, encode_pose
 from edge.metrics import Latency, LatencyWindow, RateMeter, RoverSnapshot, Snapshot
 from edge.pipeline import FrameResult, Tracker
 from edge.publisher import MqttPublisher, Publisher, TlsFiles, offline_status
-from edge.sources import CaptureThread, FrameSlot, FrameSource, SourceInfo, make_source, parse_source
+from edge.sources import CaptureThread, Frame, FrameSlot, FrameSource, SourceInfo, make_source, parse_source
 
 if TYPE_CHECKING:
     from edge.calibration import Calibration
@@ -97,6 +97,8 @@ class EdgeRuntime:
         self.frames_processed = 0
         self.poses_invalid = 0
         self.latest_result: FrameResult | None = None
+        self.last_frame: Frame | None = None  # the frame latest_result came from (the dashboard encodes it)
+        self._tracked = threading.Condition()
         self._first_result_mono: float | None = None
         self.error: BaseException | None = None
         self._rovers = {r: _RoverStats(r) for r in self.rover_ids}
@@ -158,9 +160,18 @@ class EdgeRuntime:
             self.end_to_end.add(t2 - frame.t_mono_s)
             self.fps_meter.tick(t2)
             self.frames_processed += 1
+            self.last_frame = frame
             self.latest_result = result
+            with self._tracked:
+                self._tracked.notify_all()
             if self._first_result_mono is None:
                 self._first_result_mono = t2
+
+    def wait_tracked(self, timeout_s: float) -> None:
+        """Block until the tracker has finished its next frame (or ``timeout_s``): the dashboard's threads do their
+        work in the gap that follows, not beside the tracker."""
+        with self._tracked:
+            self._tracked.wait(timeout_s)
 
     def _run_guarded(self, target: Callable[[], None]) -> Callable[[], None]:
         def run() -> None:

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import math
+import threading
+import time
 from pathlib import Path
 
 import cv2
@@ -267,6 +269,35 @@ def test_frames_are_encoded_only_when_asked_and_once_per_new_frame() -> None:
         frames.append(Frame(np.full((240, 320, 3), 200, dtype=np.uint8), 1, 2.0, 2.0))
         second = encoder.next_frame()
         assert second is not None and second.index == 1 and second.seq == first.seq + 1
+    finally:
+        encoder.close()
+
+
+def test_with_wait_next_the_encoder_works_right_after_each_tracked_frame() -> None:
+    # The appliance hands the encoder runtime.last_frame and EdgeRuntime.wait_tracked; here a list and a semaphore.
+    tracked: list[Frame] = []
+    done = threading.Semaphore(0)
+    woken: list[float] = []
+
+    def wait_next(timeout_s: float) -> None:
+        if done.acquire(True, timeout_s):
+            woken.append(time.monotonic())
+
+    def track(value: int) -> None:
+        tracked.append(Frame(np.full((240, 320, 3), value, dtype=np.uint8), len(tracked), 1.0, 1.0))
+        done.release()
+
+    encoder = FrameEncoder(
+        lambda: tracked[-1] if tracked else None, max_fps=30.0, max_width_px=160, wait_next=wait_next
+    )
+    try:
+        assert encoder.next_frame(timeout_s=0.3) is None  # nothing tracked yet: nothing to encode
+        track(10)
+        first = encoder.next_frame()
+        assert first is not None and first.index == 0 and woken  # encoded after the tracker said it was done
+        track(200)
+        second = encoder.next_frame()
+        assert second is not None and second.index == 1 and encoder.encoded == 2 and len(woken) == 2
     finally:
         encoder.close()
 

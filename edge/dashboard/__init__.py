@@ -64,12 +64,14 @@ def start_dashboard(
         make_pose=lambda result: with_targets(pose_event(result, overlay, rover_ids), desk.current),
         make_status=lambda: status_event(runtime.snapshot()),
         pose_hz=settings.pose_hz,
+        wait_next=runtime.wait_tracked,
     )
     encoder = FrameEncoder(
-        runtime.slot.peek,
+        lambda: runtime.last_frame,  # the frame just tracked: encoded in the gap before the next one arrives
         max_fps=settings.frame_fps,
         quality=settings.jpeg_quality,
         max_width_px=settings.max_width_px,
+        wait_next=runtime.wait_tracked,
     )
     token = settings.token.get_secret_value() if settings.token is not None else None
     desk = FormationDesk(

@@ -178,8 +178,10 @@ class EventHub:
         pose_hz: float = 15.0,
         status_interval_s: float = 1.0,
         queue_size: int = 32,
+        wait_next: Callable[[float], None] | None = None,
     ) -> None:
         self._latest = latest
+        self._wait_next = wait_next
         self._make_pose = make_pose
         self._make_status = make_status
         self.pose_period_s = 1.0 / pose_hz
@@ -212,23 +214,34 @@ class EventHub:
     def _run(self) -> None:
         background_priority()
         last: FrameResult | None = None
+        next_pose = 0.0
         next_status = 0.0
         while not self._closed.is_set():
             with self._cond:
                 self._cond.wait_for(lambda: bool(self._viewers) or self._closed.is_set())
             if self._closed.is_set():
                 break
+            # With wait_next (the appliance), built just after the tracker publishes a result, so the work falls in
+            # the gap before the next frame rather than beside the tracker; at most pose_hz events a second.
             result = self._latest()
-            if result is not None and result is not last:
+            now = time.monotonic()
+            if result is not None and result is not last and now >= next_pose:
                 last = result
+                next_pose = now + 0.85 * self.pose_period_s  # results come on the camera's clock: every 2nd at 15 Hz
                 self._broadcast(sse("pose", self._make_pose(result)))
                 self.pose_events += 1
-            now = time.monotonic()
-            if now >= next_status:
+                if now >= next_status:
+                    self._broadcast(sse("status", self._make_status()))
+                    self.status_events += 1
+                    next_status = now + self.status_interval_s
+            elif now >= next_status + self.status_interval_s:  # no frames: the status still says so
                 self._broadcast(sse("status", self._make_status()))
                 self.status_events += 1
                 next_status = now + self.status_interval_s
-            self._closed.wait(self.pose_period_s)
+            if self._wait_next is not None:
+                self._wait_next(0.25)
+            else:
+                self._closed.wait(self.pose_period_s)
 
     def _ensure_thread(self) -> None:
         if self._thread is None:
