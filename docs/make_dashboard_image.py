@@ -21,16 +21,9 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 OUT = REPO / "docs" / "img" / "dashboard.png"
 TOKEN = "docs-screenshot-token"
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
+sys.path.insert(0, str(REPO))
+
+from tests.support.dashboard import CHROMIUM, CHROMIUM_ARGS  # noqa: E402  (after the sys.path line above)
 
 
 def free_port() -> int:
@@ -62,7 +55,7 @@ def main() -> None:
                 except (urllib.error.URLError, OSError):
                     time.sleep(0.2)
             with sync_playwright() as pw:
-                browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
+                browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
                 page = browser.new_page(viewport={"width": 1280, "height": 900})
                 page.goto(url)
                 page.wait_for_function("() => state.rovers.size === 3", timeout=60_000)
