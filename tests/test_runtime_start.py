@@ -20,7 +20,7 @@ from edge.messages import parse_pose, parse_status
 from edge.sim.source import SimSource
 from tests.conftest import REPO
 from tests.support.mosquitto import Mosquitto, free_port
-from tests.support.runtime import MqttRecorder, poses
+from tests.support.runtime import MqttRecorder, poses, stop_process
 
 EDGE_IPS = [sys.executable, "-m", "edge.cli"]  # this checkout's edge-ips
 
@@ -43,13 +43,7 @@ def edge_process(args: list[str], cwd: Path, env: dict[str, str]) -> Iterator[su
     try:
         yield proc
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop_process(proc)
 
 
 def test_start_with_the_simulator_publishes_live_poses_that_mosquitto_sub_shows(

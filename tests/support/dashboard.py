@@ -7,7 +7,6 @@ import http.client
 import json
 import os
 import queue
-import signal
 import subprocess
 import sys
 import time
@@ -22,6 +21,7 @@ import paho.mqtt.client as mqtt
 from edge.messages import FORMATION_TOPIC
 from tests.conftest import REPO
 from tests.support.mosquitto import free_port, wait_for_port
+from tests.support.runtime import stop_process
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
@@ -147,13 +147,7 @@ def edge_start(args: list[str], workdir: Path, env: dict[str, str]) -> Iterator[
             time.sleep(0.2)
         yield edge
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop_process(proc)
 
 
 @contextmanager

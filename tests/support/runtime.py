@@ -6,6 +6,8 @@ protocol, STYLE point 3) until the tracking pipeline lands.
 from __future__ import annotations
 
 import json
+import signal
+import subprocess
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -258,3 +260,14 @@ def make_tls_files(directory: Path, name: str = "ca") -> dict[str, Path]:
     for path in (ca_key, key):
         path.chmod(0o644)  # mosquitto drops privileges before reading them
     return {"ca": ca_crt, "cert": crt, "key": key}
+
+
+def stop_process(proc: subprocess.Popen[Any], timeout_s: float = 30.0) -> None:
+    """Stop a process the way systemd would: SIGTERM, then SIGKILL if it has not exited within ``timeout_s``."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
