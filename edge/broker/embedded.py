@@ -23,6 +23,7 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any
 
+from amqtt.contexts import Action
 from amqtt.plugins.base import BaseAuthPlugin
 from amqtt.plugins.topic_checking import TopicAccessControlListPlugin
 
@@ -42,6 +43,17 @@ def _amqtt_noise(record: logging.LogRecord) -> bool:
     on shutdown is the design), and its reader's warning on a packet the gate refused (logged here)."""
     text = record.getMessage()
     return text != "Broker startup failed" and "messages not broadcasted" not in text and "PacketTooLarge" not in text
+
+
+_refusals = [0]
+
+
+def refused(what: str) -> None:
+    """Log a refusal; rate-limited, since a client that retries a refused login every second must not flood the
+    journal (the first 20, then every 1000th)."""
+    _refusals[0] += 1
+    if _refusals[0] <= 20 or _refusals[0] % 1000 == 0:
+        log.warning("embedded broker refused %s (%d refusals so far)", what, _refusals[0])
 
 
 # -- amqtt's plugins ---------------------------------------------------------------------------------------------
@@ -84,6 +96,14 @@ class TopicRightsPlugin(TopicAccessControlListPlugin):
         publish_acl: dict[str, list[str]] = field(default_factory=dict)
         subscribe_acl: dict[str, list[str]] = field(default_factory=dict)
 
+    async def topic_filtering(self, *, session: Any = None, topic: str | None = None, action: Any = None) -> bool:
+        allowed = bool(await super().topic_filtering(session=session, topic=topic, action=action))
+        if not allowed and action in (Action.PUBLISH, Action.SUBSCRIBE):
+            who = getattr(session, "username", None) or ANONYMOUS
+            what = "a publish on" if action == Action.PUBLISH else "a subscription to"
+            refused(f"{what} {topic} from {who!r}: not in its rights")
+        return allowed
+
 
 def plugins_config(access: BrokerAccess | None) -> dict[str, Any]:
     """amqtt's ``plugins`` section for ``access`` (None: only the login plugin, in its open mode)."""
@@ -121,14 +141,7 @@ def _make_broker(config: dict[str, Any], access: BrokerAccess | None) -> Any:
     from amqtt.mqtt.connect import ConnectPacket
     from amqtt.mqtt.packet import CONNECT, MQTTFixedHeader
 
-    refusals = [0]
     pending = [0]  # sockets that have not finished their CONNECT
-
-    def refused(what: str) -> None:
-        # Rate-limited: a client that retries a refused login every second must not flood the journal.
-        refusals[0] += 1
-        if refusals[0] <= 20 or refusals[0] % 1000 == 0:
-            log.warning("embedded broker refused %s (%d refusals so far)", what, refusals[0])
 
     class _Broker(Broker):
         async def stream_connected(self, reader: Any, writer: Any, listener_name: str) -> None:
