@@ -118,7 +118,9 @@ def _probe_broker(target: BrokerTarget, config: EdgeConfig, timeout_s: float) ->
     from edge.publisher import TlsFiles, connect_host, offline_status
 
     client = mqtt.Client(
-        mqtt.CallbackAPIVersion.VERSION2, client_id=f"edge-ips-doctor-{config.edge.id}", protocol=mqtt.MQTTv5
+        mqtt.CallbackAPIVersion.VERSION2,
+        client_id=f"edge-ips-doctor-{config.edge.id}",
+        protocol=mqtt.MQTTv311 if target.embedded else mqtt.MQTTv5,  # amqtt speaks MQTT 3.1.1 only
     )
     if target.username is not None:
         client.username_pw_set(target.username, target.password)
