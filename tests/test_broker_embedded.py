@@ -15,9 +15,9 @@ from edge.broker import BrokerAccess, Credentials, EmbeddedBroker, ensure_creden
 from edge.broker.access import MAX_PACKET_BYTES, Policy, payload_limit
 from edge.broker.gate import IDENTIFIER_REJECTED, NOT_AUTHORIZED, PacketLimit, PacketTooLarge
 from edge.config import BrokerTarget
-from edge.messages import FORMATION_TOPIC, edge_status_topic, parse_status, pose_topic, rover_status_topic
-from edge.publisher import MqttPublisher, offline_status
-from tests.support.probe import OtherHost, Probe, other_host
+from edge.messages import FORMATION_TOPIC, edge_status_topic, pose_topic, rover_status_topic
+from edge.publisher import MqttPublisher
+from tests.support.probe import OtherHost, Probe, edge_states_until_marker, other_host
 
 ROVERS = ["red", "green", "blue"]
 EDGE_ID = "edge-t"
@@ -150,11 +150,7 @@ def test_a_rover_login_cannot_take_the_edges_client_id(
             watcher.subscribe(edge_status_topic(EDGE_ID))
             with Probe("127.0.0.1", broker.port, client_id=f"edge-ips-{EDGE_ID}", **login(creds, "red")) as red:
                 assert (red.accepted, red.connack_code) == (False, IDENTIFIER_REJECTED)
-            marker = offline_status(EDGE_ID, ROVERS, t=1.0).model_copy(update={"state": "online", "camera": "ok"})
-            assert publisher.publish_status(marker)
-            topic = edge_status_topic(EDGE_ID)
-            assert watcher.wait(lambda: any(parse_status(p).t == 1.0 for p in watcher.payloads(topic)))
-            states = [parse_status(p).state for p in watcher.payloads(topic)]
+            states = edge_states_until_marker(publisher, watcher, EDGE_ID)
         assert "offline" not in states  # the edge's last will was never published
         assert publisher.connected and publisher.stats.disconnects == 0
     finally:

@@ -12,10 +12,10 @@ from edge.broker import BrokerFiles, read_credentials, write_mosquitto_config, w
 from edge.broker.access import MAX_PACKET_BYTES, MAX_PAYLOAD_BYTES
 from edge.broker.mosquitto import LOCAL_PORT, TLS_PORT
 from edge.config import BrokerTarget
-from edge.messages import FORMATION_TOPIC, edge_status_topic, parse_status, rover_status_topic
-from edge.publisher import MqttPublisher, TlsFiles, offline_status
+from edge.messages import FORMATION_TOPIC, edge_status_topic, rover_status_topic
+from edge.publisher import MqttPublisher, TlsFiles
 from tests.support.mosquitto import Mosquitto
-from tests.support.probe import Probe
+from tests.support.probe import Probe, edge_states_until_marker
 
 ROVERS = ["red", "green", "blue"]
 EDGE_ID = "edge-1"
@@ -56,11 +56,7 @@ def test_a_rover_login_with_the_edges_client_id_does_not_disconnect_the_edge(
                 assert red.accepted
                 red.publish(rover_status_topic("red"), b'{"marker":1}')
                 assert watcher.wait_payload(rover_status_topic("red"), b'{"marker":1}')
-            marker = offline_status(EDGE_ID, ROVERS, t=1.0).model_copy(update={"state": "online", "camera": "ok"})
-            assert publisher.publish_status(marker)
-            topic = edge_status_topic(EDGE_ID)
-            assert watcher.wait(lambda: any(parse_status(p).t == 1.0 for p in watcher.payloads(topic)))
-            states = [parse_status(p).state for p in watcher.payloads(topic)]
+            states = edge_states_until_marker(publisher, watcher, EDGE_ID)
         assert "offline" not in states  # no last will: the edge's session was never taken
         assert publisher.connected and publisher.stats.disconnects == 0
     finally:

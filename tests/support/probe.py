@@ -134,6 +134,19 @@ class Probe:
         self.close()
 
 
+def edge_states_until_marker(publisher: Any, watcher: Probe, edge_id: str) -> list[str]:
+    """Have the edge's publisher send a marker status and return every state ``watcher`` saw on the edge's status
+    topic up to it: an ``offline`` among them is the edge's last will, published when its session was taken."""
+    from edge.messages import edge_status_topic, parse_status
+    from edge.publisher import offline_status
+
+    marker = offline_status(edge_id, publisher.rovers, t=1.0).model_copy(update={"state": "online", "camera": "ok"})
+    assert publisher.publish_status(marker)
+    topic = edge_status_topic(edge_id)
+    assert watcher.wait(lambda: any(parse_status(p).t == 1.0 for p in watcher.payloads(topic)))
+    return [parse_status(p).state for p in watcher.payloads(topic)]
+
+
 # -- another host -------------------------------------------------------------------------------------------------
 @dataclass
 class OtherHost:
