@@ -71,6 +71,8 @@ class Mosquitto:
                     port = self.ports.setdefault(original, self.port if not self.ports else free_port())
                     line = f"listener {port} {self.host}"
                 lines.append(line)
+            if not self.ports:  # a file without listeners: its options are for this instance's one listener
+                lines.insert(1, f"listener {self.port} {self.host}")
             conf = self.workdir / "mosquitto-test.conf"
             conf.write_text("\n".join(lines) + "\n")
             return conf
