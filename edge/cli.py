@@ -167,7 +167,7 @@ def start(
     """
     import logging
 
-    from edge.config import broker_target
+    from edge.broker.clients import broker_summary
     from edge.runtime import prepare_appliance, run_until_signalled
 
     config, where, env_keys = _load(
@@ -203,7 +203,7 @@ def start(
         config.edge.id,
         config.camera.source,
         why,
-        broker_target(config.broker).display(),
+        broker_summary(config),
         where,
     )
     if env_keys:
@@ -239,7 +239,7 @@ def formation(
 
         edge-ips formation line --spacing 60 --rovers red,green,blue
     """
-    from edge.config import broker_target
+    from edge.broker.clients import edge_target
     from edge.messages import dumps
     from edge.publisher import TlsFiles, build_formation, send_formation
 
@@ -252,7 +252,7 @@ def formation(
         side = 100.0
     build_formation(shape, ids, seq=1, spacing_cm=spacing, side_cm=side, x_cm=x_cm, y_cm=y_cm, theta_rad=theta_rad)
     sent = send_formation(
-        broker_target(config.broker),
+        edge_target(config),
         lambda seq: build_formation(
             shape, ids, seq=seq, spacing_cm=spacing, side_cm=side, x_cm=x_cm, y_cm=y_cm, theta_rad=theta_rad
         ),
@@ -273,7 +273,22 @@ def formation(
 )
 @click.option("--rovers", default=None, help="Comma-separated rover ids (default: configured rovers).")
 @click.option("--edge-user", default="edge", show_default=True, help="MQTT user name of the edge.")
-@click.option("--port", type=click.IntRange(1, 65535), default=1883, show_default=True, help="Listener port.")
+@click.option("--port", type=click.IntRange(1, 65535), default=1883, show_default=True, help="Network listener.")
+@click.option(
+    "--local-port",
+    type=click.IntRange(1, 65535),
+    default=1884,
+    show_default=True,
+    help="Listener on 127.0.0.1 for the edge's own clients on the broker's machine.",
+)
+@click.option("--tls", is_flag=True, help="Add a TLS listener (client certificate required) and its files.")
+@click.option("--tls-port", type=click.IntRange(1, 65535), default=8883, show_default=True, help="TLS listener.")
+@click.option(
+    "--tls-name",
+    "tls_names",
+    multiple=True,
+    help="Name or address the clients use to reach the broker (repeat; default: this host's name and localhost).",
+)
 @click.option(
     "--install-dir",
     type=click.Path(file_okay=False, path_type=Path),
@@ -287,19 +302,27 @@ def broker_config(
     rovers: str | None,
     edge_user: str,
     port: int,
+    local_port: int,
+    tls: bool,
+    tls_port: int,
+    tls_names: tuple[str, ...],
     install_dir: Path | None,
     force: bool,
     config_path: Path | None,
 ) -> None:
-    """Write a Mosquitto configuration with users and ACLs for this deployment.
+    """Write a Mosquitto configuration with users, ACLs and (--tls) a TLS listener for this deployment.
 
     Anonymous access off; the edge may publish poses, its status and the formation; each rover may read poses
-    and the formation and publish only its own status. Random passwords go to credentials.toml (mode 600).
+    and the formation and publish only its own status; the viewer only reads. On the network listener a client's
+    id is its user name, so no login can take another client's session. Random passwords go to
+    credentials.toml; passwords and private keys are written with mode 600.
 
     Example:
 
-        edge-ips broker-config --out /etc/mosquitto/edge-ips --rovers red,green,blue
+        edge-ips broker-config --out /etc/mosquitto/edge-ips --rovers red,green,blue --tls --tls-name pi.lab
     """
+    import socket
+
     from edge.broker import write_mosquitto_config
 
     config, _, _ = _load(config_path)
@@ -310,12 +333,16 @@ def broker_config(
         edge_id=config.edge.id,
         edge_user=edge_user,
         port=port,
+        local_port=local_port,
+        tls_port=tls_port if tls else None,
+        tls_names=list(tls_names) or [socket.gethostname(), "localhost", "127.0.0.1"],
         install_dir=install_dir,
         force=force,
     )
-    for path in (files.conf, files.passwd, files.acl, files.credentials):
+    for path in files.all():
         click.echo(f"wrote {path}")
-    click.echo(f"passwords hashed with {files.hash_method}; clear-text credentials in {files.credentials}")
+    click.echo(f"passwords hashed as PBKDF2-SHA512 ($7$); clear-text logins in {files.credentials}")
+    click.echo(f"the edge on the broker's machine: broker.url = mqtt://{edge_user}@localhost:{local_port}")
 
 
 # -- config ------------------------------------------------------------------------------------------------------
@@ -562,7 +589,7 @@ def flash(
         return str(click.prompt(secret.prompt, hide_input=secret.hidden, default="", show_default=False))
 
     prompt = ask if sys.stdin.isatty() else None
-    config = flashing.provisioned_config(rover, os.environ, prompt)
+    config = flashing.provisioned_config(rover, os.environ, prompt, flashing.state_logins(os.environ))
     if bundle_dir is not None:
         for path in flashing.write_bundle(bundle_dir, config, romfs):
             click.echo(f"wrote {path}")

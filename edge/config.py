@@ -42,6 +42,11 @@ class EdgeSection(BaseModel):
     id: str = Field(default="edge-1", pattern=ID_PATTERN, description="Edge id: the status topic segment.")
     status_interval_s: float = Field(default=2.0, gt=0.0, le=60.0, description="Seconds between status refreshes.")
     log_level: Literal["debug", "info", "warning", "error"] = "info"
+    state_dir: Path | None = Field(
+        default=None,
+        description="The appliance's state (the embedded broker's logins). Default: $STATE_DIRECTORY (systemd), "
+        "else $XDG_STATE_HOME/edge-ips, else ~/.local/state/edge-ips.",
+    )
 
 
 class CameraSection(BaseModel):
@@ -86,7 +91,9 @@ class BrokerSection(BaseModel):
     keepalive_s: int = Field(default=10, ge=2, le=3600)
     reconnect_min_s: float = Field(default=0.25, gt=0.0, le=60.0)
     reconnect_max_s: float = Field(default=2.0, gt=0.0, le=600.0)
-    embedded_host: str = Field(default="0.0.0.0", description="Embedded broker: address to listen on.")
+    embedded_host: str = Field(
+        default="0.0.0.0", description="Embedded broker: address to listen on (logins required but from loopback)."
+    )
     embedded_port: int = Field(default=1883, ge=0, le=65535, description="Embedded broker: TCP port (0: any free).")
 
     @field_validator("url")
@@ -232,6 +239,24 @@ def broker_target(section: BrokerSection) -> BrokerTarget:
     )
 
 
+# -- the state directory -----------------------------------------------------------------------------------------
+def default_state_dir(env: Mapping[str, str]) -> Path:
+    """``$STATE_DIRECTORY`` (set by systemd's StateDirectory=), else ``$XDG_STATE_HOME/edge-ips``, else
+    ``~/.local/state/edge-ips``."""
+    if env.get("STATE_DIRECTORY"):
+        return Path(env["STATE_DIRECTORY"].split(":")[0])
+    if env.get("XDG_STATE_HOME"):
+        return Path(env["XDG_STATE_HOME"]) / "edge-ips"
+    home = Path(env["HOME"]) if env.get("HOME") else Path.home()
+    return home / ".local" / "state" / "edge-ips"
+
+
+def state_dir(config: EdgeConfig) -> Path:
+    """Where the appliance keeps its state: ``edge.state_dir`` (:func:`load_config` fills it in from the
+    environment when the file does not set it)."""
+    return config.edge.state_dir if config.edge.state_dir is not None else default_state_dir({})
+
+
 # -- loading -----------------------------------------------------------------------------------------------------
 def find_config(explicit: Path | None, env: Mapping[str, str], cwd: Path | None = None) -> Path | None:
     """The file to read: ``explicit`` (must exist), ``$EDGE_IPS_CONFIG`` (must exist), else the default lookup."""
@@ -303,6 +328,7 @@ def _resolve_paths(config: EdgeConfig, base: Path) -> EdgeConfig:
 
     return config.model_copy(
         update={
+            "edge": config.edge.model_copy(update={"state_dir": fix(config.edge.state_dir)}),
             "calibration": config.calibration.model_copy(update={"path": fix(config.calibration.path)}),
             "recording": config.recording.model_copy(update={"dir": fix(config.recording.dir)}),
             "broker": config.broker.model_copy(
@@ -361,6 +387,10 @@ def load_config(path: Path | None, env: Mapping[str, str] | None = None) -> Load
         raise ConfigError(_describe(exc, where_file, env_paths)) from exc
     if path is not None:
         config = _resolve_paths(config, path.resolve().parent)
+    if config.edge.state_dir is None:
+        config = config.model_copy(
+            update={"edge": config.edge.model_copy(update={"state_dir": default_state_dir(env)})}
+        )
     return LoadedConfig(config=config, path=path, env_keys=tuple(sorted(env_paths.values())))
 
 
@@ -447,6 +477,9 @@ STARTER = """\
 id = "edge-1"                 # the status topic is ips/v1/edge/<id>/status
 status_interval_s = 2.0       # retained status refreshed this often
 log_level = "info"            # debug, info, warning, error
+# state_dir = "/var/lib/edge-ips"  # the embedded broker's logins (generated on the first start, mode 600).
+                              # Default: $STATE_DIRECTORY (the service), else ~/.local/state/edge-ips; set it
+                              # so `edge-ips formation` and `edge-ips flash` find the service's logins
 
 [camera]
 source = "/dev/video0"        # example. A V4L2 index (0) or /dev/videoN, a video file, rtsp://..., http://...,
@@ -491,8 +524,8 @@ url = "embedded"              # embedded (amqtt in this process), mqtt://[user:p
 keepalive_s = 10
 reconnect_min_s = 0.25        # reconnect backoff, doubling up to reconnect_max_s
 reconnect_max_s = 2.0
-embedded_host = "0.0.0.0"     # embedded broker: where rovers connect
-embedded_port = 1883
+embedded_host = "0.0.0.0"     # embedded broker: where rovers connect. Logins required (generated in
+embedded_port = 1883          # state_dir); anonymous clients only from this machine, read-only
 
 [recording]
 # dir = "/var/lib/edge-ips/recordings"  # JSON lines of everything published; unset = off

@@ -12,7 +12,7 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 from edge.config import BrokerTarget, EdgeConfig, broker_target
@@ -118,7 +118,9 @@ def _probe_broker(target: BrokerTarget, config: EdgeConfig, timeout_s: float) ->
     from edge.publisher import TlsFiles, connect_host, offline_status
 
     client = mqtt.Client(
-        mqtt.CallbackAPIVersion.VERSION2, client_id=f"edge-ips-doctor-{config.edge.id}", protocol=mqtt.MQTTv5
+        mqtt.CallbackAPIVersion.VERSION2,
+        client_id=f"edge-ips-doctor-{config.edge.id}",
+        protocol=mqtt.MQTTv311 if target.embedded else mqtt.MQTTv5,  # amqtt speaks MQTT 3.1.1 only
     )
     if target.username is not None:
         client.username_pw_set(target.username, target.password)
@@ -184,20 +186,46 @@ def _probe_broker(target: BrokerTarget, config: EdgeConfig, timeout_s: float) ->
         client.loop_stop()
 
 
+def _embedded_logins(config: EdgeConfig) -> tuple[str, BrokerTarget | None, str]:
+    """How the embedded broker's logins look (for the line), the edge's target with its login if readable, and a
+    problem with the file ("" if none)."""
+    import stat
+
+    from edge.broker.clients import edge_target, embedded_credentials
+
+    path = embedded_credentials(config)
+    if not path.exists():
+        return f"logins generated on the first start in {path}", None, ""
+    mode = stat.S_IMODE(path.stat().st_mode)
+    try:
+        target = edge_target(config)
+    except EdgeIpsError as exc:
+        return f"logins in {path}", None, str(exc)
+    if mode & 0o077:
+        return f"logins in {path}", target, f"{path} is mode {mode:o}: others may read the passwords (chmod 600)"
+    return f"logins in {path} (mode 600)", target, ""
+
+
 def check_broker(config: EdgeConfig, timeout_s: float = 5.0) -> Check:
     target = broker_target(config.broker)
     if target.embedded:
+        logins, edge, problem = _embedded_logins(config)
+        where = f"embedded: amqtt on {target.host}:{target.port}, {logins}; anonymous: read-only, this machine only"
+        if problem:
+            return Check("broker", "warn" if edge is not None else "fail", f"{where}: {problem}", "fix the file")
         if _port_free(target.host, target.port):
-            return Check("broker", "ok", f"embedded: port {target.port} on {target.host} is free")
+            return Check("broker", "ok", f"{where}; port {target.port} is free")
         try:
-            probe = _probe_broker(BrokerTarget(embedded=True, host=target.host, port=target.port), config, timeout_s)
+            probe = _probe_broker(edge or target, config, timeout_s)
         except Exception as exc:
             probe = Check("broker", "fail", str(exc))
         if probe.level == "ok" and "is running" in probe.detail:
-            return probe
+            return Check("broker", "ok", f"{where}; {probe.detail}")
         hint = "stop the other broker, set broker.embedded_port, or use it: broker.url = mqtt://localhost:PORT"
         return Check("broker", "fail", f"embedded: port {target.port} on {target.host} is in use", hint)
-    return _probe_broker(target, config, timeout_s)
+    probe = _probe_broker(target, config, timeout_s)
+    login = f"login {target.username}" if target.username else "anonymous"
+    return replace(probe, detail=f"{probe.detail} ({'TLS' if target.tls else 'no TLS'}, {login})")
 
 
 def check_clock() -> Check:

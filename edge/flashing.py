@@ -13,7 +13,9 @@
 4. ``mpremote connect P exec "import rover; ..." + reset``: the board must answer with the firmware version.
 
 Secrets (Wi-Fi SSID and password, broker password) come from the environment or a prompt and go only into the
-bundle's ``config.json``, never into the repository. ``--bundle DIR`` writes exactly the files step 3 would copy.
+bundle's ``config.json`` (mode 0600 from its first byte), never into the repository. With the embedded broker the
+rover's MQTT login comes from the appliance's state directory (:func:`state_logins`) unless
+``EDGE_IPS_MQTT_PASSWORD`` is set. ``--bundle DIR`` writes exactly the files step 3 would copy.
 """
 
 from __future__ import annotations
@@ -27,10 +29,14 @@ import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from edge.errors import ConfigError, FlashError
+from edge.private_files import write_private
 from edge.rover_host import CONFIG_DIR, FIRMWARE_DIR, check_rover_config, firmware_modules
+
+if TYPE_CHECKING:
+    from edge.broker.credentials import Login
 
 COMPILED = ("msg", "formation", "config", "motors", "link", "rover")  # shipped as .mpy
 SOURCE = ("main.py",)  # run by MicroPython at boot, so it stays source
@@ -51,9 +57,11 @@ SECRETS = (
     Secret("EDGE_IPS_WIFI_PASSWORD", "Wi-Fi password", "wifi", "password", True),
     Secret("EDGE_IPS_MQTT_PASSWORD", "MQTT password for this rover (empty for none)", "broker", "password", True),
 )
+MQTT_PASSWORD_ENV = SECRETS[2].env
 BROKER_HOST_ENV = "EDGE_IPS_BROKER_HOST"  # optional: overrides the config's broker.host (host or host:port)
 
 Prompt = Callable[[Secret], str]
+StoredLogin = Callable[[str], "Login | None"]
 
 
 def rover_config_path(rover: str) -> Path:
@@ -62,11 +70,28 @@ def rover_config_path(rover: str) -> Path:
     return path if path.suffix == ".json" else CONFIG_DIR / f"{rover}.json"
 
 
-def provisioned_config(rover: str, env: Mapping[str, str], prompt: Prompt | None) -> dict[str, Any]:
+def state_logins(env: Mapping[str, str]) -> StoredLogin:
+    """The rovers' logins of the embedded broker, from the state directory of the configuration in effect (the
+    usual lookup: $EDGE_IPS_CONFIG, ./edge-ips.toml, /etc/edge-ips/config.toml). With an external broker there are
+    none: its logins come from ``broker-config``'s credentials.toml through EDGE_IPS_MQTT_PASSWORD."""
+    from edge.broker.credentials import rover_login
+    from edge.config import broker_target, find_config, load_config, state_dir
+
+    config = load_config(find_config(None, env), env).config
+    if not broker_target(config.broker).embedded:
+        return lambda rover_id: None
+    directory = state_dir(config)
+    return lambda rover_id: rover_login(directory, rover_id)
+
+
+def provisioned_config(
+    rover: str, env: Mapping[str, str], prompt: Prompt | None, stored: StoredLogin | None = None
+) -> dict[str, Any]:
     """The rover's config with its secrets filled in, checked by the firmware's own config.check.
 
     Each secret comes from ``env`` or, when absent there, from ``prompt`` (None: no terminal to ask on, which is
-    an error naming the variable to set).
+    an error naming the variable to set). The MQTT login comes first from ``stored`` (the embedded broker's, by
+    rover id) when ``EDGE_IPS_MQTT_PASSWORD`` is not set.
     """
     path = rover_config_path(rover)
     try:
@@ -78,7 +103,12 @@ def provisioned_config(rover: str, env: Mapping[str, str], prompt: Prompt | None
         raise ConfigError(f"{path}: not JSON ({exc.msg}, line {exc.lineno})") from None
     if not isinstance(given, dict):
         raise ConfigError(f"{path}: expected a JSON object")
+    login = stored(str(given.get("id", ""))) if stored is not None and env.get(MQTT_PASSWORD_ENV) is None else None
+    if login is not None:
+        given["broker"] = {**given.get("broker", {}), "user": login.username, "password": login.password}
     for secret in SECRETS:
+        if login is not None and secret.env == MQTT_PASSWORD_ENV:
+            continue
         if env.get(secret.env) is not None:
             value = env[secret.env]
         elif prompt is not None:
@@ -140,10 +170,8 @@ def write_bundle(directory: Path, config: Mapping[str, Any], romfs: bool = False
     for name in SOURCE:
         shutil.copyfile(FIRMWARE_DIR / name, directory / name)
         written.append(directory / name)
-    cfg = directory / "config.json"
-    cfg.write_text(json.dumps(config, indent=1) + "\n")
-    cfg.chmod(0o600)  # it holds the Wi-Fi and broker passwords
-    written.append(cfg)
+    # It holds the Wi-Fi and broker passwords: mode 0600 from the first byte.
+    written.append(write_private(directory / "config.json", json.dumps(config, indent=1) + "\n"))
     return written
 
 

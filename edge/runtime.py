@@ -461,7 +461,7 @@ def prepare_appliance(
     Every user-fixable problem raises an :class:`EdgeIpsError` here, before any frame is published; whatever was
     already started is stopped again.
     """
-    from edge.broker import EmbeddedBroker
+    from edge.broker.clients import start_embedded
     from edge.httpserver import HttpServer, Response
     from edge.metrics import to_prometheus
     from edge.recording import Recorder
@@ -498,10 +498,9 @@ def prepare_appliance(
 
         target = broker_target(config.broker)
         broker = None
-        if target.embedded:
-            broker = EmbeddedBroker(target.host, target.port).start()
+        if target.embedded:  # with the state directory's logins; the edge's clients use the edge's
+            broker, target = start_embedded(config)
             started.callback(broker.stop)
-            target = BrokerTarget(embedded=True, host=target.host, port=broker.port)
 
         recorder = None
         if config.recording.dir is not None:

@@ -152,16 +152,10 @@ def test_retained_formation_reaches_a_late_subscriber_and_seq_follows(tmp_path: 
 
 
 # -- broker-config with a real Mosquitto -------------------------------------------------------------------------
-@pytest.fixture(params=["mosquitto_passwd", "pbkdf2-sha512"])
-def deployed(request: pytest.FixtureRequest, tmp_path: Path) -> Any:
-    files = write_mosquitto_config(
-        tmp_path / "conf",
-        rovers=ROVERS,
-        edge_id="edge-1",
-        passwords=PASSWORDS,
-        use_tool=request.param == "mosquitto_passwd",
-    )
-    assert files.hash_method == request.param
+@pytest.fixture
+def deployed(tmp_path: Path) -> Any:
+    """A real Mosquitto with broker-config's files; :attr:`port` is the local listener (the edge's)."""
+    files = write_mosquitto_config(tmp_path / "conf", rovers=ROVERS, edge_id="edge-1", passwords=PASSWORDS)
     with Mosquitto(tmp_path / "run", conf_path=files.conf) as broker:
         yield broker
 
@@ -218,12 +212,14 @@ def test_broker_config_refuses_wrong_passwords_and_anonymous(
 def test_broker_config_writes_secret_files_and_refuses_to_overwrite(tmp_path: Path) -> None:
     files = write_mosquitto_config(tmp_path, rovers=ROVERS, install_dir=Path("/etc/mosquitto/edge-ips"))
     assert files.credentials.stat().st_mode & 0o777 == 0o600
-    assert files.passwd.stat().st_mode & 0o077 == 0
+    assert files.passwd.stat().st_mode & 0o777 == 0o600
     conf = files.conf.read_text()
     assert "allow_anonymous false" in conf and "password_file /etc/mosquitto/edge-ips/passwd" in conf
-    assert "listener 1883 0.0.0.0" in conf and "set_tcp_nodelay true" in conf
+    assert "set_tcp_nodelay true" in conf and "max_packet_size 2048" in conf and "message_size_limit 512" in conf
+    local, network = conf.split("listener 1884 127.0.0.1")[1].split("listener 1883 0.0.0.0")
+    assert "use_username_as_clientid" not in local and "use_username_as_clientid true" in network
     creds = files.credentials.read_text()
-    assert creds.count("password = ") == 4
+    assert creds.count("password = ") == 5  # edge, viewer, three rovers
     with pytest.raises(BrokerError, match="already exist"):
         write_mosquitto_config(tmp_path, rovers=ROVERS)
 
@@ -243,7 +239,7 @@ def test_acl_lists_each_rover_once_with_its_own_status_topic() -> None:
     assert "topic write ips/v1/rovers/+/pose" in text.split("user red")[0]  # only the edge writes poses
 
 
-def test_fallback_hash_has_mosquittos_layout() -> None:
+def test_python_hash_is_what_mosquitto_passwd_writes() -> None:
     h = mosquitto_hash("abc", salt=b"\x59\x23\xc7\x23\x41\x6e\x50\x28\x6a\x0a\x5a\x32")
     # the same salt and password through mosquitto_passwd 2.0.11 on this machine:
     assert h == (

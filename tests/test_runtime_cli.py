@@ -231,7 +231,8 @@ def test_doctor_reports_one_line_per_check_with_fix_hints(tmp_path: Path, env: d
     assert [ln.split()[1] for ln in lines] == ["config", "camera", "calibration", "broker", "clock"]
     assert lines[0].startswith("OK") and lines[1].startswith("OK") and "320x240" in lines[1]
     assert lines[2].startswith("FAIL") and "-> run `edge-ips calibrate`" in lines[2]
-    assert lines[3].startswith("OK") and "embedded: port" in lines[3]
+    assert lines[3].startswith("OK") and "embedded: amqtt on 0.0.0.0:0, logins generated on the first start" in lines[3]
+    assert "anonymous: read-only, this machine only; port 0 is free" in lines[3]
     assert result.exit_code == 1
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import shutil
 import socket
 import subprocess
 import time
@@ -11,8 +10,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from edge.broker import write_password_file
+
 MOSQUITTO = "/usr/sbin/mosquitto"
-MOSQUITTO_PASSWD = shutil.which("mosquitto_passwd") or "/usr/bin/mosquitto_passwd"
 
 
 def free_port() -> int:
@@ -44,7 +44,7 @@ class Mosquitto:
 
     ``users``: name -> password (anonymous access is then off unless ``allow_anonymous``); ``acl``: the text of
     an ACL file. ``conf_path`` may point at a complete config (e.g. one written by ``edge-ips broker-config``):
-    then only the listener line is replaced by this instance's port.
+    then each listener moves to a free port on ``host`` (:attr:`ports`; the first one is :attr:`port`).
     """
 
     workdir: Path
@@ -55,18 +55,26 @@ class Mosquitto:
     conf_path: Path | None = None
     host: str = "127.0.0.1"
     proc: subprocess.Popen[bytes] | None = None
+    ports: dict[int, int] = field(default_factory=dict)  # a conf_path's listener port -> this instance's
 
     def _write_config(self) -> Path:
         self.workdir.mkdir(parents=True, exist_ok=True)
         if self.conf_path is not None:
-            lines = [
-                ln
-                for ln in self.conf_path.read_text().splitlines()
-                if not ln.strip().startswith(("listener", "port ", "log_dest", "pid_file"))
-            ]
-            text = f"listener {self.port} {self.host}\nlog_dest stderr\n{_user_line()}" + "\n".join(lines) + "\n"
+            # Each listener of the file moves to a free port on this host (the first to self.port); the options
+            # that follow a listener line stay with it.
+            lines = [f"log_dest stderr\n{_user_line()}"]
+            for line in self.conf_path.read_text().splitlines():
+                if line.strip().startswith(("port ", "log_dest", "pid_file")):
+                    continue
+                if line.strip().startswith("listener"):
+                    original = int(line.split()[1])
+                    port = self.ports.setdefault(original, self.port if not self.ports else free_port())
+                    line = f"listener {port} {self.host}"
+                lines.append(line)
+            if not self.ports:  # a file without listeners: its options are for this instance's one listener
+                lines.insert(1, f"listener {self.port} {self.host}")
             conf = self.workdir / "mosquitto-test.conf"
-            conf.write_text(text)
+            conf.write_text("\n".join(lines) + "\n")
             return conf
         lines = [
             f"listener {self.port} {self.host}",
@@ -76,11 +84,7 @@ class Mosquitto:
             f"allow_anonymous {'true' if self.allow_anonymous and not self.users else 'false'}",
         ]
         if self.users:
-            pw = self.workdir / "passwd"
-            pw.write_text("")
-            for name, password in self.users.items():
-                subprocess.run([MOSQUITTO_PASSWD, "-b", str(pw), name, password], check=True, capture_output=True)
-            pw.chmod(0o600)
+            pw = write_password_file(self.workdir / "passwd", self.users)  # never a password on a command line
             lines.append(f"password_file {pw}")
         if self.acl is not None:
             acl = self.workdir / "acl"
