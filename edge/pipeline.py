@@ -32,7 +32,7 @@ import tomllib
 from collections import deque
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal, Protocol
+from typing import Annotated, Literal, Protocol
 
 import cv2
 import numpy as np
@@ -60,14 +60,18 @@ from edge.two_tone import TwoToneGeometry, TwoToneHeading, inner_edge_weights, v
 FloatArray = NDArray[np.float64]
 
 
+Channel = Annotated[int, Field(ge=0, le=255)]
+ColorBgr = tuple[Channel, Channel, Channel]
+
+
 class RoverConfig(BaseModel):
     """One rover to track: its id (the topic name) and its marker colour."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     id: str = Field(pattern=ID_PATTERN, description="Rover id, also the MQTT topic segment.")
-    color_bgr: tuple[int, int, int] = Field(description="Nominal marker colour as seen by the camera, B, G, R 0-255.")
-    front_color_bgr: tuple[int, int, int] | None = Field(
+    color_bgr: ColorBgr = Field(description="Nominal marker colour as seen by the camera, B, G, R 0-255.")
+    front_color_bgr: ColorBgr | None = Field(
         default=None,
         description="Two-tone marker: colour of its light (white) front part as the camera sees it (the rest has "
         "color_bgr); it gives the heading even when the rover stands still. None: a one-colour marker.",
