@@ -207,7 +207,7 @@ class EdgeRuntime:
 
     def _state(self, camera: str, missing: list[str]) -> tuple[str, str]:
         if camera not in ("ok", "starting"):
-            return "degraded", f"camera {camera}"
+            return "degraded", f"camera {camera}" + (f": {self.capture.problem}" if self.capture.problem else "")
         tracking_for_s = 0.0 if self._first_result_mono is None else time.monotonic() - self._first_result_mono
         if camera == "ok" and missing and tracking_for_s > max(self.status_interval_s, 1.0):
             return "degraded", f"not seen: {', '.join(missing)}"

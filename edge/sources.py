@@ -379,6 +379,12 @@ class CaptureThread(threading.Thread):
     ``state``: ``ok`` while frames come, ``missing`` while the source cannot be (re)opened or read, ``stopped``
     after a finite source ended or on stop. A stall (an open source that delivers nothing) is judged by the
     reader of :attr:`last_frame_mono` against its own timeout: a blocked read cannot report itself.
+
+    Every frame has the size the source had when it was first opened (``info``), the size the calibration and the
+    tracker were set up for. A camera that comes back from a reopen at another size (a UVC camera re-enumerated
+    with its default mode, another program that changed the format, a stream restarted at another resolution) is
+    not passed on: the thread says so once (``problem`` holds the reason while it lasts), and keeps reopening the
+    source, which asks for the configured size again each time, until it delivers the size it was calibrated for.
     """
 
     def __init__(
@@ -396,6 +402,8 @@ class CaptureThread(threading.Thread):
         self.info = info
         self.reopen_min_s, self.reopen_max_s = reopen_min_s, max(reopen_max_s, reopen_min_s)
         self.state = "ok"
+        self.problem = ""
+        self.expected_size = (info.width_px, info.height_px)
         self.frames = 0
         self.failures = 0
         self.reopens = 0
@@ -412,19 +420,40 @@ class CaptureThread(threading.Thread):
         self._last_index = frame.index + self._offset
         return frame if self._offset == 0 else replace(frame, index=self._last_index)
 
+    def _size_problem(self, width_px: int, height_px: int) -> str:
+        if (width_px, height_px) == self.expected_size:
+            return ""
+        w, h = self.expected_size
+        return (
+            f"the source delivers {width_px}x{height_px} frames but was calibrated at {w}x{h}; waiting for it at "
+            f"{w}x{h} (or calibrate at {width_px}x{height_px} and set camera.width and camera.height)"
+        )
+
     def _reopen(self, reason: str) -> None:
         self.failures += 1
         self.state = "missing"
-        log.warning("source lost: %s; reopening with backoff", reason)
+        if not self.problem:
+            log.warning("source lost: %s; reopening with backoff", reason)
         self.source.close()
         delay = self.reopen_min_s
         while not self.stop_event.wait(delay):
+            next_delay = min(delay * 2, self.reopen_max_s)
             try:
-                self.info = self.source.open()
+                info = self.source.open()
             except SourceError as exc:
-                log.info("reopen failed, next try in %.1f s: %s", min(delay * 2, self.reopen_max_s), exc)
-                delay = min(delay * 2, self.reopen_max_s)
+                log.info("reopen failed, next try in %.1f s: %s", next_delay, exc)
+                delay = next_delay
                 continue
+            problem = self._size_problem(info.width_px, info.height_px)
+            if problem:
+                self.source.close()
+                if problem != self.problem:  # said once, not at every attempt
+                    log.warning("%s: %s", info.description, problem)
+                self.problem = problem
+                delay = next_delay
+                continue
+            self.info = info
+            self.problem = ""
             self.reopens += 1
             self.last_frame_mono = time.monotonic()
             self.state = "ok"
@@ -443,6 +472,13 @@ class CaptureThread(threading.Thread):
                     log.info("source ended: %s", self.info.description)
                     self.ended = True
                     break
+                height_px, width_px = frame.image.shape[:2]
+                problem = self._size_problem(width_px, height_px)
+                if problem:  # a stream that changed its resolution without a reconnect
+                    log.warning("%s: %s", self.info.description, problem)
+                    self.problem = problem
+                    self._reopen(problem)
+                    continue
                 self.slot.put(self._renumber(frame))
                 self.frames += 1
                 self.last_frame_mono = frame.t_mono_s
