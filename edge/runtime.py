@@ -2,7 +2,7 @@
 
 Threads and what they share:
 
-* ``capture`` (:class:`edge.sources.CaptureThread`) reads the source into a newest-frame :class:`FrameSlot`;
+* ``capture`` (:class:`edge.capture.CaptureThread`) reads the source into a newest-frame :class:`FrameSlot`;
 * ``tracker`` (:class:`EdgeRuntime`) takes the newest frame, runs the tracker, publishes one pose per rover;
 * ``status`` publishes the retained edge status every ``status_interval_s`` and at once after a reconnect;
 * paho's network thread (reconnects with backoff), the recorder's writer, the HTTP server, the embedded broker.
@@ -26,13 +26,14 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from edge.capture import CaptureThread, FrameSlot
 from edge.config import BrokerTarget, EdgeConfig, broker_target
 from edge.errors import CalibrationError, MessageError
 from edge.messages import StatusV1, encode_pose
 from edge.metrics import Latency, LatencyWindow, RateMeter, RoverSnapshot, Snapshot
 from edge.pipeline import FrameResult, Tracker
 from edge.publisher import MqttPublisher, Publisher, TlsFiles, offline_status
-from edge.sources import CaptureThread, Frame, FrameSlot, FrameSource, SourceInfo, make_source, parse_source
+from edge.sources import Frame, FrameSource, SourceInfo, make_source, parse_source
 
 if TYPE_CHECKING:
     from edge.calibration import Calibration
@@ -479,6 +480,7 @@ def prepare_appliance(
             height=cam.height,
             fps=cam.fps,
             fourcc=cam.fourcc,
+            controls=cam.controls,
             loop=cam.loop,
             realtime=cam.realtime,
             stall_timeout_s=cam.stall_timeout_s,

@@ -14,10 +14,11 @@ import numpy as np
 import pytest
 
 from edge.camera import PinholeCamera
+from edge.capture import CaptureThread, FrameSlot
 from edge.errors import SourceError
 from edge.pipeline import FrameResult, TrackerConfig, build_tracker
 from edge.runtime import TrackerInputs, exact_calibration
-from edge.sources import CaptureThread, Frame, FrameSlot, SourceInfo
+from edge.sources import Frame, SourceInfo
 from tests.support.appliance import edge_config, running
 from tests.support.mosquitto import Mosquitto
 from tests.support.runtime import CentroidTracker, MjpegServer, MqttRecorder, poses, statuses
