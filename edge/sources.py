@@ -388,3 +388,21 @@ def make_source(
             raise SourceError("the simulated camera is not available in this build")
         return sim_factory(spec.target)
     return VideoFileSource(Path(spec.target), loop=loop, realtime=realtime)
+
+
+def grab_frame(source: FrameSource, settle_frames: int = 10) -> NDArray[np.uint8]:
+    """One frame of a live ``source``: the last of its first ``settle_frames`` (a camera's first frames come before
+    its exposure has settled). Opens and closes the source."""
+    source.open()
+    try:
+        image = None
+        for _ in range(settle_frames):
+            frame = source.read()
+            if frame is None:
+                break
+            image = frame.image
+    finally:
+        source.close()
+    if image is None:
+        raise SourceError("the source delivered no frame")
+    return image
