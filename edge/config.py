@@ -495,6 +495,8 @@ path = "calibration.json"     # example. From `edge-ips calibrate`; relative pat
                               # Required for a real camera; the simulator brings its own exact calibration.
 
 # One table per rover: its id (the topic ips/v1/rovers/<id>/pose) and marker colour as the camera sees it (B, G, R).
+# Measure them with `edge-ips rovers enroll` (a frame of the rovers and one of the empty floor): the values below
+# are examples, not any real marker's.
 [[rovers]]
 id = "red"
 color_bgr = [40, 40, 200]
