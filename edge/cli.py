@@ -968,20 +968,10 @@ def rovers_enroll(
         frame, where = read_image(image), str(image)
     else:
         from edge.runtime import default_sim_factory
-        from edge.sources import grab_frame, make_source
+        from edge.sources import grab_frame
 
-        cam = config.camera
-        live = make_source(
-            cam.source,
-            width=cam.width,
-            height=cam.height,
-            fps=cam.fps,
-            fourcc=cam.fourcc,
-            controls=cam.controls,
-            realtime=False,
-            sim_factory=default_sim_factory(config),
-        )
-        frame, where = grab_frame(live), cam.source
+        live = config.camera.build_source(default_sim_factory(config), realtime=False)
+        frame, where = grab_frame(live), config.camera.source
     empty = read_image(background)
     mapping = load_plane_mapping(calibration, (frame.shape[1], frame.shape[0]))
     tracker = TrackerConfig.model_validate(config.tracker)

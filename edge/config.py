@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import math
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -26,6 +26,7 @@ from edge.camera_controls import CameraControls
 from edge.errors import ConfigError
 from edge.messages import ID_PATTERN
 from edge.pipeline import DEFAULT_ROVERS, RoverConfig
+from edge.sources import FrameSource, make_source
 
 ENV_PREFIX = "EDGE_IPS_"
 ENV_CONFIG_PATH = "EDGE_IPS_CONFIG"
@@ -67,6 +68,23 @@ class CameraSection(BaseModel):
     controls: CameraControls = Field(
         default_factory=CameraControls, description="V4L2 cameras: focus, white balance, exposure... set at every open."
     )
+
+    def build_source(
+        self, sim_factory: Callable[[str], FrameSource] | None = None, *, realtime: bool | None = None
+    ) -> FrameSource:
+        """The configured source, built (not opened); ``realtime`` overrides the configured pacing."""
+        return make_source(
+            self.source,
+            width=self.width,
+            height=self.height,
+            fps=self.fps,
+            fourcc=self.fourcc,
+            controls=self.controls,
+            loop=self.loop,
+            realtime=self.realtime if realtime is None else realtime,
+            stall_timeout_s=self.stall_timeout_s,
+            sim_factory=sim_factory,
+        )
 
 
 class CalibrationSection(BaseModel):

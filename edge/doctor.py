@@ -42,22 +42,11 @@ def check_config(where: str, env_keys: tuple[str, ...]) -> Check:
 
 def check_camera(config: EdgeConfig, sim_factory: Callable[[str], Any] | None = None) -> tuple[Check, Any, Any]:
     """Open the source and read one frame. Returns the check, the (closed) source and what it granted."""
-    from edge.sources import make_source, parse_source
+    from edge.sources import parse_source
 
     cam = config.camera
     try:
-        source = make_source(
-            cam.source,
-            width=cam.width,
-            height=cam.height,
-            fps=cam.fps,
-            fourcc=cam.fourcc,
-            controls=cam.controls,
-            loop=cam.loop,
-            realtime=False,
-            stall_timeout_s=cam.stall_timeout_s,
-            sim_factory=sim_factory,
-        )
+        source = cam.build_source(sim_factory, realtime=False)
         info = source.open()
     except EdgeIpsError as exc:
         hint = "plug the camera in and check `ls /dev/video*`, or try --source sim"

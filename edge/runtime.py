@@ -33,7 +33,7 @@ from edge.messages import StatusV1, encode_pose
 from edge.metrics import Latency, LatencyWindow, RateMeter, RoverSnapshot, Snapshot
 from edge.pipeline import FrameResult, Tracker
 from edge.publisher import MqttPublisher, Publisher, TlsFiles, offline_status
-from edge.sources import Frame, FrameSource, SourceInfo, make_source, parse_source
+from edge.sources import Frame, FrameSource, SourceInfo, parse_source
 
 if TYPE_CHECKING:
     from edge.calibration import Calibration
@@ -474,18 +474,7 @@ def prepare_appliance(
     with contextlib.ExitStack() as started:
         # The source, its calibration and the tracker first: a missing camera or a bad calibration is said before
         # any port is bound (and not hidden behind a port that is taken).
-        source = make_source(
-            cam.source,
-            width=cam.width,
-            height=cam.height,
-            fps=cam.fps,
-            fourcc=cam.fourcc,
-            controls=cam.controls,
-            loop=cam.loop,
-            realtime=cam.realtime,
-            stall_timeout_s=cam.stall_timeout_s,
-            sim_factory=sim_factory or default_sim_factory(config),
-        )
+        source = cam.build_source(sim_factory or default_sim_factory(config))
         info = source.open()
         started.callback(source.close)
         log.info("source: %s", info.description)
