@@ -49,20 +49,9 @@ AREA_RANGE = (0.25, 1.6)  # a coloured blob's area as a share of the nominal mar
 MIN_FRONT_SHARE = 0.1  # a light part smaller than this share of the marker is a reflection, not a two-tone front
 LIGHT_MARGIN_DEG = 10.0  # how far a hue may move between places in a room (lamps, window light) beyond its spread
 CLIPPED = 250  # a channel this bright is clipped (glare): its hue is not the marker's
-HUE_NAMES = (  # HSV hue (degrees) -> name, for rovers enrolled without ids
-    (0.0, "red"),
-    (30.0, "orange"),
-    (60.0, "yellow"),
-    (90.0, "lime"),
-    (120.0, "green"),
-    (150.0, "teal"),
-    (180.0, "cyan"),
-    (210.0, "azure"),
-    (240.0, "blue"),
-    (270.0, "purple"),
-    (300.0, "magenta"),
-    (330.0, "pink"),
-)
+HUE_NAMES = ((0.0, "red"), (30.0, "orange"), (60.0, "yellow"), (90.0, "lime"), (120.0, "green"), (150.0, "teal"),
+             (180.0, "cyan"), (210.0, "azure"), (240.0, "blue"), (270.0, "purple"), (300.0, "magenta"),
+             (330.0, "pink"))  # fmt: skip  # HSV hue (degrees) -> name, for rovers enrolled without ids
 
 
 @dataclass(frozen=True)
