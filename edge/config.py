@@ -22,6 +22,7 @@ from urllib.parse import unquote, urlsplit
 
 from pydantic import BaseModel, ConfigDict, Field, SecretStr, ValidationError, field_validator
 
+from edge.camera_controls import CameraControls
 from edge.errors import ConfigError
 from edge.messages import ID_PATTERN
 from edge.tracker_config import DEFAULT_ROVERS, RoverConfig, TrackerSettings, require_unique_ids
@@ -68,6 +69,9 @@ class CameraSection(BaseModel):
     stall_timeout_s: float = Field(default=2.0, gt=0.0, le=60.0, description="No frame for this long = stalled.")
     reopen_min_s: float = Field(default=0.5, gt=0.0, le=60.0, description="First wait before reopening a source.")
     reopen_max_s: float = Field(default=8.0, gt=0.0, le=600.0, description="Longest wait between reopen attempts.")
+    controls: CameraControls = Field(
+        default_factory=CameraControls, description="V4L2 cameras: focus, white balance, exposure... set at every open."
+    )
 
 
 class CalibrationSection(BaseModel):
@@ -494,11 +498,25 @@ stall_timeout_s = 2.0         # no frame for this long: camera "stalled", status
 reopen_min_s = 0.5            # backoff between reopen attempts, doubling up to reopen_max_s
 reopen_max_s = 8.0
 
+[camera.controls]             # a V4L2 camera's controls, set at every (re)open and logged as granted; unset = the
+                              # camera's own. Fix focus and white balance under a calibration (docs/deploy.md: C920)
+# autofocus = false           # example. Autofocus moves the focal length the calibration measured
+# focus = 0                   # example. Camera units (C920: 0-250 in steps of 5); needs autofocus = false
+# auto_white_balance = false  # example. Auto white balance moves the marker hues
+# white_balance_k = 4000      # example. Needs auto_white_balance = false
+# auto_exposure = false       # example. false: manual exposure; true: the camera's (aperture priority)
+# exposure = 156              # example. Units of 100 us (156 = 15.6 ms); needs auto_exposure = false
+# exposure_dynamic_framerate = false  # example. false: the camera keeps its frame rate in low light
+# gain = 64                   # example
+# power_line_hz = 50          # example. Mains frequency: 50 or 60 (flicker under lamps), 0 = off
+
 [calibration]
 path = "calibration.json"     # example. From `edge-ips calibrate`; relative paths are relative to this file.
                               # Required for a real camera; the simulator brings its own exact calibration.
 
 # One table per rover: its id (the topic ips/v1/rovers/<id>/pose) and marker colour as the camera sees it (B, G, R).
+# Measure them with `edge-ips rovers enroll` (a frame of the rovers and one of the empty floor): the values below
+# are examples, not any real marker's.
 [[rovers]]
 id = "red"
 color_bgr = [40, 40, 200]

@@ -1,7 +1,8 @@
 """``edge-ips doctor``: is this board ready to run ``edge-ips start``? One line per check, with a fix hint.
 
-Checks the configuration, the camera (opens, resolution, fps), the calibration (loads, matches the resolution),
-the broker (connects, may publish) and the clock (synchronised: poses carry the board's wall-clock time).
+Checks the configuration, the camera (opens, resolution, fps), its controls (granted as configured; autofocus and
+auto white balance off under a calibration), the calibration (loads, matches the resolution), the broker (connects,
+may publish) and the clock (synchronised: poses carry the board's wall-clock time).
 """
 
 from __future__ import annotations
@@ -41,21 +42,11 @@ def check_config(where: str, env_keys: tuple[str, ...]) -> Check:
 
 def check_camera(config: EdgeConfig, sim_factory: Callable[[str], Any] | None = None) -> tuple[Check, Any, Any]:
     """Open the source and read one frame. Returns the check, the (closed) source and what it granted."""
-    from edge.sources import make_source, parse_source
+    from edge.sources import camera_source, parse_source
 
     cam = config.camera
     try:
-        source = make_source(
-            cam.source,
-            width=cam.width,
-            height=cam.height,
-            fps=cam.fps,
-            fourcc=cam.fourcc,
-            loop=cam.loop,
-            realtime=False,
-            stall_timeout_s=cam.stall_timeout_s,
-            sim_factory=sim_factory,
-        )
+        source = camera_source(cam, sim_factory, realtime=False)
         info = source.open()
     except EdgeIpsError as exc:
         hint = "plug the camera in and check `ls /dev/video*`, or try --source sim"
@@ -78,6 +69,32 @@ def check_camera(config: EdgeConfig, sim_factory: Callable[[str], Any] | None = 
         hint = f"the camera did not grant {cam.width}x{cam.height}@{cam.fps:g}; check `v4l2-ctl --list-formats-ext`"
     check = Check("camera", level, detail, hint)
     return check, source, info
+
+
+def check_controls(config: EdgeConfig, source: Any) -> Check | None:
+    """A V4L2 camera's controls: what was not granted, and automatic modes that move a calibration or the hues."""
+    from edge.sources import CameraSource
+
+    if not isinstance(source, CameraSource):
+        return None
+    report = source.controls_report
+    try:
+        modes = source.automatic_modes()
+    except EdgeIpsError as exc:
+        return Check("controls", "warn", f"cannot read the camera's controls: {exc}", "check the camera's driver")
+    if modes and config.calibration.path is not None:
+        on = " and ".join(modes)
+        return Check(
+            "controls",
+            "warn",
+            f"{on} on: {'they move' if len(modes) > 1 else 'it moves'} the focal length or the marker colours "
+            "under a calibration",
+            "set [camera.controls] autofocus = false, focus = N, auto_white_balance = false, white_balance_k = K "
+            "(docs/deploy.md gives the C920's)",
+        )
+    if not report.ok:
+        return Check("controls", "warn", f"not all granted: {report.line()}", "see docs/deploy.md, camera controls")
+    return Check("controls", "ok", report.line() if report.granted else "the camera's own settings")
 
 
 def check_calibration(config: EdgeConfig, source: Any, info: Any, where: str) -> Check:
@@ -260,6 +277,9 @@ def run_checks(
     yield check_config(where, env_keys)
     camera, source, info = check_camera(config, sim_factory)
     yield camera
+    controls = check_controls(config, source)
+    if controls is not None:
+        yield controls
     yield check_calibration(config, source, info, where)
     try:
         yield check_broker(config)

@@ -37,3 +37,7 @@ class SimulationError(EdgeIpsError):
 
 class FlashError(EdgeIpsError):
     """A rover board that cannot be reached, flashed or provisioned (tools/flash.py)."""
+
+
+class EnrollmentError(EdgeIpsError):
+    """Marker colours that cannot be enrolled from the images given (no marker, a marker in the background...)."""

@@ -2,7 +2,7 @@
 
 Threads and what they share:
 
-* ``capture`` (:class:`edge.sources.CaptureThread`) reads the source into a newest-frame :class:`FrameSlot`;
+* ``capture`` (:class:`edge.capture.CaptureThread`) reads the source into a newest-frame :class:`FrameSlot`;
 * ``tracker`` (:class:`EdgeRuntime`) takes the newest frame, runs the tracker, publishes one pose per rover;
 * ``status`` publishes the retained edge status every ``status_interval_s`` and at once after a reconnect;
 * paho's network thread (reconnects with backoff), the recorder's writer, the HTTP server, the embedded broker.
@@ -26,12 +26,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from edge.capture import CaptureThread, FrameSlot
 from edge.config import BrokerTarget, EdgeConfig, broker_target
 from edge.errors import CalibrationError, MessageError
 from edge.messages import StatusV1, encode_pose
 from edge.metrics import Latency, LatencyWindow, RateMeter, RoverSnapshot, Snapshot
 from edge.publisher import MqttPublisher, Publisher, TlsFiles, offline_status
-from edge.sources import CaptureThread, FrameSlot, FrameSource, SourceInfo, make_source, parse_source
+from edge.sources import FrameSource, SourceInfo, camera_source, parse_source
 from edge.tracking import Frame, FrameResult, Tracker
 
 if TYPE_CHECKING:
@@ -207,7 +208,7 @@ class EdgeRuntime:
 
     def _state(self, camera: str, missing: list[str]) -> tuple[str, str]:
         if camera not in ("ok", "starting"):
-            return "degraded", f"camera {camera}"
+            return "degraded", f"camera {camera}" + (f": {self.capture.problem}" if self.capture.problem else "")
         tracking_for_s = 0.0 if self._first_result_mono is None else time.monotonic() - self._first_result_mono
         if camera == "ok" and missing and tracking_for_s > max(self.status_interval_s, 1.0):
             return "degraded", f"not seen: {', '.join(missing)}"
@@ -473,17 +474,7 @@ def prepare_appliance(
     with contextlib.ExitStack() as started:
         # The source, its calibration and the tracker first: a missing camera or a bad calibration is said before
         # any port is bound (and not hidden behind a port that is taken).
-        source = make_source(
-            cam.source,
-            width=cam.width,
-            height=cam.height,
-            fps=cam.fps,
-            fourcc=cam.fourcc,
-            loop=cam.loop,
-            realtime=cam.realtime,
-            stall_timeout_s=cam.stall_timeout_s,
-            sim_factory=sim_factory or default_sim_factory(config),
-        )
+        source = camera_source(cam, sim_factory or default_sim_factory(config))
         info = source.open()
         started.callback(source.close)
         log.info("source: %s", info.description)

@@ -12,7 +12,7 @@ import math
 import tomllib
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal, TypeVar
+from typing import Annotated, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
@@ -20,6 +20,8 @@ from edge.errors import ConfigError
 from edge.messages import ID_PATTERN
 
 RoversT = TypeVar("RoversT", bound=Sequence["RoverConfig"])
+Channel = Annotated[int, Field(ge=0, le=255)]
+ColorBgr = tuple[Channel, Channel, Channel]
 
 
 class RoverConfig(BaseModel):
@@ -28,8 +30,8 @@ class RoverConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     id: str = Field(pattern=ID_PATTERN, description="Rover id, also the MQTT topic segment.")
-    color_bgr: tuple[int, int, int] = Field(description="Nominal marker colour as seen by the camera, B, G, R 0-255.")
-    front_color_bgr: tuple[int, int, int] | None = Field(
+    color_bgr: ColorBgr = Field(description="Nominal marker colour as seen by the camera, B, G, R 0-255.")
+    front_color_bgr: ColorBgr | None = Field(
         default=None,
         description="Two-tone marker: colour of its light (white) front part as the camera sees it (the rest has "
         "color_bgr); it gives the heading even when the rover stands still. None: a one-colour marker.",

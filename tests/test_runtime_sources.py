@@ -9,12 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from edge.capture import CaptureThread, FrameSlot
 from edge.errors import SourceError
 from edge.sources import (
     CameraSource,
-    CaptureThread,
     Frame,
-    FrameSlot,
     MemorySource,
     SourceInfo,
     StreamSource,

@@ -148,10 +148,14 @@ def statuses(messages: list[Received]) -> list[dict[str, Any]]:
 
 
 class MjpegServer:
-    """An HTTP multipart-JPEG stream of :func:`scene` frames at ``fps`` that a test can stall, kill and revive."""
+    """An HTTP multipart-JPEG stream of :func:`scene` frames at ``fps`` that a test can stall, kill and revive
+    (at another ``size`` if it likes); ``requests`` counts the connections it answered."""
 
-    def __init__(self, fps: float = 30.0, port: int = 0) -> None:
+    def __init__(self, fps: float = 30.0, port: int = 0, size: tuple[int, int] = (320, 240)) -> None:
         self.fps = fps
+        self.size = size
+        self.requests = 0
+        self._answered = threading.Condition()
         self.stalled = threading.Event()
         self._port = port
         self._server: ThreadingHTTPServer | None = None
@@ -167,6 +171,9 @@ class MjpegServer:
 
         class Handler(BaseHTTPRequestHandler):
             def do_GET(self) -> None:
+                with owner._answered:
+                    owner.requests += 1
+                    owner._answered.notify_all()
                 self.send_response(200)
                 self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=frame")
                 self.end_headers()
@@ -176,7 +183,7 @@ class MjpegServer:
                         if owner.stalled.is_set():
                             time.sleep(0.02)
                             continue
-                        _, jpg = cv2.imencode(".jpg", scene(i))
+                        _, jpg = cv2.imencode(".jpg", scene(i, *owner.size))
                         data = jpg.tobytes()
                         self.wfile.write(
                             b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: %d\r\n\r\n" % len(data)
@@ -193,6 +200,10 @@ class MjpegServer:
                 pass
 
         return Handler
+
+    def wait_requests(self, n: int, timeout_s: float = 30.0) -> bool:
+        with self._answered:
+            return self._answered.wait_for(lambda: self.requests >= n, timeout_s)
 
     def start(self) -> MjpegServer:
         self._stop.clear()
