@@ -351,7 +351,8 @@ def test_formation_post_publishes_only_with_the_token(mosquitto: Mosquitto) -> N
     try:
         with running(_config(mosquitto, **{"dashboard.token": TOKEN})) as app:
             port = app.http.port
-            assert call(port, "GET", "/api/state").json()["formation_enabled"] is True
+            auth = {"Authorization": f"Bearer {TOKEN}"}
+            assert call(port, "GET", "/api/state", headers=auth).json()["formation_enabled"] is True
             refused = [
                 call(port, "POST", "/api/formation", line),
                 call(port, "POST", "/api/formation", line, {"Authorization": "Bearer not-the-token"}),
@@ -373,12 +374,11 @@ def test_formation_post_publishes_only_with_the_token(mosquitto: Mosquitto) -> N
                 "ids": ["red", "green"],
                 "spacing": 50.0,
             }
-            auth = {"Authorization": f"Bearer {TOKEN}"}
             stop = call(port, "POST", "/api/formation", b'{"kind":"stop","ids":[]}', auth)
             assert stop.json()["seq"] == 2 and subscriber.next()[0]["kind"] == "stop"
-            events = read_events(port, {"formation": 1})
+            events = read_events(port, {"formation": 1}, headers=auth)
             assert events["formation"][0]["kind"] == "stop"  # a new page learns the retained formation at once
-            assert call(port, "GET", "/api/state").json()["formation"]["seq"] == 2
+            assert call(port, "GET", "/api/state", headers=auth).json()["formation"]["seq"] == 2
     finally:
         subscriber.close()
 

@@ -1,20 +1,8 @@
-"""The dashboard's threads yield the CPU to the tracker: on Linux each thread has its own nice value, so the JPEG
-encoder, the event builder and the request threads serving the page run at a lower priority than the tracker and
-the capture thread. When the two cores are busy, the kernel serves the tracker first."""
+"""The dashboard's threads run at background priority: :func:`edge.priority.background_priority` (shared with the
+HTTP server's threads)."""
 
 from __future__ import annotations
 
-import contextlib
-import os
-import threading
+from edge.priority import BACKGROUND_NICE, background_priority
 
-BACKGROUND_NICE = 10
-
-
-def background_priority(nice: int = BACKGROUND_NICE) -> None:
-    """Lower the calling thread's scheduling priority (Linux: per thread); elsewhere, or when refused, no change."""
-    tid = threading.get_native_id()
-    with contextlib.suppress(AttributeError, OSError):
-        current = os.getpriority(os.PRIO_PROCESS, tid)
-        if current < nice:
-            os.setpriority(os.PRIO_PROCESS, tid, nice)
+__all__ = ["BACKGROUND_NICE", "background_priority"]
