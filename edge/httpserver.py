@@ -53,6 +53,7 @@ SECURITY_HEADERS = {
     "X-Content-Type-Options": "nosniff",
     "X-Frame-Options": "DENY",  # the controls cannot be framed by another page (clickjacking)
     "Referrer-Policy": "no-referrer",  # a token in a URL is not sent on
+    "Server": "edge-ips",
 }
 
 
@@ -203,13 +204,13 @@ class HttpServer:
         self._connections[handler] = conn
         self.stats.connections += 1
         if len(self._connections) > self.limits.max_connections:
-            idle = next((c for h, c in self._connections.items() if c.busy == 0 and h is not handler), None)
+            idle = next((h for h, c in self._connections.items() if c.busy == 0 and h is not handler), None)
             if idle is None:
                 self.stats.refused += 1
-                transport.close()
+                self._close(handler)
                 return
             self.stats.evicted += 1
-            idle.transport.close()
+            self._close(idle)
         conn.deadline = loop.call_later(self.limits.request_timeout_s, self._first_request_due, handler)
 
     def _first_request_due(self, handler: RequestHandler) -> None:
@@ -218,6 +219,14 @@ class HttpServer:
         conn = self._connections.get(handler)
         if conn is not None and conn.requests == 0:
             self.stats.timed_out += 1
+            self._close(handler)
+
+    def _close(self, handler: RequestHandler) -> None:
+        """Close a connection now; it stops counting at once (its transport reports the loss a little later)."""
+        conn = self._connections.pop(handler, None)
+        if conn is not None:
+            if conn.deadline is not None:
+                conn.deadline.cancel()
             conn.transport.close()
 
     def _lost(self, handler: RequestHandler) -> None:
