@@ -9,7 +9,7 @@ What runs: ``edge-ips start --source sim`` as a real process (embedded broker on
 its defaults: 64 connections, 10 s request timeout). Phases, each timing ``--requests`` ``GET /healthz`` on a new
 connection one after another:
 
-* ``quiet``: nothing else connected;
+* ``quiet``: nothing else connected (also ``/metrics`` scrapes: prometheus_client's exposition);
 * ``flood``: 300 idle connections and 50 half-open requests (a request line and one header, never finished) opened
   just before; also the process's threads before and after, and how long until the server had closed every
   half-open one (evicted by the connection cap or timed out);
@@ -48,11 +48,11 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def healthz(port: int) -> tuple[int, float]:
+def healthz(port: int, path: str = "/healthz") -> tuple[int, float]:
     t0 = time.perf_counter()
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
     try:
-        conn.request("GET", "/healthz")
+        conn.request("GET", path)
         resp = conn.getresponse()
         resp.read()
         return resp.status, time.perf_counter() - t0
@@ -60,8 +60,8 @@ def healthz(port: int) -> tuple[int, float]:
         conn.close()
 
 
-def timed(port: int, n: int) -> dict[str, float]:
-    results = [healthz(port) for _ in range(n)]
+def timed(port: int, n: int, path: str = "/healthz") -> dict[str, float]:
+    results = [healthz(port, path) for _ in range(n)]
     ms = np.array([t for _, t in results]) * 1e3
     ok = sum(1 for status, _ in results if status in (200, 503))  # 503: degraded, still an answer
     return {
@@ -138,6 +138,7 @@ def main() -> None:
                 time.sleep(0.2)
             metric(port, "edge_ips_fps")  # the worker threads exist before the first thread count
             rows = {"quiet": timed(port, args.requests)}
+            scrape = timed(port, args.requests // 4, "/metrics")  # prometheus_client's exposition, on a worker thread
 
             before = threads_of(edge.pid)
             idle = [socket.create_connection(("127.0.0.1", port)) for _ in range(300)]
@@ -205,6 +206,10 @@ def main() -> None:
     for name, r in rows.items():
         print(f"| {name} | {r['answered']} / {r['n']} | {r['p50']} / {r['p99']} / {r['max']} |")
     print()
+    print(
+        f"GET /metrics (quiet, {scrape['n']} scrapes, prometheus_client): p50 / p99 / max "
+        f"{scrape['p50']} / {scrape['p99']} / {scrape['max']} ms"
+    )
     print(f"threads: {before} before the flood, {during} during it, {after} after the slowloris phase")
     print(f"connections open during the flood (of 351 made): {open_during:g}")
     print(

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any, cast
 from urllib.parse import parse_qs
 
 from aiohttp import web
+from aiohttp.http_exceptions import HttpProcessingError
 from aiohttp.web_protocol import RequestHandler
 
 from edge.errors import EdgeIpsError
@@ -45,6 +46,22 @@ if TYPE_CHECKING:
     from edge.config import DashboardSection, HttpSection
 
 log = logging.getLogger("edge.http")
+
+
+class _MalformedRequests(logging.Filter):
+    """aiohttp logs a malformed request (a header line too long, TLS on the plain port) with a traceback, at ERROR
+    for some: anyone could fill the log. It is answered 400; here it is one debug line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        if isinstance(exc, HttpProcessingError):
+            log.debug("http: malformed request: %s", " ".join(str(exc.message).split())[:200])
+            return False
+        return True
+
+
+protocol_log = logging.getLogger("edge.http.protocol")  # aiohttp's messages about connections and requests
+protocol_log.addFilter(_MalformedRequests())
 
 MAX_BODY_BYTES = 64 * 1024  # the largest request body read (the dashboard's commands are a few hundred bytes)
 MAX_HEADER_BYTES = 8190  # per request line and per header field
@@ -261,8 +278,8 @@ class HttpServer:
         if now - self._host_log_mono > 60.0:  # at most one line a minute: a rebinding page retries in a loop
             self._host_log_mono = now
             log.warning(
-                "http: refused Host %r from %s (%d refused so far; allow more names with http.allowed_hosts)",
-                host,
+                "http: refused %s from %s (%d refused so far; allow more names with http.allowed_hosts)",
+                f"Host {host!r}" if host else "a request without Host",
                 raw.remote,
                 self.stats.host_refused,
             )
@@ -410,6 +427,7 @@ class HttpServer:
             handler_cancellation=True,  # a client that goes away ends its handler (an event stream) at once
             keepalive_timeout=self.limits.request_timeout_s,
             access_log=None,
+            logger=protocol_log,
             max_line_size=MAX_HEADER_BYTES,
             max_field_size=MAX_HEADER_BYTES,
         )

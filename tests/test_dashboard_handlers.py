@@ -396,16 +396,22 @@ def test_the_token_is_masked_and_settings_are_validated(tmp_path: Path) -> None:
     from edge.config import load_config
     from edge.errors import ConfigError
 
-    config = EdgeConfig.model_validate({"dashboard": {"token": TOKEN, "frame_fps": 5}})
+    config = EdgeConfig.model_validate({"dashboard": {"token": TOKEN, "viewer_token": "viewer-only-1", "frame_fps": 5}})
     shown = masked(config)["dashboard"]
-    assert shown["token"] == "********" and shown["frame_fps"] == 5.0
-    assert TOKEN not in json.dumps(masked(config))
+    assert shown["token"] == shown["viewer_token"] == "********" and shown["frame_fps"] == 5.0
+    assert TOKEN not in json.dumps(masked(config)) and "viewer-only-1" not in json.dumps(masked(config))
     bad = tmp_path / "edge-ips.toml"
     for text, key in [
         ('[dashboard]\ntoken = "short"\n', "dashboard.token"),
         ("[dashboard]\nframe_fps = 0\n", "dashboard.frame_fps"),
         ("[dashboard]\njpeg_quality = 101\n", "dashboard.jpeg_quality"),
         ("[dashboard]\nframes = 3\n", "dashboard.frames: unknown key"),
+        ('[dashboard]\nviewer_token = "short"\n', "dashboard.viewer_token"),
+        ('[http]\nallowed_hosts = ["http://edge.lab/"]\n', "http.allowed_hosts: 'http://edge.lab/' is not a host name"),
+        ('[http]\nallowed_hosts = "edge.lab"\n', "http.allowed_hosts"),
+        ("[http]\nmax_connections = 1\n", "http.max_connections"),
+        ("[http]\nrequest_timeout_s = 0\n", "http.request_timeout_s"),
+        ("[http]\nmax_streams = 0\n", "http.max_streams"),
     ]:
         bad.write_text(text)
         with pytest.raises(ConfigError, match=key):

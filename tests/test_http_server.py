@@ -213,6 +213,28 @@ def test_requests_naming_another_host_are_refused(server: HttpServer, host: str,
     sock.close()
 
 
+@pytest.mark.parametrize(
+    "request_bytes",
+    [
+        b"\x16\x03\x01\x02\x00\x01\x00\x01\xfc\x03\x03 TLS on the plain port\r\n\r\n",
+        b"GET /ping HTTP/1.1\r\nHost: localhost\r\nX-Long: " + b"a" * 9000 + b"\r\n\r\n",
+        b"BREW /ping HTTP/1.1\r\nHost: localhost\r\n\r\n",
+        b"GET /ping HTTP/1.1\r\nHost: localhost\r\nContent-Length: -5\r\n\r\n",
+    ],
+)
+def test_malformed_requests_are_a_400_and_no_error_in_the_log(
+    server: HttpServer, request_bytes: bytes, caplog: pytest.LogCaptureFixture
+) -> None:
+    sock = connect(server.port)
+    with caplog.at_level(logging.INFO):
+        sock.sendall(request_bytes)
+        sock.settimeout(GUARD_S)
+        assert sock.recv(4096).startswith((b"HTTP/1.0 400", b"HTTP/1.1 400"))
+        assert get(server.port, "/ping") == (200, b"pong")  # and the server goes on
+    sock.close()
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
+
+
 def test_replies_carry_headers_that_keep_the_page_to_itself(server: HttpServer) -> None:
     reply = call(server.port, "GET", "/ping", headers={"Host": "localhost"})
     assert reply.headers["x-frame-options"] == "DENY" and reply.headers["referrer-policy"] == "no-referrer"
