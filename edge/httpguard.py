@@ -2,7 +2,7 @@
 
 - **Host**: a page on another site can make a browser resolve its own name to the board's address (DNS
   rebinding) and then read the answers as same-origin. The browser still sends that name in ``Host``, so only the
-  board's own names (hostname, ``<hostname>.local``, the FQDN, ``localhost``, ``http.allowed_hosts``) and IP
+  board's own names (hostname, ``<hostname>.local``, ``localhost``, ``http.allowed_hosts``) and IP
   literals (the address the request arrived on, loopback) are answered.
 - **Tokens**: routes are ``open`` (the page's files, ``/healthz``, ``/metrics``), ``read`` (the camera, events,
   state: any configured token) or ``control`` (commands: the control token, in ``Authorization: Bearer``). A GET
@@ -17,7 +17,6 @@ Everything here is pure (time is passed in), so it is tested without a server or
 
 from __future__ import annotations
 
-import contextlib
 import hmac
 import ipaddress
 import logging
@@ -57,12 +56,10 @@ def host_name(header: str) -> str | None:
 
 
 def board_names() -> set[str]:
-    """This machine's names: hostname, ``<hostname>.local`` (mDNS), the FQDN, ``localhost``."""
+    """This machine's names: hostname, ``<hostname>.local`` (mDNS), ``localhost``. (Not the FQDN: finding it asks
+    DNS, which on a lab network without one stalls the start for seconds; name it in ``http.allowed_hosts``.)"""
     hostname = socket.gethostname().lower().rstrip(".")
-    names = {"localhost", hostname, f"{hostname.split('.')[0]}.local"}
-    with contextlib.suppress(OSError):  # no resolver: the hostname is enough
-        names.add(socket.getfqdn().lower().rstrip("."))
-    return {n for n in names if n}
+    return {n for n in ("localhost", hostname, f"{hostname.split('.')[0]}.local") if n}
 
 
 @dataclass(frozen=True)
