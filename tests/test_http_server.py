@@ -21,7 +21,6 @@ from edge.errors import EdgeIpsError
 from edge.httpguard import HostAllowList, Tokens
 from edge.httpserver import HttpLimits, HttpServer, Request, Response
 from tests.support.dashboard import EdgeProcess, call, clean_env, edge_start
-from tests.support.mosquitto import Mosquitto
 
 GUARD_S = 30.0  # how long a socket may take to see what the test waits for before the test fails
 TOKEN = "dashboard-control-token"
@@ -246,17 +245,16 @@ def test_a_taken_port_is_one_clear_error(server: HttpServer) -> None:
         HttpServer("127.0.0.1", server.port).start()
 
 
-# -- a real edge-ips start -------------------------------------------------------------------------------------------
+# -- a real edge-ips start (its embedded broker on a free port) ------------------------------------------------------
 @pytest.fixture(scope="module")
-def broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Mosquitto]:
-    with Mosquitto(tmp_path_factory.mktemp("mosquitto")) as mosquitto:
-        yield mosquitto
-
-
-@pytest.fixture(scope="module")
-def edge(broker: Mosquitto, tmp_path_factory: pytest.TempPathFactory) -> Iterator[EdgeProcess]:
-    env = clean_env(EDGE_IPS_DASHBOARD__TOKEN=TOKEN, EDGE_IPS_HTTP__REQUEST_TIMEOUT_S="2")
-    with edge_start(["--source", "sim", "--broker", broker.url], tmp_path_factory.mktemp("edge"), env) as process:
+def edge(tmp_path_factory: pytest.TempPathFactory) -> Iterator[EdgeProcess]:
+    env = clean_env(
+        EDGE_IPS_DASHBOARD__TOKEN=TOKEN,
+        EDGE_IPS_HTTP__REQUEST_TIMEOUT_S="2",
+        EDGE_IPS_BROKER__EMBEDDED_HOST="127.0.0.1",
+        EDGE_IPS_BROKER__EMBEDDED_PORT="0",
+    )
+    with edge_start(["--source", "sim"], tmp_path_factory.mktemp("edge"), env) as process:
         yield process
 
 
