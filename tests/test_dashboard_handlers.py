@@ -6,6 +6,7 @@ Mosquitto; the pure parts (token, request parsing, overlays) as tables.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 import threading
@@ -25,6 +26,7 @@ from edge.dashboard.events import EventHub, Overlay, pose_event, sse, status_eve
 from edge.dashboard.formation import authorize, formation_targets, parse_request, with_targets
 from edge.dashboard.frames import FrameEncoder, encode_jpeg
 from edge.dashboard.server import hex_color, static_files
+from edge.dashboard.streams import EventFanout
 from edge.errors import MessageError
 from edge.messages import parse_formation
 from edge.metrics import Latency, RoverSnapshot, Snapshot
@@ -245,6 +247,53 @@ def test_event_hub_starts_only_for_a_viewer_and_hands_each_event_to_all() -> Non
     assert hub.viewers == 1
     hub.close()
     assert list(two) == []  # closing the hub ends the streams
+
+
+def test_pages_share_one_hub_viewer_and_the_hub_sleeps_when_they_leave() -> None:
+    hub = EventHub(
+        latest=lambda: None, make_pose=lambda r: {}, make_status=lambda: {"state": "online"}, status_interval_s=600.0
+    )
+    fanout = EventFanout(hub.stream, queue_size=4)
+
+    async def watch() -> threading.Thread:
+        pages = [fanout.stream(f"hello {k}\n".encode()) for k in range(3)]
+        assert [await page.__anext__() for page in pages] == [b"hello 0\n", b"hello 1\n", b"hello 2\n"]
+        assert fanout.pages == 3 and fanout._thread is not None
+        thread = fanout._thread
+        for _ in range(3000):  # until the fan-out thread has joined the hub (a guard of 30 s, not a pause)
+            if hub.viewers:
+                break
+            await asyncio.sleep(0.01)
+        hub.publish("formation", {"kind": "line"})
+        for page in pages:  # every page gets it, through one viewer of the hub
+            chunk = await asyncio.wait_for(page.__anext__(), 30)
+            assert b'event: formation\ndata: {"kind":"line"}\n\n' in chunk
+        assert hub.viewers == 1
+        for page in pages:
+            await page.aclose()
+        assert fanout.pages == 0
+        return thread
+
+    thread = asyncio.run(watch())
+    hub.publish("formation", None)  # the next chunk finds no page: the thread leaves and the hub has no viewer
+    thread.join(30)
+    assert not thread.is_alive() and hub.viewers == 0
+    hub.close()
+
+
+def test_closing_the_hub_ends_every_page() -> None:
+    hub = EventHub(latest=lambda: None, make_pose=lambda r: {}, make_status=lambda: {}, status_interval_s=600.0)
+    fanout = EventFanout(hub.stream)
+
+    async def watch() -> list[list[bytes]]:
+        pages = [fanout.stream(b"hello\n") for _ in range(2)]
+        for page in pages:
+            await page.__anext__()
+        await asyncio.get_running_loop().run_in_executor(None, hub.close)
+        return [[chunk async for chunk in page] for page in pages]  # each ends (an endless page would hang here)
+
+    assert all(b"hello" not in b"".join(rest) for rest in asyncio.run(watch()))
+    assert fanout.pages == 0
 
 
 # -- the camera view -----------------------------------------------------------------------------------------------
