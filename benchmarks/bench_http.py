@@ -86,8 +86,8 @@ def metric(port: int, name: str) -> float:
     return float(match.group(1)) if match else float("nan")
 
 
-def wait_closed(socks: list[socket.socket], guard_s: float) -> float:
-    """Seconds until the server has closed every socket (or ``guard_s``)."""
+def wait_closed(socks: list[socket.socket], guard_s: float, since: float) -> float:
+    """Seconds from ``since`` (monotonic) until the server has closed every socket (waiting at most ``guard_s``)."""
     t0 = time.monotonic()
     sel = selectors.DefaultSelector()
     for s in socks:
@@ -103,7 +103,7 @@ def wait_closed(socks: list[socket.socket], guard_s: float) -> float:
             if not data:
                 sel.unregister(sock)
                 open_.discard(sock)  # type: ignore[arg-type]
-    return time.monotonic() - t0
+    return time.monotonic() - since
 
 
 def main() -> None:
@@ -145,10 +145,11 @@ def main() -> None:
             half_open = [socket.create_connection(("127.0.0.1", port)) for _ in range(50)]
             for s in half_open:
                 s.sendall(PARTIAL_HEAD)
+            opened = time.monotonic()
             rows["flood"] = timed(port, args.requests)
             during = threads_of(edge.pid)
             open_during = metric(port, "edge_ips_http_connections_open")
-            closed_s = wait_closed(half_open, 60.0)
+            closed_s = wait_closed(half_open, 60.0, opened)
             evicted = metric(port, "edge_ips_http_connections_evicted_total")
             timeouts = metric(port, "edge_ips_http_request_timeouts_total")
             for s in idle + half_open:
@@ -171,7 +172,7 @@ def main() -> None:
             slow_rows = []
             while time.monotonic() - t0 < args.trickle_s:
                 slow_rows.append(timed(port, max(1, args.requests // 10)))
-            slow_closed_s = wait_closed(trickling, 60.0)
+            slow_closed_s = wait_closed(trickling, 60.0, time.monotonic())
             stop.set()
             feeder.join()
             for s in trickling:
@@ -213,7 +214,7 @@ def main() -> None:
     print(f"threads: {before} before the flood, {during} during it, {after} after the slowloris phase")
     print(f"connections open during the flood (of 351 made): {open_during:g}")
     print(
-        f"half-open requests all closed by the server after {closed_s:.1f} s "
+        f"half-open requests all closed by the server {closed_s:.1f} s after they were opened "
         f"({evicted:g} connections evicted, {timeouts:g} timed out)"
     )
     print(f"slowloris connections all closed by the server {slow_closed_s:.1f} s after the phase")
