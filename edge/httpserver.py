@@ -9,7 +9,7 @@ first). A connection costs a socket and a little memory, not a thread, and the s
 - **Request timeout** (``http.request_timeout_s``): a connection must deliver a whole request head within it
   (slowloris), its body too, and idle keep-alive connections are closed after it; a response that the client does
   not read within it is abandoned.
-- **Streams** (``http.max_streams``): at most this many long responses (the dashboard's event streams) at once.
+- **Streams** (``http.max_streams``): at most this many long responses (event streams) at once.
 - **Who may ask** (:mod:`edge.httpguard`): the ``Host`` allow-list, then the route's access level and token.
 
 Routes are exact paths with a function ``Request -> Response``: a plain function runs on a small pool of worker
@@ -190,16 +190,13 @@ class HttpServer:
     @classmethod
     def from_config(cls, http: HttpSection, dashboard: DashboardSection) -> HttpServer:
         """The server as ``[http]`` says, with the tokens of ``[dashboard]``."""
-
-        def secret(value: Any) -> str | None:
-            return None if value is None else str(value.get_secret_value())
-
+        token, viewer = (s.get_secret_value() if s else None for s in (dashboard.token, dashboard.viewer_token))
         return cls(
             http.host,
             http.port,
             limits=HttpLimits(http.max_connections, http.request_timeout_s, http.max_streams),
             hosts=HostAllowList.for_this_board(http.allowed_hosts),
-            tokens=Tokens(secret(dashboard.token), secret(dashboard.viewer_token)),
+            tokens=Tokens(token, viewer),
         )
 
     @property
