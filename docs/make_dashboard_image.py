@@ -57,9 +57,8 @@ def main() -> None:
             with sync_playwright() as pw:
                 browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
                 page = browser.new_page(viewport={"width": 1280, "height": 900})
-                page.goto(url)
+                page.goto(f"{url}?token={TOKEN}")  # the page keeps it for the session (and the buttons send it)
                 page.wait_for_function("() => state.rovers.size === 3", timeout=60_000)
-                page.fill("#token", TOKEN)
                 page.fill("#side", "120")
                 page.click("button[data-kind=triangle]")
                 page.wait_for_function("() => (state.formation || {}).kind === 'triangle'", timeout=60_000)

@@ -125,6 +125,25 @@ class HttpSection(BaseModel):
     enabled: bool = True
     host: str = "0.0.0.0"
     port: int = Field(default=8080, ge=0, le=65535, description="0 picks a free port (logged).")
+    allowed_hosts: list[str] = Field(
+        default_factory=list,
+        max_length=64,
+        description="More names the board is reached by (its hostname, <hostname>.local, localhost and its "
+        'addresses are always allowed); ["*"] turns the Host check off (behind a reverse proxy).',
+    )
+    max_connections: int = Field(default=64, ge=4, le=4096, description="Open connections at most.")
+    request_timeout_s: float = Field(
+        default=10.0, gt=0.0, le=300.0, description="Seconds a client has to send a request (and to read a reply)."
+    )
+    max_streams: int = Field(default=16, ge=1, le=1024, description="Event streams (open dashboard pages) at most.")
+
+    @field_validator("allowed_hosts")
+    @classmethod
+    def _host_names(cls, hosts: list[str]) -> list[str]:
+        for host in hosts:
+            if not host.strip() or any(c in host for c in " /@?#"):
+                raise ValueError(f"{host!r} is not a host name or address (no scheme, port or path)")
+        return hosts
 
 
 class DashboardSection(BaseModel):
@@ -136,7 +155,12 @@ class DashboardSection(BaseModel):
     token: SecretStr | None = Field(
         default=None,
         min_length=8,
-        description="Bearer token the formation controls require; unset = controls disabled.",
+        description="Bearer token for the formation controls and for viewing; unset = controls disabled.",
+    )
+    viewer_token: SecretStr | None = Field(
+        default=None,
+        min_length=8,
+        description="A second token that can only view (camera, events, state), not command.",
     )
     frame_fps: float = Field(default=10.0, gt=0.0, le=30.0, description="Most camera frames per second sent.")
     jpeg_quality: int = Field(default=70, ge=10, le=95, description="JPEG quality of the camera view.")
@@ -419,8 +443,9 @@ def masked(config: EdgeConfig) -> dict[str, Any]:
     target = urlsplit(config.broker.url)
     if target.password:
         data["broker"]["url"] = config.broker.url.replace(f":{target.password}@", f":{MASK}@", 1)
-    if config.dashboard.token is not None:
-        data["dashboard"]["token"] = MASK
+    for key in ("token", "viewer_token"):
+        if getattr(config.dashboard, key) is not None:
+            data["dashboard"][key] = MASK
     return data
 
 
@@ -554,11 +579,18 @@ max_files = 20                # oldest files deleted beyond this count
 enabled = true                # /healthz, /metrics (Prometheus) and the dashboard
 host = "0.0.0.0"
 port = 8080
+allowed_hosts = []            # more names the board is reached by; its hostname, <hostname>.local, localhost and
+                              # its addresses are always allowed. ["*"]: no Host check (behind a reverse proxy)
+max_connections = 64          # beyond it the oldest idle connection is closed
+request_timeout_s = 10.0      # a client must send its request (and read the reply) within this
+max_streams = 16              # open dashboard pages (event streams) at most
 
 [dashboard]
 enabled = true                # the live page at http://<board>:8080/ (off: --no-dashboard)
-# token = "..."               # formation controls need it (at least 8 characters); unset = controls disabled.
+# token = "..."               # needed to view (camera, events, state) and to command formations (at least 8
+                              # characters); unset = the page is open to view, formation controls disabled.
                               # Better: EDGE_IPS_DASHBOARD__TOKEN in the service environment
+# viewer_token = "..."        # a second token that can view but not command
 frame_fps = 10.0              # camera view: at most this many JPEG frames per second, encoded once for all viewers
 jpeg_quality = 70
 max_width_px = 960            # camera view downscaled to this width (overlays are drawn by the browser)

@@ -464,7 +464,7 @@ def prepare_appliance(
     """
     from edge.broker.clients import start_embedded
     from edge.httpserver import HttpServer, Response
-    from edge.metrics import to_prometheus
+    from edge.metrics import exposition, metrics_registry
     from edge.recording import Recorder
 
     cam = config.camera
@@ -484,7 +484,7 @@ def prepare_appliance(
 
         http = None
         if config.http.enabled:
-            http = HttpServer(config.http.host, config.http.port).start()
+            http = HttpServer.from_config(config.http, config.dashboard).start()
             started.callback(http.stop)
 
         target = broker_target(config.broker)
@@ -536,14 +536,9 @@ def prepare_appliance(
         )
         runtime_ref.append(runtime)
         if http is not None:
-            http.route("/healthz", lambda request: _health(runtime))
-            http.route(
-                "/metrics",
-                lambda request: Response(
-                    body=to_prometheus(runtime.snapshot()).encode(),
-                    content_type="text/plain; version=0.0.4; charset=utf-8",
-                ),
-            )
+            registry = metrics_registry(runtime.snapshot, http=http, recorder=recorder)
+            http.route("/healthz", _health_route(runtime))
+            http.route("/metrics", lambda request: Response(200, *exposition(registry)))
         dashboard = None
         if http is not None and config.dashboard.enabled:
             from edge.dashboard import start_dashboard
@@ -573,9 +568,13 @@ def run_until_signalled(appliance: Appliance) -> None:
     appliance.run(stop)
 
 
-def _health(runtime: EdgeRuntime) -> Any:
-    from edge.httpserver import Response
+def _health_route(runtime: EdgeRuntime) -> Any:
+    """``/healthz``, answered on the HTTP server's loop (a snapshot is quick): no worker thread needed."""
+    from edge.httpserver import Request, Response
 
-    snap = runtime.snapshot()
-    body = json.dumps(snap.health()).encode() + b"\n"
-    return Response(200 if snap.state == "online" else 503, body, "application/json")
+    async def health(request: Request) -> Response:
+        snap = runtime.snapshot()
+        body = json.dumps(snap.health()).encode() + b"\n"
+        return Response(200 if snap.state == "online" else 503, body, "application/json")
+
+    return health

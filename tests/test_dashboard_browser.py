@@ -56,7 +56,7 @@ def page(edge: EdgeProcess, browser: Any) -> Iterator[Any]:
 
     browser_page.on("response", on_response)
     browser_page.frames_seen = frames
-    browser_page.goto(edge.url)
+    browser_page.goto(f"{edge.url}?token={TOKEN}")  # as `start` prints it: the page keeps the token for the session
     yield browser_page
     browser_page.close()
 
@@ -108,6 +108,28 @@ def test_page_loads_and_the_three_rovers_appear_and_move_on_the_map(page: Any) -
     assert rows.count() == 3
     page.wait_for_function("() => document.querySelector('#pill-state').textContent === 'online'", timeout=WAIT_MS)
     page.wait_for_function("() => document.querySelector('#fps').textContent !== '–'", timeout=WAIT_MS)
+
+
+def test_the_token_in_the_address_is_kept_for_the_session_and_removed_from_the_address(page: Any) -> None:
+    page.wait_for_function("() => state.info !== null", timeout=WAIT_MS)
+    assert "token" not in page.url
+    assert page.evaluate("() => sessionStorage.getItem('edge-ips-token')") == TOKEN
+
+
+def test_without_the_token_the_page_shows_nothing_until_it_is_given(edge: EdgeProcess, browser: Any) -> None:
+    other = browser.new_page()  # a new tab: a session of its own, no token
+    try:
+        other.goto(edge.url)
+        result = other.locator("#formation-result")
+        other.wait_for_function("() => document.getElementById('formation-result').dataset.status === '401'")
+        assert "enter the dashboard token" in result.text_content()
+        assert other.evaluate("() => state.info") is None and other.evaluate("() => state.rovers.size") == 0
+        other.fill("#token", TOKEN)
+        other.locator("#token").dispatch_event("change")
+        other.wait_for_function(ALL_ROVERS_SEEN, arg=ROVERS, timeout=WAIT_MS)
+        other.wait_for_function("() => document.getElementById('camera').naturalWidth > 0", timeout=WAIT_MS)
+    finally:
+        other.close()
 
 
 def test_camera_view_updates(page: Any) -> None:

@@ -6,6 +6,7 @@ Mosquitto; the pure parts (token, request parsing, overlays) as tables.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 import threading
@@ -25,6 +26,7 @@ from edge.dashboard.events import EventHub, Overlay, pose_event, sse, status_eve
 from edge.dashboard.formation import authorize, formation_targets, parse_request, with_targets
 from edge.dashboard.frames import FrameEncoder, encode_jpeg
 from edge.dashboard.server import hex_color, static_files
+from edge.dashboard.streams import EventFanout
 from edge.errors import MessageError
 from edge.messages import parse_formation
 from edge.metrics import Latency, RoverSnapshot, Snapshot
@@ -246,6 +248,53 @@ def test_event_hub_starts_only_for_a_viewer_and_hands_each_event_to_all() -> Non
     assert list(two) == []  # closing the hub ends the streams
 
 
+def test_pages_share_one_hub_viewer_and_the_hub_sleeps_when_they_leave() -> None:
+    hub = EventHub(
+        latest=lambda: None, make_pose=lambda r: {}, make_status=lambda: {"state": "online"}, status_interval_s=600.0
+    )
+    fanout = EventFanout(hub.stream, queue_size=4)
+
+    async def watch() -> threading.Thread:
+        pages = [fanout.stream(f"hello {k}\n".encode()) for k in range(3)]
+        assert [await page.__anext__() for page in pages] == [b"hello 0\n", b"hello 1\n", b"hello 2\n"]
+        assert fanout.pages == 3 and fanout._thread is not None
+        thread = fanout._thread
+        for _ in range(3000):  # until the fan-out thread has joined the hub (a guard of 30 s, not a pause)
+            if hub.viewers:
+                break
+            await asyncio.sleep(0.01)
+        hub.publish("formation", {"kind": "line"})
+        for page in pages:  # every page gets it, through one viewer of the hub
+            chunk = await asyncio.wait_for(page.__anext__(), 30)
+            assert b'event: formation\ndata: {"kind":"line"}\n\n' in chunk
+        assert hub.viewers == 1
+        for page in pages:
+            await page.aclose()
+        assert fanout.pages == 0
+        return thread
+
+    thread = asyncio.run(watch())
+    hub.publish("formation", None)  # the next chunk finds no page: the thread leaves and the hub has no viewer
+    thread.join(30)
+    assert not thread.is_alive() and hub.viewers == 0
+    hub.close()
+
+
+def test_closing_the_hub_ends_every_page() -> None:
+    hub = EventHub(latest=lambda: None, make_pose=lambda r: {}, make_status=lambda: {}, status_interval_s=600.0)
+    fanout = EventFanout(hub.stream)
+
+    async def watch() -> list[list[bytes]]:
+        pages = [fanout.stream(b"hello\n") for _ in range(2)]
+        for page in pages:
+            await page.__anext__()
+        await asyncio.get_running_loop().run_in_executor(None, hub.close)
+        return [[chunk async for chunk in page] for page in pages]  # each ends (an endless page would hang here)
+
+    assert all(b"hello" not in b"".join(rest) for rest in asyncio.run(watch()))
+    assert fanout.pages == 0
+
+
 # -- the camera view -----------------------------------------------------------------------------------------------
 def test_jpeg_is_downscaled_to_the_configured_width() -> None:
     image = np.zeros((720, 1280, 3), dtype=np.uint8)
@@ -350,7 +399,8 @@ def test_formation_post_publishes_only_with_the_token(mosquitto: Mosquitto) -> N
     try:
         with running(_config(mosquitto, **{"dashboard.token": TOKEN})) as app:
             port = app.http.port
-            assert call(port, "GET", "/api/state").json()["formation_enabled"] is True
+            auth = {"Authorization": f"Bearer {TOKEN}"}
+            assert call(port, "GET", "/api/state", headers=auth).json()["formation_enabled"] is True
             refused = [
                 call(port, "POST", "/api/formation", line),
                 call(port, "POST", "/api/formation", line, {"Authorization": "Bearer not-the-token"}),
@@ -372,12 +422,11 @@ def test_formation_post_publishes_only_with_the_token(mosquitto: Mosquitto) -> N
                 "ids": ["red", "green"],
                 "spacing": 50.0,
             }
-            auth = {"Authorization": f"Bearer {TOKEN}"}
             stop = call(port, "POST", "/api/formation", b'{"kind":"stop","ids":[]}', auth)
             assert stop.json()["seq"] == 2 and subscriber.next()[0]["kind"] == "stop"
-            events = read_events(port, {"formation": 1})
+            events = read_events(port, {"formation": 1}, headers=auth)
             assert events["formation"][0]["kind"] == "stop"  # a new page learns the retained formation at once
-            assert call(port, "GET", "/api/state").json()["formation"]["seq"] == 2
+            assert call(port, "GET", "/api/state", headers=auth).json()["formation"]["seq"] == 2
     finally:
         subscriber.close()
 
@@ -395,16 +444,22 @@ def test_the_token_is_masked_and_settings_are_validated(tmp_path: Path) -> None:
     from edge.config import load_config
     from edge.errors import ConfigError
 
-    config = EdgeConfig.model_validate({"dashboard": {"token": TOKEN, "frame_fps": 5}})
+    config = EdgeConfig.model_validate({"dashboard": {"token": TOKEN, "viewer_token": "viewer-only-1", "frame_fps": 5}})
     shown = masked(config)["dashboard"]
-    assert shown["token"] == "********" and shown["frame_fps"] == 5.0
-    assert TOKEN not in json.dumps(masked(config))
+    assert shown["token"] == shown["viewer_token"] == "********" and shown["frame_fps"] == 5.0
+    assert TOKEN not in json.dumps(masked(config)) and "viewer-only-1" not in json.dumps(masked(config))
     bad = tmp_path / "edge-ips.toml"
     for text, key in [
         ('[dashboard]\ntoken = "short"\n', "dashboard.token"),
         ("[dashboard]\nframe_fps = 0\n", "dashboard.frame_fps"),
         ("[dashboard]\njpeg_quality = 101\n", "dashboard.jpeg_quality"),
         ("[dashboard]\nframes = 3\n", "dashboard.frames: unknown key"),
+        ('[dashboard]\nviewer_token = "short"\n', "dashboard.viewer_token"),
+        ('[http]\nallowed_hosts = ["http://edge.lab/"]\n', "http.allowed_hosts: 'http://edge.lab/' is not a host name"),
+        ('[http]\nallowed_hosts = "edge.lab"\n', "http.allowed_hosts"),
+        ("[http]\nmax_connections = 1\n", "http.max_connections"),
+        ("[http]\nrequest_timeout_s = 0\n", "http.request_timeout_s"),
+        ("[http]\nmax_streams = 0\n", "http.max_streams"),
     ]:
         bad.write_text(text)
         with pytest.raises(ConfigError, match=key):

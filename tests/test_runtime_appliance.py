@@ -21,7 +21,9 @@ from tests.support.appliance import edge_config, running
 from tests.support.mosquitto import Mosquitto, free_port
 from tests.support.runtime import MqttRecorder, poses, write_clip
 
-PROM_LINE = re.compile(r'^(# (HELP|TYPE) \w+ .+|edge_ips_\w+(\{(\w+="[^"]*",?)+\})? (-?[0-9.e+-]+|NaN|\+Inf))$')
+PROM_LINE = re.compile(
+    r'^(# (HELP|TYPE) \w+ .+|(edge_ips|process)_\w+(\{(\w+="[^"]*",?)+\})? (-?[0-9.e+-]+|NaN|\+Inf))$'
+)
 
 
 def _get(url: str) -> tuple[int, bytes, str]:

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.dashboard.threads import background_priority
+from edge.priority import background_priority
 
 if TYPE_CHECKING:
     from edge.calibration import Calibration

@@ -57,12 +57,14 @@ def call(port: int, method: str, path: str, body: bytes | None = None, headers: 
         conn.close()
 
 
-def read_events(port: int, wanted: dict[str, int], limit: int = 2000) -> dict[str, list[Any]]:
+def read_events(
+    port: int, wanted: dict[str, int], limit: int = 2000, headers: dict[str, str] | None = None
+) -> dict[str, list[Any]]:
     """Read ``/api/events`` until at least ``wanted[name]`` events of each name arrived; returns them by name."""
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
     got: dict[str, list[Any]] = {name: [] for name in wanted}
     try:
-        conn.request("GET", "/api/events")
+        conn.request("GET", "/api/events", headers=headers or {})
         resp = conn.getresponse()
         assert resp.status == 200
         assert resp.getheader("Content-Type", "").startswith("text/event-stream")

@@ -6,13 +6,44 @@ const TRAIL = 90;                 // points kept per rover trail (6 s at the def
 const state = { info: null, rovers: new Map(), formation: null, frameSize: [1280, 720], lastPose: null };
 const $ = (id) => document.getElementById(id);
 
+// The dashboard token: taken from the address (?token=..., then removed from it) and kept for this tab's session.
+// fetch sends it as a bearer token; EventSource and <img> cannot send headers, so they carry ?token=.
+const TOKEN_KEY = "edge-ips-token";
+let viewToken = initialToken();
+
+function initialToken() {
+  const url = new URL(location.href);
+  const given = url.searchParams.get("token");
+  if (given !== null) {
+    sessionStorage.setItem(TOKEN_KEY, given);
+    url.searchParams.delete("token");
+    history.replaceState(null, "", url.pathname + url.search + url.hash);
+  }
+  return sessionStorage.getItem(TOKEN_KEY) || "";
+}
+
+function withToken(path) {
+  if (!viewToken) return path;
+  return `${path}${path.includes("?") ? "&" : "?"}token=${encodeURIComponent(viewToken)}`;
+}
+
+function bearer(token) {
+  return token ? { Authorization: `Bearer ${token}` } : {};
+}
+
 function colorOf(id) {
   const r = state.info && state.info.rovers.find((x) => x.id === id);
   return r ? r.color : "#cccccc";
 }
 
 async function loadState() {
-  const res = await fetch("api/state");
+  const res = await fetch("api/state", { headers: bearer(viewToken) });
+  if (!res.ok) {
+    const out = await res.json().catch(() => ({ error: res.statusText }));
+    $("formation-result").textContent = `${out.error || res.status}: enter the dashboard token`;
+    $("formation-result").dataset.status = String(res.status);
+    return false;
+  }
   state.info = await res.json();
   state.frameSize = [state.info.image.width, state.info.image.height];
   state.formation = state.info.formation;
@@ -29,15 +60,16 @@ async function loadState() {
   } else {
     $("calibration-info").textContent = c ? `(${c.note || c.method})` : "(no calibration known)";
   }
-  $("errormap").src = "api/errormap.png";
+  $("errormap").src = withToken("api/errormap.png");
   showFormation();
+  return true;
 }
 
 // -- camera ----------------------------------------------------------------------------------------------------------
 let frameCount = 0;
 function nextFrame() {
   const img = $("camera");
-  const url = `api/frame.jpg?n=${frameCount++}`;
+  const url = withToken(`api/frame.jpg?n=${frameCount++}`);
   img.onload = () => { drawCameraOverlay(); setTimeout(nextFrame, 0); };
   img.onerror = () => setTimeout(nextFrame, 1000);
   img.src = url;
@@ -201,7 +233,7 @@ function showFormation() {
 }
 
 function connectEvents() {
-  const es = new EventSource("api/events");
+  const es = new EventSource(withToken("api/events"));
   es.addEventListener("pose", (e) => onPose(JSON.parse(e.data)));
   es.addEventListener("status", (e) => onStatus(JSON.parse(e.data)));
   es.addEventListener("formation", (e) => { state.formation = JSON.parse(e.data); showFormation(); });
@@ -214,7 +246,7 @@ async function sendFormation(kind) {
   const body = { kind, ids, spacing: Number($("spacing").value), side: Number($("side").value) };
   const res = await fetch("api/formation", {
     method: "POST",
-    headers: { "Content-Type": "application/json", Authorization: `Bearer ${$("token").value}` },
+    headers: { "Content-Type": "application/json", ...bearer($("token").value.trim()) },
     body: JSON.stringify(body),
   });
   const out = await res.json().catch(() => ({ error: res.statusText }));
@@ -227,4 +259,17 @@ for (const b of document.querySelectorAll("#formation-form button")) {
 }
 window.addEventListener("resize", () => { drawMap(); drawCameraOverlay(); });
 
-loadState().then(() => { connectEvents(); nextFrame(); drawMap(); });
+async function start() {
+  $("token").value = viewToken;
+  if (await loadState()) {
+    connectEvents(); nextFrame(); drawMap();
+    return;
+  }
+  $("token").addEventListener("change", () => {  // a token typed in: try again with it
+    viewToken = $("token").value.trim();
+    sessionStorage.setItem(TOKEN_KEY, viewToken);
+    start();
+  }, { once: true });
+}
+
+start();
