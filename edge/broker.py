@@ -27,7 +27,14 @@ from pathlib import Path
 from typing import Any
 
 from edge.errors import BrokerError
-from edge.messages import FORMATION_TOPIC, ID_PATTERN, POSE_WILDCARD, TOPIC_PREFIX, edge_status_topic
+from edge.messages import (
+    FORMATION_TOPIC,
+    ID_PATTERN,
+    POSE_WILDCARD,
+    ROVER_STATUS_WILDCARD,
+    TOPIC_PREFIX,
+    edge_status_topic,
+)
 from edge.messages import rover_status_topic as _rover_status_topic
 
 log = logging.getLogger("edge.broker")
@@ -204,7 +211,7 @@ def acl_text(edge_user: str, edge_id: str, rovers: Sequence[str]) -> str:
         f"topic write {POSE_WILDCARD}",
         f"topic readwrite {edge_status_topic(edge_id)}",
         f"topic readwrite {FORMATION_TOPIC}",
-        f"topic read {TOPIC_PREFIX}/rovers/+/status",
+        f"topic read {ROVER_STATUS_WILDCARD}",
         "",
     ]
     for rover in rovers:

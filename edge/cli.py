@@ -66,7 +66,7 @@ def main() -> None:
     help="Directory to write the JSON Schema files into.",
 )
 def schema(out_dir: Path) -> None:
-    """Write the JSON Schemas of the message contract (pose, formation, status v1).
+    """Write the JSON Schemas of the message contract (pose, formation and status v1, rover status v2).
 
     Example:
 
