@@ -1,4 +1,5 @@
-"""Publishing to MQTT: poses at QoS 0 on one topic per rover, the retained edge status with its last will.
+"""Publishing to MQTT: poses at QoS 0 on one topic per rover, the retained edge status with its last will, and the
+retained formation command (``send_formation``; the appliance's own ``stop`` when it starts).
 
 Nothing stale is ever sent. Poses are published only while connected: while disconnected they are dropped and
 counted, never queued (paho queues nothing for QoS 0 without a socket, and its outgoing packet buffer is cleared
@@ -22,7 +23,7 @@ from typing import Any, Protocol
 import paho.mqtt.client as mqtt
 
 from edge.config import BrokerTarget
-from edge.errors import BrokerError, ConfigError
+from edge.errors import BrokerError, ConfigError, MessageError
 from edge.messages import (
     FORMATION_TOPIC,
     FormationKind,
@@ -30,6 +31,7 @@ from edge.messages import (
     StatusV1,
     dumps,
     edge_status_topic,
+    next_seq,
     parse_formation,
     pose_topic,
 )
@@ -41,6 +43,7 @@ Tap = Callable[[str, bytes, bool], None]
 
 STATUS_QOS = 1
 FORMATION_QOS = 1
+RETAINED_WAIT_S = 0.5  # how long a retained formation may take to arrive after subscribing (MQTT has no "none")
 
 
 @dataclass
@@ -143,7 +146,12 @@ def connect_host(target: BrokerTarget) -> str:
 
 
 class MqttPublisher:
-    """paho-mqtt v2 publisher with last will, status refresh on reconnect and drop-not-queue for poses."""
+    """paho-mqtt v2 publisher with last will, status refresh on reconnect and drop-not-queue for poses.
+
+    ``halt_fleet_at_start``: on its first connection it publishes a retained ``stop`` (seq after the retained one),
+    so every rover halts until someone commands again (the appliance does this; shared/schema/README.md,
+    "Commands"). :attr:`fleet_halted` is set once the broker has it.
+    """
 
     def __init__(
         self,
@@ -158,6 +166,8 @@ class MqttPublisher:
         tls: TlsFiles | None = None,
         tap: Tap | None = None,
         on_connected: Callable[[], None] | None = None,
+        halt_fleet_at_start: bool = False,
+        retained_wait_s: float = RETAINED_WAIT_S,
     ) -> None:
         self.target = target
         self.edge_id = edge_id
@@ -174,6 +184,11 @@ class MqttPublisher:
         self._first_refusal: str | None = None
         self._last_logged_error = ""
         self._stopping = False
+        self._halt_pending = halt_fleet_at_start
+        self._halt_timer: threading.Timer | None = None
+        self._retained_wait_s = retained_wait_s
+        self._retained: list[FormationV1] = []
+        self.fleet_halted = threading.Event()
         self._client = make_client(
             target,
             client_id or f"edge-ips-{edge_id}",
@@ -184,6 +199,7 @@ class MqttPublisher:
         self._set_will()
         self._client.on_connect = self._on_connect
         self._client.on_disconnect = self._on_disconnect
+        self._client.on_message = self._on_formation
 
     # -- paho callbacks (network thread) ------------------------------------------------------------------------
     def _set_will(self) -> None:
@@ -210,8 +226,40 @@ class MqttPublisher:
         status = self._latest_status
         if status is not None:
             self._send_status(status)
+        if self._halt_pending and self._halt_timer is None:
+            # The retained formation first (its seq), then the stop: a timer, since nothing says "none retained".
+            client.subscribe(FORMATION_TOPIC, qos=FORMATION_QOS)
+            self._halt_timer = threading.Timer(self._retained_wait_s, self._halt_fleet)
+            self._halt_timer.daemon = True
+            self._halt_timer.start()
         if self.on_connected is not None:
             self.on_connected()
+
+    def _on_formation(self, client: mqtt.Client, userdata: Any, message: mqtt.MQTTMessage) -> None:
+        retained = read_retained(bytes(message.payload))
+        if retained is not None:
+            self._retained.append(retained)
+
+    def _halt_fleet(self, ack_timeout_s: float = 5.0) -> None:
+        """The retained stop at start (timer thread), once the broker acknowledged it; done again on the next
+        connection if this one dropped first (a second stop is harmless)."""
+        if not self._halt_pending or self._stopping:
+            return
+        seq = next_seq(self._retained[-1].seq if self._retained else None)
+        stop = build_formation("stop", [], seq=seq)
+        info = self._send(FORMATION_TOPIC, dumps(stop), FORMATION_QOS, True)
+        try:
+            if info is not None:
+                info.wait_for_publish(ack_timeout_s)
+        except (RuntimeError, ValueError):  # the connection went away meanwhile
+            info = None
+        if info is None or not info.is_published():
+            self._halt_timer = None
+            return
+        self._halt_pending = False
+        self._client.unsubscribe(FORMATION_TOPIC)
+        self.fleet_halted.set()
+        log.info("published a retained stop (seq %d): every rover halts until someone commands a formation", seq)
 
     def _on_disconnect(self, client: mqtt.Client, userdata: Any, flags: Any, reason_code: Any, props: Any) -> None:
         was_connected = self._connected.is_set()
@@ -246,14 +294,17 @@ class MqttPublisher:
         return self._connected.wait(max(0.0, deadline - time.monotonic()))
 
     def publish(self, topic: str, payload: bytes, *, qos: int = 0, retain: bool = False) -> bool:
+        return self._send(topic, payload, qos, retain) is not None
+
+    def _send(self, topic: str, payload: bytes, qos: int, retain: bool) -> mqtt.MQTTMessageInfo | None:
         if not self._connected.is_set():
-            return False
+            return None
         info = self._client.publish(topic, payload, qos=qos, retain=retain)
         if info.rc != mqtt.MQTT_ERR_SUCCESS:
-            return False
+            return None
         if self.tap is not None:
             self.tap(topic, payload, retain)
-        return True
+        return info
 
     def publish_pose(self, rover_id: str, payload: bytes) -> bool:
         topic = self._pose_topics.get(rover_id) or pose_topic(rover_id)
@@ -278,6 +329,8 @@ class MqttPublisher:
     def stop(self, final_status: StatusV1 | None = None, timeout_s: float = 3.0) -> None:
         """Publish ``final_status`` (offline) and wait for the broker's ack, then disconnect cleanly."""
         self._stopping = True
+        if self._halt_timer is not None:
+            self._halt_timer.cancel()
         if final_status is not None and self.connected:
             info = self._client.publish(self._status_topic, dumps(final_status), qos=STATUS_QOS, retain=True)
             if self.tap is not None and info.rc == mqtt.MQTT_ERR_SUCCESS:
@@ -420,6 +473,18 @@ def build_formation(
         raise MessageError(f"formation: {where}: {first['msg']}") from exc
 
 
+def read_retained(payload: bytes) -> FormationV1 | None:
+    """The retained formation a writer continues from: None when it is cleared (empty) or breaks the contract (a
+    foreign payload is said in the log and otherwise ignored: the next seq is 1)."""
+    if not payload:
+        return None
+    try:
+        return parse_formation(payload)
+    except MessageError as exc:
+        log.warning("ignoring the retained formation on the broker: %s", exc)
+        return None
+
+
 def send_formation(
     target: BrokerTarget,
     make: Callable[[int], FormationV1],
@@ -427,21 +492,20 @@ def send_formation(
     client_id: str = "",
     tls: TlsFiles | None = None,
     timeout_s: float = 5.0,
-    retained_wait_s: float = 0.5,
+    retained_wait_s: float = RETAINED_WAIT_S,
 ) -> FormationV1:
-    """Publish a retained formation whose ``seq`` follows the one currently retained (1 if none).
+    """Publish a retained formation whose ``seq`` follows the one currently retained (:func:`next_seq`: 1 if none
+    or if it breaks the contract, and 999999999 is followed by 1).
 
-    ``make(seq)`` builds the message. Returns what was published once the broker acknowledged it.
+    ``make(seq)`` builds the message. Returns what was published once the broker acknowledged it. Rovers compare
+    whole commands, so two writers at once may publish the same seq: both are applied, in the broker's order.
     """
     client = make_client(target, client_id, tls=tls)
-    current: list[FormationV1] = []
+    current: list[FormationV1 | None] = []
     got = threading.Event()
 
     def on_message(c: mqtt.Client, u: Any, message: mqtt.MQTTMessage) -> None:
-        try:
-            current.append(parse_formation(bytes(message.payload)))
-        except Exception as exc:  # a foreign retained payload: start a new sequence, but say so
-            log.warning("ignoring the retained formation on the broker: %s", exc)
+        current.append(read_retained(bytes(message.payload)))
         got.set()
 
     client.on_message = on_message
@@ -450,7 +514,8 @@ def send_formation(
         client.subscribe(FORMATION_TOPIC, qos=FORMATION_QOS)
         got.wait(retained_wait_s)  # a retained message arrives right after the subscription, if there is one
         client.unsubscribe(FORMATION_TOPIC)
-        seq = (current[-1].seq + 1) if current else 1
+        retained = current[-1] if current else None
+        seq = next_seq(retained.seq if retained is not None else None)
         message = make(seq)
         info = client.publish(FORMATION_TOPIC, dumps(message), qos=FORMATION_QOS, retain=True)
         info.wait_for_publish(timeout_s)

@@ -524,11 +524,14 @@ def prepare_appliance(
             tls=tls,
             tap=recorder.record if recorder is not None else None,
             on_connected=lambda: runtime_ref[0].status_now() if runtime_ref else None,
+            halt_fleet_at_start=True,  # a retained stop: after a restart every rover halts until commanded again
         )
         publisher.start()
         started.callback(publisher.stop)
         if not publisher.wait_connected(connect_timeout_s):
             log.warning("broker %s not reachable yet; retrying in the background", target.display())
+        elif not publisher.fleet_halted.wait(connect_timeout_s):  # before any command can be taken (dashboard)
+            log.warning("the retained stop is not acknowledged yet; it goes out as soon as the broker takes it")
 
         runtime = EdgeRuntime(
             edge_id=config.edge.id,
