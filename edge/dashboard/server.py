@@ -6,8 +6,10 @@ Routes:
 - ``GET /api/state``: what does not change while running (edge id, working area in cm and in image pixels, image
   size, rovers and their colours, whether the formation controls are enabled, the calibration's figures) and the
   current formation.
-- ``GET /api/events``: server-sent events ``pose`` (capped at ``dashboard.pose_hz``), ``status`` (1 Hz) and
-  ``formation`` (when it changes), from :class:`edge.dashboard.events.EventHub`.
+- ``GET /api/events``: server-sent events ``pose`` (capped at ``dashboard.pose_hz``), ``status`` (1 Hz),
+  ``formation`` and ``rovers`` (when they change), from :class:`edge.dashboard.events.EventHub`.
+- ``GET /api/rovers``: what each rover reports it applies (its retained status: halt reason, formation kind and
+  seq) and whether that is the broker's retained formation (:func:`edge.dashboard.events.rovers_event`).
 - ``GET /api/frame.jpg``: the next camera frame as JPEG (:class:`edge.dashboard.frames.FrameEncoder`).
 - ``GET /api/errormap.png``: the calibration error map (:mod:`edge.dashboard.calibration_view`).
 - ``POST /api/formation``: ``Authorization: Bearer <dashboard.token>``, JSON ``{kind, ids, spacing, side}``;
@@ -117,6 +119,7 @@ class Dashboard:
         http.route("/api/frame.jpg", self.frame)
         http.route("/api/errormap.png", self.errormap)
         http.route("/api/formation", self.post_formation, method="POST")
+        http.route("/api/rovers", self.rover_reports)
         return self
 
     def state(self, request: Request) -> Response:
@@ -144,12 +147,23 @@ class Dashboard:
         first: list[tuple[str, Any]] = [("status", status_event(self.runtime.snapshot()))]
         if self.formation is not None:
             first.append(("formation", self.formation.current))
+            first.append(("rovers", self._reports(self.formation)))
         return Response(
             200,
             content_type="text/event-stream; charset=utf-8",
             headers={"X-Accel-Buffering": "no"},
             stream=self.hub.stream(first),
         )
+
+    def _reports(self, desk: FormationDesk) -> dict[str, Any]:
+        from edge.dashboard.events import rovers_event
+
+        return rovers_event([r.id for r in self.rovers], desk.reports, desk.current)
+
+    def rover_reports(self, request: Request) -> Response:
+        if self.formation is None:
+            return json_response(404, {"error": "rover statuses are not watched on this edge"})
+        return json_response(200, self._reports(self.formation))
 
     def frame(self, request: Request) -> Response:
         background_priority()  # the request's thread only serves the page
