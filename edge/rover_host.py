@@ -34,7 +34,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from edge.errors import ConfigError
+from edge.errors import BrokerError, ConfigError
 
 FIRMWARE_DIR = Path(__file__).resolve().parent.parent / "firmware" / "esp8266"
 HOST_DIR = FIRMWARE_DIR.parent / "host"
@@ -259,6 +259,24 @@ class HostRover:
     def connected(self) -> bool:
         return bool(self.link is not None and self.link.up)
 
+    def check_broker(self) -> None:
+        """Connect once with the firmware's own MQTT client, credentials and timeout, then disconnect cleanly:
+        :class:`BrokerError` when the broker cannot be reached or refuses this rover (the firmware itself would
+        retry for ever, as a rover must)."""
+        if self.link is None:
+            return
+        b = self.config["broker"]
+        where = f"mqtt://{b['host']}:{b['port']}"
+        client = self.link.client
+        try:
+            client.connect(True, b["timeout_s"])
+        except OSError as exc:
+            raise BrokerError(f"cannot reach broker {where}: {exc.strerror or exc}") from None
+        except sys.modules["umqtt.simple"].MQTTException as exc:
+            reason = CONNACK_REFUSALS.get(exc.args[0], f"no valid CONNACK ({exc.args[0]})")
+            raise BrokerError(f"broker {where} refused rover {self.id!r} (user {b['user']!r}): {reason}") from None
+        client.disconnect()
+
     # -- teardown ------------------------------------------------------------------------------------------------
     def close(self) -> None:
         """Clean disconnect: publishes the offline status (a clean DISCONNECT fires no last will)."""
@@ -272,6 +290,15 @@ class HostRover:
         if self.link is not None and self.link.client.sock is not None:
             self.link.client.sock.close()
             self.link.up = False
+
+
+CONNACK_REFUSALS = {
+    1: "unacceptable protocol version",
+    2: "client id rejected",
+    3: "server unavailable",
+    4: "bad user name or password",
+    5: "not authorised",
+}
 
 
 def _monotonic_ms() -> int:
