@@ -273,8 +273,12 @@ class HostRover:
         except OSError as exc:
             raise BrokerError(f"cannot reach broker {where}: {exc.strerror or exc}") from None
         except sys.modules["umqtt.simple"].MQTTException as exc:
-            reason = CONNACK_REFUSALS.get(exc.args[0], f"no valid CONNACK ({exc.args[0]})")
-            raise BrokerError(f"broker {where} refused rover {self.id!r} (user {b['user']!r}): {reason}") from None
+            code = exc.args[0]
+            reason = CONNACK_REFUSALS.get(code, f"no valid CONNACK ({code})")
+            hint = " (check the rover's user and password)" if code in (4, 5) else ""
+            raise BrokerError(
+                f"broker {where} refused rover {self.id!r} (user {b['user']!r}): {reason}{hint}"
+            ) from None
         client.disconnect()
 
     # -- teardown ------------------------------------------------------------------------------------------------
