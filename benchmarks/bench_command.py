@@ -42,6 +42,7 @@ sys.path.insert(0, str(REPO))
 
 ROVERS = ("red", "green", "blue")
 TOKEN = "bench-command-token"
+EDGE_ID = "bench-command"  # checked on /api/state: the port answers from this edge, not another process's
 EDGE_IPS = [sys.executable, "-m", "edge.cli"]
 WAIT_S = 120.0
 
@@ -124,7 +125,10 @@ def _wait_online(http_port: int, edge: subprocess.Popen[bytes]) -> None:
     while time.monotonic() < deadline and edge.poll() is None:
         try:
             with urllib.request.urlopen(f"http://127.0.0.1:{http_port}/healthz", timeout=2):
-                return
+                pass
+            with urllib.request.urlopen(f"http://127.0.0.1:{http_port}/api/state", timeout=2) as state:
+                if json.loads(state.read())["edge_id"] == EDGE_ID and edge.poll() is None:
+                    return
         except OSError:
             time.sleep(0.2)
     raise RuntimeError("the edge did not come online")
@@ -153,7 +157,9 @@ def run(kind: str, stops: int, workdir: Path) -> list[float]:
     log = (workdir / f"{kind}.log").open("wb")
     try:
         if kind == "mosquitto":
-            files = write_mosquitto_config(workdir / "broker", rovers=list(ROVERS), port=port, bind="127.0.0.1")
+            files = write_mosquitto_config(
+                workdir / "broker", rovers=list(ROVERS), edge_id=EDGE_ID, port=port, bind="127.0.0.1"
+            )
             with files.conf.open("a") as conf:  # run as root, Mosquitto would drop to a user that cannot read tmp
                 conf.write("log_dest stderr\n" + ("user root\n" if os.geteuid() == 0 else ""))
             procs.append(subprocess.Popen(["/usr/sbin/mosquitto", "-c", str(files.conf)], stdout=log, stderr=log))
@@ -164,7 +170,7 @@ def run(kind: str, stops: int, workdir: Path) -> list[float]:
         else:
             env["EDGE_IPS_BROKER__EMBEDDED_PORT"] = str(port)
             edge_args = []
-        start = [*EDGE_IPS, "start", "--source", "sim", "--http-port", str(http_port), *edge_args]
+        start = [*EDGE_IPS, "start", "--source", "sim", "--edge-id", EDGE_ID, "--http-port", str(http_port), *edge_args]
         edge = subprocess.Popen(start, cwd=workdir, env=env, stdout=log, stderr=log)
         procs.append(edge)
         _wait_online(http_port, edge)

@@ -239,9 +239,10 @@ def formation(
 
         edge-ips formation line --spacing 60 --rovers red,green,blue
     """
+    from edge.commands import build_formation, send_formation
     from edge.config import broker_target
     from edge.messages import dumps
-    from edge.publisher import TlsFiles, build_formation, send_formation
+    from edge.mqttclient import TlsFiles
 
     config, _, _ = _load(config_path, **{"broker.url": broker_url})
     shape = cast("FormationKind", kind)

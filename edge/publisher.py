@@ -1,40 +1,34 @@
-"""Publishing to MQTT: poses at QoS 0 on one topic per rover, the retained edge status with its last will, and the
-retained formation command (``send_formation``; the appliance's own ``stop`` when it starts).
+"""Publishing to MQTT: poses at QoS 0 on one topic per rover, the retained edge status with its last will.
 
 Nothing stale is ever sent. Poses are published only while connected: while disconnected they are dropped and
 counted, never queued (paho queues nothing for QoS 0 without a socket, and its outgoing packet buffer is cleared
 on reconnect). Status is kept as "the latest" and re-published on every (re)connect. Reconnects run with
 exponential backoff on paho's network thread, so the tracker never waits for the network.
+
+The formation command lives in :mod:`edge.commands`, the client set-up in :mod:`edge.mqttclient`; their names
+below are kept importable from here.
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import socket
-import ssl
 import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Protocol
 
 import paho.mqtt.client as mqtt
 
+from edge.commands import FORMATION_QOS as FORMATION_QOS
+from edge.commands import build_formation as build_formation
+from edge.commands import send_formation as send_formation
 from edge.config import BrokerTarget
-from edge.errors import BrokerError, ConfigError, MessageError
-from edge.messages import (
-    FORMATION_TOPIC,
-    FormationKind,
-    FormationV1,
-    StatusV1,
-    dumps,
-    edge_status_topic,
-    next_seq,
-    parse_formation,
-    pose_topic,
-)
+from edge.errors import BrokerError
+from edge.messages import StatusV1, dumps, edge_status_topic, pose_topic
+from edge.mqttclient import TlsFiles as TlsFiles
+from edge.mqttclient import connect_host as connect_host
+from edge.mqttclient import make_client as make_client
 
 log = logging.getLogger("edge.publisher")
 
@@ -42,8 +36,6 @@ Tap = Callable[[str, bytes, bool], None]
 """Called with (topic, payload, retain) for every message handed to the broker connection (the recording)."""
 
 STATUS_QOS = 1
-FORMATION_QOS = 1
-RETAINED_WAIT_S = 0.5  # how long a retained formation may take to arrive after subscribing (MQTT has no "none")
 
 
 @dataclass
@@ -93,65 +85,8 @@ def offline_status(edge_id: str, rovers: Sequence[str], t: float | None = None) 
     )
 
 
-@dataclass(frozen=True)
-class TlsFiles:
-    ca_file: Path | None = None
-    cert_file: Path | None = None
-    key_file: Path | None = None
-
-    def check(self) -> None:
-        for key, path in (("ca_file", self.ca_file), ("cert_file", self.cert_file), ("key_file", self.key_file)):
-            if path is not None and not path.is_file():
-                raise ConfigError(f"broker.{key}: {path} not found")
-        if (self.cert_file is None) != (self.key_file is None):
-            raise ConfigError("broker.cert_file and broker.key_file go together: give both or neither")
-
-
-def make_client(
-    target: BrokerTarget,
-    client_id: str,
-    *,
-    tls: TlsFiles | None = None,
-    reconnect_min_s: float = 0.25,
-    reconnect_max_s: float = 2.0,
-) -> mqtt.Client:
-    """A paho v2 client (MQTT 3.1.1, clean session) set up for ``target``, not yet connected."""
-    client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, clean_session=True)
-    if target.username is not None:
-        client.username_pw_set(target.username, target.password)
-    if target.tls:
-        files = tls or TlsFiles()
-        files.check()
-        client.tls_set(
-            ca_certs=str(files.ca_file) if files.ca_file else None,
-            certfile=str(files.cert_file) if files.cert_file else None,
-            keyfile=str(files.key_file) if files.key_file else None,
-            cert_reqs=ssl.CERT_REQUIRED,
-        )
-    client.reconnect_delay_set(min_delay=reconnect_min_s, max_delay=reconnect_max_s)  # type: ignore[arg-type]
-    client.on_socket_open = _no_delay
-    return client
-
-
-def _no_delay(client: mqtt.Client, userdata: Any, sock: Any) -> None:
-    # paho leaves Nagle's algorithm on: the 2nd and 3rd pose of a frame would wait for the broker's delayed ACK
-    # (up to 40 ms on Linux). Poses are small and latency-bound, so send each segment at once.
-    with contextlib.suppress(OSError, AttributeError):
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-
-
-def connect_host(target: BrokerTarget) -> str:
-    # The embedded broker listens on every interface; this process reaches it over loopback.
-    return "127.0.0.1" if target.embedded and target.host in ("0.0.0.0", "::", "") else target.host
-
-
 class MqttPublisher:
-    """paho-mqtt v2 publisher with last will, status refresh on reconnect and drop-not-queue for poses.
-
-    ``halt_fleet_at_start``: on its first connection it publishes a retained ``stop`` (seq after the retained one),
-    so every rover halts until someone commands again (the appliance does this; shared/schema/README.md,
-    "Commands"). :attr:`fleet_halted` is set once the broker has it.
-    """
+    """paho-mqtt v2 publisher with last will, status refresh on reconnect and drop-not-queue for poses."""
 
     def __init__(
         self,
@@ -166,8 +101,6 @@ class MqttPublisher:
         tls: TlsFiles | None = None,
         tap: Tap | None = None,
         on_connected: Callable[[], None] | None = None,
-        halt_fleet_at_start: bool = False,
-        retained_wait_s: float = RETAINED_WAIT_S,
     ) -> None:
         self.target = target
         self.edge_id = edge_id
@@ -184,11 +117,6 @@ class MqttPublisher:
         self._first_refusal: str | None = None
         self._last_logged_error = ""
         self._stopping = False
-        self._halt_pending = halt_fleet_at_start
-        self._halt_timer: threading.Timer | None = None
-        self._retained_wait_s = retained_wait_s
-        self._retained: list[FormationV1] = []
-        self.fleet_halted = threading.Event()
         self._client = make_client(
             target,
             client_id or f"edge-ips-{edge_id}",
@@ -199,7 +127,6 @@ class MqttPublisher:
         self._set_will()
         self._client.on_connect = self._on_connect
         self._client.on_disconnect = self._on_disconnect
-        self._client.on_message = self._on_formation
 
     # -- paho callbacks (network thread) ------------------------------------------------------------------------
     def _set_will(self) -> None:
@@ -226,40 +153,8 @@ class MqttPublisher:
         status = self._latest_status
         if status is not None:
             self._send_status(status)
-        if self._halt_pending and self._halt_timer is None:
-            # The retained formation first (its seq), then the stop: a timer, since nothing says "none retained".
-            client.subscribe(FORMATION_TOPIC, qos=FORMATION_QOS)
-            self._halt_timer = threading.Timer(self._retained_wait_s, self._halt_fleet)
-            self._halt_timer.daemon = True
-            self._halt_timer.start()
         if self.on_connected is not None:
             self.on_connected()
-
-    def _on_formation(self, client: mqtt.Client, userdata: Any, message: mqtt.MQTTMessage) -> None:
-        retained = read_retained(bytes(message.payload))
-        if retained is not None:
-            self._retained.append(retained)
-
-    def _halt_fleet(self, ack_timeout_s: float = 5.0) -> None:
-        """The retained stop at start (timer thread), once the broker acknowledged it; done again on the next
-        connection if this one dropped first (a second stop is harmless)."""
-        if not self._halt_pending or self._stopping:
-            return
-        seq = next_seq(self._retained[-1].seq if self._retained else None)
-        stop = build_formation("stop", [], seq=seq)
-        info = self._send(FORMATION_TOPIC, dumps(stop), FORMATION_QOS, True)
-        try:
-            if info is not None:
-                info.wait_for_publish(ack_timeout_s)
-        except (RuntimeError, ValueError):  # the connection went away meanwhile
-            info = None
-        if info is None or not info.is_published():
-            self._halt_timer = None
-            return
-        self._halt_pending = False
-        self._client.unsubscribe(FORMATION_TOPIC)
-        self.fleet_halted.set()
-        log.info("published a retained stop (seq %d): every rover halts until someone commands a formation", seq)
 
     def _on_disconnect(self, client: mqtt.Client, userdata: Any, flags: Any, reason_code: Any, props: Any) -> None:
         was_connected = self._connected.is_set()
@@ -294,17 +189,14 @@ class MqttPublisher:
         return self._connected.wait(max(0.0, deadline - time.monotonic()))
 
     def publish(self, topic: str, payload: bytes, *, qos: int = 0, retain: bool = False) -> bool:
-        return self._send(topic, payload, qos, retain) is not None
-
-    def _send(self, topic: str, payload: bytes, qos: int, retain: bool) -> mqtt.MQTTMessageInfo | None:
         if not self._connected.is_set():
-            return None
+            return False
         info = self._client.publish(topic, payload, qos=qos, retain=retain)
         if info.rc != mqtt.MQTT_ERR_SUCCESS:
-            return None
+            return False
         if self.tap is not None:
             self.tap(topic, payload, retain)
-        return info
+        return True
 
     def publish_pose(self, rover_id: str, payload: bytes) -> bool:
         topic = self._pose_topics.get(rover_id) or pose_topic(rover_id)
@@ -329,8 +221,6 @@ class MqttPublisher:
     def stop(self, final_status: StatusV1 | None = None, timeout_s: float = 3.0) -> None:
         """Publish ``final_status`` (offline) and wait for the broker's ack, then disconnect cleanly."""
         self._stopping = True
-        if self._halt_timer is not None:
-            self._halt_timer.cancel()
         if final_status is not None and self.connected:
             info = self._client.publish(self._status_topic, dumps(final_status), qos=STATUS_QOS, retain=True)
             if self.tap is not None and info.rc == mqtt.MQTT_ERR_SUCCESS:
@@ -404,124 +294,3 @@ class MemoryPublisher:
         """Payloads published on ``topic``, in order."""
         with self._lock:
             return [m.payload for m in self.messages if m.topic == topic]
-
-
-# -- one-shot publishing: the formation command ------------------------------------------------------------------
-def _connect_blocking(client: mqtt.Client, target: BrokerTarget, timeout_s: float) -> None:
-    done = threading.Event()
-    result: list[str] = []
-
-    def on_connect(c: mqtt.Client, u: Any, flags: Any, reason_code: Any, props: Any) -> None:
-        result.append("" if not reason_code.is_failure else str(reason_code))
-        done.set()
-
-    client.on_connect = on_connect
-    try:
-        client.connect(connect_host(target), target.port, keepalive=10)
-    except (OSError, ssl.SSLError) as exc:
-        raise BrokerError(f"cannot reach broker {target.display()}: {exc}") from exc
-    client.loop_start()
-    if not done.wait(timeout_s):
-        client.loop_stop()
-        raise BrokerError(f"broker {target.display()} did not answer within {timeout_s:g} s")
-    if result[0]:
-        client.loop_stop()
-        raise BrokerError(f"broker {target.display()} refused the connection: {result[0]}")
-
-
-def build_formation(
-    kind: FormationKind,
-    ids: Sequence[str],
-    *,
-    seq: int,
-    spacing_cm: float | None = None,
-    side_cm: float | None = None,
-    x_cm: float | None = None,
-    y_cm: float | None = None,
-    theta_rad: float | None = None,
-) -> FormationV1:
-    """A validated formation message (raises :class:`MessageError` naming the bad field).
-
-    Beyond the contract: every rover is named once, a formation other than ``stop`` names at least one rover, and a
-    triangle at least three (the firmware would make a 2-gon of two)."""
-    from pydantic import ValidationError
-
-    from edge.errors import MessageError
-
-    twice = sorted({i for i in ids if list(ids).count(i) > 1})
-    if twice:
-        raise MessageError(f"formation: ids: {', '.join(twice)} named more than once")
-    if kind != "stop" and not ids:
-        raise MessageError(f"formation: ids: a {kind} needs at least one rover")
-    if kind == "triangle" and len(ids) < 3:
-        raise MessageError(f"formation: ids: a triangle needs at least three rovers, got {len(ids)}")
-    try:
-        return FormationV1(
-            v=1,
-            seq=seq,
-            kind=kind,
-            ids=list(ids),
-            spacing=spacing_cm,
-            side=side_cm,
-            x=x_cm,
-            y=y_cm,
-            theta=theta_rad,
-        )
-    except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"])
-        raise MessageError(f"formation: {where}: {first['msg']}") from exc
-
-
-def read_retained(payload: bytes) -> FormationV1 | None:
-    """The retained formation a writer continues from: None when it is cleared (empty) or breaks the contract (a
-    foreign payload is said in the log and otherwise ignored: the next seq is 1)."""
-    if not payload:
-        return None
-    try:
-        return parse_formation(payload)
-    except MessageError as exc:
-        log.warning("ignoring the retained formation on the broker: %s", exc)
-        return None
-
-
-def send_formation(
-    target: BrokerTarget,
-    make: Callable[[int], FormationV1],
-    *,
-    client_id: str = "",
-    tls: TlsFiles | None = None,
-    timeout_s: float = 5.0,
-    retained_wait_s: float = RETAINED_WAIT_S,
-) -> FormationV1:
-    """Publish a retained formation whose ``seq`` follows the one currently retained (:func:`next_seq`: 1 if none
-    or if it breaks the contract, and 999999999 is followed by 1).
-
-    ``make(seq)`` builds the message. Returns what was published once the broker acknowledged it. Rovers compare
-    whole commands, so two writers at once may publish the same seq: both are applied, in the broker's order.
-    """
-    client = make_client(target, client_id, tls=tls)
-    current: list[FormationV1 | None] = []
-    got = threading.Event()
-
-    def on_message(c: mqtt.Client, u: Any, message: mqtt.MQTTMessage) -> None:
-        current.append(read_retained(bytes(message.payload)))
-        got.set()
-
-    client.on_message = on_message
-    _connect_blocking(client, target, timeout_s)
-    try:
-        client.subscribe(FORMATION_TOPIC, qos=FORMATION_QOS)
-        got.wait(retained_wait_s)  # a retained message arrives right after the subscription, if there is one
-        client.unsubscribe(FORMATION_TOPIC)
-        retained = current[-1] if current else None
-        seq = next_seq(retained.seq if retained is not None else None)
-        message = make(seq)
-        info = client.publish(FORMATION_TOPIC, dumps(message), qos=FORMATION_QOS, retain=True)
-        info.wait_for_publish(timeout_s)
-        if not info.is_published():
-            raise BrokerError(f"broker {target.display()} did not acknowledge the formation within {timeout_s:g} s")
-        return message
-    finally:
-        client.disconnect()
-        client.loop_stop()

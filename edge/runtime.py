@@ -462,6 +462,7 @@ def prepare_appliance(
     already started is stopped again.
     """
     from edge.broker import EmbeddedBroker
+    from edge.commands import StopAtStart
     from edge.httpserver import HttpServer, Response
     from edge.metrics import to_prometheus
     from edge.recording import Recorder
@@ -513,6 +514,15 @@ def prepare_appliance(
 
         rovers = [r.id for r in config.rovers]
         runtime_ref: list[EdgeRuntime] = []
+        # A retained stop on the first connection: after a restart every rover halts until commanded again.
+        tap = recorder.record if recorder is not None else None
+        stop_at_start = StopAtStart(target, client_id=f"edge-ips-{config.edge.id}-stop", tls=tls, tap=tap)
+
+        def on_connected() -> None:
+            stop_at_start.on_connected()
+            if runtime_ref:
+                runtime_ref[0].status_now()
+
         publisher = MqttPublisher(
             target,
             edge_id=config.edge.id,
@@ -522,16 +532,15 @@ def prepare_appliance(
             reconnect_min_s=config.broker.reconnect_min_s,
             reconnect_max_s=config.broker.reconnect_max_s,
             tls=tls,
-            tap=recorder.record if recorder is not None else None,
-            on_connected=lambda: runtime_ref[0].status_now() if runtime_ref else None,
-            halt_fleet_at_start=True,  # a retained stop: after a restart every rover halts until commanded again
+            tap=tap,
+            on_connected=on_connected,
         )
         publisher.start()
         started.callback(publisher.stop)
         if not publisher.wait_connected(connect_timeout_s):
             log.warning("broker %s not reachable yet; retrying in the background", target.display())
-        elif not publisher.fleet_halted.wait(connect_timeout_s):  # before any command can be taken (dashboard)
-            log.warning("the retained stop is not acknowledged yet; it goes out as soon as the broker takes it")
+        elif not stop_at_start.done.wait(connect_timeout_s):  # before any command can be taken (dashboard)
+            log.warning("the retained stop at start is not acknowledged yet; it is sent again on reconnect")
 
         runtime = EdgeRuntime(
             edge_id=config.edge.id,

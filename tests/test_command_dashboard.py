@@ -10,11 +10,11 @@ from typing import Any
 import paho.mqtt.client as mqtt
 import pytest
 
+from edge.commands import build_formation
 from edge.config import BrokerTarget
 from edge.dashboard.events import rovers_event
 from edge.dashboard.formation import FormationDesk
 from edge.messages import FORMATION_TOPIC, RoverStatusV2, dumps, rover_status_topic
-from edge.publisher import build_formation
 from tests.support.appliance import edge_config, running
 from tests.support.dashboard import call, chromium, read_events
 from tests.support.mosquitto import Mosquitto

@@ -10,8 +10,6 @@ in the test's properties), not asserted: benchmarks/bench_command.py measures it
 
 from __future__ import annotations
 
-import json
-import queue
 import subprocess
 import threading
 import time
@@ -24,8 +22,8 @@ from typing import Any
 import paho.mqtt.client as mqtt
 import pytest
 
+from edge.commands import build_formation
 from edge.messages import FORMATION_TOPIC, MAX_INT, dumps
-from edge.publisher import build_formation
 from tests.support.command import (
     EDGE_IPS,
     Edge,
@@ -34,6 +32,7 @@ from tests.support.command import (
     cli_formation,
     formations,
     observer,
+    retained_now,
     rover_reports,
     wait_reports,
 )
@@ -203,7 +202,7 @@ def test_every_rover_stops_through_restarts_hostile_seqs_and_two_writers(
         drive(dashboard("line"))
         after = time.time()
         both = two_writers(lambda: edge.command("stop", TOKEN), cli("line"))
-        retained = retained_now(d)
+        retained = retained_now(d.host, d.port, d.user, d.password)
         assert (retained["kind"], retained["seq"]) in {(m["kind"], m["seq"]) for m in both}
         wait_reports(rec, ROVERS, retained["kind"], retained["seq"], after)
         barrier = stop_and_measure(dashboard("stop"))
@@ -231,23 +230,6 @@ def last_formation_waited(rec: MqttRecorder) -> dict[str, Any]:
 def formation_after(rec: MqttRecorder, after: float) -> dict[str, Any]:
     assert rec.wait_for(lambda m: bool(formations(rec, after)), 120), "no formation published after the restart"
     return formations(rec, after)[0][1]
-
-
-def retained_now(d: Deployment) -> dict[str, Any]:
-    """What the broker holds now, as a client subscribing now gets it."""
-    got: queue.Queue[bytes] = queue.Queue()
-    client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="late-subscriber")
-    if d.user is not None:
-        client.username_pw_set(d.user, d.password)
-    client.on_connect = lambda c, u, f, rc, p: c.subscribe(FORMATION_TOPIC, qos=1)
-    client.on_message = lambda c, u, m: got.put(bytes(m.payload)) if m.retain else None
-    client.connect(d.host, d.port)
-    client.loop_start()
-    try:
-        return dict(json.loads(got.get(timeout=60)))
-    finally:
-        client.loop_stop()
-        client.disconnect()
 
 
 def two_writers(*sends: Callable[[], dict[str, Any]]) -> list[dict[str, Any]]:

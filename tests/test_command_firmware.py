@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 
 from edge import messages
-from edge.publisher import build_formation
+from edge.commands import build_formation
 from edge.rover_host import HostRover, check_rover_config, firmware_modules
 from tests.conftest import EXAMPLES, REPO
 from tests.support.firmware import run_micropython

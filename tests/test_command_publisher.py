@@ -10,10 +10,11 @@ from pathlib import Path
 import paho.mqtt.client as mqtt
 import pytest
 
+from edge.commands import StopAtStart, build_formation, send_formation
 from edge.config import BrokerTarget
 from edge.dashboard.formation import FormationDesk
 from edge.messages import FORMATION_TOPIC, MAX_INT, dumps, next_seq
-from edge.publisher import MqttPublisher, build_formation, send_formation
+from edge.publisher import MqttPublisher
 from tests.support.appliance import edge_config, running
 from tests.support.dashboard import FormationSubscriber
 from tests.support.mosquitto import Mosquitto, free_port
@@ -87,16 +88,23 @@ def test_the_dashboards_stop_is_published_after_a_hostile_retained_seq(mosquitto
     assert retained(mosquitto)["kind"] == "stop"
 
 
+def halted_on_connect(broker: Mosquitto) -> tuple[MqttPublisher, StopAtStart]:
+    """The appliance's wiring: the edge's publisher, and the stop at start run by its first connection."""
+    stop = StopAtStart(target(broker), client_id="edge-t-stop")
+    publisher = MqttPublisher(
+        target(broker), edge_id="edge-t", rovers=["red"], on_connected=stop.on_connected, reconnect_max_s=0.5
+    )
+    publisher.start()
+    return publisher, stop
+
+
 @pytest.mark.parametrize(("before", "seq"), [(None, 1), (LINE, 42), (HOSTILE, 1), (b"junk", 1)])
-def test_the_publisher_halts_the_fleet_when_it_first_connects(
-    mosquitto: Mosquitto, before: bytes | None, seq: int
-) -> None:
+def test_the_stop_at_start_follows_whatever_is_retained(mosquitto: Mosquitto, before: bytes | None, seq: int) -> None:
     if before is not None:
         retain(mosquitto, before)
-    publisher = MqttPublisher(target(mosquitto), edge_id="edge-t", rovers=["red"], halt_fleet_at_start=True)
-    publisher.start()
+    publisher, stop = halted_on_connect(mosquitto)
     try:
-        assert publisher.fleet_halted.wait(20)
+        assert stop.done.wait(30)
         assert retained(mosquitto) == json.loads(dumps(build_formation("stop", [], seq=seq)))
     finally:
         publisher.stop()
@@ -104,14 +112,11 @@ def test_the_publisher_halts_the_fleet_when_it_first_connects(
 
 def test_a_broker_that_comes_up_later_gets_the_stop_on_the_first_connection(tmp_path: Path) -> None:
     broker = Mosquitto(tmp_path / "late", port=free_port())
-    publisher = MqttPublisher(
-        target(broker), edge_id="edge-t", rovers=["red"], halt_fleet_at_start=True, reconnect_max_s=0.5
-    )
-    publisher.start()
+    publisher, stop = halted_on_connect(broker)
     try:
-        assert not publisher.wait_connected(0.5)
+        assert not publisher.wait_connected(0.5) and not stop.done.is_set()
         with broker:
-            assert publisher.fleet_halted.wait(30)
+            assert stop.done.wait(30)
             assert retained(broker)["kind"] == "stop"
     finally:
         publisher.stop()
@@ -119,10 +124,14 @@ def test_a_broker_that_comes_up_later_gets_the_stop_on_the_first_connection(tmp_
 
 def test_the_appliance_publishes_a_retained_stop_when_it_starts(mosquitto: Mosquitto) -> None:
     retain(mosquitto, LINE)  # what the fleet was doing before the edge restarted
+    sub = FormationSubscriber(mosquitto.host, mosquitto.port)
     config = edge_config(**{"camera.source": "sim", "broker.url": mosquitto.url})
-    with running(config) as app:
-        publisher = app.runtime.publisher
-        assert isinstance(publisher, MqttPublisher)
-        assert publisher.fleet_halted.wait(30)
-        doc = retained(mosquitto)
-    assert (doc["kind"], doc["seq"], doc["ids"]) == ("stop", 42, [])
+    try:
+        with running(config):
+            seen = [sub.next()[0]]  # the line, retained
+            while seen[-1]["kind"] != "stop":
+                seen.append(sub.next()[0])
+    finally:
+        sub.close()
+    assert [(d["kind"], d["seq"]) for d in seen] == [("line", 41), ("stop", 42)]
+    assert retained(mosquitto) == seen[-1]

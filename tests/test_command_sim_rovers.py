@@ -15,11 +15,12 @@ from click.testing import CliRunner
 
 from edge.broker import EmbeddedBroker, write_mosquitto_config
 from edge.cli import main
+from edge.commands import build_formation, send_formation
 from edge.config import BrokerTarget
 from edge.messages import FORMATION_TOPIC, ROVER_STATUS_WILDCARD, dumps, encode_pose, pose_topic
-from edge.publisher import build_formation, send_formation
 from edge.rover_host import HostRover, check_rover_config
 from edge.sim.fleet import FleetEvent, RoverRunner, SimFleet, fleet_configs, rover_broker, start_fleet
+from tests.support.command import retained_now
 from tests.support.mosquitto import Mosquitto, free_port
 from tests.support.runtime import MqttRecorder
 
@@ -158,7 +159,8 @@ def test_two_writers_with_the_same_seq_leave_every_rover_on_the_retained_command
                 for t in threads:
                     t.join(60)
                 assert [m.seq for m in sent] == [2, 2]  # the same seq: identity cannot be the seq
-                retained = [json.loads(m.payload) for m in rec.on(FORMATION_TOPIC)][-1]
+                retained = retained_now("127.0.0.1", broker.port)
+                assert (retained["kind"], retained["seq"]) in {("stop", 2), ("triangle", 2)}
                 assert rec.wait_for(lambda m: len(_latest(m, retained["kind"], 2)) == 3, 60), rec.json_on("status")
                 barrier = send_formation(target, lambda seq: build_formation("rendezvous", IDS, seq=seq))
                 assert rec.wait_for(lambda m: len(_latest(m, "rendezvous", barrier.seq)) == 3, 60)

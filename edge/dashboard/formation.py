@@ -4,7 +4,7 @@ rover reports it applies (its retained rover status v2): the page shows the rove
 
 Checks in this order, so nothing about the input leaks to someone without the token: controls disabled (no token
 configured: 403), token missing or wrong (401, compared in constant time), input invalid (400). Only then is the
-retained formation v1 message published with :func:`edge.publisher.send_formation` (its ``seq`` follows the one
+retained formation v1 message published with :func:`edge.commands.send_formation` (its ``seq`` follows the one
 the broker holds).
 """
 
@@ -21,6 +21,7 @@ from typing import Any
 import paho.mqtt.client as mqtt
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from edge.commands import FORMATION_QOS, build_formation, send_formation
 from edge.config import BrokerTarget
 from edge.errors import EdgeIpsError, MessageError
 from edge.messages import (
@@ -32,7 +33,7 @@ from edge.messages import (
     parse_formation,
     parse_rover_status,
 )
-from edge.publisher import FORMATION_QOS, TlsFiles, build_formation, connect_host, make_client, send_formation
+from edge.mqttclient import TlsFiles, connect_host, make_client
 
 log = logging.getLogger("edge.dashboard")
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import queue
 import signal
 import subprocess
 import sys
@@ -15,6 +16,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import paho.mqtt.client as mqtt
 
 from edge.messages import FORMATION_TOPIC, ROVER_STATUS_WILDCARD
 from tests.support.dashboard import EdgeProcess, call, clean_env, edge_start
@@ -29,6 +32,23 @@ def observer(host: str, port: int, username: str | None = None, password: str | 
     return MqttRecorder(
         host, port, topics=(FORMATION_TOPIC, ROVER_STATUS_WILDCARD), username=username, password=password
     )
+
+
+def retained_now(host: str, port: int, username: str | None = None, password: str | None = None) -> dict[str, Any]:
+    """The formation the broker holds now, as a client subscribing now gets it."""
+    got: queue.Queue[bytes] = queue.Queue()
+    client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="late-subscriber")
+    if username is not None:
+        client.username_pw_set(username, password)
+    client.on_connect = lambda c, u, f, rc, p: c.subscribe(FORMATION_TOPIC, qos=1)
+    client.on_message = lambda c, u, m: got.put(bytes(m.payload)) if m.retain else None
+    client.connect(host, port)
+    client.loop_start()
+    try:
+        return dict(json.loads(got.get(timeout=TIMEOUT_S)))
+    finally:
+        client.loop_stop()
+        client.disconnect()
 
 
 def formations(rec: MqttRecorder, after: float = 0.0) -> list[tuple[Received, dict[str, Any]]]:
