@@ -10,6 +10,7 @@ in the test's properties), not asserted: benchmarks/bench_command.py measures it
 
 from __future__ import annotations
 
+import os
 import subprocess
 import threading
 import time
@@ -44,6 +45,7 @@ pytestmark = pytest.mark.slow
 
 ROVERS = ["red", "green", "blue"]
 TOKEN = "e2e-dashboard-token"
+EDGE_ID = f"e2e-{os.getpid() % 100_000}"  # ours, not another process's on a port it took (Edge.start checks)
 
 
 @dataclass
@@ -85,13 +87,15 @@ def deployment(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Deplo
             port,
             f"mqtt://127.0.0.1:{port}",
             ["--source", "sim"],  # no configuration: the embedded broker
-            clean_env(EDGE_IPS_BROKER__EMBEDDED_PORT=str(port), EDGE_IPS_DASHBOARD__TOKEN=TOKEN),
+            clean_env(
+                EDGE_IPS_BROKER__EMBEDDED_PORT=str(port), EDGE_IPS_DASHBOARD__TOKEN=TOKEN, EDGE_IPS_EDGE__ID=EDGE_ID
+            ),
             ["--broker", f"mqtt://127.0.0.1:{port}"],
         )
         return
-    port = free_port()
+    ids = {"EDGE_IPS_EDGE__ID": EDGE_ID}  # the ACL names the edge's status topic
     conf = tmp_path / "broker"
-    _run(["broker-config", "--out", str(conf), "--rovers", ",".join(ROVERS), "--port", str(port)], tmp_path)
+    _run(["broker-config", "--out", str(conf), "--rovers", ",".join(ROVERS)], tmp_path, **ids)
     creds = tomllib.loads((conf / "credentials.toml").read_text())
     bundles = tmp_path / "bundles"
     for rover in ROVERS:  # what would be flashed, with the password broker-config made for the rover
@@ -104,7 +108,8 @@ def deployment(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Deplo
             EDGE_IPS_BROKER_HOST="192.168.1.50",  # the lab's address; --broker overrides it on this computer
         )
     edge_user, edge_password = creds["edge"]["username"], creds["edge"]["password"]
-    with Mosquitto(tmp_path / "mosquitto", port=port, conf_path=conf / "mosquitto.conf") as broker:
+    # Its own free port, taken just before it starts (the listener line is the only one replaced).
+    with Mosquitto(tmp_path / "mosquitto", conf_path=conf / "mosquitto.conf") as broker:
         url = f"mqtt://{edge_user}:{edge_password}@127.0.0.1:{broker.port}"
         yield Deployment(
             "mosquitto",
@@ -112,7 +117,7 @@ def deployment(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Deplo
             broker.port,
             url,
             ["--source", "sim", "--broker", url],
-            clean_env(EDGE_IPS_DASHBOARD__TOKEN=TOKEN),
+            clean_env(EDGE_IPS_DASHBOARD__TOKEN=TOKEN, **ids),
             ["--broker", f"mqtt://127.0.0.1:{broker.port}", "--config-dir", str(bundles)],
             edge_user,
             edge_password,

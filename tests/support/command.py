@@ -99,7 +99,8 @@ def wait_reports(rec: MqttRecorder, rovers: Sequence[str], kind: str, seq: int, 
 
 class Edge:
     """``edge-ips start`` as a subprocess (:func:`tests.support.dashboard.edge_start`: online, dashboard on a free
-    port); :meth:`kill` is a crash (SIGKILL), :meth:`start` again a restart."""
+    port; ``env`` names the edge with ``EDGE_IPS_EDGE__ID``); :meth:`kill` is a crash (SIGKILL), :meth:`start`
+    again a restart."""
 
     def __init__(self, args: list[str], env: dict[str, str], workdir: Path) -> None:
         self.args, self.env, self.workdir = args, env, workdir
@@ -108,9 +109,18 @@ class Edge:
         self.starts = 0
 
     def start(self) -> Edge:
-        self.starts += 1
-        self.process = self._stack.enter_context(edge_start(self.args, self.workdir / f"edge-{self.starts}", self.env))
-        return self
+        """Start and wait until online. Other processes on this machine pick free ports too: when one takes the
+        dashboard's port first (ours then exits, "already in use"), start again on another."""
+        for _ in range(3):
+            self.starts += 1
+            process = self._stack.enter_context(edge_start(self.args, self.workdir / f"edge-{self.starts}", self.env))
+            state = call(process.http_port, "GET", "/api/state")
+            mine = state.status == 200 and state.json()["edge_id"] == self.env["EDGE_IPS_EDGE__ID"]
+            if mine and process.proc.poll() is None:
+                self.process = process
+                return self
+            assert "already in use" in process.log(), f"another server answers on our port ({state}):\n{process.log()}"
+        raise AssertionError("three ports in a row were taken by other processes")
 
     @property
     def http_port(self) -> int:
