@@ -66,7 +66,7 @@ def main() -> None:
     help="Directory to write the JSON Schema files into.",
 )
 def schema(out_dir: Path) -> None:
-    """Write the JSON Schemas of the message contract (pose, formation, status v1).
+    """Write the JSON Schemas of the message contract (pose, formation and status v1, rover status v2).
 
     Example:
 
@@ -240,8 +240,9 @@ def formation(
         edge-ips formation line --spacing 60 --rovers red,green,blue
     """
     from edge.broker.clients import edge_target
+    from edge.commands import build_formation, send_formation
     from edge.messages import dumps
-    from edge.publisher import TlsFiles, build_formation, send_formation
+    from edge.mqttclient import TlsFiles
 
     config, _, _ = _load(config_path, **{"broker.url": broker_url})
     shape = cast("FormationKind", kind)
@@ -1286,6 +1287,63 @@ def sim_trajectory(
         edge-ips sim trajectory diagonal --seed 2
     """
     _run_experiment(kind, rovers, seed, out_dir, broker_url, frames, heading, video, as_json)
+
+
+@sim.command("rovers")
+@click.option(
+    "--broker", "broker_url", required=True, metavar="URL", help="The broker to connect to: mqtt://host:port."
+)
+@click.option("--ids", default=None, help="Comma-separated rover ids [those in --config-dir, else red,green,blue].")
+@click.option(
+    "--config-dir",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Per-rover configs with their credentials: <id>/config.json (edge-ips flash --bundle DIR/<id>) or <id>.json.",
+)
+@click.option(
+    "--credentials",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="[rovers.<id>] username and password for each rover (the credentials.toml of edge-ips broker-config).",
+)
+def sim_rovers(broker_url: str, ids: str | None, config_dir: Path | None, credentials: Path | None) -> None:
+    """Run the real firmware of each rover on this computer against a broker, until Ctrl-C.
+
+    Each rover is its own MQTT client (client id rover-<id>) with its own credentials, running the modules that are
+    flashed onto the board; motors, Wi-Fi and the clock are host stand-ins. Prints each status a rover publishes that
+    says something new (halt reason, formation applied) and each change of its link. A way to try a broker and its
+    ACLs before flashing anything.
+
+    Example:
+
+    \b
+        edge-ips sim rovers --broker mqtt://localhost:1883
+        edge-ips sim rovers --broker mqtt://10.0.0.5:1883 --credentials broker/credentials.toml
+    """
+    import signal
+    import threading
+    import time
+
+    from edge.sim.fleet import FleetEvent, parse_ids, start_fleet
+
+    lock = threading.Lock()
+
+    def show(event: FleetEvent) -> None:
+        with lock:
+            click.echo(f"{time.strftime('%H:%M:%S')} {event.rover_id}: {event.text}")
+
+    chosen = parse_ids(ids) if ids is not None else None
+    fleet = start_fleet(broker_url, chosen, config_dir=config_dir, credentials=credentials, on_event=show)
+    show(FleetEvent("sim", f"{', '.join(r.id for r in fleet.runners)} running on {broker_url}; Ctrl-C stops them"))
+    stop = threading.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *args: stop.set())
+    try:
+        while not stop.wait(1.0):
+            pass
+    finally:
+        fleet.close()
+    show(FleetEvent("sim", "stopped: each rover said offline"))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -463,6 +463,7 @@ def prepare_appliance(
     already started is stopped again.
     """
     from edge.broker.clients import start_embedded
+    from edge.commands import StopAtStart
     from edge.httpserver import HttpServer, Response
     from edge.metrics import exposition, metrics_registry
     from edge.recording import Recorder
@@ -503,6 +504,15 @@ def prepare_appliance(
 
         rovers = [r.id for r in config.rovers]
         runtime_ref: list[EdgeRuntime] = []
+        # A retained stop on the first connection: after a restart every rover halts until commanded again.
+        tap = recorder.record if recorder is not None else None
+        stop_at_start = StopAtStart(target, client_id=f"edge-ips-{config.edge.id}-stop", tls=tls, tap=tap)
+
+        def on_connected() -> None:
+            stop_at_start.on_connected()
+            if runtime_ref:
+                runtime_ref[0].status_now()
+
         publisher = MqttPublisher(
             target,
             edge_id=config.edge.id,
@@ -512,13 +522,15 @@ def prepare_appliance(
             reconnect_min_s=config.broker.reconnect_min_s,
             reconnect_max_s=config.broker.reconnect_max_s,
             tls=tls,
-            tap=recorder.record if recorder is not None else None,
-            on_connected=lambda: runtime_ref[0].status_now() if runtime_ref else None,
+            tap=tap,
+            on_connected=on_connected,
         )
         publisher.start()
         started.callback(publisher.stop)
         if not publisher.wait_connected(connect_timeout_s):
             log.warning("broker %s not reachable yet; retrying in the background", target.display())
+        elif not stop_at_start.done.wait(connect_timeout_s):  # before any command can be taken (dashboard)
+            log.warning("the retained stop at start is not acknowledged yet; it is sent again on reconnect")
 
         runtime = EdgeRuntime(
             edge_id=config.edge.id,
@@ -535,10 +547,6 @@ def prepare_appliance(
             recorder=recorder,
         )
         runtime_ref.append(runtime)
-        if http is not None:
-            registry = metrics_registry(runtime.snapshot, http=http, recorder=recorder)
-            http.route("/healthz", _health_route(runtime))
-            http.route("/metrics", lambda request: Response(200, *exposition(registry)))
         dashboard = None
         if http is not None and config.dashboard.enabled:
             from edge.dashboard import start_dashboard
@@ -546,6 +554,10 @@ def prepare_appliance(
             dashboard = start_dashboard(config, runtime, http, calibration=calibration, target=target, tls=tls)
             started.callback(dashboard.close)
             log.info("dashboard on http://%s:%d/", _display_host(http.host), http.port)
+        if http is not None:  # last: once /healthz answers, every route is there
+            registry = metrics_registry(runtime.snapshot, http=http, recorder=recorder)
+            http.route("/healthz", _health_route(runtime))
+            http.route("/metrics", lambda request: Response(200, *exposition(registry)))
         started.pop_all()  # all checks passed: the appliance owns what was started
     return Appliance(runtime=runtime, target=target, broker=broker, http=http, dashboard=dashboard)
 

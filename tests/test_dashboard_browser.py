@@ -154,6 +154,8 @@ def test_formation_button_publishes_with_the_token_and_is_refused_without(
     subscriber = FormationSubscriber("127.0.0.1", broker.port)
     result = page.locator("#formation-result")
     try:
+        start, was_retained = subscriber.next()  # the appliance's own stop at start, retained
+        assert (start["kind"], start["seq"], was_retained) == ("stop", 1, True)
         page.fill("#token", "")
         page.click("button[data-kind=line]")
         page.wait_for_function("() => document.getElementById('formation-result').dataset.status === '401'")
@@ -167,9 +169,9 @@ def test_formation_button_publishes_with_the_token_and_is_refused_without(
         page.wait_for_function("() => document.getElementById('formation-result').dataset.status === '200'")
         message, _ = subscriber.next()
         formation = parse_formation(json.dumps(message).encode())
-        # the first formation the broker ever carried is the accepted one: the refused clicks published nothing
-        assert (formation.seq, formation.kind, formation.ids) == (1, "rendezvous", ["blue", "red", "green"])
-        assert result.text_content() == "published rendezvous (seq 1)"
+        # the next formation the broker carried is the accepted one: the refused clicks published nothing
+        assert (formation.seq, formation.kind, formation.ids) == (2, "rendezvous", ["blue", "red", "green"])
+        assert result.text_content() == "published rendezvous (seq 2)"
         page.wait_for_function(
             "() => document.getElementById('formation-current').textContent.startsWith('rendezvous')",
             timeout=WAIT_MS,
@@ -186,7 +188,7 @@ def test_formation_button_publishes_with_the_token_and_is_refused_without(
     late = FormationSubscriber("127.0.0.1", broker.port)  # a rover that connects later still gets it: retained
     try:
         message, retained = late.next()
-        assert retained and message["kind"] == "rendezvous" and message["seq"] == 1
+        assert retained and message["kind"] == "rendezvous" and message["seq"] == 2
     finally:
         late.close()
     shot = tmp_path / "dashboard.png"

@@ -370,7 +370,8 @@ def test_state_events_frames_and_error_map_are_served(mosquitto: Mosquitto) -> N
         assert frames == sorted(frames) and len(set(frames)) == len(frames)  # only new results are sent
         assert {r["id"] for r in events["pose"][-1]["rovers"]} == {"red", "green", "blue"}
         assert events["status"][-1]["broker"] == "connected"
-        assert events["formation"] == [None]  # nothing retained yet
+        # nothing but the appliance's own retained stop (once the page's watcher has it)
+        assert events["formation"] and all(f is None or f["kind"] == "stop" for f in events["formation"])
         jpeg = call(port, "GET", "/api/frame.jpg")
         assert jpeg.status == 200 and jpeg.headers["content-type"] == "image/jpeg"
         assert cv2.imdecode(np.frombuffer(jpeg.body, np.uint8), cv2.IMREAD_COLOR).shape == (240, 320, 3)
@@ -400,6 +401,7 @@ def test_formation_post_publishes_only_with_the_token(mosquitto: Mosquitto) -> N
         with running(_config(mosquitto, **{"dashboard.token": TOKEN})) as app:
             port = app.http.port
             auth = {"Authorization": f"Bearer {TOKEN}"}
+            assert subscriber.next()[0]["kind"] == "stop"  # the appliance's own retained stop at start (seq 1)
             assert call(port, "GET", "/api/state", headers=auth).json()["formation_enabled"] is True
             refused = [
                 call(port, "POST", "/api/formation", line),
@@ -412,21 +414,21 @@ def test_formation_post_publishes_only_with_the_token(mosquitto: Mosquitto) -> N
             assert refused[0].headers["www-authenticate"].startswith("Bearer")
             assert "kind" in refused[3].json()["error"]
             ok = call(port, "POST", "/api/formation", line, {"Authorization": f"Bearer {TOKEN}"})
-            assert ok.status == 200 and ok.json()["seq"] == 1
+            assert ok.status == 200 and ok.json()["seq"] == 2
             message, _ = subscriber.next()
-            # the first formation on the broker is the accepted one: the refused requests published nothing
+            # the next formation on the broker is the accepted one: the refused requests published nothing
             assert parse_formation(json.dumps(message).encode()).model_dump(exclude_none=True) == {
                 "v": 1,
-                "seq": 1,
+                "seq": 2,
                 "kind": "line",
                 "ids": ["red", "green"],
                 "spacing": 50.0,
             }
             stop = call(port, "POST", "/api/formation", b'{"kind":"stop","ids":[]}', auth)
-            assert stop.json()["seq"] == 2 and subscriber.next()[0]["kind"] == "stop"
+            assert stop.json()["seq"] == 3 and subscriber.next()[0]["kind"] == "stop"
             events = read_events(port, {"formation": 1}, headers=auth)
             assert events["formation"][0]["kind"] == "stop"  # a new page learns the retained formation at once
-            assert call(port, "GET", "/api/state", headers=auth).json()["formation"]["seq"] == 2
+            assert call(port, "GET", "/api/state", headers=auth).json()["formation"]["seq"] == 3
     finally:
         subscriber.close()
 

@@ -197,9 +197,11 @@ def test_broker_restart_is_survived_with_a_fresh_subscription(mosquitto: Mosquit
     mosquitto.stop()
     step_until(rover, lambda: rover.halt == "disconnected")
     assert rover.motor_state.left_duty == 0 and rover.motor_state.right_duty == 0
-    mosquitto.start()  # same port, no memory of the old session or its subscriptions
+    mosquitto.start()  # same port, no memory of the old session, its subscriptions or the retained formation
     seq_before = rover.last_seq("green")
     step_until(rover, lambda: rover.connected and rover.last_seq("green") != seq_before, limit_s=20)
+    assert rover.halt == "idle" and rover.rover.formation is None  # the broker holds no formation: none applied
+    edge.formation(FORMATION)
     step_until(rover, lambda: rover.halt == "none")  # poses flow again: resubscribed on the new session
     assert rover.link.connects == 2 and rover.link.drops == 1
     rover.close()
@@ -228,16 +230,18 @@ def test_status_is_published_and_the_last_will_says_offline(mosquitto: Mosquitto
     rover = HostRover(rover_configs(["red"])[0], mosquitto.host, mosquitto.port)
     step_until(rover, lambda: any(s["halt"] == "none" for s in seen))
     online = [s for s in seen if s["state"] == "online"]
-    assert online and all(s["id"] == "red" and s["v"] == 1 and s["fw"] == fw["rover"].VERSION for s in online)
-    assert online[-1]["formation"] == 1 and online[-1]["_retain"] is False  # live, so not flagged retained
+    assert online and all(s["id"] == "red" and s["v"] == 2 and s["fw"] == fw["rover"].VERSION for s in online)
+    assert (online[-1]["formation"], online[-1]["seq"]) == ("triangle", 1)
+    assert online[-1]["_retain"] is False  # live, so not flagged retained
     rover.crash()  # TCP gone without DISCONNECT, like a rover losing power
     wait_for(lambda: seen[-1]["state"] == "offline")
     assert seen[-1] == {
-        "v": 1,
+        "v": 2,
         "id": "red",
         "state": "offline",
         "halt": "disconnected",
         "formation": None,
+        "seq": None,
         "fw": None,
         "_retain": False,
     }
@@ -254,8 +258,8 @@ def test_the_rover_works_under_an_acl_that_lets_it_publish_only_its_status(tmp_p
     acl = (
         "user edge\ntopic write ips/v1/rovers/+/pose\ntopic write ips/v1/formation\n\n"
         "user red\ntopic read ips/v1/rovers/+/pose\ntopic read ips/v1/formation\n"
-        "topic write ips/v1/rovers/red/status\n\n"
-        "user watcher\ntopic read ips/v1/#\n"
+        "topic write ips/v2/rovers/red/status\n\n"
+        "user watcher\ntopic read ips/v1/#\ntopic read ips/v2/#\n"
     )
     users = {"edge": "e-pass", "red": "r-pass", "watcher": "w-pass"}
     with Mosquitto(tmp_path / "acl-broker", users=users, acl=acl) as broker:

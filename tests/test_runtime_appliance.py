@@ -92,7 +92,8 @@ def test_recording_keeps_every_published_byte_rotates_and_is_flushed_on_stop(
     received = {(m.topic, m.payload.decode()) for m in rec.messages}
     assert received <= recorded  # everything a subscriber saw is in the recording, byte for byte
     assert lines[-1]["topic"] == "ips/v1/edge/edge-t/status" and lines[-1]["payload"]["state"] == "offline"
-    assert all(ln["retain"] == ln["topic"].startswith("ips/v1/edge/") for ln in lines)
+    retained = ("ips/v1/edge/", "ips/v1/formation")  # the status, and the appliance's stop at start
+    assert all(ln["retain"] == ln["topic"].startswith(retained) for ln in lines)
 
 
 def test_recording_rotation_deletes_the_oldest_files(tmp_path: Path) -> None:

@@ -15,7 +15,15 @@ import pytest
 from edge.broker import EmbeddedBroker, acl_text, mosquitto_hash, write_mosquitto_config
 from edge.config import parse_broker_url
 from edge.errors import BrokerError
-from edge.messages import FORMATION_TOPIC, POSE_WILDCARD, encode_pose, parse_formation, pose_topic, rover_status_topic
+from edge.messages import (
+    FORMATION_TOPIC,
+    POSE_WILDCARD,
+    ROVER_STATUS_WILDCARD,
+    encode_pose,
+    parse_formation,
+    pose_topic,
+    rover_status_topic,
+)
 from edge.publisher import build_formation, send_formation
 from tests.support.mosquitto import Mosquitto, free_port
 from tests.support.runtime import MqttRecorder
@@ -167,7 +175,7 @@ def test_broker_config_rover_cannot_publish_poses_or_other_rovers_status(deploye
     try:
         assert edge.accepted and red.accepted and green.accepted
         green.subscribe(POSE_WILDCARD)
-        edge.subscribe("ips/v1/rovers/+/status")
+        edge.subscribe(ROVER_STATUS_WILDCARD)
         pose = encode_pose("red", 0, 1, 1.0, 10.0, 20.0, None, None, None, 1.0)
 
         forged = encode_pose("blue", 0, 1, 1.0, 0.0, 0.0, None, None, None, 1.0)
@@ -235,7 +243,7 @@ def test_broker_config_refuses_bad_names(tmp_path: Path, rovers: list[str], edge
 
 def test_acl_lists_each_rover_once_with_its_own_status_topic() -> None:
     text = acl_text("edge", "edge-1", ["red", "green"])
-    assert text.count("topic write ips/v1/rovers/red/status") == 1
+    assert text.count("topic write ips/v2/rovers/red/status") == 1
     assert "topic write ips/v1/rovers/+/pose" in text.split("user red")[0]  # only the edge writes poses
 
 

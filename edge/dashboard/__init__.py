@@ -37,7 +37,7 @@ def start_dashboard(
     """
     from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
     from edge.dashboard.calibration_view import CalibrationView
-    from edge.dashboard.events import EventHub, Overlay, pose_event, status_event
+    from edge.dashboard.events import EventHub, Overlay, pose_event, rovers_event, status_event
     from edge.dashboard.formation import FormationDesk, with_targets
     from edge.dashboard.frames import FrameEncoder
     from edge.sources import parse_source
@@ -72,14 +72,24 @@ def start_dashboard(
         wait_next=runtime.wait_tracked,
     )
     token = settings.token.get_secret_value() if settings.token is not None else None
+
+    def reported() -> dict[str, Any]:
+        return rovers_event(rover_ids, desk.reports, desk.current)
+
+    def on_change(formation: dict[str, Any] | None) -> None:
+        hub.publish("formation", formation)
+        hub.publish("rovers", reported())  # whether each rover is on the retained command may have changed
+
     desk = FormationDesk(
         target,
         edge_id=config.edge.id,
         rover_ids=rover_ids,
         token=token,
         tls=tls,
-        on_change=lambda formation: hub.publish("formation", formation),
-    ).start()
+        on_change=on_change,
+        on_report=lambda rover_id, report: hub.publish("rovers", reported()),
+    )
+    desk.start()  # after the assignment: the retained formation may arrive (and call on_change) at once
     dashboard = Dashboard(
         runtime,
         settings=settings,

@@ -7,9 +7,11 @@ Routes (access levels of :mod:`edge.httpguard`):
 - ``GET /api/state`` (read): what does not change while running (edge id, working area in cm and in image pixels,
   image size, rovers and their colours, whether the formation controls are enabled, the calibration's figures)
   and the current formation.
-- ``GET /api/events`` (read): server-sent events ``pose`` (capped at ``dashboard.pose_hz``), ``status`` (1 Hz)
-  and ``formation`` (when it changes), from :class:`edge.dashboard.events.EventHub` through
+- ``GET /api/events`` (read): server-sent events ``pose`` (capped at ``dashboard.pose_hz``), ``status`` (1 Hz),
+  ``formation`` and ``rovers`` (when they change), from :class:`edge.dashboard.events.EventHub` through
   :class:`edge.dashboard.streams.EventFanout`.
+- ``GET /api/rovers`` (read): what each rover reports it applies (its retained status: halt reason, formation kind
+  and seq) and whether that is the broker's retained formation (:func:`edge.dashboard.events.rovers_event`).
 - ``GET /api/frame.jpg`` (read): the next camera frame as JPEG (:class:`edge.dashboard.frames.FrameEncoder`).
 - ``GET /api/errormap.png`` (read): the calibration error map (:mod:`edge.dashboard.calibration_view`).
 - ``POST /api/formation`` (control): ``Authorization: Bearer <dashboard.token>``, JSON ``{kind, ids, spacing,
@@ -117,6 +119,7 @@ class Dashboard:
         http.route("/api/frame.jpg", self.frame, access="read")
         http.route("/api/errormap.png", self.errormap, access="read")
         http.route("/api/formation", self.post_formation, method="POST", access="control")
+        http.route("/api/rovers", self.rover_reports, access="read")
         return self
 
     def state(self, request: Request) -> Response:
@@ -144,6 +147,7 @@ class Dashboard:
         first: list[tuple[str, Any]] = [("status", status_event(self.runtime.snapshot()))]
         if self.formation is not None:
             first.append(("formation", self.formation.current))
+            first.append(("rovers", self._reports(self.formation)))
         opening = b"retry: 2000\n\n" + b"".join(sse(name, data) for name, data in first)
         return Response(
             200,
@@ -151,6 +155,16 @@ class Dashboard:
             headers={"X-Accel-Buffering": "no"},
             stream=self.fanout.stream(opening),
         )
+
+    def _reports(self, desk: FormationDesk) -> dict[str, Any]:
+        from edge.dashboard.events import rovers_event
+
+        return rovers_event([r.id for r in self.rovers], desk.reports, desk.current)
+
+    def rover_reports(self, request: Request) -> Response:
+        if self.formation is None:
+            return json_response(404, {"error": "rover statuses are not watched on this edge"})
+        return json_response(200, self._reports(self.formation))
 
     async def frame(self, request: Request) -> Response:
         encoded = await self.encoder.wait_frame()

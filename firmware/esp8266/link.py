@@ -55,9 +55,10 @@ class _Heard:
 
 
 class Link:
-    """One rover's broker connection. on_message(topic, payload) receives every message (bytes, bytes)."""
+    """One rover's broker connection. on_message(topic, payload) receives every message (bytes, bytes);
+    on_connect() is called after each CONNACK, before the subscriptions (the rover forgets its formation there)."""
 
-    def __init__(self, cfg, on_message, log=print):
+    def __init__(self, cfg, on_message, on_connect=None, log=print):
         self.id = cfg["id"]
         b = cfg["broker"]
         w = cfg["wifi"]
@@ -78,8 +79,9 @@ class Link:
         )
         self.client.set_callback(on_message)
         self.status_topic = msg.status_topic(self.id)
-        offline = '{"v":1,"id":"' + self.id + '","state":"offline","halt":"disconnected","formation":null,"fw":null}'
-        self.client.set_last_will(self.status_topic, offline.encode(), retain=True, qos=1)
+        offline = msg.rover_status(self.id, "offline", "disconnected", None, None, None)
+        self.client.set_last_will(self.status_topic, offline, retain=True, qos=1)
+        self.on_connect = on_connect
         self.wlan = network.WLAN(network.STA_IF)
         self.up = False
         self.connects = 0
@@ -118,6 +120,8 @@ class Link:
         # `sock` is a plain attribute of umqtt.simple.MQTTClient; the stub does not declare it.
         self._heard = _Heard(c.sock)  # type: ignore[attr-defined]
         c.sock = self._heard  # type: ignore[attr-defined]
+        if self.on_connect is not None:
+            self.on_connect()
         c.subscribe(msg.POSE_WILDCARD)
         c.subscribe(msg.FORMATION_TOPIC, 1)
         self.up = True

@@ -23,7 +23,7 @@ def run(path="config.json", steps=None):
     m = motors.Motors(cfg["motors"])
     m.stop()
     r = rover.Rover(cfg, m)
-    r.link = link.Link(cfg, r.on_message)
+    r.link = link.Link(cfg, r.on_message, r.on_connect)
     wdt = machine.WDT() if cfg["watchdog"] else None  # resets the board if a step ever hangs
     period = cfg["control"]["period_ms"]
     n = 0

@@ -1,4 +1,5 @@
-# Pose and formation messages (contract v1, shared/schema/) from bytes to small tuples, or None.
+# Pose and formation messages (contract v1, shared/schema/) from bytes to small tuples, or None; the rover's own
+# status (rover status v2) from its fields to canonical bytes.
 #
 # Never raises and never allocates more than the message itself: the payload size is checked before anything else
 # (pose <= 160 bytes, formation <= 512). MicroPython's json.loads is lenient: it skips missing or doubled commas
@@ -283,6 +284,8 @@ def _canonical_pose(b, d):
                 return False
         else:
             i = pos + 1 if b[pos] == 45 else pos
+            if not 48 <= b[i] <= 57:  # ".5" or "-.5", which MicroPython's json.loads reads
+                return False
             if b[i] == 48 and i + 1 < end and 48 <= b[i + 1] <= 57:  # leading zero
                 return False
             dot = b.find(b".", pos, end)
@@ -376,6 +379,23 @@ def parse_formation(payload):
         return None
 
 
+def rover_status(rid, state, halt, kind, seq, fw):
+    """Rover status v2 bytes, canonical (no spaces, the contract's key order): `kind`, `seq` and `fw` may be None.
+
+    What the rover says it applies (the formation's kind and seq) and why its motors are stopped (halt)."""
+    return (
+        '{"v":2,"id":"%s","state":"%s","halt":"%s","formation":%s,"seq":%s,"fw":%s}'
+        % (
+            rid,
+            state,
+            halt,
+            "null" if kind is None else '"' + kind + '"',
+            "null" if seq is None else str(seq),
+            "null" if fw is None else '"' + fw + '"',
+        )
+    ).encode()
+
+
 POSE_WILDCARD = b"ips/v1/rovers/+/pose"
 FORMATION_TOPIC = b"ips/v1/formation"
 
@@ -386,5 +406,6 @@ def pose_topic(rid):
 
 
 def status_topic(rid):
-    """b"ips/v1/rovers/<id>/status": the only topic a rover publishes on (retained, last will offline)."""
-    return b"ips/v1/rovers/" + rid.encode() + b"/status"
+    """b"ips/v2/rovers/<id>/status" (rover status v2): the only topic a rover publishes on (retained, last will
+    offline)."""
+    return b"ips/v2/rovers/" + rid.encode() + b"/status"

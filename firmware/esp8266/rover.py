@@ -7,11 +7,16 @@
 # Safety: the motors stop when the rover's own pose is older than stale_ms by RECEIVE time (the edge's `t` comes from
 # a clock the rover does not share), when the broker link is down, on a `stop` formation, when no formation includes
 # it, and on any exception in the step (logged; the next step starts afresh).
+#
+# Formation commands (shared/schema/README.md): a command is applied when it differs, as a whole, from the one applied
+# (not by seq, which a restarted edge, a second writer or a hostile retained message can repeat), and a `stop` is
+# always applied; on every (re)connect the rover forgets its command and halts (idle) until the broker's retained one
+# arrives, so it never resumes a command the broker no longer holds.
 import formation as fm
 import msg
 from micropython import const
 
-VERSION = "0.1.0"
+VERSION = "0.2.0"
 
 MAX_ROVERS = const(16)  # poses tracked at once; formation ids are at most 16 too (contract)
 _TICKS_PERIOD = const(1 << 30)  # time.ticks_ms() wraps here on the ESP8266
@@ -118,7 +123,8 @@ class Rover:
         self._last_step = None
         self._law_rx = -1  # own pose and formation the standing command was computed from
         self._law_for = None
-        self._status_key = None
+        self._status_halt = None  # what the last status said (None: none sent on this connection)
+        self._status_for = None
         self._status_at = 0
         self.status_topic = msg.status_topic(self.id)
 
@@ -131,7 +137,7 @@ class Rover:
                 self.rejected += 1
                 return
             self.received += 1
-            if self.formation is None or f[msg.F_SEQ] != self.formation[msg.F_SEQ]:
+            if f[msg.F_KIND] == "stop" or f != self.formation:  # whole tuples: seq, kind, ids and every number
                 self._apply(f)
             return
         # A pose: kept as bytes until the step (flush), so a rover that falls behind parses only the newest pose
@@ -142,6 +148,16 @@ class Rover:
                 self._raw_at[s] = self._now
                 return
         self._take(payload, self._now, topic)
+
+    def on_connect(self):
+        """The link calls this after each CONNACK, before it subscribes: forget the formation and halt (idle) until
+        the broker's retained formation arrives (with the new subscription), whatever was applied before."""
+        self.formation = None
+        self._kind = fm.STOP
+        self._member_ids = []
+        self._my_index = -1
+        self._law_for = None
+        self._stop(HALT_IDLE)
 
     def flush(self):
         """Parse the newest pose received from each rover (stamped with the time it arrived)."""
@@ -365,25 +381,28 @@ class Rover:
 
     # -- status --------------------------------------------------------------------------------------------------
     def status_payload(self, state="online"):
-        """The rover's status v1 (docs/firmware.md), bytes."""
+        """The rover's status v2 (shared/schema/README.md), bytes: the formation applied (kind, seq) and the halt."""
         f = self.formation
-        seq = "null" if f is None else str(f[msg.F_SEQ])
         halt = HALT_DISCONNECTED if state == "offline" else self.halt
-        text = '{"v":1,"id":"%s","state":"%s","halt":"%s","formation":%s,"fw":"%s"}'
-        return (text % (self.id, state, halt, seq, VERSION)).encode()
+        if f is None:
+            return msg.rover_status(self.id, state, halt, None, None, VERSION)
+        return msg.rover_status(self.id, state, halt, f[msg.F_KIND], f[msg.F_SEQ], VERSION)
 
     def _report(self, now_ms):
-        # Published when the halt reason or the formation changes (at most once a second), and every 30 s.
+        # Published at once when the formation applied changes (so a stop is confirmed in the step that applied it),
+        # when the halt reason changes (at most once a second: a flickering pose cannot flood the broker), and every
+        # 30 s.
         if self.link is None or not self.link.up:
-            self._status_key = None
+            self._status_halt = None
             return
         f = self.formation
-        key = self.halt if f is None else self.halt + str(f[msg.F_SEQ])
         since = tdiff(now_ms, self._status_at)
-        if key == self._status_key and since < _STATUS_REFRESH_MS:
-            return
-        if self._status_key is not None and since < _STATUS_MIN_GAP_MS:
-            return
+        if f == self._status_for:
+            if self.halt == self._status_halt and since < _STATUS_REFRESH_MS:
+                return
+            if self._status_halt is not None and since < _STATUS_MIN_GAP_MS:
+                return
         self.link.publish_status(self.status_payload())
-        self._status_key = key
+        self._status_halt = self.halt
+        self._status_for = f
         self._status_at = now_ms

@@ -28,7 +28,7 @@ INT_FIELDS = ("v", "seq", "frame")
 
 @cache
 def validator(kind: str) -> jsonschema.Draft202012Validator:
-    doc = json.loads((SCHEMA_DIR / f"{kind}.v1.schema.json").read_text())
+    doc = json.loads((SCHEMA_DIR / messages.schema_file(kind)).read_text())
     return jsonschema.Draft202012Validator(doc)
 
 

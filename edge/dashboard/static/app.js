@@ -3,7 +3,8 @@
 "use strict";
 
 const TRAIL = 90;                 // points kept per rover trail (6 s at the default 15 pose events/s)
-const state = { info: null, rovers: new Map(), formation: null, frameSize: [1280, 720], lastPose: null };
+const state = { info: null, rovers: new Map(), formation: null, frameSize: [1280, 720], lastPose: null,
+  reports: new Map(), lastStatus: null };
 const $ = (id) => document.getElementById(id);
 
 // The dashboard token: taken from the address (?token=..., then removed from it) and kept for this tab's session.
@@ -178,6 +179,18 @@ function drawFormationTarget(ctx, X, Y, scale) {
 }
 
 // -- rovers table ----------------------------------------------------------------------------------------------------
+// The last two columns are what each rover itself reports (its retained status): its halt reason and the formation it
+// applies, flagged when that is not the broker's retained command.
+function reportCells(id) {
+  const r = state.reports.get(id);
+  if (!r || !r.reported) return `<td class="halt" data-halt="">no status</td><td class="applies">–</td>`;
+  const halt = r.state === "offline" ? "offline" : r.halt;
+  const applies = r.formation ? `${r.formation} (seq ${r.seq})` : "none";
+  const off = r.formation && !r.on_retained ? " off-retained" : "";
+  const title = off ? ` title="not the broker's retained command"` : "";
+  return `<td class="halt" data-halt="${halt}">${halt}</td><td class="applies${off}"${title}>${applies}</td>`;
+}
+
 function renderTable(status) {
   const body = document.querySelector("#rovers tbody");
   const ids = state.info ? state.info.rovers.map((r) => r.id) : [...state.rovers.keys()];
@@ -190,7 +203,8 @@ function renderTable(status) {
     return `<tr data-rover="${id}" class="${missing ? "missing" : ""}"><td><span class="swatch" style="background:${colorOf(id)}"></span>${id}</td>` +
       `<td>${fmt(p && p.x, 1)}</td><td>${fmt(p && p.y, 1)}</td><td>${heading}</td><td>${fmt(speed, 1)}</td>` +
       `<td>${fmt(p && p.q, 2)}</td><td>${s ? s.rate_hz.toFixed(1) + " Hz" : "–"}</td>` +
-      `<td>${s && s.last_seen_s != null ? s.last_seen_s.toFixed(1) + " s ago" : missing ? "missing" : "–"}</td></tr>`;
+      `<td>${s && s.last_seen_s != null ? s.last_seen_s.toFixed(1) + " s ago" : missing ? "missing" : "–"}</td>` +
+      `${reportCells(id)}</tr>`;
   });
   body.innerHTML = rows.join("");
 }
@@ -223,6 +237,7 @@ function onStatus(s) {
   $("fps").textContent = s.fps.toFixed(1);
   $("lat-p50").textContent = s.latency_ms && s.latency_ms.p50 != null ? s.latency_ms.p50.toFixed(1) : "–";
   $("lat-p99").textContent = s.latency_ms && s.latency_ms.p99 != null ? s.latency_ms.p99.toFixed(1) : "–";
+  state.lastStatus = s;
   renderTable(s);
 }
 
@@ -237,6 +252,10 @@ function connectEvents() {
   es.addEventListener("pose", (e) => onPose(JSON.parse(e.data)));
   es.addEventListener("status", (e) => onStatus(JSON.parse(e.data)));
   es.addEventListener("formation", (e) => { state.formation = JSON.parse(e.data); showFormation(); });
+  es.addEventListener("rovers", (e) => {
+    state.reports = new Map(JSON.parse(e.data).rovers.map((r) => [r.id, r]));
+    renderTable(state.lastStatus);
+  });
   es.onerror = () => pill($("pill-state"), "disconnected", "bad");
 }
 
