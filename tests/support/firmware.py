@@ -277,6 +277,12 @@ def firmware_module(name: str) -> ModuleType:
     return _load_as(name, FIRMWARE / f"{name}.py")
 
 
+def host_module(name: str) -> ModuleType:
+    """A host stand-in (``machine``, ``network``) as the firmware modules see it."""
+    firmware_modules()
+    return _load_as(name, HOST / f"{name}.py")
+
+
 _DRIVER_NEEDS = {"stall": ("fakenet", "app")}
 
 
