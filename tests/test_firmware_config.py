@@ -28,19 +28,19 @@ def test_the_flash_chips_gpios_are_refused(gpio: int, key: str) -> None:
 
 
 def test_pwm_on_gpio16_is_refused_and_a_direction_pin_there_is_fine() -> None:
-    with pytest.raises(ConfigError, match="key motors.right.pwm: GPIO 16 has no PWM on the ESP8266"):
+    with pytest.raises(ConfigError, match=r"key motors\.right\.pwm: GPIO 16 has no PWM on the ESP8266"):
         check_rover_config(with_motor("right", "pwm", 16))
     assert check_rover_config(with_motor("right", "dir2", 16))["motors"]["right"]["dir2"] == 16
 
 
 def test_a_pin_used_twice_is_refused() -> None:
-    with pytest.raises(ConfigError, match="key motors.right.dir: GPIO 0 is already motors.left.dir"):
+    with pytest.raises(ConfigError, match=r"key motors\.right\.dir: GPIO 0 is already motors\.left\.dir"):
         check_rover_config(with_motor("right", "dir", 0))
 
 
 @pytest.mark.parametrize(
     ("gpio", "why"),
-    [(0, "must be high at reset (low: serial bootloader)"), (2, "must be high at reset"), (15, "must be low at reset")],
+    [(0, "must be high at reset (low: serial bootloader)"), (2, "must be high at reset"), (15, "must be low at reset (most boards pull it down)")],
 )
 def test_boot_strapping_gpios_are_allowed_with_a_warning(gpio: int, why: str) -> None:
     cfg = with_motor("left", "dir", 13)

@@ -224,7 +224,7 @@ def test_the_stop_step_is_retried_when_a_reset_cuts_it(tmp_path: Path) -> None:
     board = _Board(flashing.expected_answer(), cut=flashing.ATTEMPTS - 1)
     flashing.flash("/dev/ttyUSB0", bundle, None, False, run=board, echo=lambda s: None)
     assert len(board.ran) == flashing.ATTEMPTS + 2
-    with pytest.raises(FlashError, match="did not answer .mpremote: TransportError"):
+    with pytest.raises(FlashError, match=r"did not answer \(mpremote: TransportError"):
         flashing.flash("/dev/ttyUSB0", bundle, None, False, run=_Board("", cut=99), echo=lambda s: None)
 
 
