@@ -40,7 +40,11 @@ def test_a_pin_used_twice_is_refused() -> None:
 
 @pytest.mark.parametrize(
     ("gpio", "why"),
-    [(0, "must be high at reset (low: serial bootloader)"), (2, "must be high at reset"), (15, "must be low at reset (most boards pull it down)")],
+    [
+        (0, "must be high at reset (low: serial bootloader)"),
+        (2, "must be high at reset"),
+        (15, "must be low at reset (most boards pull it down)"),
+    ],
 )
 def test_boot_strapping_gpios_are_allowed_with_a_warning(gpio: int, why: str) -> None:
     cfg = with_motor("left", "dir", 13)
