@@ -53,6 +53,12 @@ class Watchdog:
 
 def start(path, log=print):
     """config.json -> (motors, rover with its link): everything the loop needs, the motors stopped."""
+    return build(configure(path, log), log)
+
+
+def configure(path, log=print):
+    """config.json merged with the defaults and checked (ValueError names the key at fault); the checks are
+    dropped from RAM afterwards."""
     import config
 
     cfg = config.load(path)
@@ -60,6 +66,11 @@ def start(path, log=print):
         log("config:", text)
     del config
     del sys.modules["config"]  # the checks are done: the next collection takes their RAM back
+    return cfg
+
+
+def build(cfg, log=print):
+    """Motors (stopped), rover and link from a checked config."""
     if cfg["cpu_mhz"] == 160:
         machine.freq(160000000)
     m = motors.Motors(cfg["motors"])

@@ -34,7 +34,6 @@ _BACKOFF_MIN_MS = const(250)
 _BACKOFF_MAX_MS = const(8000)
 _WIFI_RETRY_MS = const(10000)
 _DRAIN_MAX = const(16)  # messages handled per poll, so one poll cannot starve the control step
-_SCRATCH = const(64)
 _ETIMEDOUT = const(110)
 # The longest packet kept: a formation (the largest message the rover accepts) with its topic, QoS 1 packet id and
 # fixed header. Anything longer is dropped unread.
@@ -68,7 +67,7 @@ class _Stream:
         self.waits = 0  # times a call had to wait (motors made safe first)
         self._buf = bytearray(MAX_PACKET)
         self._mv = memoryview(self._buf)
-        self._scratch = bytearray(_SCRATCH)
+        self._head = [self._mv[i : i + 1] for i in range(5)]  # where each fixed-header byte is read to
         self._out = _EMPTY  # what write() is sending
         self._sent = 0
         self._reset()
@@ -87,8 +86,8 @@ class _Stream:
         sock.setblocking(False)
 
     # -- framing, never waiting ----------------------------------------------------------------------------------
-    def _take(self, view):
-        k = self.sock.readinto(view)  # type: ignore[union-attr]
+    def _take(self, view, n=MAX_PACKET):
+        k = self.sock.readinto(view, n)  # type: ignore[union-attr]
         if k is None:
             return 0
         if k == 0:
@@ -99,8 +98,8 @@ class _Stream:
     def _pump(self):
         """Read what has arrived without waiting; True when a whole packet is in the buffer."""
         while True:
-            if self._skip > 0:
-                k = self._take(memoryview(self._scratch)[: min(self._skip, _SCRATCH)])
+            if self._skip > 0:  # a dropped packet's bytes go through the buffer, which holds nothing meanwhile
+                k = self._take(self._mv, min(self._skip, MAX_PACKET))
                 if k == 0:
                     return False
                 self._skip -= k
@@ -110,7 +109,7 @@ class _Stream:
                     self._n += self._take(self._mv[self._n : self._need])
                 return self._n >= self._need
             # The fixed header, a byte at a time: type, then 1-4 bytes of remaining length.
-            if self._take(self._mv[self._n : self._n + 1]) == 0:
+            if self._take(self._head[self._n]) == 0:
                 return False
             self._n += 1
             if self._n == 1:

