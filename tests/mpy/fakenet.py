@@ -206,6 +206,7 @@ class Socket:
         self.broker = broker
         self.timeout = None  # None: blocking; 0: non-blocking; else seconds
         self.buf = bytearray()
+        self.pos = 0  # next byte of buf to hand over
         self.offset = 0  # rover-bound bytes received on this connection
         self.open = True
 
@@ -233,18 +234,24 @@ class Socket:
         return True
 
     def _has_data(self):
-        return len(self.buf) > 0
+        return len(self.buf) > self.pos
 
     def readinto(self, buf, n=None):
         if not self.open:
             raise OSError(9)
         self.broker.arrived(self)
         want = len(buf) if n is None else min(n, len(buf))
-        if not self.buf and not self._wait(self._has_data):
+        if len(self.buf) <= self.pos and not self._wait(self._has_data):
             return None
-        k = min(want, len(self.buf))
-        buf[:k] = self.buf[:k]
-        self.buf = self.buf[k:]
+        k = min(want, len(self.buf) - self.pos)
+        data = self.buf
+        pos = self.pos
+        for i in range(k):  # byte by byte: no slice to allocate, as lwip copies out of its buffers
+            buf[i] = data[pos + i]
+        self.pos = pos + k
+        if self.pos > 4096:
+            self.buf = self.buf[self.pos :]
+            self.pos = 0
         return k
 
     def read(self, n):

