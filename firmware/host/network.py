@@ -4,6 +4,7 @@
 STA_IF = 0
 AP_IF = 1
 _ap = {"active": True}  # the access point of this "chip" (one per process: tests read it)
+_sta = {"pm": None}  # the power management last asked of a station interface
 
 
 class WLAN:
@@ -36,6 +37,8 @@ class WLAN:
             if key != "pm":
                 raise ValueError("unknown config param")
             self.pm = kwargs[key]
+            if self.interface_id == STA_IF:
+                _sta["pm"] = self.pm
 
     def connect(self, ssid=None, key=None):
         self.connect_calls += 1
@@ -55,3 +58,8 @@ class WLAN:
 def ap_active():
     """Whether the access point interface is on (tests)."""
     return _ap["active"]
+
+
+def station_pm():
+    """The power management last set on a station interface (tests)."""
+    return _sta["pm"]

@@ -226,3 +226,96 @@ def main(case_name, path):
     _run()
     print(json.dumps(_s["out"]))
     return _s["out"]
+
+
+def _exec_main(directory):
+    # The board runs main.py as __main__ from its filesystem, whose working directory holds config.json.
+    import os
+
+    here = os.getcwd()
+    os.chdir(directory)
+    try:
+        with open("main.py") as f:
+            exec(f.read(), {"__name__": "__main__"})
+    except KeyboardInterrupt:
+        _s["interrupted"] = _s["clock"].now
+    finally:
+        try:
+            os.chdir(here)
+        except OSError:  # WASI cannot go back to "/", which it never opened
+            pass
+
+
+def board(directory, interrupt_ms):
+    """main.py as the board runs it (boot.py first), against the scripted broker, until Ctrl-C at interrupt_ms;
+    prints and returns what it did. No collection runs (the run is short): nothing here needs small frames."""
+    import network
+
+    gc.disable()
+    case = {}
+    clock = fakenet.Clock()
+    broker = fakenet.Broker(clock)
+    broker.retained = FORMATION
+    net = fakenet.SocketModule(broker)
+    _s["saved"] = (app.time, link.time, simple.socket)
+    app.time = link.time = clock
+    simple.socket = net
+    machine.stop_timers()
+    _s.update(case=case, clock=clock, broker=broker, net=net, on=False, changes=[], log=[], interrupted=None)
+    edge = _Edge(broker, case, 1 << 30)
+    clock.watchers.append(edge)
+    clock.watchers.append(_board_motors)
+    clock.interrupt_at = interrupt_ms
+    machine.board = _Pins()
+    try:
+        with open(directory + "/boot.py") as f:
+            exec(f.read(), {"__name__": "__main__"})
+        _exec_main(directory)
+        clock.sleep_ms(1000)  # at the REPL: nothing runs
+        out = {
+            "interrupted_ms": _s["interrupted"],
+            "first_drive_ms": ([t for t, on in _s["changes"] if on] or [None])[0],
+            "changes": _s["changes"],
+            "pins": machine.board.levels,
+            "pwm_max": machine.board.pwm_max,
+            "ap_active": network.ap_active(),
+            "station_pm": network.station_pm(),
+            "timers_armed": len(machine._timers),
+            "connections": broker.connections,
+            "subscribed": [t.decode() for t in broker.subscribed],
+            "published": [p[1].decode() for p in broker.published],
+            "disconnects": broker.disconnects,
+        }
+    finally:
+        machine.board = None
+        _restore()
+    print(json.dumps(out))
+    return out
+
+
+class _Pins:
+    """What the machine stand-in reports while main.py runs: every pin level and the motors' PWM duties."""
+
+    def __init__(self):
+        self.levels = {}
+        self.duty = {}
+        self.pwm_max = 0
+
+    def pin_set(self, gpio, level):
+        if str(gpio) not in self.levels:  # the first level each pin was driven to
+            self.levels[str(gpio)] = level
+
+    def pwm_set(self, gpio, duty):
+        self.duty[gpio] = duty
+        if duty > self.pwm_max:
+            self.pwm_max = duty
+
+
+def _board_motors(now):
+    on = False
+    for gpio in machine.board.duty:
+        if machine.board.duty[gpio] > 0:
+            on = True
+    if on != _s["on"]:
+        _s["on"] = on
+        _s["changes"].append((now, on))

@@ -572,3 +572,23 @@ def run_stall(case: str, interpreter: str, tmp: Path, run_ms: int = 4000) -> dic
         standins=True,
     )
     return dict(json.loads(out.splitlines()[-1]))
+
+
+def run_board(interpreter: str, tmp: Path, interrupt_ms: int = 1500) -> dict[str, Any]:
+    """boot.py and main.py from the flash bundle run as the board runs them (tests/mpy/stall.py ``board``), in
+    CPython or in MicroPython, against the scripted broker, until Ctrl-C at ``interrupt_ms``."""
+    from edge import flashing
+
+    bundle = tmp / "bundle"
+    if not bundle.exists():
+        flashing.write_bundle(bundle, stall_config())
+    if interpreter == "cpython":
+        import contextlib
+        import io
+
+        stall = mpy_driver("stall")
+        with contextlib.redirect_stdout(io.StringIO()):
+            return dict(stall.board(str(bundle), interrupt_ms))
+    files = {name: (bundle / name).read_bytes() for name in ("boot.py", "main.py", "config.json")}
+    out = run_micropython(f"stall.board('/input/data', {interrupt_ms})", files, standins=True)
+    return dict(json.loads(out.splitlines()[-1]))
