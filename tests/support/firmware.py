@@ -20,7 +20,7 @@ import math
 import random
 import subprocess
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
@@ -102,6 +102,8 @@ class KinematicFleet:
     heading while backing up), else none; with probability ``theta_outliers`` a heading sent is wrong by 40-180
     degrees (a tracker fooled by glare); each firmware steps every ``period_ms``;
     the world integrates the wheel speeds the duties stand for, with an optional multiplicative motor noise.
+    ``rover`` makes each rover's firmware from its config (default: a HostRover without a broker; the 30-bit float
+    one of tests/support/chipfloat.py runs the same way).
     """
 
     def __init__(
@@ -116,8 +118,10 @@ class KinematicFleet:
         motor_noise: float = 0.0,
         motion_theta: bool = False,
         theta_outliers: float = 0.0,
+        rover: Callable[[dict[str, Any]], Any] | None = None,
     ) -> None:
-        self.rovers = [HostRover(cfg, broker_host=None) for cfg in configs]
+        make = rover or (lambda cfg: HostRover(cfg, broker_host=None))
+        self.rovers = [make(cfg) for cfg in configs]
         self.bodies = [Body(b.x, b.y, b.theta) for b in bodies]
         self.ids = [r.id for r in self.rovers]
         self.rng = random.Random(seed)
