@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import random
 import struct
 from typing import Any
 
@@ -16,14 +15,7 @@ from hypothesis import strategies as st
 
 from tests.support import contract_oracle as oracle
 from tests.support.chipfloat import ChipRover, chip_float, chip_modules, parse
-from tests.support.firmware import (
-    KinematicFleet,
-    enclosing_diameter,
-    line_errors,
-    random_starts,
-    rover_configs,
-    triangle_sides,
-)
+from tests.support.firmware import KinematicFleet, assert_formation_bars, formation_run
 
 CHIP: Any = chip_modules()
 IDS = ["red", "green", "blue"]
@@ -101,23 +93,6 @@ def test_the_barrier_holds_with_30_bit_floats(others: list[tuple[float, float]],
         assert rate >= bound - 1e-4 * (abs(bound) + 2 * math.hypot(x, y) * abs(got) + 1), (rate, bound)
 
 
-def _fleet(kind: str, seed: int, send_theta: bool, chip: bool) -> KinematicFleet:
-    fields: dict[str, Any] = {"line": {"spacing": 60.0, "x": 195.75}, "triangle": {"side": 100.0}}.get(kind, {})
-    fleet = KinematicFleet(
-        rover_configs(IDS),
-        random_starts(3, random.Random(seed)),
-        seed=seed,
-        noise_cm=0.3,
-        latency_ms=50,
-        send_theta=send_theta,
-        motor_noise=0.05,
-        rover=ChipRover if chip else None,
-    )
-    fleet.command({"v": 1, "seq": 1, "kind": kind, "ids": IDS, **fields})
-    fleet.run(12.0)
-    return fleet
-
-
 def _settled_motion_cm(fleet: KinematicFleet, seconds: float = 3.0) -> float:
     """How far any rover moved over the last seconds of the run (a rover hunting round its place moves)."""
     rows = [xy for t, xy in zip(fleet.trace.t_s, fleet.trace.xy, strict=True) if t >= fleet.trace.t_s[-1] - seconds]
@@ -129,18 +104,11 @@ def _settled_motion_cm(fleet: KinematicFleet, seconds: float = 3.0) -> float:
 def test_formations_meet_their_bars_with_30_bit_floats_without_nan_or_oscillation(
     kind: str, seed: int, send_theta: bool
 ) -> None:
-    fleet = _fleet(kind, seed, send_theta, chip=True)
-    pts = fleet.positions()
-    if kind == "line":
-        off, gap = line_errors(pts, 195.75, 60.0)
-        assert off <= 3.0 and gap <= 3.0, (off, gap)
-    elif kind == "rendezvous":
-        assert enclosing_diameter(pts) <= 40.0
-    else:
-        assert triangle_sides(pts) == pytest.approx([100.0] * 3, abs=3.0)
+    fleet = formation_run(kind, seed, 12.0, send_theta=send_theta, rover=ChipRover)
+    assert_formation_bars(kind, fleet.positions())
     assert fleet.trace.min_distance_cm >= 2 * BODY_RADIUS_CM
     assert all(h == "none" for h in fleet.trace.halts[-1])
     assert all(math.isfinite(x) for _, _, command, wheels in fleet.commands for x in (*command, *wheels))
     # Settled as still as with double precision: no limit cycle from the coarser numbers.
-    double = _fleet(kind, seed, send_theta, chip=False)
+    double = formation_run(kind, seed, 12.0, send_theta=send_theta)
     assert _settled_motion_cm(fleet) <= _settled_motion_cm(double) + 0.5

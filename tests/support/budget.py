@@ -38,6 +38,7 @@ from tests.support.firmware import (
     budget_files,
     largest_formation,
     mpy_float_constants,
+    mpy_tables,
     run_micropython,
 )
 
@@ -96,26 +97,7 @@ def chip_pool_bytes(qstrs: int) -> int:
 
 def mpy_qstrs(data: bytes) -> set[str]:
     """The non-static names of a .mpy file's qstr table (what loading it may intern)."""
-    pos = 4
-
-    def uint() -> int:
-        nonlocal pos
-        n = 0
-        while True:
-            b = data[pos]
-            pos += 1
-            n = (n << 7) | (b & 0x7F)
-            if not b & 0x80:
-                return n
-
-    n_qstr, _ = uint(), uint()
-    names = set()
-    for _ in range(n_qstr):
-        n = uint()
-        if not n & 1:
-            names.add(data[pos : pos + (n >> 1)].decode())
-            pos += (n >> 1) + 1
-    return names
+    return mpy_tables(data)[0]
 
 
 def _source_names(text: str) -> set[str]:
@@ -129,8 +111,7 @@ def float_counts(config: dict[str, Any], frames: int = BUDGET_FRAMES) -> list[in
     modules: Any = chipfloat.chip_modules(counter)
     made = [0, counter.floats, 0]  # boot.py; main.py's imports (module-level arithmetic); import config
     counter.floats = 0
-    given = chipfloat.chip_tree(json.loads(json.dumps(config)))
-    counter.floats = sum(1 for v in _leaves(given) if type(v) is float)  # json.load makes each of them
+    given = chipfloat.chip_tree(json.loads(json.dumps(config)), counter)  # json.load makes each float
     cfg = modules["config"].check(modules["config"].merge(modules["config"].DEFAULTS, given))
     made.append(counter.floats)
     counter.floats = 0
@@ -173,14 +154,6 @@ def float_counts(config: dict[str, Any], frames: int = BUDGET_FRAMES) -> list[in
     made += iteration(20 * (frames + 1), [(b"ips/v1/formation", largest_formation())])
     made += iteration(20 * (frames + 2), [])
     return made
-
-
-def _leaves(x: Any) -> list[Any]:
-    if isinstance(x, dict):
-        return [leaf for v in x.values() for leaf in _leaves(v)]
-    if isinstance(x, list):
-        return [leaf for v in x for leaf in _leaves(v)]
-    return [x]
 
 
 def measure(config: dict[str, Any], frames: int = BUDGET_FRAMES) -> Budget:

@@ -127,14 +127,7 @@ def _helpers(counter: Counter) -> dict[str, Callable[[Any], Any]]:
         return chip_float(x) if type(x) is float else x
 
     def tree(x: Any) -> Any:
-        if type(x) is float:
-            counter.floats += 1
-            return chip_float(x)
-        if type(x) is dict:
-            return {k: tree(v) for k, v in x.items()}
-        if type(x) is list:
-            return [tree(v) for v in x]
-        return x
+        return chip_tree(x, counter)
 
     def chip_abs(x: Any) -> Any:
         # MicroPython returns a non-negative float itself, and makes a new one for a negative.
@@ -185,14 +178,17 @@ def parse(kind: str, payload: bytes, modules: dict[str, types.ModuleType]) -> An
     return msg.parse_pose(payload) if kind == "pose" else msg.parse_formation(payload)
 
 
-def chip_tree(x: Any) -> Any:
-    """A JSON document (a config) with its floats as the chip reads them."""
+def chip_tree(x: Any, counter: Counter | None = None) -> Any:
+    """A JSON document (a message, a config) with its floats as the chip reads them; ``counter`` counts them (json
+    makes each one)."""
     if type(x) is float:
+        if counter is not None:
+            counter.floats += 1
         return chip_float(x)
     if type(x) is dict:
-        return {k: chip_tree(v) for k, v in x.items()}
+        return {k: chip_tree(v, counter) for k, v in x.items()}
     if type(x) is list:
-        return [chip_tree(v) for v in x]
+        return [chip_tree(v, counter) for v in x]
     return x
 
 

@@ -219,6 +219,46 @@ class KinematicFleet:
         return [(b.x, b.y) for b in self.bodies]
 
 
+# -- the standard closed-loop run and its bars ---------------------------------------------------------------------
+BAR_FIELDS: dict[str, dict[str, Any]] = {
+    "line": {"spacing": 60.0, "x": 195.75},
+    "rendezvous": {},
+    "triangle": {"side": 100.0},
+}
+
+
+def formation_run(kind: str, seed: int, seconds: float = 10.0, **options: Any) -> KinematicFleet:
+    """Three rovers from random starts 1.5 m apart, 0.3 cm pose noise, 50 ms latency, 5 % motor gain error, under the
+    formation ``kind`` with the fields its bars are stated for (:data:`BAR_FIELDS`); ``options``: the headings the
+    poses carry and the rovers' firmware (KinematicFleet's keywords)."""
+    ids = ["red", "green", "blue"]
+    fleet = KinematicFleet(
+        rover_configs(ids),
+        random_starts(3, random.Random(seed)),
+        seed=seed,
+        noise_cm=0.3,
+        latency_ms=50,
+        motor_noise=0.05,
+        **options,
+    )
+    fleet.command({"v": 1, "seq": 1, "kind": kind, "ids": ids, **BAR_FIELDS[kind]})
+    fleet.run(seconds)
+    return fleet
+
+
+def assert_formation_bars(kind: str, points: Sequence[tuple[float, float]]) -> None:
+    """Line within 3 cm of x = 195.75 and of the 60 cm spacing, rendezvous inside a 40 cm circle, triangle sides
+    100 +- 3 cm."""
+    if kind == "line":
+        off, gap = line_errors(points, 195.75, 60.0)
+        assert off <= 3.0 and gap <= 3.0, (off, gap)
+    elif kind == "rendezvous":
+        assert enclosing_diameter(points) <= 40.0, enclosing_diameter(points)
+    else:
+        sides = triangle_sides(points)
+        assert all(abs(side - 100.0) <= 3.0 for side in sides), sides
+
+
 # -- formation metrics -----------------------------------------------------------------------------------------------
 def enclosing_diameter(points: Sequence[tuple[float, float]]) -> float:
     """Diameter of the smallest circle holding every point (brute force over pairs and triples: small n)."""
@@ -482,9 +522,10 @@ def budget_config() -> dict[str, Any]:
     return cfg
 
 
-def mpy_float_constants(data: bytes) -> int:
-    """How many float constants a .mpy file's constant table holds (py/persistentcode.c, format 6): objects a
-    boxed-float MicroPython makes on the heap when it loads the file and the ESP8266 keeps in the object word."""
+def mpy_tables(data: bytes) -> tuple[set[str], int]:
+    """A .mpy file's (format 6, py/persistentcode.c) non-static names, which loading it may intern, and how many
+    float constants its constant table holds: objects a boxed-float MicroPython makes on the heap when it loads the
+    file and the ESP8266 keeps in the object word."""
     pos = 4
     if data[:2] != b"M\x06" or data[2] & 0x40:  # no arch flags in bytecode-only files
         raise ValueError("not a bytecode .mpy of format 6")
@@ -500,9 +541,11 @@ def mpy_float_constants(data: bytes) -> int:
                 return n
 
     n_qstr, n_obj = uint(), uint()
+    names = set()
     for _ in range(n_qstr):
         n = uint()
-        if not n & 1:
+        if not n & 1:  # static qstrs (odd) are an index, no string
+            names.add(data[pos : pos + (n >> 1)].decode())
             pos += (n >> 1) + 1  # the string and its NUL
     floats = 0
 
@@ -524,7 +567,11 @@ def mpy_float_constants(data: bytes) -> int:
 
     for _ in range(n_obj):
         obj()
-    return floats
+    return names, floats
+
+
+def mpy_float_constants(data: bytes) -> int:
+    return mpy_tables(data)[1]
 
 
 # -- stalls ------------------------------------------------------------------------------------------------------
