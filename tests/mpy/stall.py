@@ -122,7 +122,17 @@ def _setup(case_name, path, stall_ms):
     link.time = clock
     simple.socket = net
     machine.stop_timers()
-    _s.update(case=case, clock=clock, broker=broker, net=net, stall_ms=stall_ms, on=False, changes=[], log=[])
+    _s.update(
+        case=case,
+        clock=clock,
+        broker=broker,
+        net=net,
+        stall_ms=stall_ms,
+        on=False,
+        changes=[],
+        log=[],
+        interrupted=None,
+    )
     edge = _Edge(broker, case, stall_ms)
     _s["edge"] = edge
     clock.watchers.append(edge)
