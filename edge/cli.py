@@ -529,16 +529,11 @@ def plot(poses: Path, out_path: Path, title: str | None) -> None:
 @click.option(
     "--firmware",
     type=click.Path(dir_okay=False, path_type=Path),
-    help="MicroPython ESP8266_GENERIC .bin to write first (v1.23 or later); without it the board keeps its own.",
+    help="MicroPython to write first: v1.28.0 ESP8266_GENERIC FLASH_2M_ROMFS (checked; anything else is refused). "
+    "Without it the board must already run it.",
 )
 @click.option("--erase", is_flag=True, help="Erase the whole flash first (needs --firmware).")
 @click.option("--baud", default=460800, show_default=True, help="Baud rate for writing the firmware.")
-@click.option(
-    "--romfs",
-    is_flag=True,
-    help="Put the .mpy files into the ROMFS partition (ESP8266_GENERIC FLASH_2M_ROMFS firmware, MicroPython 1.25+): "
-    "they then run from flash and leave ~20 KB more heap.",
-)
 @click.option("--dry-run", is_flag=True, help="Print the commands instead of running them.")
 @click.option(
     "--bundle",
@@ -552,19 +547,20 @@ def flash(
     firmware: Path | None,
     erase: bool,
     baud: int,
-    romfs: bool,
     dry_run: bool,
     bundle_dir: Path | None,
 ) -> None:
-    """Flash and provision one rover: MicroPython, the firmware (.mpy), main.py and its config.json.
+    """Flash and provision one rover: MicroPython, the firmware (ROMFS image), boot.py, main.py and its config.json.
 
-    Wi-Fi and broker secrets come from EDGE_IPS_WIFI_SSID, EDGE_IPS_WIFI_PASSWORD and EDGE_IPS_MQTT_PASSWORD, or
-    are asked for; EDGE_IPS_BROKER_HOST (host or host:port) overrides the config's broker. Nothing secret is
-    written anywhere but the board (and --bundle).
+    A running rover is stopped first. Wi-Fi and broker secrets come from EDGE_IPS_WIFI_SSID, EDGE_IPS_WIFI_PASSWORD
+    and EDGE_IPS_MQTT_PASSWORD, or are asked for; EDGE_IPS_BROKER_HOST (host or host:port) overrides the config's
+    broker. Nothing secret is written anywhere but the board (and --bundle).
 
     Example:
 
-        python tools/flash.py --port /dev/ttyUSB0 --rover red --firmware ESP8266_GENERIC-v1.24.1.bin --erase
+    \b
+        python tools/flash.py --port /dev/ttyUSB0 --rover red --erase \\
+            --firmware ESP8266_GENERIC-FLASH_2M_ROMFS-20260406-v1.28.0.bin
     """
     import os
     import sys
@@ -572,17 +568,18 @@ def flash(
 
     from edge import flashing
 
-    flashing.checked_config_file(rover)  # a bad config is said first, before the board or any password
+    checked = flashing.checked_config_file(rover)  # a bad config is said first, before the board or any password
+    for text in flashing.config_warnings(checked):
+        click.echo(f"warning: {text}", err=True)
     flashing.check_inputs(port, firmware, erase, need_port=bundle_dir is None, need_board=not dry_run)
     if dry_run:
         assert port is not None  # check_inputs insists on it
         bundle = Path("BUNDLE")
-        click.echo(f"# BUNDLE: a temporary directory with {', '.join(flashing.bundle_files(romfs))}")
-        click.echo(f"# compiled in {flashing.FIRMWARE_DIR}, then config.json written with the secrets:")
-        for cmd in [
-            *flashing.compile_commands(bundle, romfs),
-            *flashing.commands(port, bundle, firmware, erase, baud, romfs),
-        ]:
+        click.echo(f"# BUNDLE: a temporary directory with {', '.join(flashing.BUNDLE)}")
+        click.echo(f"# rom.img: {', '.join(flashing.COMPILED)} compiled with mpy-cross -march=xtensa, as ROMFS")
+        if firmware is not None:
+            click.echo(f"# {firmware} checked first: {flashing.IMAGE.variant} v{flashing.IMAGE.version}")
+        for cmd in flashing.commands(port, bundle, firmware, erase, baud):
             click.echo(" ".join(_quote(a) for a in cmd))
         return
 
@@ -592,14 +589,14 @@ def flash(
     prompt = ask if sys.stdin.isatty() else None
     config = flashing.provisioned_config(rover, os.environ, prompt, flashing.state_logins(os.environ))
     if bundle_dir is not None:
-        for path in flashing.write_bundle(bundle_dir, config, romfs):
+        for path in flashing.write_bundle(bundle_dir, config):
             click.echo(f"wrote {path}")
         return
     assert port is not None  # check_inputs insists on it
     with tempfile.TemporaryDirectory(prefix=f"edge-ips-{config['id']}-") as tmp:
         bundle = Path(tmp) / "bundle"
-        flashing.write_bundle(bundle, config, romfs)
-        flashing.flash(port, bundle, firmware, erase, baud, romfs, echo=click.echo)
+        flashing.write_bundle(bundle, config)
+        flashing.flash(port, bundle, firmware, erase, baud, echo=click.echo)
 
 
 def _quote(arg: str) -> str:

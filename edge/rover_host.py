@@ -40,7 +40,7 @@ FIRMWARE_DIR = Path(__file__).resolve().parent.parent / "firmware" / "esp8266"
 HOST_DIR = FIRMWARE_DIR.parent / "host"
 CONFIG_DIR = FIRMWARE_DIR / "configs"
 
-FIRMWARE_NAMES = ("msg", "formation", "config", "motors", "link", "rover", "main")
+FIRMWARE_NAMES = ("msg", "formation", "config", "motors", "link", "rover", "app", "main")
 HOST_NAMES = ("micropython", "machine", "network", "mptime", "mpsocket", "umqtt", "umqtt.simple")
 
 _lock = threading.Lock()
@@ -182,7 +182,9 @@ class HostRover:
         self.link = None
         self._link_clock = link_clock or _monotonic_ms
         if broker_host is not None:
-            self.link = fw["link"].Link(self.config, self.rover.on_message, self.rover.on_connect, log=self._log)
+            self.link = fw["link"].Link(
+                self.config, self.rover.on_message, self.rover.on_connect, log=self._log, safe=self.motors.stop
+            )
             self.rover.link = _ClockedLink(self.link, self._link_clock, on_status)
 
     def _remember(self, *args: object) -> None:

@@ -20,11 +20,11 @@ from edge.rover_host import HostRover, firmware_modules
 from tests.support.firmware import (
     Body,
     KinematicFleet,
+    assert_formation_bars,
     enclosing_diameter,
-    line_errors,
+    formation_run,
     random_starts,
     rover_configs,
-    triangle_sides,
 )
 
 fw = firmware_modules()
@@ -213,21 +213,6 @@ def test_heading_is_learnt_from_successive_positions_while_moving(turn_rad_s: fl
 
 
 # -- closed loop ---------------------------------------------------------------------------------------------------
-def _run(kind: str, seed: int, send_theta: bool, seconds: float = 10.0, **fields: Any) -> KinematicFleet:
-    fleet = KinematicFleet(
-        rover_configs(IDS),
-        random_starts(3, random.Random(seed)),
-        seed=seed,
-        noise_cm=0.3,
-        latency_ms=50,
-        send_theta=send_theta,
-        motor_noise=0.05,
-    )
-    fleet.command(formation(kind, **fields))
-    fleet.run(seconds)
-    return fleet
-
-
 CASES = [
     (kind, seed, theta)
     for kind in ("line", "rendezvous", "triangle")
@@ -237,16 +222,8 @@ CASES = [
 
 @pytest.mark.parametrize(("kind", "seed", "send_theta"), CASES)
 def test_the_fleet_converges_from_random_starts_and_bodies_never_touch(kind: str, seed: int, send_theta: bool) -> None:
-    if kind == "line":
-        fleet = _run(kind, seed, send_theta, spacing=60.0, x=195.75)
-        off, gap = line_errors(fleet.positions(), 195.75, 60.0)
-        assert off <= 3.0 and gap <= 3.0, (off, gap)
-    elif kind == "rendezvous":
-        fleet = _run(kind, seed, send_theta)
-        assert enclosing_diameter(fleet.positions()) <= 40.0
-    else:
-        fleet = _run(kind, seed, send_theta, side=100.0)
-        assert triangle_sides(fleet.positions()) == pytest.approx([100.0] * 3, abs=3.0)
+    fleet = formation_run(kind, seed, send_theta=send_theta)
+    assert_formation_bars(kind, fleet.positions())
     assert fleet.trace.min_distance_cm >= 2 * BODY_RADIUS_CM
     assert all(h == "none" for h in fleet.trace.halts[-1])
 

@@ -319,8 +319,9 @@ def test_main_runs_the_board_loop_under_cpython(mosquitto: Mosquitto, edge: Edge
     path = tmp_path / "config.json"
     path.write_text(json.dumps(cfg))
     watch, seen = _status_listener(mosquitto, "red")
-    main: Any = fw["main"]
-    r = main.run(str(path), steps=100)  # two seconds of the real loop, watchdog and all
+    import app  # on sys.path since firmware_modules()
+
+    r = app.run(str(path), steps=100)  # two seconds of the real loop, watchdog and all
     assert r.steps == 100 and r.received > 100
     assert any(s["halt"] == "none" for s in seen)  # it drove
     wait_for(lambda: seen[-1]["state"] == "offline")  # and said goodbye when the loop ended

@@ -56,6 +56,9 @@ _MAX_ABS_CM = 9999.99
 _MAX_ABS_CM_S = 999.9
 _THETA_LIMIT = 3.1416
 _T_LIMIT = 1e10
+# On the ESP8266 (30-bit floats) the largest valid t, 9999999999.999, is the same float as the limit itself: there
+# the limit counts as allowed (t is not used on the rover), or the contract's longest valid pose would be refused.
+_T_COARSE = 9999999999.999 == _T_LIMIT
 _LENGTH_LIMIT = 1000.0
 
 
@@ -316,7 +319,7 @@ def parse_pose(payload):
         if not is_id(rid):
             return None
         t = _number_in(d["t"], 0.0, _T_LIMIT)
-        if not t < _T_LIMIT:
+        if not (t < _T_LIMIT or (_T_COARSE and t == _T_LIMIT)):
             return None
         pose = (
             rid,
