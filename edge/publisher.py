@@ -22,7 +22,7 @@ from typing import Any, Protocol
 import paho.mqtt.client as mqtt
 
 from edge.config import BrokerTarget
-from edge.errors import BrokerError, ConfigError
+from edge.errors import BrokerError, ConfigError, describe_validation
 from edge.messages import (
     FORMATION_TOPIC,
     FormationKind,
@@ -415,9 +415,7 @@ def build_formation(
             theta=theta_rad,
         )
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"])
-        raise MessageError(f"formation: {where}: {first['msg']}") from exc
+        raise MessageError(f"formation: {describe_validation(exc)}") from exc
 
 
 def send_formation(

@@ -21,7 +21,7 @@ import paho.mqtt.client as mqtt
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from edge.config import BrokerTarget
-from edge.errors import EdgeIpsError, MessageError
+from edge.errors import EdgeIpsError, MessageError, describe_validation
 from edge.messages import FORMATION_TOPIC, FormationKind, FormationV1, parse_formation
 from edge.publisher import FORMATION_QOS, TlsFiles, build_formation, connect_host, make_client, send_formation
 
@@ -75,10 +75,7 @@ def parse_request(body: bytes, rover_ids: Sequence[str]) -> Callable[[int], Form
     try:
         req = FormationRequest.model_validate(data)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "(body)"
-        message = "unknown key" if first["type"] == "extra_forbidden" else first["msg"]
-        raise MessageError(f"formation request: {where}: {message}") from None
+        raise MessageError(f"formation request: {describe_validation(exc, top_level='(body)')}") from None
     ids = [i.strip() for i in req.ids]
     unknown = [i for i in ids if i not in rover_ids]
     if unknown:
