@@ -245,11 +245,7 @@ def formation(
 
     config, _, _ = _load(config_path, **{"broker.url": broker_url})
     shape = cast("FormationKind", kind)
-    ids = [r.strip() for r in rovers.split(",") if r.strip()] if rovers else [r.id for r in config.rovers]
-    if kind == "line" and spacing is None:
-        spacing = 60.0
-    if kind == "triangle" and side is None:
-        side = 100.0
+    ids = [r for r in rovers.split(",") if r.strip()] if rovers else [r.id for r in config.rovers]
     build_formation(shape, ids, seq=1, spacing_cm=spacing, side_cm=side, x_cm=x_cm, y_cm=y_cm, theta_rad=theta_rad)
     sent = send_formation(
         broker_target(config.broker),
