@@ -21,11 +21,11 @@ import json
 import logging
 import signal
 import threading
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from edge.clock import SYSTEM_CLOCK, Clock
 from edge.config import BrokerTarget, EdgeConfig, broker_target
 from edge.errors import CalibrationError, MessageError
 from edge.messages import StatusV1, encode_pose
@@ -58,7 +58,8 @@ class EdgeRuntime:
     """Source -> tracker -> publisher, on threads, with status, metrics and a clean stop.
 
     ``source`` must already be open (``info`` is what it granted). ``tap`` is not needed here: recording hangs
-    off the publisher.
+    off the publisher. ``clock`` times everything the status says (ages, rates, stalls; the frames carry the
+    source's own stamps, which should come from the same clock).
     """
 
     def __init__(
@@ -76,8 +77,10 @@ class EdgeRuntime:
         reopen_min_s: float = 0.5,
         reopen_max_s: float = 8.0,
         recorder: Any = None,
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
         self.edge_id = edge_id
+        self.clock = clock
         self.info = info
         self.tracker = tracker
         self.publisher = publisher
@@ -89,7 +92,13 @@ class EdgeRuntime:
         self.stop_event = threading.Event()
         self.slot = FrameSlot()
         self.capture = CaptureThread(
-            source, self.slot, self.stop_event, info=info, reopen_min_s=reopen_min_s, reopen_max_s=reopen_max_s
+            source,
+            self.slot,
+            self.stop_event,
+            info=info,
+            reopen_min_s=reopen_min_s,
+            reopen_max_s=reopen_max_s,
+            clock=clock,
         )
         self.processing = LatencyWindow()
         self.end_to_end = LatencyWindow()
@@ -104,7 +113,7 @@ class EdgeRuntime:
         self._rovers = {r: _RoverStats(r) for r in self.rover_ids}
         self._status_due = threading.Event()
         self._threads: list[threading.Thread] = []
-        self._started_mono = time.monotonic()
+        self._started_mono = self.clock.monotonic()
         self._last_state: tuple[str, str] = ("", "")
         self._stopped = False
 
@@ -151,11 +160,11 @@ class EdgeRuntime:
                 if self.slot.closed:
                     break
                 continue
-            t0 = time.monotonic()
+            t0 = self.clock.monotonic()
             result = self.tracker.process(frame)
-            t1 = time.monotonic()
+            t1 = self.clock.monotonic()
             self._publish_result(result, frame.index, frame.t_capture_s)
-            t2 = time.monotonic()
+            t2 = self.clock.monotonic()
             self.processing.add(t1 - t0)
             self.end_to_end.add(t2 - frame.t_mono_s)
             self.fps_meter.tick(t2)
@@ -191,13 +200,24 @@ class EdgeRuntime:
         if self.capture.state != "ok":
             return self.capture.state
         if self.capture.frames == 0:
-            return "starting" if time.monotonic() - self._started_mono < self.stall_timeout_s else "stalled"
-        if time.monotonic() - self.capture.last_frame_mono > self.stall_timeout_s:
+            return "starting" if self.clock.monotonic() - self._started_mono < self.stall_timeout_s else "stalled"
+        if self.clock.monotonic() - self.capture.last_frame_mono > self.stall_timeout_s:
             return "stalled"
         return "ok"
 
+    @property
+    def settle_s(self) -> float:
+        """How long a rover may go unseen before it counts as missing; also the start-up grace before the first
+        rover missing makes the state ``degraded``."""
+        return max(self.status_interval_s, 1.0)
+
+    @property
+    def tracking_for_s(self) -> float:
+        """Seconds since the first tracked frame (0 before it)."""
+        return 0.0 if self._first_result_mono is None else self.clock.monotonic() - self._first_result_mono
+
     def _seen_recently(self, now: float) -> tuple[list[str], list[str]]:
-        window = max(self.status_interval_s, 1.0)
+        window = self.settle_s
         seen: list[str] = []
         missing: list[str] = []
         for rover_id, stats in self._rovers.items():
@@ -208,13 +228,12 @@ class EdgeRuntime:
     def _state(self, camera: str, missing: list[str]) -> tuple[str, str]:
         if camera not in ("ok", "starting"):
             return "degraded", f"camera {camera}"
-        tracking_for_s = 0.0 if self._first_result_mono is None else time.monotonic() - self._first_result_mono
-        if camera == "ok" and missing and tracking_for_s > max(self.status_interval_s, 1.0):
+        if camera == "ok" and missing and self.tracking_for_s > self.settle_s:
             return "degraded", f"not seen: {', '.join(missing)}"
         return "online", ""
 
     def current_status(self) -> StatusV1:
-        now = time.monotonic()
+        now = self.clock.monotonic()
         camera = self.camera_state()
         seen, missing = self._seen_recently(now)
         state, reason = self._state(camera, missing)
@@ -230,7 +249,7 @@ class EdgeRuntime:
             fps=round(min(self.fps_meter.rate(now), 1000.0), 2),
             rovers=seen,
             missing=missing,
-            t=round(time.time(), 3),
+            t=round(self.clock.wall(), 3),
         )
 
     def _status_loop(self) -> None:
@@ -245,7 +264,7 @@ class EdgeRuntime:
 
     # -- life cycle ---------------------------------------------------------------------------------------------
     def start(self) -> EdgeRuntime:
-        self._started_mono = time.monotonic()
+        self._started_mono = self.clock.monotonic()
         self.capture.start()
         for name, target in (("tracker", self._track), ("status", self._status_loop)):
             thread = threading.Thread(target=self._run_guarded(target), name=name, daemon=True)
@@ -257,6 +276,11 @@ class EdgeRuntime:
     def finished(self) -> bool:
         """True when the source ended, a thread failed, or stop was asked for."""
         return self.stop_event.is_set() or not self._threads[0].is_alive()
+
+    def wait_finished(self, timeout_s: float) -> bool:
+        """Block until the tracker has stopped (the source ended, a thread failed, or stop); False on timeout."""
+        self._threads[0].join(timeout_s)
+        return not self._threads[0].is_alive()
 
     def wait(self, stop: threading.Event) -> None:
         """Block until ``stop`` is set or the runtime finishes by itself."""
@@ -284,7 +308,7 @@ class EdgeRuntime:
 
     # -- for /metrics, /healthz and the dashboard ---------------------------------------------------------------
     def snapshot(self) -> Snapshot:
-        now = time.monotonic()
+        now = self.clock.monotonic()
         camera = self.camera_state() if not self._stopped else "stopped"
         _, missing = self._seen_recently(now)
         state, reason = self._state(camera, missing) if not self._stopped else ("offline", "stopped")

@@ -24,6 +24,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from edge.clock import SYSTEM_CLOCK, Clock
 from edge.errors import SourceError
 from edge.tracking import Frame
 
@@ -230,15 +231,23 @@ class StreamSource(_OpenCvSource):
 
 
 class MemorySource:
-    """Frames from memory, in order, optionally paced at ``fps``: for tests and pre-rendered clips."""
+    """Frames from memory, in order, optionally paced at ``fps`` (in real time): for tests and pre-rendered clips.
+    Frames are stamped by ``clock``."""
 
     def __init__(
-        self, images: Sequence[NDArray[np.uint8]], *, fps: float = 30.0, loop: bool = False, realtime: bool = False
+        self,
+        images: Sequence[NDArray[np.uint8]],
+        *,
+        fps: float = 30.0,
+        loop: bool = False,
+        realtime: bool = False,
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
         if not images:
             raise SourceError("memory source: no frames")
         self.images = images
         self.fps, self.loop, self.realtime = fps, loop, realtime
+        self.clock = clock
         self._index = 0
         self._next_due = 0.0
 
@@ -256,7 +265,7 @@ class MemorySource:
                 time.sleep(self._next_due - now)
             self._next_due = max(self._next_due, now - 1.0 / self.fps) + 1.0 / self.fps
         image = self.images[self._index % len(self.images)]
-        frame = Frame(image=image, index=self._index, t_capture_s=time.time(), t_mono_s=time.monotonic())
+        frame = Frame(image=image, index=self._index, t_capture_s=self.clock.wall(), t_mono_s=self.clock.monotonic())
         self._index += 1
         return frame
 
@@ -377,8 +386,10 @@ class CaptureThread(threading.Thread):
         info: SourceInfo,
         reopen_min_s: float = 0.5,
         reopen_max_s: float = 8.0,
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
         super().__init__(name="capture", daemon=True)
+        self.clock = clock
         self.source, self.slot, self.stop_event = source, slot, stop
         self.info = info
         self.reopen_min_s, self.reopen_max_s = reopen_min_s, max(reopen_max_s, reopen_min_s)
@@ -388,7 +399,7 @@ class CaptureThread(threading.Thread):
         self.reopens = 0
         self.ended = False
         self.error: BaseException | None = None
-        self.last_frame_mono = time.monotonic()
+        self.last_frame_mono = clock.monotonic()
         self._last_index = -1
         self._offset = 0
 
@@ -413,7 +424,7 @@ class CaptureThread(threading.Thread):
                 delay = min(delay * 2, self.reopen_max_s)
                 continue
             self.reopens += 1
-            self.last_frame_mono = time.monotonic()
+            self.last_frame_mono = self.clock.monotonic()
             self.state = "ok"
             log.info("source reopened: %s", self.info.description)
             return

@@ -5,11 +5,11 @@ from __future__ import annotations
 import logging
 import socket
 import threading
-import time
 from pathlib import Path
 from typing import Any
 
 import paho.mqtt.client as mqtt
+import paho.mqtt.publish as publish
 import pytest
 
 from edge.broker import EmbeddedBroker, acl_text, mosquitto_hash, write_mosquitto_config
@@ -89,7 +89,7 @@ def test_embedded_broker_serves_paho_v2_clients_with_retained_messages_and_last_
     with EmbeddedBroker("127.0.0.1", 0) as broker:
         port = broker.port
         with MqttRecorder("127.0.0.1", port, topics=[POSE_WILDCARD, "edge/will"]) as sub:
-            time.sleep(0.3)
+            assert sub.wait_subscribed(10)
             pub = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="dying")
             pub.will_set("edge/will", b"offline", qos=1, retain=True)
             pub.connect("127.0.0.1", port, keepalive=2)
@@ -103,9 +103,12 @@ def test_embedded_broker_serves_paho_v2_clients_with_retained_messages_and_last_
             assert sub.wait_for(lambda m: any(x.topic == "edge/will" for x in m), 20)
             # amqtt 0.12.1 alone would also push edge/will here (another session's subscription): see _make_broker
             with MqttRecorder("127.0.0.1", port, topics=[FORMATION_TOPIC]) as late:
-                assert late.wait_for(lambda m: len(m) == 1, 10)
-                time.sleep(0.5)
-        assert [(m.topic, m.payload, m.retain) for m in late.messages] == [(FORMATION_TOPIC, b"retained!", True)]
+                assert late.wait_subscribed(10)
+                # a marker after the retained message: whatever the broker would push at subscription came before it
+                publish.single(FORMATION_TOPIC, b"marker", hostname="127.0.0.1", port=port)
+                assert late.wait_for(lambda m: any(x.payload == b"marker" for x in m), 10)
+        got = [(m.topic, m.payload, m.retain) for m in late.messages]
+        assert got == [(FORMATION_TOPIC, b"retained!", True), (FORMATION_TOPIC, b"marker", False)]
 
 
 def test_embedded_broker_says_when_the_port_is_taken() -> None:
@@ -185,7 +188,7 @@ def test_broker_config_rover_cannot_publish_poses_or_other_rovers_status(deploye
         assert not red.publish(rover_status_topic("red"), b'{"state":"online"}').is_failure
         assert green.wait_for(pose_topic("red")) == [pose]
         assert edge.wait_for(rover_status_topic("red")) == [b'{"state":"online"}']
-        time.sleep(0.3)
+        # those two went out after the forged ones were refused: anything forged would have arrived before them
         assert green.wait_for(pose_topic("blue"), timeout_s=0) == [], "a forged pose got through"
         assert edge.wait_for(rover_status_topic("green"), timeout_s=0) == [], "a forged status got through"
     finally:
