@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Dashboard benchmark (issue 9): does watching the page slow the tracker? Tracker processing p99 with and without
+"""Dashboard benchmark: does watching the page slow the tracker? Tracker processing p99 with and without
 viewers connected (bar: no more than 10 % worse), and what the viewers get.
 
     .venv/bin/python benchmarks/bench_dashboard.py                     # 3 rounds x 4 conditions x 40 s, ~9 min

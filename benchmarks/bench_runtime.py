@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Runtime benchmark (issue 6): end-to-end latency, CPU and memory of ``edge-ips start``.
+"""Runtime benchmark: end-to-end latency, CPU and memory of ``edge-ips start``.
 
     .venv/bin/python benchmarks/bench_runtime.py                       # 10 min with Mosquitto, 10 min embedded
     .venv/bin/python benchmarks/bench_runtime.py --duration 60 --brokers mosquitto

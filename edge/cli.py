@@ -1100,7 +1100,7 @@ def sim_formation(
     The rovers start at random places at least 1.5 m apart (1 m beyond 8 rovers; --seed) and form KIND: a
     vertical line 60 cm apart, a rendezvous (all inside 40 cm), or a triangle of 100 cm sides. Writes
     metrics.json, truth.csv (frame,id,x,y,theta), poses.jsonl (every pose published), motors.csv and the figures.
-    Exit status 1 when the run misses a bar of issue 8 (formed by frame 240, no bodies touching).
+    Exit status 1 when the run misses a bar (formed by frame 240, no bodies touching).
 
     Example:
 

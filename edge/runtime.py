@@ -370,7 +370,7 @@ SimFactory = Callable[[str], FrameSource]
 
 
 def default_sim_factory(config: EdgeConfig) -> SimFactory:
-    """The simulator's source (issue 4), paced in real time, for ``--source sim[:SCENARIO]``."""
+    """The simulator's source, paced in real time, for ``--source sim[:SCENARIO]``."""
 
     def make(scenario: str) -> FrameSource:
         from edge.sim.source import SimSource
@@ -381,7 +381,7 @@ def default_sim_factory(config: EdgeConfig) -> SimFactory:
 
 
 def default_tracker_factory(inputs: TrackerInputs) -> Tracker:
-    """The tracking pipeline (issue 5) built from the rovers, the ``[tracker]`` settings and the calibration."""
+    """The tracking pipeline built from the rovers, the ``[tracker]`` settings and the calibration."""
     from edge.tracker_config import TrackerConfig
     from edge.trackers.factory import build_tracker
 

@@ -1,4 +1,4 @@
-"""`edge-ips calibrate points|intrinsics|aruco|check` end to end, and every bad input of issue 3 section 4."""
+"""`edge-ips calibrate points|intrinsics|aruco|check` end to end, and every bad input a user can give it."""
 
 from __future__ import annotations
 

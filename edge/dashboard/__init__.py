@@ -1,4 +1,4 @@
-"""The live web dashboard served by ``edge-ips start`` (issue 9): camera view with overlays, top-down map, rover
+"""The live web dashboard served by ``edge-ips start``: camera view with overlays, top-down map, rover
 status, calibration error map, formation controls.
 
 The parts: ``server`` (routes on the appliance's HTTP server), ``events`` (server-sent events built from

@@ -1,6 +1,6 @@
 """Helpers for the runtime's tests: a tiny colour-centroid tracker, synthetic frames, an MQTT recorder, an MJPEG
-stream server that can stall or vanish. Real parts everywhere except the tracker (a fake of the ``Tracker``
-protocol, STYLE point 3) until the tracking pipeline lands.
+stream server that can stall or vanish. Real parts everywhere except the tracker: a fake of the ``Tracker``
+protocol (STYLE point 3), so the runtime's tests do not depend on the vision.
 """
 
 from __future__ import annotations
