@@ -41,6 +41,16 @@ if TYPE_CHECKING:
 log = logging.getLogger("edge.runtime")
 
 
+@dataclass(frozen=True)
+class _Pose:
+    """A rover's newest published pose, for the snapshot."""
+
+    x_cm: float
+    y_cm: float
+    theta_rad: float | None
+    quality: float
+
+
 class _RoverStats:
     __slots__ = ("detections", "id", "last", "last_seen_mono", "missed", "rate", "seq")
 
@@ -50,7 +60,7 @@ class _RoverStats:
         self.detections = 0
         self.missed = 0
         self.last_seen_mono: float | None = None
-        self.last: tuple[float, float, float | None, float] | None = None  # x_cm, y_cm, theta_rad, quality
+        self.last: _Pose | None = None
         self.rate = RateMeter()
 
 
@@ -147,7 +157,7 @@ class EdgeRuntime:
                 stats.seq += 1
             stats.detections += 1
             stats.last_seen_mono = result.t_mono_s
-            stats.last = (est.x_cm, est.y_cm, est.theta_rad, est.quality)
+            stats.last = _Pose(est.x_cm, est.y_cm, est.theta_rad, est.quality)
             stats.rate.tick(result.t_mono_s)
         for rover_id, stats in self._rovers.items():
             if rover_id not in seen:
@@ -319,10 +329,10 @@ class EdgeRuntime:
                 missed=s.missed,
                 last_seen_age_s=None if s.last_seen_mono is None else now - s.last_seen_mono,
                 rate_hz=s.rate.rate(now),
-                quality=None if s.last is None else s.last[3],
-                x_cm=None if s.last is None else s.last[0],
-                y_cm=None if s.last is None else s.last[1],
-                theta_rad=None if s.last is None else s.last[2],
+                quality=None if s.last is None else s.last.quality,
+                x_cm=None if s.last is None else s.last.x_cm,
+                y_cm=None if s.last is None else s.last.y_cm,
+                theta_rad=None if s.last is None else s.last.theta_rad,
             )
             for s in self._rovers.values()
         )
