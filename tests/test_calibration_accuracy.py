@@ -23,6 +23,8 @@ from edge.camera import paper_camera
 from edge.sim.targets import PAPER_AREA, checkerboard_views, survey_points
 from tests.support.calibration import DISTORTION, PAPER_MAX_CM, true_errors_cm
 
+pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
+
 SEEDS = range(20)
 
 

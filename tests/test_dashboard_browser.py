@@ -21,6 +21,8 @@ from tests.support.appliance import edge_config, running
 from tests.support.dashboard import EdgeProcess, FormationSubscriber, chromium, clean_env, edge_start
 from tests.support.mosquitto import Mosquitto
 
+pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
+
 TOKEN = "test-dashboard-token"
 ROVERS = ["red", "green", "blue"]
 WAIT_MS = 60_000  # how long the browser may take to see something happen before the test fails

@@ -18,6 +18,8 @@ from tests.conftest import EXAMPLES
 from tests.support import contract_oracle as oracle
 from tests.support.firmware import FIRMWARE, KinematicFleet, random_starts, rover_configs, run_micropython
 
+pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
+
 FIRMWARE_FILES = sorted(FIRMWARE.glob("*.py"))
 
 

@@ -31,6 +31,7 @@ def flash_tool(*args: str, env: dict[str, str] | None = None, **kw: object) -> s
     )  # type: ignore[call-overload]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("romfs", [False, True])
 def test_bundle_holds_exactly_the_compiled_firmware_main_and_the_provisioned_config(
     tmp_path: Path, romfs: bool
@@ -62,6 +63,7 @@ def test_the_repository_configs_hold_no_secrets() -> None:
         assert cfg["broker"]["password"] == "", path
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "expect"),
     [
@@ -99,6 +101,7 @@ def test_dry_run_prints_the_commands_in_order_without_touching_a_board(
     assert "exec" in check and "edge-ips-fw" in check and check.endswith("+ reset")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "env", "message"),
     [
@@ -130,6 +133,7 @@ def test_mistakes_are_one_line_errors_with_exit_code_2(
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_a_bad_config_key_is_named(tmp_path: Path) -> None:
     cfg = json.loads((REPO / "firmware" / "esp8266" / "configs" / "red.json").read_text())
     cfg["motors"]["left"]["pwm"] = 42
@@ -140,6 +144,7 @@ def test_a_bad_config_key_is_named(tmp_path: Path) -> None:
     assert f"{path}: key motors.left.pwm: expected a GPIO number 0-16, got 42" in result.stderr
 
 
+@pytest.mark.slow
 def test_a_bundle_directory_that_is_not_empty_is_refused(tmp_path: Path) -> None:
     (tmp_path / "b").mkdir()
     (tmp_path / "b" / "old.mpy").write_bytes(b"M\x06")
@@ -160,6 +165,7 @@ class _Board:
         return subprocess.CompletedProcess(list(cmd), 0, out, "")
 
 
+@pytest.mark.slow
 def test_flash_checks_that_the_board_answers_with_the_firmware_it_was_given(tmp_path: Path) -> None:
     bundle = tmp_path / "b"
     config = flashing.provisioned_config("blue", SECRETS, None)

@@ -37,6 +37,7 @@ def _metric(text: str, name: str) -> float:
     return float(match.group(1))
 
 
+@pytest.mark.slow
 def test_healthz_and_metrics_describe_the_running_edge(mosquitto: Mosquitto) -> None:
     port = free_port()
     config = edge_config(
@@ -74,6 +75,7 @@ def test_healthz_and_metrics_describe_the_running_edge(mosquitto: Mosquitto) -> 
         assert app.runtime.snapshot().state == "online"
 
 
+@pytest.mark.slow
 def test_recording_keeps_every_published_byte_rotates_and_is_flushed_on_stop(
     mosquitto: Mosquitto, tmp_path: Path
 ) -> None:
@@ -123,6 +125,7 @@ def test_a_finite_video_file_ends_the_run_cleanly(mosquitto: Mosquitto, tmp_path
     assert app.runtime.frames_processed <= 20 and app.runtime.capture.frames == 20
 
 
+@pytest.mark.slow
 def test_sigterm_publishes_offline_and_exits_zero(mosquitto: Mosquitto, tmp_path: Path) -> None:
     args = [f"broker.url={mosquitto.url}", f"recording.dir={tmp_path / 'rec'}"]
     with MqttRecorder("127.0.0.1", mosquitto.port) as rec:

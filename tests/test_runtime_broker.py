@@ -85,6 +85,7 @@ class Client:
 
 
 # -- embedded broker ---------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_embedded_broker_serves_paho_v2_clients_with_retained_messages_and_last_will() -> None:
     with EmbeddedBroker("127.0.0.1", 0) as broker:
         port = broker.port
@@ -133,6 +134,7 @@ def test_embedded_broker_refuses_a_second_start_and_is_quiet_about_qos0_drops_on
     assert [r.getMessage() for r in caplog.records if r.name == "amqtt.broker"] == ["something else went wrong"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("broker_kind", ["mosquitto", "embedded"])
 def test_retained_formation_reaches_a_late_subscriber_and_seq_follows(tmp_path: Path, broker_kind: str) -> None:
     if broker_kind == "mosquitto":
@@ -196,6 +198,7 @@ def test_broker_config_rover_cannot_publish_poses_or_other_rovers_status(deploye
             c.close()
 
 
+@pytest.mark.slow
 def test_broker_config_rover_reads_the_retained_formation(deployed: Mosquitto) -> None:
     target = parse_broker_url(f"mqtt://edge:{PASSWORDS['edge']}@127.0.0.1:{deployed.port}")
     send_formation(target, lambda seq: build_formation("rendezvous", ROVERS, seq=seq))
@@ -207,6 +210,7 @@ def test_broker_config_rover_reads_the_retained_formation(deployed: Mosquitto) -
         blue.close()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("user", "password"), [("red", "wrong"), ("edge", "red-pw"), ("nobody", "x"), (None, None)])
 def test_broker_config_refuses_wrong_passwords_and_anonymous(
     deployed: Mosquitto, user: str | None, password: str | None

@@ -9,11 +9,15 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
+import pytest
+
 from edge.publisher import MqttPublisher
 from edge.runtime import EdgeRuntime
 from tests.support.appliance import edge_config, running
 from tests.support.mosquitto import Mosquitto
 from tests.support.runtime import MjpegServer, MqttRecorder, poses, statuses
+
+pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
 
 
 def _frame_by_frame(runtime: EdgeRuntime, condition: Callable[[], bool], timeout_s: float = 30.0) -> bool:

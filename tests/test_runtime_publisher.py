@@ -122,6 +122,7 @@ time.sleep(600)
 """
 
 
+@pytest.mark.slow
 def test_the_last_will_says_offline_when_the_edge_dies(mosquitto: Mosquitto) -> None:
     child = subprocess.Popen([sys.executable, "-c", LAST_WILL_CHILD, mosquitto.url], stdout=subprocess.PIPE)
     try:
@@ -157,6 +158,7 @@ def test_publisher_sets_tcp_nodelay(mosquitto: Mosquitto) -> None:
     pub.stop()
 
 
+@pytest.mark.slow
 def test_tls_broker_with_the_right_ca_gets_poses_and_a_wrong_ca_is_refused(tmp_path: Path) -> None:
     from edge.config import BrokerTarget
     from edge.publisher import TlsFiles, build_formation, send_formation

@@ -7,6 +7,8 @@ import json
 import threading
 from typing import Any
 
+import pytest
+
 from edge.clock import SYSTEM_CLOCK, ManualClock
 from edge.messages import edge_status_topic, encode_pose, parse_pose, parse_status, pose_topic
 from edge.publisher import MemoryPublisher
@@ -86,6 +88,7 @@ def _wait_status(pub: MemoryPublisher, predicate: Any, timeout_s: float = 20.0) 
     return found[0]
 
 
+@pytest.mark.slow
 def test_status_follows_rovers_and_camera_and_ends_offline() -> None:
     # Time is the runtime's clock, moved on by hand: a rover goes missing or the camera stalls the moment the clock
     # passes their windows (1 s unseen, 0.5 s without a frame), however slowly the threads run.

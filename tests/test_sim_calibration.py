@@ -18,6 +18,8 @@ from edge.calibration import load_calibration
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM, MARKER_HEIGHT_CM, load_camera
 from edge.cli import main
 
+pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
+
 
 def _run(*args: str) -> str:
     result = CliRunner().invoke(main, list(args))
