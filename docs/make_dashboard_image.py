@@ -22,8 +22,9 @@ REPO = Path(__file__).resolve().parent.parent
 OUT = REPO / "docs" / "img" / "dashboard.png"
 TOKEN = "docs-screenshot-token"
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
 
-from tests.support.dashboard import CHROMIUM, CHROMIUM_ARGS  # noqa: E402  (after the sys.path line above)
+from _common import CHROMIUM, CHROMIUM_ARGS  # noqa: E402  (after the sys.path lines above)
 
 
 def free_port() -> int:

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from edge.errors import CalibrationError
+from edge.errors import CalibrationError, describe_validation
 
 FloatArray = NDArray[np.float64]
 
@@ -241,9 +241,7 @@ def load_camera(path: Path) -> PinholeCamera:
     except OSError as exc:
         raise CalibrationError(f"{path}: cannot read camera file ({exc.strerror})") from exc
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-        raise CalibrationError(f"{path}: invalid camera file at {where}: {first['msg']}") from exc
+        raise CalibrationError(f"{path}: invalid camera file at {describe_validation(exc)}") from exc
     except CalibrationError as exc:
         raise CalibrationError(f"{path}: invalid camera file: {exc}") from None
 

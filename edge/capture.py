@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from dataclasses import replace
 
+from edge.clock import SYSTEM_CLOCK, Clock
 from edge.errors import SourceError
 from edge.sources import FrameSource, SourceInfo
 from edge.tracking import Frame
@@ -90,8 +90,10 @@ class CaptureThread(threading.Thread):
         info: SourceInfo,
         reopen_min_s: float = 0.5,
         reopen_max_s: float = 8.0,
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
         super().__init__(name="capture", daemon=True)
+        self.clock = clock
         self.source, self.slot, self.stop_event = source, slot, stop
         self.info = info
         self.reopen_min_s, self.reopen_max_s = reopen_min_s, max(reopen_max_s, reopen_min_s)
@@ -103,7 +105,7 @@ class CaptureThread(threading.Thread):
         self.reopens = 0
         self.ended = False
         self.error: BaseException | None = None
-        self.last_frame_mono = time.monotonic()
+        self.last_frame_mono = self.clock.monotonic()
         self._last_index = -1
         self._offset = 0
 
@@ -149,7 +151,7 @@ class CaptureThread(threading.Thread):
             self.info = info
             self.problem = ""
             self.reopens += 1
-            self.last_frame_mono = time.monotonic()
+            self.last_frame_mono = self.clock.monotonic()
             self.state = "ok"
             log.info("source reopened: %s", self.info.description)
             return

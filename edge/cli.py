@@ -246,11 +246,7 @@ def formation(
 
     config, _, _ = _load(config_path, **{"broker.url": broker_url})
     shape = cast("FormationKind", kind)
-    ids = [r.strip() for r in rovers.split(",") if r.strip()] if rovers else [r.id for r in config.rovers]
-    if kind == "line" and spacing is None:
-        spacing = 60.0
-    if kind == "triangle" and side is None:
-        side = 100.0
+    ids = [r for r in rovers.split(",") if r.strip()] if rovers else [r.id for r in config.rovers]
     build_formation(shape, ids, seq=1, spacing_cm=spacing, side_cm=side, x_cm=x_cm, y_cm=y_cm, theta_rad=theta_rad)
     sent = send_formation(
         edge_target(config),
@@ -1232,7 +1228,7 @@ def sim_formation(
     The rovers start at random places at least 1.5 m apart (1 m beyond 8 rovers; --seed) and form KIND: a
     vertical line 60 cm apart, a rendezvous (all inside 40 cm), or a triangle of 100 cm sides. Writes
     metrics.json, truth.csv (frame,id,x,y,theta), poses.jsonl (every pose published), motors.csv and the figures.
-    Exit status 1 when the run misses a bar of issue 8 (formed by frame 240, no bodies touching).
+    Exit status 1 when the run misses a bar (formed by frame 240, no bodies touching).
 
     Example:
 

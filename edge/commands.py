@@ -17,13 +17,15 @@ import paho.mqtt.client as mqtt
 from pydantic import ValidationError
 
 from edge.config import BrokerTarget
-from edge.errors import BrokerError, EdgeIpsError, MessageError
+from edge.errors import BrokerError, EdgeIpsError, MessageError, describe_validation
 from edge.messages import FORMATION_TOPIC, FormationKind, FormationV1, dumps, next_seq, parse_formation
 from edge.mqttclient import TlsFiles, connect_blocking, make_client
 
 log = logging.getLogger("edge.commands")
 
 FORMATION_QOS = 1
+LINE_SPACING_CM = 60.0  # a line's distance between neighbours when the command names none
+TRIANGLE_SIDE_CM = 100.0  # a triangle's side when the command names none
 RETAINED_WAIT_S = 0.5  # how long a retained formation may take to arrive after subscribing (MQTT has no "none")
 
 
@@ -37,24 +39,34 @@ def build_formation(
     x_cm: float | None = None,
     y_cm: float | None = None,
     theta_rad: float | None = None,
+    known_ids: Sequence[str] | None = None,
 ) -> FormationV1:
-    """A validated formation message (raises :class:`MessageError` naming the bad field).
+    """A validated formation message (raises :class:`MessageError` naming the bad field): what a command may say,
+    for ``edge-ips formation``, the dashboard and the simulator alike.
 
-    Beyond the contract: every rover is named once, a formation other than ``stop`` names at least one rover, and a
-    triangle at least three (the firmware would make a 2-gon of two)."""
-    twice = sorted({i for i in ids if list(ids).count(i) > 1})
+    Ids are taken without surrounding spaces and, when ``known_ids`` is given, must be among them. A line's
+    ``spacing_cm`` defaults to :data:`LINE_SPACING_CM`, a triangle's ``side_cm`` to :data:`TRIANGLE_SIDE_CM`; other
+    kinds carry neither. Beyond the contract: every rover is named once, a formation other than ``stop`` names at
+    least one rover, and a triangle at least three (the firmware would make a 2-gon of two)."""
+    ids = [i.strip() for i in ids]
+    unknown = [i for i in ids if known_ids is not None and i not in known_ids]
+    if unknown:
+        raise MessageError(f"formation: ids: not configured rovers: {', '.join(unknown)}")
+    twice = sorted({i for i in ids if ids.count(i) > 1})
     if twice:
         raise MessageError(f"formation: ids: {', '.join(twice)} named more than once")
     if kind != "stop" and not ids:
         raise MessageError(f"formation: ids: a {kind} needs at least one rover")
     if kind == "triangle" and len(ids) < 3:
         raise MessageError(f"formation: ids: a triangle needs at least three rovers, got {len(ids)}")
+    spacing_cm = (LINE_SPACING_CM if spacing_cm is None else spacing_cm) if kind == "line" else None
+    side_cm = (TRIANGLE_SIDE_CM if side_cm is None else side_cm) if kind == "triangle" else None
     try:
         return FormationV1(
             v=1,
             seq=seq,
             kind=kind,
-            ids=list(ids),
+            ids=ids,
             spacing=spacing_cm,
             side=side_cm,
             x=x_cm,
@@ -62,9 +74,7 @@ def build_formation(
             theta=theta_rad,
         )
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"])
-        raise MessageError(f"formation: {where}: {first['msg']}") from exc
+        raise MessageError(f"formation: {describe_validation(exc)}") from exc
 
 
 def read_retained(payload: bytes) -> FormationV1 | None:

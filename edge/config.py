@@ -23,7 +23,7 @@ from urllib.parse import unquote, urlsplit
 from pydantic import BaseModel, ConfigDict, Field, SecretStr, ValidationError, field_validator
 
 from edge.camera_controls import CameraControls
-from edge.errors import ConfigError
+from edge.errors import ConfigError, describe_validation
 from edge.messages import ID_PATTERN
 from edge.tracker_config import DEFAULT_ROVERS, RoverConfig, TrackerSettings, require_unique_ids
 
@@ -371,21 +371,14 @@ def _resolve_paths(config: EdgeConfig, base: Path) -> EdgeConfig:
 
 
 def _describe(exc: ValidationError, where_file: str, env_paths: Mapping[tuple[str, ...], str]) -> str:
-    errors = exc.errors()
-    first = errors[0]
-    loc = tuple(str(p) for p in first["loc"])
-    key = ".".join(loc) or "(top level)"
+    loc = tuple(str(p) for p in exc.errors()[0]["loc"])
     origin = where_file
     for path, var in env_paths.items():
         n = min(len(path), len(loc))
         if loc[:n] == path[:n]:
             origin = f"environment variable {var}"
             break
-    message = first["msg"].removeprefix("Value error, ")
-    if first["type"] == "extra_forbidden":
-        message = "unknown key"
-    more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
-    return f"{origin}: {key}: {message}{more}"
+    return f"{origin}: {describe_validation(exc)}"
 
 
 def load_config(path: Path | None, env: Mapping[str, str] | None = None) -> LoadedConfig:

@@ -132,7 +132,8 @@ def _probe_broker(target: BrokerTarget, config: EdgeConfig, timeout_s: float) ->
     from paho.mqtt.reasoncodes import ReasonCode
 
     from edge.messages import dumps
-    from edge.publisher import TlsFiles, connect_host, offline_status
+    from edge.mqttclient import TlsFiles, connect_host
+    from edge.publisher import offline_status
 
     client = mqtt.Client(
         mqtt.CallbackAPIVersion.VERSION2,

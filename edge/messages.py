@@ -18,7 +18,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
 
-from edge.errors import MessageError
+from edge.errors import MessageError, describe_validation
 
 VERSION = 1
 TOPIC_PREFIX = "ips/v1"
@@ -278,9 +278,7 @@ def _loads(model: type[BaseModel], payload: bytes, max_bytes: int) -> Any:
     try:
         return model.model_validate_json(text)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-        raise MessageError(f"{model.__name__}: {where}: {first['msg']}") from exc
+        raise MessageError(f"{model.__name__}: {describe_validation(exc)}") from exc
 
 
 def parse_pose(payload: bytes) -> PoseV1:

@@ -20,15 +20,10 @@ from typing import Any, Protocol
 
 import paho.mqtt.client as mqtt
 
-from edge.commands import FORMATION_QOS as FORMATION_QOS
-from edge.commands import build_formation as build_formation
-from edge.commands import send_formation as send_formation
 from edge.config import BrokerTarget
 from edge.errors import BrokerError
 from edge.messages import StatusV1, dumps, edge_status_topic, pose_topic
-from edge.mqttclient import TlsFiles as TlsFiles
-from edge.mqttclient import connect_host as connect_host
-from edge.mqttclient import make_client as make_client
+from edge.mqttclient import TlsFiles, connect_host, make_client
 
 log = logging.getLogger("edge.publisher")
 
@@ -113,6 +108,7 @@ class MqttPublisher:
         self._pose_topics = {r: pose_topic(r) for r in self.rovers}
         self._latest_status: StatusV1 | None = None
         self._connected = threading.Event()
+        self._disconnected = threading.Event()  # the complement of _connected, to wait on
         self._first_connack = threading.Event()
         self._first_refusal: str | None = None
         self._last_logged_error = ""
@@ -147,6 +143,7 @@ class MqttPublisher:
         self.stats.connects += 1
         self.stats.connected_since_mono = time.monotonic()
         self._last_logged_error = ""
+        self._disconnected.clear()
         self._connected.set()
         self._first_connack.set()
         log.info("connected to broker %s", self.target.display())
@@ -159,6 +156,7 @@ class MqttPublisher:
     def _on_disconnect(self, client: mqtt.Client, userdata: Any, flags: Any, reason_code: Any, props: Any) -> None:
         was_connected = self._connected.is_set()
         self._connected.clear()
+        self._disconnected.set()
         self.stats.connected_since_mono = None
         if was_connected and not self._stopping:
             self.stats.disconnects += 1
@@ -170,6 +168,10 @@ class MqttPublisher:
     @property
     def connected(self) -> bool:
         return self._connected.is_set()
+
+    def wait_disconnected(self, timeout_s: float) -> bool:
+        """Wait until the connection is known to be lost (paho saw it go); False on timeout."""
+        return self._disconnected.wait(timeout_s)
 
     def start(self) -> None:
         """Begin connecting in the background (paho's network thread retries with backoff)."""
@@ -247,14 +249,15 @@ class Published:
 
 
 class MemoryPublisher:
-    """Keeps every message in :attr:`messages`; ``connected`` can be switched off to test dropping."""
+    """Keeps every message in :attr:`messages`; ``connected`` can be switched off to test dropping.
+    :meth:`wait_until` waits for what has been published (or dropped) to satisfy a condition."""
 
     def __init__(self, *, tap: Tap | None = None) -> None:
         self.stats = PublisherStats()
         self.messages: list[Published] = []
         self.tap = tap
         self.is_connected = True
-        self._lock = threading.Lock()
+        self._lock = threading.Condition(threading.RLock())
         self.edge_status_topic: str | None = None
 
     @property
@@ -269,6 +272,7 @@ class MemoryPublisher:
             return False
         with self._lock:
             self.messages.append(Published(topic, payload, qos, retain, time.monotonic()))
+            self._lock.notify_all()
         if self.tap is not None:
             self.tap(topic, payload, retain)
         return True
@@ -277,8 +281,10 @@ class MemoryPublisher:
         if self.publish(pose_topic(rover_id), payload):
             self.stats.poses_sent += 1
             return True
-        self.stats.poses_dropped += 1
-        self.stats.dropped_by_rover[rover_id] = self.stats.dropped_by_rover.get(rover_id, 0) + 1
+        with self._lock:
+            self.stats.poses_dropped += 1
+            self.stats.dropped_by_rover[rover_id] = self.stats.dropped_by_rover.get(rover_id, 0) + 1
+            self._lock.notify_all()
         return False
 
     def publish_status(self, status: StatusV1) -> bool:
@@ -294,3 +300,9 @@ class MemoryPublisher:
         """Payloads published on ``topic``, in order."""
         with self._lock:
             return [m.payload for m in self.messages if m.topic == topic]
+
+    def wait_until(self, condition: Callable[[], bool], timeout_s: float) -> bool:
+        """Block until ``condition()`` holds (checked after each message published or pose dropped; it may call
+        :meth:`on`); False when ``timeout_s`` passed first."""
+        with self._lock:
+            return self._lock.wait_for(condition, timeout_s)

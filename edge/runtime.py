@@ -21,17 +21,18 @@ import json
 import logging
 import signal
 import threading
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from edge.capture import CaptureThread, FrameSlot
+from edge.clock import SYSTEM_CLOCK, Clock
 from edge.config import BrokerTarget, EdgeConfig, broker_target
 from edge.errors import CalibrationError, MessageError
 from edge.messages import StatusV1, encode_pose
 from edge.metrics import Latency, LatencyWindow, RateMeter, RoverSnapshot, Snapshot
-from edge.publisher import MqttPublisher, Publisher, TlsFiles, offline_status
+from edge.mqttclient import TlsFiles
+from edge.publisher import MqttPublisher, Publisher, offline_status
 from edge.sources import FrameSource, SourceInfo, camera_source, parse_source
 from edge.tracking import Frame, FrameResult, Tracker
 
@@ -40,6 +41,16 @@ if TYPE_CHECKING:
     from edge.camera import PinholeCamera
 
 log = logging.getLogger("edge.runtime")
+
+
+@dataclass(frozen=True)
+class _Pose:
+    """A rover's newest published pose, for the snapshot."""
+
+    x_cm: float
+    y_cm: float
+    theta_rad: float | None
+    quality: float
 
 
 class _RoverStats:
@@ -51,7 +62,7 @@ class _RoverStats:
         self.detections = 0
         self.missed = 0
         self.last_seen_mono: float | None = None
-        self.last: tuple[float, float, float | None, float] | None = None  # x_cm, y_cm, theta_rad, quality
+        self.last: _Pose | None = None
         self.rate = RateMeter()
 
 
@@ -59,7 +70,8 @@ class EdgeRuntime:
     """Source -> tracker -> publisher, on threads, with status, metrics and a clean stop.
 
     ``source`` must already be open (``info`` is what it granted). ``tap`` is not needed here: recording hangs
-    off the publisher.
+    off the publisher. ``clock`` times everything the status says (ages, rates, stalls; the frames carry the
+    source's own stamps, which should come from the same clock).
     """
 
     def __init__(
@@ -77,8 +89,10 @@ class EdgeRuntime:
         reopen_min_s: float = 0.5,
         reopen_max_s: float = 8.0,
         recorder: Any = None,
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
         self.edge_id = edge_id
+        self.clock = clock
         self.info = info
         self.tracker = tracker
         self.publisher = publisher
@@ -90,7 +104,13 @@ class EdgeRuntime:
         self.stop_event = threading.Event()
         self.slot = FrameSlot()
         self.capture = CaptureThread(
-            source, self.slot, self.stop_event, info=info, reopen_min_s=reopen_min_s, reopen_max_s=reopen_max_s
+            source,
+            self.slot,
+            self.stop_event,
+            info=info,
+            reopen_min_s=reopen_min_s,
+            reopen_max_s=reopen_max_s,
+            clock=clock,
         )
         self.processing = LatencyWindow()
         self.end_to_end = LatencyWindow()
@@ -105,7 +125,7 @@ class EdgeRuntime:
         self._rovers = {r: _RoverStats(r) for r in self.rover_ids}
         self._status_due = threading.Event()
         self._threads: list[threading.Thread] = []
-        self._started_mono = time.monotonic()
+        self._started_mono = self.clock.monotonic()
         self._last_state: tuple[str, str] = ("", "")
         self._stopped = False
 
@@ -139,7 +159,7 @@ class EdgeRuntime:
                 stats.seq += 1
             stats.detections += 1
             stats.last_seen_mono = result.t_mono_s
-            stats.last = (est.x_cm, est.y_cm, est.theta_rad, est.quality)
+            stats.last = _Pose(est.x_cm, est.y_cm, est.theta_rad, est.quality)
             stats.rate.tick(result.t_mono_s)
         for rover_id, stats in self._rovers.items():
             if rover_id not in seen:
@@ -152,11 +172,11 @@ class EdgeRuntime:
                 if self.slot.closed:
                     break
                 continue
-            t0 = time.monotonic()
+            t0 = self.clock.monotonic()
             result = self.tracker.process(frame)
-            t1 = time.monotonic()
+            t1 = self.clock.monotonic()
             self._publish_result(result, frame.index, frame.t_capture_s)
-            t2 = time.monotonic()
+            t2 = self.clock.monotonic()
             self.processing.add(t1 - t0)
             self.end_to_end.add(t2 - frame.t_mono_s)
             self.fps_meter.tick(t2)
@@ -192,13 +212,24 @@ class EdgeRuntime:
         if self.capture.state != "ok":
             return self.capture.state
         if self.capture.frames == 0:
-            return "starting" if time.monotonic() - self._started_mono < self.stall_timeout_s else "stalled"
-        if time.monotonic() - self.capture.last_frame_mono > self.stall_timeout_s:
+            return "starting" if self.clock.monotonic() - self._started_mono < self.stall_timeout_s else "stalled"
+        if self.clock.monotonic() - self.capture.last_frame_mono > self.stall_timeout_s:
             return "stalled"
         return "ok"
 
+    @property
+    def settle_s(self) -> float:
+        """How long a rover may go unseen before it counts as missing; also the start-up grace before the first
+        rover missing makes the state ``degraded``."""
+        return max(self.status_interval_s, 1.0)
+
+    @property
+    def tracking_for_s(self) -> float:
+        """Seconds since the first tracked frame (0 before it)."""
+        return 0.0 if self._first_result_mono is None else self.clock.monotonic() - self._first_result_mono
+
     def _seen_recently(self, now: float) -> tuple[list[str], list[str]]:
-        window = max(self.status_interval_s, 1.0)
+        window = self.settle_s
         seen: list[str] = []
         missing: list[str] = []
         for rover_id, stats in self._rovers.items():
@@ -209,13 +240,12 @@ class EdgeRuntime:
     def _state(self, camera: str, missing: list[str]) -> tuple[str, str]:
         if camera not in ("ok", "starting"):
             return "degraded", f"camera {camera}" + (f": {self.capture.problem}" if self.capture.problem else "")
-        tracking_for_s = 0.0 if self._first_result_mono is None else time.monotonic() - self._first_result_mono
-        if camera == "ok" and missing and tracking_for_s > max(self.status_interval_s, 1.0):
+        if camera == "ok" and missing and self.tracking_for_s > self.settle_s:
             return "degraded", f"not seen: {', '.join(missing)}"
         return "online", ""
 
     def current_status(self) -> StatusV1:
-        now = time.monotonic()
+        now = self.clock.monotonic()
         camera = self.camera_state()
         seen, missing = self._seen_recently(now)
         state, reason = self._state(camera, missing)
@@ -231,7 +261,7 @@ class EdgeRuntime:
             fps=round(min(self.fps_meter.rate(now), 1000.0), 2),
             rovers=seen,
             missing=missing,
-            t=round(time.time(), 3),
+            t=round(self.clock.wall(), 3),
         )
 
     def _status_loop(self) -> None:
@@ -246,7 +276,7 @@ class EdgeRuntime:
 
     # -- life cycle ---------------------------------------------------------------------------------------------
     def start(self) -> EdgeRuntime:
-        self._started_mono = time.monotonic()
+        self._started_mono = self.clock.monotonic()
         self.capture.start()
         for name, target in (("tracker", self._track), ("status", self._status_loop)):
             thread = threading.Thread(target=self._run_guarded(target), name=name, daemon=True)
@@ -258,6 +288,11 @@ class EdgeRuntime:
     def finished(self) -> bool:
         """True when the source ended, a thread failed, or stop was asked for."""
         return self.stop_event.is_set() or not self._threads[0].is_alive()
+
+    def wait_finished(self, timeout_s: float) -> bool:
+        """Block until the tracker has stopped (the source ended, a thread failed, or stop); False on timeout."""
+        self._threads[0].join(timeout_s)
+        return not self._threads[0].is_alive()
 
     def wait(self, stop: threading.Event) -> None:
         """Block until ``stop`` is set or the runtime finishes by itself."""
@@ -285,7 +320,7 @@ class EdgeRuntime:
 
     # -- for /metrics, /healthz and the dashboard ---------------------------------------------------------------
     def snapshot(self) -> Snapshot:
-        now = time.monotonic()
+        now = self.clock.monotonic()
         camera = self.camera_state() if not self._stopped else "stopped"
         _, missing = self._seen_recently(now)
         state, reason = self._state(camera, missing) if not self._stopped else ("offline", "stopped")
@@ -296,10 +331,10 @@ class EdgeRuntime:
                 missed=s.missed,
                 last_seen_age_s=None if s.last_seen_mono is None else now - s.last_seen_mono,
                 rate_hz=s.rate.rate(now),
-                quality=None if s.last is None else s.last[3],
-                x_cm=None if s.last is None else s.last[0],
-                y_cm=None if s.last is None else s.last[1],
-                theta_rad=None if s.last is None else s.last[2],
+                quality=None if s.last is None else s.last.quality,
+                x_cm=None if s.last is None else s.last.x_cm,
+                y_cm=None if s.last is None else s.last.y_cm,
+                theta_rad=None if s.last is None else s.last.theta_rad,
             )
             for s in self._rovers.values()
         )
@@ -347,7 +382,7 @@ SimFactory = Callable[[str], FrameSource]
 
 
 def default_sim_factory(config: EdgeConfig) -> SimFactory:
-    """The simulator's source (issue 4), paced in real time, for ``--source sim[:SCENARIO]``."""
+    """The simulator's source, paced in real time, for ``--source sim[:SCENARIO]``."""
 
     def make(scenario: str) -> FrameSource:
         from edge.sim.source import SimSource
@@ -358,7 +393,7 @@ def default_sim_factory(config: EdgeConfig) -> SimFactory:
 
 
 def default_tracker_factory(inputs: TrackerInputs) -> Tracker:
-    """The tracking pipeline (issue 5) built from the rovers, the ``[tracker]`` settings and the calibration."""
+    """The tracking pipeline built from the rovers, the ``[tracker]`` settings and the calibration."""
     from edge.tracker_config import TrackerConfig
     from edge.trackers.factory import build_tracker
 

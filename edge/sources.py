@@ -28,6 +28,7 @@ from edge.camera_controls import (
     apply_controls,
     automatic_modes_on,
 )
+from edge.clock import SYSTEM_CLOCK, Clock
 from edge.errors import SourceError
 from edge.tracking import Frame
 
@@ -297,15 +298,23 @@ class StreamSource(_OpenCvSource):
 
 
 class MemorySource:
-    """Frames from memory, in order, optionally paced at ``fps``: for tests and pre-rendered clips."""
+    """Frames from memory, in order, optionally paced at ``fps`` (in real time): for tests and pre-rendered clips.
+    Frames are stamped by ``clock``."""
 
     def __init__(
-        self, images: Sequence[NDArray[np.uint8]], *, fps: float = 30.0, loop: bool = False, realtime: bool = False
+        self,
+        images: Sequence[NDArray[np.uint8]],
+        *,
+        fps: float = 30.0,
+        loop: bool = False,
+        realtime: bool = False,
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
         if not images:
             raise SourceError("memory source: no frames")
         self.images = images
         self.fps, self.loop, self.realtime = fps, loop, realtime
+        self.clock = clock
         self._index = 0
         self._next_due = 0.0
 
@@ -323,7 +332,7 @@ class MemorySource:
                 time.sleep(self._next_due - now)
             self._next_due = max(self._next_due, now - 1.0 / self.fps) + 1.0 / self.fps
         image = self.images[self._index % len(self.images)]
-        frame = Frame(image=image, index=self._index, t_capture_s=time.time(), t_mono_s=time.monotonic())
+        frame = Frame(image=image, index=self._index, t_capture_s=self.clock.wall(), t_mono_s=self.clock.monotonic())
         self._index += 1
         return frame
 

@@ -16,7 +16,7 @@ from typing import Annotated, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from edge.errors import ConfigError
+from edge.errors import ConfigError, describe_validation
 from edge.messages import ID_PATTERN
 
 RoversT = TypeVar("RoversT", bound=Sequence["RoverConfig"])
@@ -170,6 +170,4 @@ def load_tracker_config(path: Path) -> TrackerConfig:
     try:
         return TrackerConfig.model_validate(section)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-        raise ConfigError(f"{path}: {where}: {first['msg']}") from exc
+        raise ConfigError(f"{path}: {describe_validation(exc)}") from exc

@@ -1,5 +1,5 @@
 """The dashboard in a real browser: ``edge-ips start --source sim`` with a real Mosquitto, driven by Debian's
-headless chromium through Playwright (issue 9, "tested in a real browser").
+headless chromium through Playwright.
 
 One appliance and one page serve the module's tests: the page loads, the three rovers appear and move on the map,
 the camera view updates, the formation buttons publish the retained message with the token and are refused without
@@ -20,6 +20,8 @@ from edge.messages import parse_formation
 from tests.support.appliance import edge_config, running
 from tests.support.dashboard import EdgeProcess, FormationSubscriber, chromium, clean_env, edge_start
 from tests.support.mosquitto import Mosquitto
+
+pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
 
 TOKEN = "test-dashboard-token"
 ROVERS = ["red", "green", "blue"]

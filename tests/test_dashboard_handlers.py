@@ -78,7 +78,8 @@ def test_formation_commands_need_the_configured_token(
         (b'{"kind": "line"}', "ids"),
         (b'{"kind": "line", "ids": "red"}', "ids"),
         (b'{"kind": "line", "ids": ["red", "purple"]}', "purple"),
-        (b'{"kind": "line", "ids": ["red", "red"]}', "twice"),
+        (b'{"kind": "line", "ids": ["red", "red"]}', "red named more than once"),
+        (b'{"kind": "triangle", "ids": ["red", "green"]}', "at least three rovers"),
         (b'{"kind": "line", "ids": []}', "at least one rover"),
         (b'{"kind": "line", "ids": ["red", "green"], "spacing": -5}', "spacing"),
         (b'{"kind": "line", "ids": ["red", "green"], "spacing": 5000}', "spacing"),
@@ -109,6 +110,7 @@ REQUESTS = st.fixed_dictionaries(
 BODIES = st.binary(max_size=64) | (JSON | REQUESTS).map(lambda v: json.dumps(v).encode())
 
 
+@pytest.mark.slow
 @given(BODIES)
 def test_any_body_is_accepted_or_refused_with_a_message_error(body: bytes) -> None:
     try:
@@ -321,6 +323,7 @@ def test_frames_are_encoded_only_when_asked_and_once_per_new_frame() -> None:
         encoder.close()
 
 
+@pytest.mark.slow
 def test_with_wait_next_the_encoder_works_right_after_each_tracked_frame() -> None:
     # The appliance hands the encoder runtime.last_frame and EdgeRuntime.wait_tracked; here a list and a semaphore.
     tracked: list[Frame] = []
@@ -355,6 +358,7 @@ def _config(broker: Mosquitto, **overrides: object) -> EdgeConfig:
     return edge_config(**{"http.enabled": True, "http.port": 0, "broker.url": broker.url, **overrides})
 
 
+@pytest.mark.slow
 def test_state_events_frames_and_error_map_are_served(mosquitto: Mosquitto) -> None:
     with running(_config(mosquitto)) as app:
         port = app.http.port
@@ -382,6 +386,7 @@ def test_state_events_frames_and_error_map_are_served(mosquitto: Mosquitto) -> N
         assert call(port, "GET", "/healthz").status in (200, 503)
 
 
+@pytest.mark.slow
 def test_formation_controls_are_off_without_a_token(mosquitto: Mosquitto) -> None:
     with running(_config(mosquitto)) as app:
         reply = call(
@@ -394,6 +399,7 @@ def test_formation_controls_are_off_without_a_token(mosquitto: Mosquitto) -> Non
         assert reply.status == 403 and "no dashboard token" in reply.json()["error"]
 
 
+@pytest.mark.slow
 def test_formation_post_publishes_only_with_the_token(mosquitto: Mosquitto) -> None:
     subscriber = FormationSubscriber("127.0.0.1", mosquitto.port)
     line = json.dumps({"kind": "line", "ids": ["red", "green"], "spacing": 50}).encode()
@@ -433,6 +439,7 @@ def test_formation_post_publishes_only_with_the_token(mosquitto: Mosquitto) -> N
         subscriber.close()
 
 
+@pytest.mark.slow
 def test_no_dashboard_leaves_health_and_metrics(mosquitto: Mosquitto) -> None:
     with running(_config(mosquitto, **{"dashboard.enabled": False})) as app:
         assert app.dashboard is None
@@ -470,6 +477,7 @@ def test_the_token_is_masked_and_settings_are_validated(tmp_path: Path) -> None:
     assert env.dashboard.token is not None and env.dashboard.token.get_secret_value() == TOKEN
 
 
+@pytest.mark.slow
 def test_calibration_panel_from_a_point_pair_file(tmp_path: Path) -> None:
     from edge.calibration import save_calibration
     from edge.calibration.points import calibrate_points, point_table
@@ -501,6 +509,7 @@ def test_calibration_panel_from_a_point_pair_file(tmp_path: Path) -> None:
     assert simulated.png().startswith(b"\x89PNG") and CalibrationView(None, simulated=False).summary() is None
 
 
+@pytest.mark.slow
 def test_start_with_no_dashboard_serves_no_page(mosquitto: Mosquitto, tmp_path: Path) -> None:
     from tests.support.dashboard import clean_env, edge_start
 

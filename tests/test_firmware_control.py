@@ -57,6 +57,7 @@ def test_wheel_speeds_follow_radius_and_track(v: float, w: float, left: float, r
     assert fm.body_motion(*got, 3.25, 13.0) == pytest.approx((v, w))
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(st.floats(-500, 500), st.floats(-20, 20), st.floats(1, 30))
 def test_wheel_saturation_keeps_the_curvature_and_the_limit(v: float, w: float, limit: float) -> None:
@@ -109,6 +110,7 @@ def test_a_rover_squeezed_between_two_too_close_neighbours_stands_still() -> Non
     assert fm.safe_speed(10.0, 0.0, 0.0, 0.0, [25.0, -25.0], [0.0, 0.0], 2, SAFETY_CM, 4.0) == 0.0
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(
     st.lists(st.tuples(st.floats(-200, 200), st.floats(-200, 200)), min_size=1, max_size=6),
@@ -182,6 +184,7 @@ def test_consensus_is_the_papers_displacement_law() -> None:
         assert got == pytest.approx(tuple(want))
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(st.floats(-30, 30), st.integers(0, 600))
 def test_the_duty_model_inverts(speed_rad_s: float, deadband: int) -> None:
@@ -220,6 +223,7 @@ CASES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("kind", "seed", "send_theta"), CASES)
 def test_the_fleet_converges_from_random_starts_and_bodies_never_touch(kind: str, seed: int, send_theta: bool) -> None:
     fleet = formation_run(kind, seed, send_theta=send_theta)
@@ -228,6 +232,7 @@ def test_the_fleet_converges_from_random_starts_and_bodies_never_touch(kind: str
     assert all(h == "none" for h in fleet.trace.halts[-1])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("seed", "send_theta"), [(0, True), (1, True), (2, False), (3, False)])
 def test_six_rovers_crowding_to_a_rendezvous_never_touch(seed: int, send_theta: bool) -> None:
     ids = ["a", "b", "c", "d", "e", "f"]

@@ -155,6 +155,7 @@ def _converges(kind: str, seed: int, **kw: Any) -> KinematicFleet:
     return formation_run(kind, seed, 8.0, **kw)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("kind", "seed", "poses"),
     [
@@ -175,6 +176,7 @@ def test_formations_converge_within_8_s_with_motion_headings_or_outliers(kind: s
         assert fleet.outliers_sent > 50  # ten per cent of about 700 headings: the test exercised the gate
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("poses", ["motion", "outliers"])
 def test_micropython_fuses_headings_exactly_as_cpython(poses: str) -> None:
     kw = {"motion_theta": True} if poses == "motion" else {"send_theta": True, "theta_outliers": 0.1}

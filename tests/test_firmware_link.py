@@ -130,6 +130,7 @@ def expected_command(
     return out
 
 
+@pytest.mark.slow
 def test_motor_commands_are_the_ones_the_law_computes(mosquitto: Mosquitto, edge: EdgePublisher) -> None:
     edge.start()
     rover = HostRover(rover_configs(["red"])[0], mosquitto.host, mosquitto.port)
@@ -162,6 +163,7 @@ def test_motor_commands_are_the_ones_the_law_computes(mosquitto: Mosquitto, edge
     rover.close()
 
 
+@pytest.mark.slow
 def test_motors_stop_within_half_a_second_of_the_last_pose_when_the_publisher_stops(
     mosquitto: Mosquitto, edge: EdgePublisher
 ) -> None:
@@ -189,6 +191,7 @@ def test_motors_stop_within_half_a_second_of_the_last_pose_when_the_publisher_st
     rover.close()
 
 
+@pytest.mark.slow
 def test_broker_restart_is_survived_with_a_fresh_subscription(mosquitto: Mosquitto, edge: EdgePublisher) -> None:
     edge.start()
     rover = HostRover(rover_configs(["red"])[0], mosquitto.host, mosquitto.port)
@@ -224,6 +227,7 @@ def wait_for(cond: Callable[[], bool], limit_s: float = 10.0) -> None:
         time.sleep(0.01)
 
 
+@pytest.mark.slow
 def test_status_is_published_and_the_last_will_says_offline(mosquitto: Mosquitto, edge: EdgePublisher) -> None:
     edge.start()
     watch, seen = _status_listener(mosquitto, "red")
@@ -254,6 +258,7 @@ def test_status_is_published_and_the_last_will_says_offline(mosquitto: Mosquitto
         c.disconnect()
 
 
+@pytest.mark.slow
 def test_the_rover_works_under_an_acl_that_lets_it_publish_only_its_status(tmp_path: Path) -> None:
     acl = (
         "user edge\ntopic write ips/v1/rovers/+/pose\ntopic write ips/v1/formation\n\n"
@@ -312,6 +317,7 @@ def test_losing_wifi_stops_the_motors_and_the_link_comes_back(mosquitto: Mosquit
     rover.close()
 
 
+@pytest.mark.slow
 def test_main_runs_the_board_loop_under_cpython(mosquitto: Mosquitto, edge: EdgePublisher, tmp_path: Path) -> None:
     edge.start()
     cfg = rover_configs(["red"])[0]

@@ -26,6 +26,8 @@ from tests.support.firmware import (
     stall_config,
 )
 
+pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
+
 FIRMWARE_FILES = sorted(FIRMWARE.glob("*.py"))
 
 

@@ -34,6 +34,7 @@ def flash_tool(*args: str, env: dict[str, str] | None = None, **kw: object) -> s
     )  # type: ignore[call-overload]
 
 
+@pytest.mark.slow
 def test_bundle_holds_the_romfs_image_boot_py_main_py_and_the_provisioned_config(tmp_path: Path) -> None:
     out = tmp_path / "bundle"
     result = flash_tool(
@@ -64,6 +65,7 @@ def test_the_repository_configs_hold_no_secrets() -> None:
         assert cfg["broker"]["password"] == "", path
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("args", [[], ["--firmware", "FW", "--erase"], ["--firmware", "FW"]])
 def test_dry_run_prints_the_commands_in_order_without_touching_a_board(tmp_path: Path, args: list[str]) -> None:
     fw = micropython_image(tmp_path / "ESP8266_GENERIC.bin")
@@ -90,6 +92,7 @@ def test_dry_run_prints_the_commands_in_order_without_touching_a_board(tmp_path:
     assert "exec" in check and "edge-ips-fw" in check and check.endswith("+ reset")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("image", "message"),
     [
@@ -164,6 +167,7 @@ def test_motor_pins_on_boot_strapping_gpios_are_warned_about(tmp_path: Path) -> 
     ]
 
 
+@pytest.mark.slow
 def test_a_bad_config_key_is_named(tmp_path: Path) -> None:
     cfg = json.loads((REPO / "firmware" / "esp8266" / "configs" / "red.json").read_text())
     cfg["motors"]["left"]["pwm"] = 42
@@ -174,6 +178,7 @@ def test_a_bad_config_key_is_named(tmp_path: Path) -> None:
     assert f"{path}: key motors.left.pwm: expected a GPIO number 0-16, got 42" in result.stderr
 
 
+@pytest.mark.slow
 def test_a_bundle_directory_that_is_not_empty_is_refused(tmp_path: Path) -> None:
     (tmp_path / "b").mkdir()
     (tmp_path / "b" / "old.mpy").write_bytes(b"M\x06")

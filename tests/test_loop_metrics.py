@@ -193,6 +193,7 @@ def test_bad_experiments_are_refused_with_the_reason(kwargs: dict[str, object], 
         LoopConfig(**kwargs)  # type: ignore[arg-type]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["circle", "diagonal"])
 def test_scripted_paths_fit_the_rover_and_the_area(kind: str) -> None:
     drive = drive_model(rover_config("red"))

@@ -136,6 +136,7 @@ def test_encoder_refuses_non_finite_values(bad: float) -> None:
 finite = st.floats(allow_nan=False, allow_infinity=False)
 
 
+@pytest.mark.slow
 @given(
     rover_id=st.from_regex(r"\A[a-z0-9_-]{1,16}\Z"),
     seq=st.integers(min_value=0, max_value=2**40),

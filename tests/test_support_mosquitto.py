@@ -6,8 +6,11 @@ import threading
 from pathlib import Path
 
 import paho.mqtt.client as mqtt
+import pytest
 
 from tests.support.mosquitto import Mosquitto
+
+pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
 
 
 def _connect(port: int, user: str | None = None, password: str | None = None) -> tuple[mqtt.Client, int]:

@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from edge.calibration.homography import apply_homography, homography_w
 from edge.calibration.lens import Intrinsics
 from edge.camera import Distortion, ImageSide, Matrix3x3, PinholeCamera, Vector3
-from edge.errors import CalibrationError
+from edge.errors import CalibrationError, describe_validation
 
 FloatArray = NDArray[np.float64]
 
@@ -305,9 +305,7 @@ def read_calibration_file(path: Path) -> CalibrationFile:
     try:
         return CalibrationFile.model_validate(data)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-        raise CalibrationError(f"{path}: invalid calibration file at {where}: {first['msg']}") from None
+        raise CalibrationError(f"{path}: invalid calibration file at {describe_validation(exc)}") from None
 
 
 def load_calibration(path: Path, expected_size: tuple[int, int] | None = None) -> Calibration:

@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from edge.calibration.lens import Intrinsics
 from edge.camera import Distortion, ImageSide, Matrix3x3
-from edge.errors import CalibrationError
+from edge.errors import CalibrationError, describe_validation
 
 FloatArray = NDArray[np.float64]
 
@@ -195,9 +195,7 @@ def load_intrinsics(path: Path, expected_size: tuple[int, int] | None = None) ->
     try:
         intr = IntrinsicsFile.model_validate(data).to_intrinsics()
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-        raise CalibrationError(f"{path}: invalid intrinsics file at {where}: {first['msg']}") from None
+        raise CalibrationError(f"{path}: invalid intrinsics file at {describe_validation(exc)}") from None
     except CalibrationError as exc:
         raise CalibrationError(f"{path}: {exc}") from None
     if expected_size is not None and tuple(expected_size) != (intr.width_px, intr.height_px):

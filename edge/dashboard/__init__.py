@@ -1,4 +1,4 @@
-"""The live web dashboard served by ``edge-ips start`` (issue 9): camera view with overlays, top-down map, rover
+"""The live web dashboard served by ``edge-ips start``: camera view with overlays, top-down map, rover
 status, calibration error map, formation controls.
 
 The parts: ``server`` (routes on the appliance's HTTP server), ``events`` (server-sent events built from
@@ -15,7 +15,7 @@ from edge.dashboard.server import Dashboard
 if TYPE_CHECKING:
     from edge.config import BrokerTarget, EdgeConfig
     from edge.httpserver import HttpServer
-    from edge.publisher import TlsFiles
+    from edge.mqttclient import TlsFiles
     from edge.runtime import EdgeRuntime
 
 __all__ = ["Dashboard", "start_dashboard"]

@@ -23,7 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from edge.commands import FORMATION_QOS, build_formation, send_formation
 from edge.config import BrokerTarget
-from edge.errors import EdgeIpsError, MessageError
+from edge.errors import EdgeIpsError, MessageError, describe_validation
 from edge.messages import (
     FORMATION_TOPIC,
     ROVER_STATUS_WILDCARD,
@@ -85,27 +85,22 @@ def parse_request(body: bytes, rover_ids: Sequence[str]) -> Callable[[int], Form
     try:
         req = FormationRequest.model_validate(data)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "(body)"
-        message = "unknown key" if first["type"] == "extra_forbidden" else first["msg"]
-        raise MessageError(f"formation request: {where}: {message}") from None
-    ids = [i.strip() for i in req.ids]
-    unknown = [i for i in ids if i not in rover_ids]
-    if unknown:
-        raise MessageError(f"formation request: ids: not configured rovers: {', '.join(unknown)}")
-    if len(set(ids)) != len(ids):
-        raise MessageError("formation request: ids: a rover is named twice")
-    if req.kind != "stop" and not ids:
-        raise MessageError(f"formation request: ids: a {req.kind} needs at least one rover")
-    spacing = (req.spacing if req.spacing is not None else 60.0) if req.kind == "line" else None
-    side = (req.side if req.side is not None else 100.0) if req.kind == "triangle" else None
+        raise MessageError(f"formation request: {describe_validation(exc, top_level='(body)')}") from None
 
     def make(seq: int) -> FormationV1:
         return build_formation(
-            req.kind, ids, seq=seq, spacing_cm=spacing, side_cm=side, x_cm=req.x, y_cm=req.y, theta_rad=req.theta
+            req.kind,
+            req.ids,
+            seq=seq,
+            spacing_cm=req.spacing,
+            side_cm=req.side,
+            x_cm=req.x,
+            y_cm=req.y,
+            theta_rad=req.theta,
+            known_ids=rover_ids,
         )
 
-    make(1)  # the message contract's own checks (spacing in range, ...), before anything is published
+    make(1)  # every check (configured ids, each once, spacing in range, ...) before anything is published
     return make
 
 

@@ -324,7 +324,7 @@ def build_tracker(camera: PinholeCamera, scene: Scene, effects: Any, seed: int) 
 def formation_message(kind: str, ids: Sequence[str], bar: Bar, seq: int = 1) -> Any:
     """The retained formation the edge publishes: the paper's vertical line (``theta`` null: either end), a
     rendezvous, a triangle of ``side_cm``; free to settle anywhere (no ``x``/``y`` anchor)."""
-    from edge.publisher import build_formation
+    from edge.commands import build_formation
 
     if kind == "line":
         return build_formation("line", ids, seq=seq, spacing_cm=bar.spacing_cm)

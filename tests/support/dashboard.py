@@ -18,22 +18,11 @@ from typing import Any
 
 import paho.mqtt.client as mqtt
 
+from benchmarks._common import CHROMIUM, CHROMIUM_ARGS
 from edge.messages import FORMATION_TOPIC
 from tests.conftest import REPO
 from tests.support.mosquitto import free_port, wait_for_port
 from tests.support.runtime import stop_process
-
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
 
 
 @dataclass

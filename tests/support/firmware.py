@@ -14,7 +14,6 @@ of work: this wasm build frees the heap-allocated frames of large functions when
 from __future__ import annotations
 
 import importlib.util
-import itertools
 import json
 import math
 import random
@@ -26,8 +25,12 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+import numpy as np
+
 from edge.messages import encode_pose
 from edge.rover_host import HostRover, firmware_modules, load_rover_config
+from edge.sim.metrics import enclosing_diameter_cm, polygon_sides_cm
+from edge.sim.metrics import line_errors as sim_line_errors
 
 REPO = Path(__file__).resolve().parents[2]
 AREA_W_CM = 391.5
@@ -259,49 +262,21 @@ def assert_formation_bars(kind: str, points: Sequence[tuple[float, float]]) -> N
         assert all(abs(side - 100.0) <= 3.0 for side in sides), sides
 
 
-# -- formation metrics -----------------------------------------------------------------------------------------------
+# -- formation metrics (edge.sim.metrics, on lists of points) --------------------------------------------------------
 def enclosing_diameter(points: Sequence[tuple[float, float]]) -> float:
-    """Diameter of the smallest circle holding every point (brute force over pairs and triples: small n)."""
-    pts = list(points)
-    best = math.inf
-    candidates: list[tuple[float, float, float]] = []
-    for i, a in enumerate(pts):
-        for b in pts[i + 1 :]:
-            candidates.append(((a[0] + b[0]) / 2, (a[1] + b[1]) / 2, math.dist(a, b) / 2))
-            for c in pts:
-                d = 2 * (a[0] * (b[1] - c[1]) + b[0] * (c[1] - a[1]) + c[0] * (a[1] - b[1]))
-                if abs(d) < 1e-12:
-                    continue
-                ux = (
-                    (a[0] ** 2 + a[1] ** 2) * (b[1] - c[1])
-                    + (b[0] ** 2 + b[1] ** 2) * (c[1] - a[1])
-                    + (c[0] ** 2 + c[1] ** 2) * (a[1] - b[1])
-                ) / d
-                uy = (
-                    (a[0] ** 2 + a[1] ** 2) * (c[0] - b[0])
-                    + (b[0] ** 2 + b[1] ** 2) * (a[0] - c[0])
-                    + (c[0] ** 2 + c[1] ** 2) * (b[0] - a[0])
-                ) / d
-                candidates.append((ux, uy, math.dist((ux, uy), a)))
-    if len(pts) == 1:
-        return 0.0
-    for cx, cy, r in candidates:
-        if all(math.dist((cx, cy), p) <= r + 1e-9 for p in pts):
-            best = min(best, 2 * r)
-    return best
+    """Diameter of the smallest circle holding every point, cm."""
+    return enclosing_diameter_cm(np.array(points, dtype=np.float64))
 
 
 def line_errors(points: Sequence[tuple[float, float]], line_x: float, spacing: float) -> tuple[float, float]:
-    """(largest |x - line_x|, largest |gap - spacing| between neighbours along y), cm."""
-    off = max(abs(p[0] - line_x) for p in points)
-    ys = sorted(p[1] for p in points)
-    gap = max(abs((b - a) - spacing) for a, b in itertools.pairwise(ys))
-    return off, gap
+    """(largest |x - line_x|, largest |gap - spacing| between neighbours along y), cm: the line anchored at x."""
+    xy = np.array(points, dtype=np.float64)
+    _, _, gaps = sim_line_errors(xy)
+    return float(np.max(np.abs(xy[:, 0] - line_x))), float(np.max(np.abs(gaps - spacing)))
 
 
 def triangle_sides(points: Sequence[tuple[float, float]]) -> list[float]:
-    a, b, c = points
-    return [math.dist(a, b), math.dist(b, c), math.dist(c, a)]
+    return [float(side) for side in polygon_sides_cm(np.array(points, dtype=np.float64))]
 
 
 # -- MicroPython ---------------------------------------------------------------------------------------------------

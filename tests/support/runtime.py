@@ -1,6 +1,6 @@
 """Helpers for the runtime's tests: a tiny colour-centroid tracker, synthetic frames, an MQTT recorder, an MJPEG
-stream server that can stall or vanish. Real parts everywhere except the tracker (a fake of the ``Tracker``
-protocol, STYLE point 3) until the tracking pipeline lands.
+stream server that can stall or vanish. Real parts everywhere except the tracker: a fake of the ``Tracker``
+protocol (STYLE point 3), so the runtime's tests do not depend on the vision.
 """
 
 from __future__ import annotations
@@ -96,16 +96,18 @@ class MqttRecorder:
 
     def __post_init__(self) -> None:
         self._cond = threading.Condition()
+        self.subscribed = threading.Event()  # set when the broker acknowledged the subscriptions (each connection)
         self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="")
         if self.username:
             self.client.username_pw_set(self.username, self.password)
         self.client.on_connect = self._on_connect
         self.client.on_message = self._on_message
+        self.client.on_subscribe = lambda *args: self.subscribed.set()
         self.client.reconnect_delay_set(0.1, 0.5)
 
     def _on_connect(self, c: Any, u: Any, flags: Any, rc: Any, props: Any) -> None:
-        for t in self.topics:
-            c.subscribe(t, qos=1)
+        self.subscribed.clear()
+        c.subscribe([(t, 1) for t in self.topics])
 
     def _on_message(self, c: Any, u: Any, msg: mqtt.MQTTMessage) -> None:
         with self._cond:
@@ -126,6 +128,10 @@ class MqttRecorder:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    def wait_subscribed(self, timeout_s: float = 20.0) -> bool:
+        """Wait until the broker has acknowledged the subscriptions: from then on nothing published is missed."""
+        return self.subscribed.wait(timeout_s)
 
     def wait_for(self, predicate: Callable[[list[Received]], bool], timeout_s: float = 20.0) -> bool:
         with self._cond:
