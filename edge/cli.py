@@ -144,6 +144,9 @@ def _setup_logging(level: str) -> None:
 @click.option("--loop/--no-loop", default=None, help="Video files: start again at the end.")
 @click.option("--edge-id", default=None, help="Edge id (status topic ips/v1/edge/<id>/status).")
 @click.option("--no-dashboard", is_flag=True, help="Do not serve the live web page (dashboard.enabled = false).")
+@click.option(
+    "--after-kill", type=float, default=None, hidden=True, help="Wait this long first (restart after a kill)."
+)
 def start(
     config_path: Path | None,
     source: str | None,
@@ -153,21 +156,25 @@ def start(
     loop: bool | None,
     edge_id: str | None,
     no_dashboard: bool,
+    after_kill: float | None,
 ) -> None:
     """Run the appliance: capture, track, publish every rover's pose over MQTT until SIGTERM or Ctrl-C.
 
-    With no configuration file and no --source it runs the simulated camera and the embedded MQTT broker, so
-    `mosquitto_sub -h localhost -t 'ips/v1/#' -v` in another terminal shows live poses, and http://localhost:8080/
-    the live dashboard (off with --no-dashboard). A configured camera that is missing is an error (exit code 2)
-    that suggests --source sim.
+    With no configuration file and no --source it runs the live twin (sim:twin: a simulated lab whose rovers run
+    their real firmware and obey the dashboard) and the embedded MQTT broker, so `mosquitto_sub -h localhost -t
+    'ips/v1/#' -v` in another terminal shows live poses, and the dashboard's address, printed first with its token,
+    the live page (off with --no-dashboard). A configured camera that is missing is an error (exit code 2) that
+    suggests --source sim.
 
     Example:
 
-        edge-ips start --source sim --broker mqtt://localhost:1883
+        edge-ips start --source sim:twin --broker mqtt://localhost:1883
     """
     import logging
+    import sys
 
     from edge.broker.clients import broker_summary
+    from edge.cli_twin import start_defaults
     from edge.runtime import prepare_appliance, run_until_signalled
 
     config, where, env_keys = _load(
@@ -184,6 +191,10 @@ def start(
     )
     _setup_logging(config.edge.log_level)
     log = logging.getLogger("edge.cli")
+    config, address = start_defaults(config, after_kill, source_given=bool(source), where=where, env_keys=env_keys)
+    if address:
+        click.echo(address)
+        sys.stdout.flush()
 
     if source:
         why = "from --source"
@@ -191,7 +202,7 @@ def start(
         import glob
 
         cameras = sorted(glob.glob("/dev/video*"))
-        why = "no configuration found, so the simulated camera; " + (
+        why = "no configuration found, so the live twin; " + (
             f"a camera is attached at {cameras[0]}: calibrate it (edge-ips calibrate) and use --source {cameras[0]}"
             if cameras
             else "no camera is attached: plug one in and use --source /dev/video0"
@@ -208,7 +219,8 @@ def start(
     )
     if env_keys:
         log.info("environment overrides: %s", ", ".join(env_keys))
-    run_until_signalled(prepare_appliance(config, config_where=where))
+    restart = sys.orig_argv[1:]  # how to start this again after a simulated kill (the twin's edge fault)
+    run_until_signalled(prepare_appliance(config, config_where=where, restart_argv=restart))
 
 
 # -- formation ---------------------------------------------------------------------------------------------------
@@ -1030,6 +1042,12 @@ def sim() -> None:
 
         edge-ips sim scenarios
     """
+
+
+from edge.cli_twin import sim_fault, sim_scatter, sim_twin  # noqa: E402 - the twin's commands, in their own module
+
+for _command in (sim_twin, sim_scatter, sim_fault):
+    sim.add_command(_command)
 
 
 @sim.command("render")

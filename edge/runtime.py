@@ -385,6 +385,10 @@ def default_sim_factory(config: EdgeConfig) -> SimFactory:
     """The simulator's source, paced in real time, for ``--source sim[:SCENARIO]``."""
 
     def make(scenario: str) -> FrameSource:
+        if scenario == "twin":  # the live twin: a lab process with the rovers' firmware, seen through its camera
+            from edge.sim.twin.source import twin_source
+
+            return twin_source(config)
         from edge.sim.source import SimSource
 
         return SimSource(scenario or "lab", seed=0, realtime=config.camera.realtime)
@@ -491,11 +495,13 @@ def prepare_appliance(
     sim_factory: SimFactory | None = None,
     calibration_loader: CalibrationLoader | None = None,
     connect_timeout_s: float = 3.0,
+    restart_argv: Sequence[str] | None = None,
 ) -> Appliance:
     """Open the source, load the calibration, build the tracker, bind the ports, start the broker, connect.
 
     Every user-fixable problem raises an :class:`EdgeIpsError` here, before any frame is published; whatever was
-    already started is stopped again.
+    already started is stopped again. ``restart_argv``: how this process was started (``edge-ips start``), for a
+    simulated lab's "edge killed" fault.
     """
     from edge.broker.clients import start_embedded
     from edge.commands import StopAtStart
@@ -589,6 +595,10 @@ def prepare_appliance(
             dashboard = start_dashboard(config, runtime, http, calibration=calibration, target=target, tls=tls)
             started.callback(dashboard.close)
             log.info("dashboard on http://%s:%d/", _display_host(http.host), http.port)
+            from edge.dashboard.sim_panel import attach_sim_panel  # scatter and faults, when the source offers them
+
+            enabled = config.dashboard.token is not None
+            attach_sim_panel(http, source, broker=broker, restart_argv=restart_argv, enabled=enabled)
         if http is not None:  # last: once /healthz answers, every route is there
             registry = metrics_registry(runtime.snapshot, http=http, recorder=recorder)
             http.route("/healthz", _health_route(runtime))
