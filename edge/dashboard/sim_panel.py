@@ -3,9 +3,9 @@ that offers them (``--source sim:twin``); nothing is served otherwise.
 
 Routes (access levels of :mod:`edge.httpguard`):
 
-- ``GET /api/sim`` (read): the faults on offer, the lab's rovers (switched on, connected, moving: the lab's ground
-  truth), the faults in effect and what happened lately (each fault, and how long each rover took to come to rest
-  after it), from the lab.
+- ``GET /api/sim`` (read): the faults on offer (``offered``), the lab's rovers (switched on, connected, moving: the
+  lab's ground truth), the faults in effect (``active``) and what happened lately (``events``: each fault, and how
+  long each rover took to come to rest after it; ``?after=N``: only those after event N), from the lab.
 - ``POST /api/sim/scatter`` (control): every rover picked up and put down at a random free spot.
 - ``POST /api/sim/fault`` (control): JSON ``{kind, seconds, rover}``: ``wifi`` (that rover's Wi-Fi gone) and
   ``camera`` (the camera hangs) happen in the lab; ``broker`` (the embedded broker stopped and started again) and
@@ -163,9 +163,18 @@ class SimPanel:
             lab = self.controls.status(int(after) if after.isdigit() else 0)
         except EdgeIpsError as exc:
             return json_response(503, {"error": str(exc)})
-        lab.pop("ok", None)
         offered = ["wifi", "camera", *self.faults.offered()]
-        return json_response(200, {"controls_enabled": self.enabled, "faults": offered, **lab})
+        return json_response(
+            200,
+            {
+                "controls_enabled": self.enabled,
+                "offered": offered,
+                "active": lab.get("faults", []),
+                "rovers": lab.get("rovers", []),
+                "events": lab.get("events", []),
+                "camera": lab.get("camera", {}),
+            },
+        )
 
     def _refused(self) -> Response | None:
         if not self.enabled:

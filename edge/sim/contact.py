@@ -25,7 +25,7 @@ from edge.sim.world import DriveModel, Pose, WheelCommand, World, WorldState
 
 FloatArray = NDArray[np.float64]
 
-PASSES = 4  # a rover between two others needs more than one pass to settle
+PASSES = 8  # a rover between two others needs several passes to settle (each halves what is left)
 
 
 def push_apart_cm(a: FloatArray, b: FloatArray) -> FloatArray | None:
