@@ -39,7 +39,8 @@ def test_start_prints_the_dashboards_address_with_a_token_it_keeps(tmp_path: Pat
     first = _run(["start", "--source", missing, "--http-port", "8099"], env)
     _error(first)
     line = first.output.splitlines()[0]
-    match = re.fullmatch(r"dashboard: http://localhost:8099/\?token=(\S+) \(the token is made now, kept in (\S+)\)", line)
+    made = r"dashboard: http://localhost:8099/\?token=(\S+) \(the token is made now, kept in (\S+)\)"
+    match = re.fullmatch(made, line)
     assert match is not None, line
     token, path = match.group(1), Path(match.group(2))
     assert path == tmp_path / "state" / "dashboard-token"
@@ -75,9 +76,7 @@ def test_with_nothing_configured_start_runs_the_live_twin(env: dict[str, str]) -
         (["sim", "fault", "edge", "--url", "http://127.0.0.1:9/"], r"no dashboard token \(start the appliance first"),
     ],
 )
-def test_the_twin_commands_say_what_is_wrong_in_one_line(
-    env: dict[str, str], args: list[str], pattern: str
-) -> None:
+def test_the_twin_commands_say_what_is_wrong_in_one_line(env: dict[str, str], args: list[str], pattern: str) -> None:
     assert re.search(pattern, _error(_run(args, env)))
 
 

@@ -129,9 +129,7 @@ def test_scatter_needs_the_control_token(served: Any, headers: dict[str, str], s
         ({"kind": "edge", "seconds": 3}, 409, "not started by `edge-ips start`"),
     ],
 )
-def test_a_fault_request_is_checked_before_anything_happens(
-    served: Any, body: Any, status: int, error: str
-) -> None:
+def test_a_fault_request_is_checked_before_anything_happens(served: Any, body: Any, status: int, error: str) -> None:
     http, lab, broker = served
     code, reply = _post(http, "/api/sim/fault", body)
     assert (code, error in reply["error"]) == (status, True), reply

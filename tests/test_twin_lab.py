@@ -91,14 +91,14 @@ def test_the_source_opens_on_the_lab_camera_and_names_its_model_and_rovers(lab: 
 
 
 def test_a_hung_camera_makes_a_read_fail_and_a_reopened_source_reads_again(lab: tuple[TwinLab, Path, Watched]) -> None:
-    twin, path, events = lab
+    _, path, events = lab
     source = TwinSource(path, read_timeout_s=0.5)
     source.open()
     try:
         assert source.read() is not None
         mark = events.count
         LabClient(path).fault("camera", 2.0)
-        with pytest.raises(SourceError, match="no frame for 0.5 s"):
+        with pytest.raises(SourceError, match=r"no frame for 0\.5 s"):
             for _ in range(30):  # frames already on their way may still come
                 source.read()
         source.close()
@@ -123,7 +123,7 @@ def test_scatter_puts_every_rover_on_a_free_spot_well_inside_the_area(lab: tuple
 
 
 def test_a_rovers_wifi_fault_drops_its_link_and_it_reconnects_after(lab: tuple[TwinLab, Path, Watched]) -> None:
-    twin, path, events = lab
+    _, path, events = lab
     mark = events.count
     assert LabClient(path).fault("wifi", 1.0, "green") == "green's Wi-Fi gone for 1 s"
     down = events.wait_for("green", "broker link down: wifi lost", after=mark)
@@ -188,9 +188,9 @@ def test_a_second_lab_on_the_same_socket_is_refused_and_a_dead_labs_socket_is_re
 
 
 def test_without_a_lab_the_source_and_the_controls_say_how_to_start_one(tmp_path: Path) -> None:
-    with pytest.raises(SourceError, match="no twin lab answers at .*start one with `edge-ips sim twin`"):
+    with pytest.raises(SourceError, match=r"no twin lab answers at .*start one with `edge-ips sim twin`"):
         TwinSource(tmp_path / "twin.sock").open()
-    with pytest.raises(SimulationError, match="twin lab at .*twin.sock"):
+    with pytest.raises(SimulationError, match=r"twin lab at .*twin\.sock"):
         LabClient(tmp_path / "twin.sock").scatter()
 
 
