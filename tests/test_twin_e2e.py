@@ -1,0 +1,126 @@
+"""The live twin end to end, with real processes: ``edge-ips start --source sim:twin`` tracks the lab's camera and
+publishes poses; each rover's real firmware, its own MQTT client with its own login, drives its body by what it
+receives. Once through the embedded broker (the lab started by the edge, the rovers on the state directory's
+logins), once through a Mosquitto set up by ``edge-ips broker-config`` (the lab started by hand with its logins).
+
+Formations are commanded through the dashboard's HTTP API and judged on the poses as published, by the bars of the
+closed-loop experiments (docs/experiments.md): line within 3 cm, rendezvous inside 40 cm, triangle 100 +- 3 cm, by
+frame 240 of the formation. STOP, sent while the rovers drive, must leave every rover at rest within 0.5 s (the
+poses from then on move less than the tracker's noise), on the poses and on the lab's ground truth.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import time
+import tomllib
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from edge.sim.twin.source import LabClient
+from tests.support.command import EDGE_IPS, Edge, arrival
+from tests.support.dashboard import clean_env
+from tests.support.mosquitto import Mosquitto, free_port
+from tests.support.runtime import MqttRecorder
+from tests.support.twin import TOPICS, Poses, Twin, TwinLabProcess, formation_run, stop_run, wait_tracked
+
+pytestmark = pytest.mark.slow
+
+ROVERS = ["red", "green", "blue"]
+TOKEN = "twin-e2e-dashboard-token"
+EDGE_ID = f"twin-{os.getpid() % 100_000}"
+FRAMES = 300  # observed per formation; the bar must hold from frame 240 on
+AT_REST_AFTER_S = 0.5
+REST_WINDOW_S = 1.0
+REST_CM = 1.0  # a standing rover's poses move by the tracker's noise (p95 0.22 cm), far less than this
+
+
+@pytest.fixture(params=["embedded", "mosquitto"])
+def twin(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Twin]:
+    state = tmp_path / "s"
+    env = {"EDGE_IPS_DASHBOARD__TOKEN": TOKEN, "EDGE_IPS_EDGE__ID": EDGE_ID, "EDGE_IPS_EDGE__STATE_DIR": str(state)}
+    lab = LabClient(state / "twin.sock")
+    if request.param == "embedded":
+        port = free_port()
+        edge = Edge(["--source", "sim:twin"], clean_env(EDGE_IPS_BROKER__EMBEDDED_PORT=str(port), **env), tmp_path)
+        edge.start()
+        rec = MqttRecorder("127.0.0.1", port, topics=TOPICS).start()  # anonymous from this machine: read-only
+        try:
+            yield Twin(edge, lab, rec, Poses(rec), "embedded")
+        finally:
+            rec.stop()
+            edge.stop()
+        return
+    conf = tmp_path / "broker"
+    done = subprocess.run(
+        [*EDGE_IPS, "broker-config", "--out", str(conf), "--rovers", ",".join(ROVERS)],
+        cwd=tmp_path,
+        env=clean_env(EDGE_IPS_EDGE__ID=EDGE_ID),
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    logins = tomllib.loads((conf / "credentials.toml").read_text())
+    with Mosquitto(tmp_path / "mosquitto", conf_path=conf / "mosquitto.conf") as broker:
+        rovers_port = broker.ports[1883]  # the network listener: a rover's client id is its user name there
+        lab_process = TwinLabProcess(
+            ["--broker", f"mqtt://127.0.0.1:{rovers_port}", "--credentials", str(conf / "credentials.toml")],
+            state,
+            tmp_path / "lab",
+        ).start()
+        edge_login = logins["edge"]
+        url = f"mqtt://{edge_login['username']}:{edge_login['password']}@127.0.0.1:{broker.port}"
+        edge = Edge(["--source", "sim:twin", "--broker", url], clean_env(**env), tmp_path)
+        viewer = logins["viewer"]
+        rec = MqttRecorder("127.0.0.1", rovers_port, TOPICS, viewer["username"], viewer["password"])
+        try:
+            edge.start()
+            rec.start()
+            yield Twin(edge, lab, rec, Poses(rec), "mosquitto")
+        finally:
+            rec.stop()
+            edge.stop()
+            lab_process.stop()
+
+
+def _scatter(twin: Twin) -> float:
+    t = time.time()
+    twin.lab.scatter()
+    wait_tracked(twin.poses, ROVERS, t)
+    return t
+
+
+def _moving(twin: Twin, after: float) -> None:
+    """Until a rover drives at 10 cm/s or more (by its poses)."""
+    twin.poses.wait(lambda ps: any(p.speed > 10.0 for p in twin.poses.since(after)), "a rover driving")
+
+
+def test_the_dashboards_formations_meet_the_closed_loop_bars_and_stop_leaves_every_rover_at_rest(
+    twin: Twin, record_property: Callable[[str, object], None]
+) -> None:
+    results = []
+    stops = []
+    for kind in ("line", "rendezvous", "triangle"):
+        after = _scatter(twin)
+        sent = twin.edge.command(kind, TOKEN, ROVERS)
+        t_command = arrival(twin.rec, kind, sent["seq"], after)
+        run = formation_run(twin.poses, ROVERS, kind, t_command, FRAMES)
+        results.append(run)
+        assert run["converged_frame"] is not None and run["converged_frame"] <= 240, run
+
+        # The retained formation still holds: scattered again, the rovers drive back; STOP while they do.
+        after = _scatter(twin)
+        _moving(twin, after)
+        t_stop = time.time()
+        twin.edge.command("stop", TOKEN)
+        moved = stop_run(twin.poses, ROVERS, t_stop, AT_REST_AFTER_S, REST_WINDOW_S)
+        stops.append({"after": kind, "moved_cm": {r: round(v, 2) for r, v in moved.items()}})
+        assert all(v < REST_CM for v in moved.values()), moved
+        truth = twin.lab.status()["rovers"]
+        assert not [r["id"] for r in truth if r["moving"]], truth  # the lab's ground truth agrees
+    record_property("broker", twin.broker)
+    record_property("formations", results)
+    record_property("stops", stops)
