@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
 from edge.errors import ConfigError
-from edge.sim.loop import LoopConfig, random_layout, trajectory_plans
+from edge.sim.loop import LoopConfig
+from edge.sim.starts import random_layout, trajectory_plans
 from edge.sim.metrics import (
     Bar,
     box_corners_cm,

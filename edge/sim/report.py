@@ -104,6 +104,102 @@ def safety(record: LoopRecord) -> dict[str, Any] | None:
     }
 
 
+def stale_stops(record: LoopRecord, bar_ms: int = 500) -> list[dict[str, Any]]:
+    """Every time a rover went without a fresh pose of its own for longer than its stale bound (an outage, a long
+    retransmission, the feed or the broker gone): when its motors were cut for good and its body came to rest,
+    counted from its last fresh pose, and when it drove again after the next one (None: the run ended first).
+
+    Times are simulated ms; ``passed``: motors off and body at rest within ``bar_ms`` of the last fresh pose."""
+    out: list[dict[str, Any]] = []
+    for k, rid in enumerate(record.ids):
+        log = record.motors.get(rid)
+        fresh = record.fresh_ms.get(rid, [])
+        if log is None or not fresh:
+            continue
+        cfg = rover_config(rid)
+        stale_ms = int(cfg["control"]["stale_ms"]) + int(cfg["control"]["period_ms"])
+        t = np.asarray(log.t_ms)
+        duty = np.asarray(log.left_duty) + np.asarray(log.right_duty)
+        driving = np.isin(np.asarray(log.halt), ("none", "probe"))
+        end_ms = int(t[-1])
+        frame_ms = np.arange(len(record.truth)) * 1000.0 / record.fps
+        moved = np.r_[False, np.hypot(*np.diff(record.truth[:, k, :2], axis=0).T) > 0.01]
+        for last, following in zip(fresh, [*fresh[1:], None], strict=True):
+            until = following if following is not None else end_ms
+            if until - last <= stale_ms:
+                continue
+            during = (t >= last) & (t < until)
+            running = np.flatnonzero(during & (duty > 0))
+            off_ms = int(t[running[-1] + 1]) if running.size else last
+            motion = np.flatnonzero(moved & (frame_ms >= last) & (frame_ms < until))
+            rest_ms = float(frame_ms[motion[-1]]) if motion.size else float(last)
+            rejoin = None
+            if following is not None:
+                again = np.flatnonzero((t >= following) & driving)
+                rejoin = int(t[again[0]]) - following if again.size else None
+            observed = until - last >= bar_ms + 100  # long enough to see the body come to rest
+            out.append(
+                {
+                    "rover": rid,
+                    "last_fresh_ms": last,
+                    "next_fresh_ms": following,
+                    "without_pose_ms": until - last,
+                    "driving_before": bool(np.any((duty > 0) & (t <= last) & (t > last - 100))),
+                    "motors_off_after_ms": off_ms - last,
+                    "at_rest_after_ms": rest_ms - last,
+                    "drove_again_after_ms": rejoin,
+                    "passed": off_ms - last <= bar_ms and (not observed or rest_ms - last <= bar_ms),
+                }
+            )
+    return out
+
+
+def link_summary(record: LoopRecord) -> dict[str, Any]:
+    """What the rovers' Wi-Fi links did: the settings, each rover's outages, pose delays on the air (from the
+    broker to the rover's socket, head-of-line waits included), poses lost with a connection, connections made,
+    and the stops for want of a fresh pose (:func:`stale_stops`) with the outage that caused each."""
+    stops = stale_stops(record)
+    rovers: dict[str, Any] = {}
+    for rid in record.ids:
+        log = record.links.get(rid)
+        if log is None:
+            continue
+        outages = []
+        for o in record.outages.get(rid, []):
+            start_ms, end_ms = 1000.0 * o.start_s, 1000.0 * o.end_s
+            stop = next(
+                (
+                    s
+                    for s in stops
+                    if s["rover"] == rid
+                    and s["last_fresh_ms"] <= start_ms + 200.0
+                    and (s["next_fresh_ms"] is None or s["next_fresh_ms"] >= end_ms)
+                ),
+                None,
+            )
+            outages.append(
+                {
+                    "start_ms": round(start_ms),
+                    "duration_ms": round(end_ms - start_ms),
+                    "dropped": o.dropped,
+                    "stop": stop,
+                }
+            )
+        rovers[rid] = {
+            "outages": outages,
+            "pose_delay_ms": error_stats_cm(1000.0 * np.asarray(log.pose_delays_s)),
+            "poses_retransmitted": log.retransmitted,
+            "poses_lost": log.poses_lost,
+            "connections": log.connections,
+        }
+    return {
+        "settings": str(record.config.link),
+        "rovers": rovers,
+        "stale_stops": stops,
+        "stale_stops_passed": all(s["passed"] for s in stops),
+    }
+
+
 def summarize(record: LoopRecord) -> dict[str, Any]:
     """metrics.json of one run."""
     cfg = record.config
@@ -174,6 +270,8 @@ def summarize(record: LoopRecord) -> dict[str, Any]:
     s = safety(record)
     if s is not None:
         out["safety"] = s
+    if record.links:
+        out["link"] = link_summary(record)
     return out
 
 
