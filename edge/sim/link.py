@@ -170,8 +170,10 @@ def _parse_value(key: str, value: str) -> dict[str, float]:
 
 
 def _scaled(v: float, given: str, wanted: str) -> float:
-    factor = {("s", "ms"): 1000.0, ("ms", "s"): 0.001, ("/s", "/min"): 60.0}.get((given, wanted), 1.0)
-    return v * factor
+    if (given, wanted) == ("ms", "s"):
+        return v / 1000.0
+    factor = {("s", "ms"): 1000.0, ("/s", "/min"): 60.0}.get((given, wanted), 1.0)
+    return round(v * factor, 9)  # 0.15 s is 150 ms, not 150.00000000000003
 
 
 def _format(s: LinkSettings, key: str) -> str:
