@@ -87,9 +87,11 @@ class Fleet:
                 model = LinkModel(link, (seed, k))
                 relay = LinkRelay(broker.host, broker.port, model, clock_s).start()
                 self.models[rid], self.relays[rid] = model, relay
-                rover = HostRover(cfg, "127.0.0.1", relay.port)
+                # The firmware's link keeps time on the simulated clock too (reconnect backoff, keepalive pings),
+                # and its Wi-Fi is the modelled one.
+                rover = HostRover(cfg, "127.0.0.1", relay.port, link_clock=partial(_ms, clock_s))
                 if rover.link is not None:
-                    rover.link.wlan = Station(model, clock_s)  # the firmware's Wi-Fi is the modelled one
+                    rover.link.wlan = Station(model, clock_s)
                 self.rovers[rid] = rover
                 self.motors[rid] = MotorLog()
                 self.fresh_ms[rid] = []
@@ -153,6 +155,10 @@ class Fleet:
             rover.close()
         for relay in self.relays.values():
             relay.close()
+
+
+def _ms(clock_s: Callable[[], float]) -> int:
+    return int(clock_s() * 1000.0)
 
 
 def _has_formation(rover: HostRover, seq: int) -> bool:

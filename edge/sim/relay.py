@@ -28,11 +28,12 @@ from __future__ import annotations
 import array
 import contextlib
 import fcntl
+import math
 import selectors
 import socket
 import threading
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
@@ -109,25 +110,62 @@ class Station:
 
 @dataclass
 class RelayLog:
-    """What crossed one rover's link: air-to-rover delays of poses (s), poses that never arrived, connections."""
+    """What crossed one rover's link: air delays of its poses (broker to rover, head-of-line waits included, s),
+    poses that never arrived (their connection went first), connections made, messages delivered per topic."""
 
     pose_delays_s: list[float] = field(default_factory=list)
     poses_lost: int = 0
+    poses_retransmitted: int = 0
     connections: int = 0
-    retransmitted: int = 0
+    delivered: Counter[str] = field(default_factory=Counter)
+
+
+@dataclass(frozen=True)
+class _Queued:
+    due_s: float
+    packet: bytes  # _CLOSE: close the receiving side
+    flow: str
+
+
+class _Way:
+    """One direction of a relayed connection: bytes read from ``source``, whole packets queued for ``target``."""
+
+    def __init__(self, name: str, stream: Stream) -> None:
+        self.name = name  # "down": broker -> rover; "up": rover -> broker
+        self.stream = stream
+        self.buffer = bytearray()
+        self.queue: deque[_Queued] = deque()
 
 
 class _Connection:
+    """One TCP connection of the firmware, relayed: its two sockets and two ways."""
+
     def __init__(self, rover: socket.socket, broker: socket.socket, streams: tuple[Stream, Stream]) -> None:
         self.rover: socket.socket | None = rover
         self.broker: socket.socket | None = broker
-        self.down, self.up = streams
-        self.from_rover = bytearray()
-        self.from_broker = bytearray()
-        self.to_rover: deque[tuple[float, bytes, float]] = deque()  # (due, packet, sent)
-        self.to_broker: deque[tuple[float, bytes, float]] = deque()
+        self.down = _Way("down", streams[0])
+        self.up = _Way("up", streams[1])
         self.awaiting_ack = 0  # CONNECT / SUBSCRIBE sent, CONNACK / SUBACK not back yet
         self.subscribed = False
+
+    def target(self, way: _Way) -> socket.socket | None:
+        return self.rover if way is self.down else self.broker
+
+    def way_from(self, side: str) -> _Way:
+        return self.up if side == "rover" else self.down
+
+    def close_side(self, side: str) -> socket.socket | None:
+        sock = self.rover if side == "rover" else self.broker
+        if side == "rover":
+            self.rover = None
+        else:
+            self.broker = None
+        return sock
+
+    @property
+    def live(self) -> bool:
+        """The broker holds a subscription of this connection (poses will come through it)."""
+        return self.subscribed and self.broker is not None
 
 
 class LinkRelay:
@@ -157,18 +195,13 @@ class LinkRelay:
         return self
 
     # -- the loop's side -----------------------------------------------------------------------------------------
-    @property
-    def subscribed(self) -> bool:
-        """Whether the broker has a live subscription through this relay (poses will come)."""
-        with self._cond:
-            return any(c.subscribed and c.broker is not None for c in self._connections)
-
     def wait_for(self, payloads: Mapping[str, bytes], timeout_s: float) -> bool:
         """Wait until the broker has sent this rover the newest of ``payloads`` (topic -> payload) on every topic;
-        False after ``timeout_s`` of real time. True at once when nothing is subscribed through the relay."""
+        False after ``timeout_s`` of real time. True at once when the broker holds no subscription through the
+        relay (nothing will come)."""
         deadline = time.monotonic() + timeout_s
         with self._cond:
-            while any(c.subscribed and c.broker is not None for c in self._connections):
+            while any(c.live for c in self._connections):
                 if all(self._seen.get(topic) == payload for topic, payload in payloads.items()):
                     return True
                 left = deadline - time.monotonic()
@@ -182,10 +215,10 @@ class LinkRelay:
         written: list[socket.socket] = []
         with self._cond:
             for c in list(self._connections):
-                if c.rover is not None and self._flush(c, "to_rover", now_s):
-                    written.append(c.rover)
-                if c.broker is not None:
-                    self._flush(c, "to_broker", now_s)
+                rover = c.rover
+                if self._flush(c, c.down, now_s) and rover is not None:
+                    written.append(rover)
+                self._flush(c, c.up, now_s)
                 self._forget(c)
         for sock in written:
             _wait_sent(sock)
@@ -253,98 +286,90 @@ class LinkRelay:
 
     def _ingest(self, conn: _Connection, side: str, data: bytes) -> None:
         now = self._clock_s()
-        buf = conn.from_rover if side == "rover" else conn.from_broker
-        buf += data
+        way = conn.way_from(side)
+        way.buffer += data
         try:
-            packets = split_packets(buf)
+            packets = split_packets(way.buffer)
         except MalformedPacket:
-            packets = []
             self._ended(conn, side)
+            return
         for packet in packets:
             kind = packet[0] >> 4
             flow = _NAMES.get(kind, str(kind))
-            if side == "rover":
-                if kind in (CONNECT, SUBSCRIBE):
-                    conn.awaiting_ack += 1
-                self._send_or_queue(conn, "to_broker", conn.up, packet, now, flow, conn.awaiting_ack > 0)
-                continue
-            handshake = conn.awaiting_ack > 0
-            if kind in (CONNACK, SUBACK):
+            at_once = conn.awaiting_ack > 0  # the firmware is blocked in a handshake: the clock cannot move
+            if way is conn.up and kind in (CONNECT, SUBSCRIBE):
+                conn.awaiting_ack += 1
+                at_once = True
+            elif way is conn.down and kind in (CONNACK, SUBACK):
                 conn.awaiting_ack = max(0, conn.awaiting_ack - 1)
                 conn.subscribed |= kind == SUBACK
-            if kind == PUBLISH:
+            elif way is conn.down and kind == PUBLISH:
                 flow, payload = publish_topic_payload(packet)
                 self._seen[flow] = payload
-            self._send_or_queue(conn, "to_rover", conn.down, packet, now, flow, handshake)
+            self._carry(conn, way, packet, now, flow, at_once or self.transparent)
 
-    def _send_or_queue(
-        self, conn: _Connection, queue: str, stream: Stream, packet: bytes, now: float, flow: str, at_once: bool
-    ) -> None:
-        target = conn.rover if queue == "to_rover" else conn.broker
-        if target is None:
-            if queue == "to_rover" and flow.endswith("/pose") and self._counting:
-                self.log.poses_lost += 1
+    def _carry(self, conn: _Connection, way: _Way, packet: bytes, now: float, flow: str, at_once: bool) -> None:
+        """Queue a packet for when the link delivers it (or hand it over now, after what is queued before it)."""
+        pose = way is conn.down and flow.endswith("/pose")
+        if conn.target(way) is None:
+            self.log.poses_lost += pose and self._counting
             return
-        pending: deque[tuple[float, bytes, float]] = getattr(conn, queue)
-        if at_once or self.transparent:
-            self._flush(conn, queue, float("inf"))
-            _send(target, packet)
+        if at_once:
+            way.queue.append(_Queued(now, packet, flow))
+            self._flush(conn, way, math.inf)
             return
-        retransmitted = stream.retransmitted
-        due = stream.deliver(now, flow)
-        if queue == "to_rover" and flow.endswith("/pose"):
-            self.log.retransmitted += stream.retransmitted - retransmitted
+        before = way.stream.retransmitted
+        due = way.stream.deliver(now, flow)
+        if pose:
+            self.log.poses_retransmitted += way.stream.retransmitted - before
             if due is None:
-                self.log.poses_lost += 1
+                self.log.poses_lost += self._counting
             else:
                 self.log.pose_delays_s.append(due - now)
         if due is not None:
-            pending.append((due, packet, now))
+            way.queue.append(_Queued(due, packet, flow))
 
-    def _flush(self, conn: _Connection, queue: str, now_s: float) -> bool:
-        pending: deque[tuple[float, bytes, float]] = getattr(conn, queue)
+    def _flush(self, conn: _Connection, way: _Way, now_s: float) -> bool:
+        """Write what is due by ``now_s``; True when something was written."""
         wrote = False
-        while pending and pending[0][0] <= now_s:
-            _, packet, _ = pending.popleft()
-            target = conn.rover if queue == "to_rover" else conn.broker
+        while way.queue and way.queue[0].due_s <= now_s:
+            item = way.queue.popleft()
+            target = conn.target(way)
             if target is None:
+                way.queue.clear()
                 break
-            if packet == _CLOSE:
+            if item.packet == _CLOSE:
                 # Shut down, not close: this may run on the loop's thread while the relay's thread selects on the
                 # socket; the relay's thread sees the end and closes it.
                 _shutdown(target)
                 break
-            wrote |= _send(target, packet)
+            if _send(target, item.packet):
+                wrote = True
+                if way is conn.down:
+                    self.log.delivered[item.flow] += 1
         return wrote
 
     def _ended(self, conn: _Connection, side: str) -> None:
         """One side closed its end: the close crosses the air to the other side in order, like data."""
         now = self._clock_s()
-        self._close_side(conn, side)
-        queue, stream = ("to_broker", conn.up) if side == "rover" else ("to_rover", conn.down)
-        if side == "rover":
+        sock = conn.close_side(side)
+        if sock is not None:
+            with contextlib.suppress(KeyError, ValueError):
+                self._selector.unregister(sock)
+            sock.close()
+        if side == "rover":  # what was on its way to the rover has nowhere to go
             if self._counting:
-                self.log.poses_lost += sum(1 for _, p, _ in conn.to_rover if p[0] >> 4 == PUBLISH)
-            conn.to_rover.clear()
+                self.log.poses_lost += sum(1 for q in conn.down.queue if q.flow.endswith("/pose"))
+            conn.down.queue.clear()
+        toward = conn.way_from(side)
         if self.transparent:
-            self._close_side(conn, "broker" if side == "rover" else "rover")
-            return
-        due = stream.deliver(now, "close")
-        if due is not None:
-            getattr(conn, queue).append((due, _CLOSE, now))
-        self._forget(conn)
-
-    def _close_side(self, conn: _Connection, side: str) -> None:
-        sock = conn.rover if side == "rover" else conn.broker
-        if sock is None:
-            return
-        with contextlib.suppress(KeyError, ValueError):
-            self._selector.unregister(sock)
-        sock.close()
-        if side == "rover":
-            conn.rover = None
+            toward.queue.append(_Queued(now, _CLOSE, "close"))
         else:
-            conn.broker = None
+            due = toward.stream.deliver(now, "close")
+            if due is not None:
+                toward.queue.append(_Queued(due, _CLOSE, "close"))
+        self._flush(conn, toward, now)
+        self._forget(conn)
 
     def _forget(self, conn: _Connection) -> None:
         if conn.rover is None and conn.broker is None and conn in self._connections:

@@ -188,7 +188,7 @@ def link_summary(record: LoopRecord) -> dict[str, Any]:
         rovers[rid] = {
             "outages": outages,
             "pose_delay_ms": error_stats_cm(1000.0 * np.asarray(log.pose_delays_s)),
-            "poses_retransmitted": log.retransmitted,
+            "poses_retransmitted": log.poses_retransmitted,
             "poses_lost": log.poses_lost,
             "connections": log.connections,
         }
