@@ -116,8 +116,7 @@ def stale_stops(record: LoopRecord, bar_ms: int = 500) -> list[dict[str, Any]]:
         fresh = record.fresh_ms.get(rid, [])
         if log is None or not fresh:
             continue
-        cfg = rover_config(rid)
-        stale_ms = int(cfg["control"]["stale_ms"]) + int(cfg["control"]["period_ms"])
+        stale_ms = stale_bound_ms(rid)
         t = np.asarray(log.t_ms)
         duty = np.asarray(log.left_duty) + np.asarray(log.right_duty)
         driving = np.isin(np.asarray(log.halt), ("none", "probe"))
@@ -154,16 +153,29 @@ def stale_stops(record: LoopRecord, bar_ms: int = 500) -> list[dict[str, Any]]:
     return out
 
 
-def link_summary(record: LoopRecord) -> dict[str, Any]:
+def stale_bound_ms(rover_id: str) -> int:
+    """How long a rover may go without a fresh pose of its own before its firmware cuts the motors: ``stale_ms``,
+    checked once a control period."""
+    control = rover_config(rover_id)["control"]
+    return int(control["stale_ms"]) + int(control["period_ms"])
+
+
+def link_summary(record: LoopRecord, bar_ms: int = 500) -> dict[str, Any]:
     """What the rovers' Wi-Fi links did: the settings, each rover's outages, pose delays on the air (from the
     broker to the rover's socket, head-of-line waits included), poses lost with a connection, connections made,
-    and the stops for want of a fresh pose (:func:`stale_stops`) with the outage that caused each."""
-    stops = stale_stops(record)
+    and the stops for want of a fresh pose (:func:`stale_stops`), each outage with the stop it caused.
+
+    An outage longer than the stale bound that began at least ``bar_ms`` + 100 ms before the run ended *must* stop
+    its rover; ``stops_passed`` says every such outage did, and every stop came within ``bar_ms``."""
+    stops = stale_stops(record, bar_ms)
     rovers: dict[str, Any] = {}
+    must_stop = stopped = rejoined = 0
     for rid in record.ids:
         log = record.links.get(rid)
         if log is None:
             continue
+        bound = stale_bound_ms(rid)
+        end_of_run = record.motors[rid].t_ms[-1] if record.motors.get(rid) and record.motors[rid].t_ms else 0
         outages = []
         for o in record.outages.get(rid, []):
             start_ms, end_ms = 1000.0 * o.start_s, 1000.0 * o.end_s
@@ -172,16 +184,23 @@ def link_summary(record: LoopRecord) -> dict[str, Any]:
                     s
                     for s in stops
                     if s["rover"] == rid
-                    and s["last_fresh_ms"] <= start_ms + 200.0
+                    and s["last_fresh_ms"] <= start_ms + 200.0  # its last pose may still be on the air
                     and (s["next_fresh_ms"] is None or s["next_fresh_ms"] >= end_ms)
                 ),
                 None,
             )
+            must = end_ms - start_ms > bound and start_ms + bar_ms + 100 < end_of_run
+            if must:
+                must_stop += 1
+                if stop is not None:
+                    stopped += stop["passed"]
+                    rejoined += stop["next_fresh_ms"] is None or stop["drove_again_after_ms"] is not None
             outages.append(
                 {
                     "start_ms": round(start_ms),
                     "duration_ms": round(end_ms - start_ms),
                     "dropped": o.dropped,
+                    "must_stop": must,
                     "stop": stop,
                 }
             )
@@ -196,8 +215,24 @@ def link_summary(record: LoopRecord) -> dict[str, Any]:
         "settings": str(record.config.link),
         "rovers": rovers,
         "stale_stops": stops,
-        "stale_stops_passed": all(s["passed"] for s in stops),
+        "outages_must_stop": must_stop,
+        "outages_stopped_in_time": stopped,
+        "outages_rejoined": rejoined,
+        "stops_passed": all(s["passed"] for s in stops) and stopped == must_stop,
     }
+
+
+def link_line(link: dict[str, Any]) -> str:
+    """One line about the links of a run, for the CLI."""
+    outages = [o for r in link["rovers"].values() for o in r["outages"]]
+    stops = link["stale_stops"]
+    worst = max((s["motors_off_after_ms"] for s in stops), default=None)
+    lost = sum(r["poses_lost"] for r in link["rovers"].values())
+    text = f"link {link['settings']}: {len(outages)} outages, {lost} poses lost with a connection"
+    if stops:
+        verdict = "within" if link["stops_passed"] else "NOT within"
+        text += f"; {len(stops)} stops for want of a pose, motors off after {worst} ms at worst ({verdict} 0.5 s)"
+    return text
 
 
 def summarize(record: LoopRecord) -> dict[str, Any]:
@@ -272,6 +307,8 @@ def summarize(record: LoopRecord) -> dict[str, Any]:
         out["safety"] = s
     if record.links:
         out["link"] = link_summary(record)
+        if "passed" in out:
+            out["passed"]["stops_in_time"] = out["link"]["stops_passed"]
     return out
 
 
