@@ -144,7 +144,7 @@ def test_a_long_outage_drops_the_connection_and_the_rover_rejoins_with_the_retai
         assert off and all(h == "disconnected" for h in off)
         assert halts[max(halts)] in ("none", "probe")
         assert log.connections == 2  # a new connection after it
-        assert log.delivered[FORMATION_TOPIC] == 2  # the retained formation, on each connection
+        assert [c[FORMATION_TOPIC] for c in log.delivered] == [1, 1]  # the retained formation, on each connection
         assert log.poses_lost > 0  # sent while it was gone: nowhere to go
         assert rig.rover.rover.formation is not None
         # fresh poses again, and its status crossed upstream on the new connection: the broker's retained status

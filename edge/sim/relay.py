@@ -111,13 +111,17 @@ class Station:
 @dataclass
 class RelayLog:
     """What crossed one rover's link: air delays of its poses (broker to rover, head-of-line waits included, s),
-    poses that never arrived (their connection went first), connections made, messages delivered per topic."""
+    poses that never arrived (their connection went first), and per connection the messages delivered to the rover
+    by topic (or packet type)."""
 
     pose_delays_s: list[float] = field(default_factory=list)
     poses_lost: int = 0
     poses_retransmitted: int = 0
-    connections: int = 0
-    delivered: Counter[str] = field(default_factory=Counter)
+    delivered: list[Counter[str]] = field(default_factory=list)
+
+    @property
+    def connections(self) -> int:
+        return len(self.delivered)
 
 
 @dataclass(frozen=True)
@@ -140,7 +144,8 @@ class _Way:
 class _Connection:
     """One TCP connection of the firmware, relayed: its two sockets and two ways."""
 
-    def __init__(self, rover: socket.socket, broker: socket.socket, streams: tuple[Stream, Stream]) -> None:
+    def __init__(self, rover: socket.socket, broker: socket.socket, streams: tuple[Stream, Stream], index: int) -> None:
+        self.index = index  # its place in the relay's log
         self.rover: socket.socket | None = rover
         self.broker: socket.socket | None = broker
         self.down = _Way("down", streams[0])
@@ -278,9 +283,9 @@ class LinkRelay:
             s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             s.setblocking(True)
         with self._cond:
-            conn = _Connection(rover, broker, self.model.connection())
+            conn = _Connection(rover, broker, self.model.connection(), len(self.log.delivered))
             self._connections.append(conn)
-            self.log.connections += 1
+            self.log.delivered.append(Counter())
         self._selector.register(rover, selectors.EVENT_READ, (conn, "rover"))
         self._selector.register(broker, selectors.EVENT_READ, (conn, "broker"))
 
@@ -346,7 +351,7 @@ class LinkRelay:
             if _send(target, item.packet):
                 wrote = True
                 if way is conn.down:
-                    self.log.delivered[item.flow] += 1
+                    self.log.delivered[conn.index][item.flow] += 1
         return wrote
 
     def _ended(self, conn: _Connection, side: str) -> None:
