@@ -53,7 +53,8 @@ class LoopBroker:
 
 @dataclass
 class MotorLog:
-    """Every firmware step of one rover: time (ms, simulated), duties, directions, halt reason."""
+    """Every firmware step of one rover: time (ms, simulated), duties, directions, halt reason, and the seq of the
+    newest pose of its own it had (None: none yet)."""
 
     t_ms: list[int] = field(default_factory=list)
     left_duty: list[int] = field(default_factory=list)
@@ -61,6 +62,7 @@ class MotorLog:
     left_forward: list[bool] = field(default_factory=list)
     right_forward: list[bool] = field(default_factory=list)
     halt: list[str] = field(default_factory=list)
+    own_seq: list[int | None] = field(default_factory=list)
 
 
 class Fleet:
@@ -140,6 +142,7 @@ class Fleet:
             log.right_forward.append(m.right_forward)
             log.halt.append(rover.halt)
             seq = rover.last_seq(rid)
+            log.own_seq.append(seq)
             if seq is not None and seq != self._own_seq[rid]:
                 self._own_seq[rid] = seq
                 self.fresh_ms[rid].append(now_ms)

@@ -2,7 +2,9 @@
 
 ``truth.csv`` (``frame,id,x,y,theta``) and ``poses.jsonl`` (every pose published to the rovers, the exact bytes, one
 per line) are enough to recompute every figure of ``metrics.json``; ``motors.csv`` (``t_ms,id,left_duty,
-left_forward,right_duty,right_forward,halt``, one row per firmware step) lets anyone check the safety bar.
+left_forward,right_duty,right_forward,halt,own_seq``, one row per firmware step; ``own_seq``: the seq of the newest
+pose of its own the rover had, empty before the first) lets anyone check the safety bar and how old the poses were
+that the rovers drove on.
 """
 
 from __future__ import annotations
@@ -153,6 +155,23 @@ def stale_stops(record: LoopRecord, bar_ms: int = 500) -> list[dict[str, Any]]:
     return out
 
 
+def driven_pose_age_ms(record: LoopRecord) -> dict[str, Any]:
+    """How old (since its frame was captured) the newest pose of its own was at every control step in which a rover
+    drove: the firmware judges a pose by when it *arrived*, and a pose that waited on the air (a retransmission,
+    the backlog after an outage) arrives fresh but old. Stats over all rovers and steps, ms."""
+    frame_of: dict[tuple[str, int], int] = {}
+    for frame, rid, payload in record.published:
+        frame_of[(rid, parse_pose(payload).seq)] = frame
+    ages: list[float] = []
+    for rid, log in record.motors.items():
+        for t, seq, halt, left, right in zip(
+            log.t_ms, log.own_seq, log.halt, log.left_duty, log.right_duty, strict=True
+        ):
+            if seq is not None and halt in ("none", "probe") and left + right > 0 and (rid, seq) in frame_of:
+                ages.append(t - frame_of[(rid, seq)] * 1000.0 / record.fps)
+    return error_stats_cm(ages)
+
+
 def stale_bound_ms(rover_id: str) -> int:
     """How long a rover may go without a fresh pose of its own before its firmware cuts the motors: ``stale_ms``,
     checked once a control period."""
@@ -213,6 +232,7 @@ def link_summary(record: LoopRecord, bar_ms: int = 500) -> dict[str, Any]:
         }
     return {
         "settings": str(record.config.link),
+        "driven_pose_age_ms": driven_pose_age_ms(record),
         "rovers": rovers,
         "stale_stops": stops,
         "outages_must_stop": must_stop,
@@ -325,13 +345,20 @@ def write_run(record: LoopRecord, out_dir: Path) -> dict[str, Any]:
         for _, _, payload in record.published:
             fb.write(payload + b"\n")
     with (out_dir / "motors.csv").open("w") as f:
-        f.write("t_ms,id,left_duty,left_forward,right_duty,right_forward,halt\n")
+        f.write("t_ms,id,left_duty,left_forward,right_duty,right_forward,halt,own_seq\n")
         for rid, log in record.motors.items():
             for row in zip(
-                log.t_ms, log.left_duty, log.left_forward, log.right_duty, log.right_forward, log.halt, strict=True
+                log.t_ms,
+                log.left_duty,
+                log.left_forward,
+                log.right_duty,
+                log.right_forward,
+                log.halt,
+                log.own_seq,
+                strict=True,
             ):
-                t, ld, lf, rd, rf, halt = row
-                f.write(f"{t},{rid},{ld},{int(lf)},{rd},{int(rf)},{halt}\n")
+                t, ld, lf, rd, rf, halt, seq = row
+                f.write(f"{t},{rid},{ld},{int(lf)},{rd},{int(rf)},{halt},{'' if seq is None else seq}\n")
     metrics = summarize(record)
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     return metrics
