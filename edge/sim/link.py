@@ -30,13 +30,13 @@ The parts, each with the published measurement it follows:
   round trips (fast retransmit or the tail-loss probe; the pose stream keeps segments flowing), and if that is lost
   too, on the retransmission timer (200 ms + RTT, doubling each time). After a timeout the sender sends nothing new
   until the lost segment is through, then the backlog at once: so an outage ends for the rover at the first
-  retransmission after it, and TCP's backoff stretches a 1 s outage to about 1.4 s. Uplink (the rover's lwIP, a
+  retransmission after it, and TCP's backoff stretches a 1 s outage to up to 1.6-1.8 s. Uplink (the rover's lwIP, a
   status now and then, a ping every 5 s): no fast retransmit for so sparse a stream; the timer, about 1 s.
 * **Association**: an outage longer than ``drop_s`` costs the station its access point (the ESP8266 reports a
   beacon timeout after ~6 s without beacons and disassociates after ~2.5 s of probes: espressif/ESP8266_RTOS_SDK
-  issue 1222); :meth:`LinkModel.associated` turns False then, the firmware sees Wi-Fi gone and drops its
-  connection, and every packet not through by then is lost. It is associated again ``rejoin_s`` after the access
-  point is back (scan, authentication, DHCP); the firmware connects, subscribes and gets the retained formation.
+  #1222); :meth:`LinkModel.associated` turns False then, the firmware sees Wi-Fi gone and drops its connection,
+  and every packet not through by then is lost. It is associated again ``rejoin_s`` after the access point is back
+  (scan, authentication, DHCP); the firmware connects, subscribes and gets the retained formation.
 
 Randomness: the channel's spells and outages are a function of time alone (drawn forward from the seed); a packet's
 air delay is drawn from a hash of the seed, the connection, its flow (topic) and its number within that flow, so one
