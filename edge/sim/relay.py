@@ -21,6 +21,10 @@ The association: :class:`Station` stands in for the firmware's station interface
 what the model says, so in a long outage the firmware itself sees Wi-Fi gone, drops its connection and reconnects
 when it is back, exactly as on the chip. Packets for a connection the rover has closed are lost; the broker keeps
 its end (half-open) until its keepalive runs out or the rover's new connection takes the session over.
+
+The relay keeps no time of its own: ``clock_s`` stamps what it reads, :meth:`LinkRelay.release` hands over what is
+due. Between a real broker and rovers running in real time, pass ``time.monotonic`` and call ``release`` from a
+timer (every few milliseconds), and set ``transparent`` to False once the rovers are up.
 """
 
 from __future__ import annotations
