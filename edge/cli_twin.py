@@ -66,6 +66,14 @@ def _lab_socket(config_path: Path | None, socket_file: Path | None) -> Path:
 )
 @click.option("--wait-for-logins", is_flag=True, help="Switch the rovers on once --credentials holds their logins.")
 @click.option(
+    "--link",
+    default="wire",
+    show_default=True,
+    metavar="SETTINGS",
+    help="Each rover's Wi-Fi, as in sim formation: a preset (wire, good, typical, poor) and/or key=value items, "
+    "e.g. typical,loss=3% or latency=10ms,jitter=10ms,tail=150ms,loss=2%,outages=1/min.",
+)
+@click.option(
     "--heading",
     type=click.Choice(["two_tone", "plain"]),
     default="two_tone",
@@ -95,6 +103,7 @@ def sim_twin(
     credentials: Path | None,
     config_dir: Path | None,
     wait_for_logins: bool,
+    link: str,
     heading: str,
     camera_latency_ms: float,
     exit_unwatched: float | None,
@@ -106,13 +115,15 @@ def sim_twin(
     Each rover is its own MQTT client with its own login, driving a simulated body (the drive model of the
     closed-loop experiments; bodies cannot pass through each other) by its motor duties; the camera renders the
     floor as it moves and serves the frames on a local socket, where `edge-ips start --source sim:twin` reads them
-    as from a webcam. `start` runs one itself (3 rovers, this machine's embedded broker) when none is running; run
-    it yourself for more rovers, or for an external broker with its logins. Prints what the rovers do.
+    as from a webcam. Each rover's MQTT connection crosses a modelled Wi-Fi link (--link: latency, jitter, loss,
+    outages). `start` runs one itself (3 rovers, a perfect link, this machine's embedded broker) when none is
+    running; run it yourself for more rovers, a poorer link, or an external broker with its logins. Prints what the
+    rovers do.
 
     Example:
 
     \b
-        edge-ips sim twin --rovers 6 & edge-ips start --source sim:twin
+        edge-ips sim twin --rovers 6 --link poor & edge-ips start --source sim:twin
         edge-ips sim twin --broker mqtt://localhost:1883 --credentials broker/credentials.toml
     """
     import signal
@@ -121,6 +132,7 @@ def sim_twin(
 
     from edge.broker.credentials import credentials_path
     from edge.config import broker_target, state_dir
+    from edge.sim.link import LinkSettings
     from edge.sim.twin.lab import LabSettings
     from edge.sim.twin.service import LabPlan, run_lab
     from edge.sim.twin.wire import socket_path
@@ -135,7 +147,13 @@ def sim_twin(
         else:
             broker_url = f"mqtt://{target.host}:{target.port}"
     plan = LabPlan(
-        LabSettings(rovers=rovers, seed=seed, heading=cast("Any", heading), camera_latency_ms=camera_latency_ms),
+        LabSettings(
+            rovers=rovers,
+            seed=seed,
+            heading=cast("Any", heading),
+            camera_latency_ms=camera_latency_ms,
+            link=LinkSettings.parse(link),
+        ),
         broker_url,
         socket_file if socket_file is not None else socket_path(state_dir(config)),
         credentials=credentials,

@@ -11,8 +11,10 @@ poses from then on move less than the tracker's noise), on the poses and on the 
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
+import threading
 import time
 import tomllib
 from collections.abc import Callable, Iterator
@@ -21,8 +23,8 @@ from pathlib import Path
 import pytest
 
 from edge.sim.twin.source import LabClient
-from tests.support.command import EDGE_IPS, Edge, arrival
-from tests.support.dashboard import clean_env
+from tests.support.command import EDGE_IPS, Edge, arrival, wait_reports
+from tests.support.dashboard import call, clean_env
 from tests.support.mosquitto import Mosquitto, free_port
 from tests.support.runtime import MqttRecorder
 from tests.support.twin import TOPICS, Poses, Twin, TwinLabProcess, formation_run, stop_run, wait_tracked
@@ -31,6 +33,7 @@ pytestmark = pytest.mark.slow
 
 ROVERS = ["red", "green", "blue"]
 TOKEN = "twin-e2e-dashboard-token"
+AUTH = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}
 EDGE_ID = f"twin-{os.getpid() % 100_000}"
 FRAMES = 300  # observed per formation; the bar must hold from frame 240 on
 AT_REST_AFTER_S = 0.5
@@ -124,3 +127,82 @@ def test_the_dashboards_formations_meet_the_closed_loop_bars_and_stop_leaves_eve
     record_property("broker", twin.broker)
     record_property("formations", results)
     record_property("stops", stops)
+
+
+# -- faults ----------------------------------------------------------------------------------------------------------
+BOUND_S = 0.5  # every rover at rest within this of its last fresh pose (docs/firmware.md)
+
+
+def _rest_times(twin: Twin, label: str, after: int, rovers: list[str]) -> dict[str, float]:
+    """Wait for the lab's word on each of ``rovers`` after the fault ``label``; returns, for those that were driving,
+    the time from its last fresh pose to rest (at least one must have been driving)."""
+    found: dict[str, float | None] = {}
+    for _ in range(int(180 / 0.5)):  # the lab's events, polled (they come within a second of the fault)
+        for e in twin.lab.status(after)["events"]:
+            rest = e.get("rest")
+            if e["who"] in rovers and rest is not None and rest["fault"] == label:
+                found[e["who"]] = None if rest.get("already") else rest["after_pose_s"]
+        if all(r in found for r in rovers):
+            driving = {r: t for r, t in found.items() if t is not None}
+            assert driving, f"no rover was driving when {label}"
+            return driving
+        threading.Event().wait(0.5)
+    raise AssertionError(f"the lab did not time every rover after {label}: {found}")
+
+
+def _fault(twin: Twin, body: dict[str, object]) -> str:
+    reply = call(twin.edge.http_port, "POST", "/api/sim/fault", json.dumps(body).encode(), AUTH)
+    assert reply.status == 200, reply.body
+    return str(reply.json()["done"])
+
+
+def _driving(twin: Twin, kind: str) -> None:
+    """The fleet commanded ``kind``, scattered, and driving back to it."""
+    after = _scatter(twin)
+    sent = twin.edge.command(kind, TOKEN, ROVERS)
+    arrival(twin.rec, kind, sent["seq"], after)
+    _moving(twin, after)
+
+
+@pytest.mark.parametrize("twin", ["embedded"], indirect=True)
+def test_every_fault_stops_the_rovers_within_the_bound_and_they_come_back(
+    twin: Twin, record_property: Callable[[str, object], None]
+) -> None:
+    stops: dict[str, dict[str, float]] = {}
+
+    # The camera hangs: no poses, every rover stops; the frames come back and they drive on.
+    _driving(twin, "rendezvous")
+    mark = twin.lab.status()["events"][-1]["n"]
+    label = _fault(twin, {"kind": "camera", "seconds": 2})
+    stops["camera"] = _rest_times(twin, label, mark, ROVERS)
+    _moving(twin, time.time() + 2.0)
+
+    # One rover's Wi-Fi goes for 3 s (the association holds): it stops, the others drive on; then it does too.
+    _driving(twin, "triangle")
+    mark = twin.lab.status()["events"][-1]["n"]
+    label = _fault(twin, {"kind": "wifi", "seconds": 3, "rover": "green"})
+    stops["wifi"] = _rest_times(twin, label, mark, ["green"])
+    twin.poses.wait(lambda ps: any(p.id == "green" and p.speed > 10.0 for p in ps[-30:]), "green driving again")
+
+    # The edge is killed and started again 3 s later: the embedded broker goes with it, every rover stops; the
+    # restarted edge's retained stop keeps them halted until commanded.
+    _driving(twin, "line")
+    mark = twin.lab.status()["events"][-1]["n"]
+    t_kill = time.time()
+    label = _fault(twin, {"kind": "edge", "seconds": 3})
+    stops["edge"] = _rest_times(twin, label, mark, ROVERS)
+    wait_reports(twin.rec, ROVERS, "stop", 1, t_kill)  # back: the new edge's stop at start, seq 1 (no retained one)
+
+    # The embedded broker restarts: every rover stops at once (its connection ends), reconnects, and reports.
+    _driving(twin, "rendezvous")
+    mark = twin.lab.status()["events"][-1]["n"]
+    t_restart = time.time()
+    label = _fault(twin, {"kind": "broker", "seconds": 2})
+    stops["broker"] = _rest_times(twin, label, mark, ROVERS)
+    twin.rec.wait_for(
+        lambda ms: all(any(m.t_recv > t_restart + 2 and f"/{r}/status" in m.topic for m in ms) for r in ROVERS), 180
+    )
+
+    record_property("rest_after_last_fresh_pose_s", stops)
+    late = {fault: times for fault, times in stops.items() if max(times.values()) > BOUND_S}
+    assert not late, stops

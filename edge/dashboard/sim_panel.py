@@ -25,7 +25,7 @@ import logging
 import os
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
@@ -101,16 +101,18 @@ class EdgeFaults:
             raise EdgeIpsError(f"an edge is killed for at most {MAX_EDGE_DOWN_S:g} s (its lab waits 30 s for it)")
         return f"edge killed for {seconds:g} s"
 
-    def cause(self, kind: str, seconds: float) -> str:
-        """Do it (after :meth:`check`): on a thread of its own, so the HTTP reply leaves first."""
+    def cause(self, kind: str, seconds: float, announce: Callable[[str], None]) -> str:
+        """Do it (after :meth:`check`) on a thread of its own, so the HTTP reply leaves first; ``announce(label)``
+        is called the moment before (the lab times the rovers from then)."""
         label = self.check(kind, seconds)
         target = self._cycle_broker if kind == "broker" else self._kill
-        threading.Thread(target=target, args=(seconds,), name=f"fault-{kind}", daemon=True).start()
+        threading.Thread(target=target, args=(seconds, label, announce), name=f"fault-{kind}", daemon=True).start()
         return label
 
-    def _cycle_broker(self, seconds: float) -> None:
+    def _cycle_broker(self, seconds: float, label: str, announce: Callable[[str], None]) -> None:
         assert self.broker is not None
         log.warning("fault: the embedded broker stops for %g s (its retained messages go with it)", seconds)
+        announce(label)
         self.broker.stop()
         threading.Event().wait(seconds)
         try:
@@ -118,13 +120,14 @@ class EdgeFaults:
         except EdgeIpsError as exc:
             log.error("fault: the embedded broker did not start again: %s", exc)
 
-    def _kill(self, seconds: float) -> None:
+    def _kill(self, seconds: float, label: str, announce: Callable[[str], None]) -> None:
         assert self.restart_argv is not None
         again = [*without_after_kill(self.restart_argv), "--after-kill", f"{seconds:g}"]
         threading.Event().wait(EXEC_DELAY_S)
         log.warning("fault: killed; starting again in %g s", seconds)
         for handler in logging.getLogger().handlers:
             handler.flush()
+        announce(label)
         os.execv(sys.executable, [sys.executable, *again])
 
 
@@ -211,12 +214,13 @@ class SimPanel:
     def _cause(self, req: FaultRequest) -> str:
         if req.kind in ("wifi", "camera"):
             return self.controls.fault(req.kind, req.seconds, req.rover)
-        label = self.faults.check(req.kind, req.seconds)
+        return self.faults.cause(req.kind, req.seconds, self._announce)
+
+    def _announce(self, label: str) -> None:
         try:
             self.controls.note(label)  # the lab times the rovers from now
         except EdgeIpsError as exc:
             log.warning("fault: the lab was not told (%s)", exc)
-        return self.faults.cause(req.kind, req.seconds)
 
 
 def attach_sim_panel(

@@ -411,7 +411,7 @@ def _wait_sent(sock: socket.socket, timeout_s: float = 0.5) -> None:
     while time.monotonic() < deadline:
         try:
             fcntl.ioctl(sock.fileno(), _SIOCOUTQNSD, unsent, True)
-        except OSError:
+        except (OSError, ValueError):  # closed meanwhile by the relay's thread (fileno -1): nothing left to wait for
             return
         if unsent[0] == 0:
             return

@@ -34,8 +34,10 @@ import numpy as np
 from edge.camera import paper_camera
 from edge.errors import ConfigError
 from edge.sim.contact import SolidWorld
+from edge.sim.link import LinkSettings
 from edge.sim.rover import BODY_LENGTH_CM, BODY_WIDTH_CM, MotorPhysics, fleet_drive_model, rover_looks
 from edge.sim.scene import Heading, Scene
+from edge.sim.starts import random_layout
 from edge.sim.twin.camera import TwinCamera
 from edge.sim.twin.rovers import TwinRover
 from edge.sim.twin.wire import LAB_FAULTS, CameraDescription
@@ -50,9 +52,10 @@ MAX_ROVERS = 12
 
 @dataclass(frozen=True)
 class LabSettings:
-    """``rovers`` 1-12; ``seed``: starting layout, scatters, motors, camera noise; ``heading``: two-tone markers
-    (heading even standing still) or one colour; ``camera_latency_ms``: exposure to hand-over (a USB webcam's
-    readout, transfer and decoding); ``physics``: how far the motors are from the firmware's duty model."""
+    """``rovers`` 1-12; ``seed``: starting layout, scatters, motors, links, camera noise; ``heading``: two-tone
+    markers (heading even standing still) or one colour; ``camera_latency_ms``: exposure to hand-over (a USB
+    webcam's readout, transfer and decoding); ``physics``: how far the motors are from the firmware's duty model;
+    ``link``: each rover's Wi-Fi (:class:`~edge.sim.link.LinkSettings`, ``--link``; the default delays nothing)."""
 
     rovers: int = 3
     seed: int = 0
@@ -60,6 +63,7 @@ class LabSettings:
     fps: float = 30.0
     camera_latency_ms: float = 40.0
     physics: MotorPhysics = field(default_factory=MotorPhysics)
+    link: LinkSettings = field(default_factory=LinkSettings)
 
     def __post_init__(self) -> None:
         if not 1 <= self.rovers <= MAX_ROVERS:
@@ -77,10 +81,11 @@ class LabEvents:
         self._lock = threading.Lock()
         self.count = 0
 
-    def add(self, who: str, text: str) -> None:
+    def add(self, who: str, text: str, **data: Any) -> None:
+        """One event; ``data``: what a program reads from it (a rest timing: ``rest={...}``)."""
         with self._lock:
             self.count += 1
-            self._lines.append({"n": self.count, "t": round(time.time(), 3), "who": who, "text": text})
+            self._lines.append({"n": self.count, "t": round(time.time(), 3), "who": who, "text": text, **data})
         if self.echo is not None:
             self.echo(f"{time.strftime('%H:%M:%S')} {who}: {text}")
 
@@ -119,7 +124,7 @@ class TwinLab:
         events: LabEvents | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        from edge.sim.loop import marker_colors, random_layout
+        from edge.sim.camera_path import marker_colors
         from edge.sim.render import Renderer
         from edge.sim.scenarios import lab_effects
 
@@ -130,12 +135,11 @@ class TwinLab:
         self.clock = clock
         self.configs = [dict(c) for c in configs]
         self.ids = tuple(str(c["id"]) for c in configs)
-        self._random_layout = random_layout
         self._rng = np.random.default_rng(np.random.SeedSequence([settings.seed, 0x7419]))
         self.camera_model = paper_camera()
         scene = Scene(rover_looks(self.configs, settings.heading))
         effects = lab_effects(np.random.default_rng(settings.seed))
-        colors = marker_colors(self.camera_model, scene, effects, settings.seed)
+        colors = marker_colors(self.camera_model, scene, effects, settings.seed, settings.fps)
         self.rover_configs = tuple(
             RoverConfig(id=rid, color_bgr=main, front_color_bgr=front, front_fraction=scene.look(rid).front_fraction)
             for rid, (main, front) in colors.items()
@@ -176,7 +180,7 @@ class TwinLab:
             self.camera_model,
             self.rover_configs,
             f"twin lab: {len(self.ids)} rovers ({', '.join(self.ids)}), seed {s.seed}, "
-            f"camera latency {s.camera_latency_ms:g} ms",
+            f"camera latency {s.camera_latency_ms:g} ms, link {'wire' if s.link.is_wire else s.link}",
         )
 
     # -- life cycle ---------------------------------------------------------------------------------------------------
@@ -192,7 +196,11 @@ class TwinLab:
         configs = self.configs if configs is None else [dict(c) for c in configs]
         if [str(c["id"]) for c in configs] != list(self.ids):
             raise ConfigError(f"twin lab: configs for {[c['id'] for c in configs]}, not for {list(self.ids)}")
-        rovers = [TwinRover(cfg, on_event=self.events.add, clock=self.clock) for cfg in configs]
+        link, seed = self.settings.link, self.settings.seed
+        rovers = [
+            TwinRover(cfg, link=link, seed=(seed, k), on_event=self.events.add, clock=self.clock)
+            for k, cfg in enumerate(configs)
+        ]
         for rover in rovers:
             rover.start(self._stop)
         self.rovers = rovers
@@ -230,10 +238,18 @@ class TwinLab:
 
     def _after_step(self, state: WorldState, now: float) -> None:
         at_rest = self._at_rest(state)
+        fresh = {r.id: r.last_fresh_s for r in self.rovers}
         with self._lock:
             for watch in self._watches:
                 for rover_id in sorted(watch.waiting & at_rest):
-                    self.events.add(rover_id, f"at rest {now - watch.started:.2f} s after {watch.label}")
+                    pose = fresh.get(rover_id)
+                    rest = {"fault": watch.label, "after_fault_s": round(now - watch.started, 3)}
+                    since = ""
+                    if pose is not None:
+                        rest["after_pose_s"] = round(now - pose, 3)
+                        since = f"{now - pose:.2f} s after its last fresh pose, "
+                    text = f"at rest {since}{now - watch.started:.2f} s after {watch.label}"
+                    self.events.add(rover_id, text, rest=rest)
                 watch.waiting -= at_rest
             self._watches = [w for w in self._watches if w.waiting and now - w.started < MAX_FAULT_S]
             over = [f for f in self._faults if f.until <= now]
@@ -246,14 +262,14 @@ class TwinLab:
         still = self._at_rest(self.state())
         for rover_id in rovers:
             if rover_id in still:
-                self.events.add(rover_id, f"was at rest already when {label}")
+                self.events.add(rover_id, f"was at rest already when {label}", rest={"fault": label, "already": True})
         with self._lock:
             self._watches.append(_RestWatch(label, self.clock(), set(rovers) - still))
 
     # -- what an operator (or the dashboard) can do -------------------------------------------------------------------
     def _layout(self) -> list[Pose]:
         n = len(self.ids)
-        return list(self._random_layout(n, self._rng, 150.0 if n <= 8 else 100.0, 40.0))
+        return list(random_layout(n, self._rng, 150.0 if n <= 8 else 100.0, 40.0))
 
     def scatter(self) -> dict[str, tuple[float, float]]:
         """Every rover picked up and put down at a random free spot (the closed-loop experiments' starts: at least
@@ -277,8 +293,9 @@ class TwinLab:
             if target is None:
                 known = ", ".join(self.ids)
                 raise ConfigError(f"no rover {rover!r} in the lab (rovers: {known})" if rover else "which rover?")
-            label = f"{target.id}'s Wi-Fi gone for {seconds:g} s"
-            target.station.drop(seconds)
+            outage = target.drop_wifi(seconds)
+            lost = ", the association with it" if outage.dropped else ""
+            label = f"{target.id}'s Wi-Fi gone for {seconds:g} s{lost}"
             watched: Sequence[str] = [target.id]
         else:
             label = f"camera hung for {seconds:g} s"
@@ -304,17 +321,20 @@ class TwinLab:
                 for f in self._faults
             ]
         still = self._at_rest(self.state())
+        on = {r.id: r for r in self.rovers}
         rovers = [
             {
                 "id": rid,
-                "switched_on": any(r.id == rid for r in self.rovers),
-                "connected": any(r.id == rid and r.connected for r in self.rovers),
+                "switched_on": rid in on,
+                "connected": rid in on and on[rid].connected,
                 "moving": rid not in still,
                 "speed_cm_s": round(math.hypot(state[rid].vx_cm_s, state[rid].vy_cm_s), 1),
+                "pose_delay_ms": _delay_figures(on[rid].pose_delays_s()) if rid in on else None,
             }
             for rid in self.ids
         ]
         return {
+            "link": "wire" if self.settings.link.is_wire else str(self.settings.link),
             "rovers": rovers,
             "faults": faults,
             "events": self.events.recent(events_after),
@@ -325,3 +345,11 @@ class TwinLab:
                 "stalled": self.camera.stalled,
             },
         }
+
+
+def _delay_figures(delays_s: Sequence[float]) -> dict[str, float] | None:
+    """Median, 95th and 99th percentile of a rover's pose air delays, ms (None before any pose)."""
+    if not delays_s:
+        return None
+    p50, p95, p99 = np.percentile(np.asarray(delays_s) * 1000.0, [50, 95, 99])
+    return {"p50": round(float(p50), 1), "p95": round(float(p95), 1), "p99": round(float(p99), 1)}
