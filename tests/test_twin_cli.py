@@ -84,3 +84,20 @@ def test_an_edge_fault_with_no_edge_running_says_so(tmp_path: Path, env: dict[st
     token = {"EDGE_IPS_DASHBOARD__TOKEN": "a-token-for-the-test"}
     error = _error(_run(["sim", "fault", "broker", "--url", "http://127.0.0.1:9/"], {**env, **token}))
     assert "http://127.0.0.1:9/: no edge answers" in error
+
+
+def test_plot_draws_a_recordings_poses_from_its_directory(tmp_path: Path, env: dict[str, str]) -> None:
+    from edge.messages import FORMATION_TOPIC, encode_pose, pose_topic
+    from edge.recording import Recorder
+
+    recorder = Recorder(tmp_path / "rec").start()
+    recorder.record(FORMATION_TOPIC, b'{"v":1,"seq":1,"kind":"stop","ids":[]}', True)  # not a pose: left out
+    for k in range(20):
+        for n, rover in enumerate(("red", "green")):
+            payload = encode_pose(rover, k, k, 1.7e9 + k / 30, 100.0 + k, 200.0 + 50 * n, 0.0, 30.0, 0.0, 0.9)
+            recorder.record(pose_topic(rover), payload, False)
+    recorder.close()
+    result = _run(["plot", str(tmp_path / "rec"), "--out", str(tmp_path / "run.png")], env)
+    assert result.exit_code == 0, result.output
+    assert "(green: 20, red: 20 poses)" in result.output
+    assert (tmp_path / "run.png").read_bytes().startswith(b"\x89PNG")
