@@ -11,14 +11,12 @@ import math
 import subprocess
 import threading
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from edge.messages import FORMATION_TOPIC, POSE_WILDCARD, ROVER_STATUS_WILDCARD
-from edge.sim.metrics import Bar, converged_frame, formation_error
+from edge.sim.twin.bars import FormationScore, largest_moves_cm, score_formation
 from edge.sim.twin.source import LabClient
 from tests.support.command import EDGE_IPS, Edge
 from tests.support.dashboard import clean_env
@@ -81,9 +79,8 @@ def wait_tracked(poses: Poses, ids: Sequence[str], after: float, seconds: float 
     poses.wait(done, f"every rover tracked for {seconds:g} s")
 
 
-def formation_run(poses: Poses, ids: Sequence[str], kind: str, t_command: float, frames: int) -> dict[str, Any]:
-    """Wait for ``frames`` camera frames after the command and judge them by the closed-loop bar: the frame (counted
-    from the first one after the command) from which the bar holds, and the last frame's error."""
+def formation_run(poses: Poses, ids: Sequence[str], kind: str, t_command: float, frames: int) -> FormationScore:
+    """Wait for ``frames`` camera frames after the command and judge them by the closed-loop bar."""
     first: list[int] = []
 
     def enough(_: list[Pose]) -> bool:
@@ -94,35 +91,18 @@ def formation_run(poses: Poses, ids: Sequence[str], kind: str, t_command: float,
         return max(p.frame for p in after) >= first[0] + frames
 
     poses.wait(enough, f"{frames} frames of {kind}")
-    f0 = first[0]
-    by_frame: dict[int, dict[str, tuple[float, float]]] = {}
-    for p in poses.since(t_command):
-        if f0 <= p.frame <= f0 + frames:
-            by_frame.setdefault(p.frame, {})[p.id] = (p.x, p.y)
-    numbers = sorted(k for k, seen in by_frame.items() if all(r in seen for r in ids))
-    bar = Bar(kind)
-    errors = [formation_error(bar, np.array([by_frame[k][r] for r in ids])) for k in numbers]
-    index = converged_frame(errors)
-    return {
-        "kind": kind,
-        "converged_frame": None if index is None else numbers[index] - f0,
-        "frames_with_every_rover": len(numbers),
-        "final_error_cm": round(errors[-1] + (bar.tol_cm if kind != "rendezvous" else bar.zone_cm), 2),
-    }
+    return score_formation([asdict(p) for p in poses.since(t_command)], ids, kind, first[0], frames)
 
 
 def stop_run(poses: Poses, ids: Sequence[str], t_stop: float, after_s: float, window_s: float) -> dict[str, float]:
-    """Each rover's largest move between the poses from ``t_stop + after_s`` to ``t_stop + after_s + window_s``
-    (cm): what "at rest" means on the poses as published."""
-    end = t_stop + after_s + window_s
-    poses.wait(lambda ps: bool(ps) and ps[-1].t >= end + 0.1, "poses after the stop")
-    moved: dict[str, float] = {}
+    """Each rover's largest move in its poses from ``t_stop + after_s`` for ``window_s`` (cm): what "at rest"
+    means on the poses as published."""
+    t0, t1 = t_stop + after_s, t_stop + after_s + window_s
+    poses.wait(lambda ps: bool(ps) and ps[-1].t >= t1 + 0.1, "poses after the stop")
+    window = [p for p in poses.since(t0) if p.t <= t1]
     for rid in ids:
-        mine = [p for p in poses.since(t_stop + after_s) if p.id == rid and p.t <= end]
-        assert len(mine) > 5, f"{rid}: too few poses after the stop ({len(mine)})"
-        x0, y0 = mine[0].x, mine[0].y
-        moved[rid] = max(math.hypot(p.x - x0, p.y - y0) for p in mine)
-    return moved
+        assert sum(p.id == rid for p in window) > 5, f"{rid}: too few poses after the stop"
+    return largest_moves_cm([asdict(p) for p in window], ids, t0, t1)
 
 
 @dataclass
