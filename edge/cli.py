@@ -174,7 +174,7 @@ def start(
     import sys
 
     from edge.broker.clients import broker_summary
-    from edge.cli_twin import start_defaults
+    from edge.cli_twin import restart_argv, start_defaults
     from edge.runtime import prepare_appliance, run_until_signalled
 
     config, where, env_keys = _load(
@@ -219,8 +219,7 @@ def start(
     )
     if env_keys:
         log.info("environment overrides: %s", ", ".join(env_keys))
-    restart = sys.orig_argv[1:]  # how to start this again after a simulated kill (the twin's edge fault)
-    run_until_signalled(prepare_appliance(config, config_where=where, restart_argv=restart))
+    run_until_signalled(prepare_appliance(config, config_where=where, restart_argv=restart_argv()))
 
 
 # -- formation ---------------------------------------------------------------------------------------------------

@@ -253,3 +253,12 @@ def start_defaults(
     config = with_overrides(config, **{"dashboard.token": token})
     kept = "made now, kept" if made else "kept"
     return config, f"dashboard: http://{host}:{port}/?token={token} (the token is {kept} in {token_path(directory)})"
+
+
+def restart_argv() -> list[str] | None:
+    """How to start this process again after the twin's "edge killed" fault: the interpreter's arguments when this
+    is the ``edge-ips`` command (its script, or ``python -m edge.cli``); None when start runs inside another program
+    (a test runner), which a restart must not replace."""
+    import sys
+
+    return list(sys.orig_argv[1:]) if Path(sys.argv[0]).name in ("edge-ips", "cli.py") else None
