@@ -257,7 +257,8 @@ def cpu(sizes: list[int], seconds: float) -> list[dict[str, Any]]:
             t.command("rendezvous")
             t.scatter_and_track()
             c0 = (_cpu_s(lab_pid), _cpu_s(t.edge.pid), time.monotonic())
-            s0 = t.lab.status()["camera"]
+            before = t.lab.status()
+            s0 = before["camera"]
             last_scatter = time.monotonic()
             while time.monotonic() - c0[2] < seconds:
                 time.sleep(0.5)
@@ -266,8 +267,10 @@ def cpu(sizes: list[int], seconds: float) -> list[dict[str, Any]]:
                     last_scatter = time.monotonic()
             wall = time.monotonic() - c0[2]
             lab_cpu, edge_cpu = (_cpu_s(lab_pid) - c0[0]) / wall, (_cpu_s(t.edge.pid) - c0[1]) / wall
-            s1 = t.lab.status()["camera"]
+            after = t.lab.status()
+            s1 = after["camera"]
             frames = s1["frames"] - s0["frames"]
+            parts = _parts_pct(before["cpu_s"], after["cpu_s"], wall)
             rows.append(
                 {
                     "rovers": n,
@@ -276,6 +279,7 @@ def cpu(sizes: list[int], seconds: float) -> list[dict[str, Any]]:
                     "camera_fps": round(frames / wall, 1),
                     "frames_skipped": s1["skipped"] - s0["skipped"],
                     "latency_ms": _latency(t.observer.since(time.time() - wall)),
+                    "lab_parts_pct": parts,
                 }
             )
             print(rows[-1], file=sys.stderr)
@@ -291,6 +295,24 @@ def cpu(sizes: list[int], seconds: float) -> list[dict[str, Any]]:
                 "edge": round(float(np.polyfit(n, edge, 1)[0]), 2),
             }
     return rows
+
+
+def _parts_pct(before: dict[str, Any], after: dict[str, Any], wall_s: float) -> dict[str, float]:
+    """What the lab's threads used over the window, % of one core: rendering, physics, and per rover (mean) its
+    firmware and its link's relay (the lab's own per-thread CPU clocks: valid when the machine is busy too)."""
+
+    def pct(a: float, b: float) -> float:
+        return round(100.0 * (b - a) / wall_s, 2)
+
+    rovers = after["rovers"]
+    firmware = [pct(before["rovers"][r]["firmware"], rovers[r]["firmware"]) for r in rovers]
+    link = [pct(before["rovers"][r]["link"], rovers[r]["link"]) for r in rovers]
+    return {
+        "camera": pct(before["camera"], after["camera"]),
+        "physics": pct(before["physics"], after["physics"]),
+        "firmware_per_rover": round(float(np.mean(firmware)), 2),
+        "link_per_rover": round(float(np.mean(link)), 2),
+    }
 
 
 def _child_lab(edge_pid: int) -> int:

@@ -114,6 +114,8 @@ def test_the_source_opens_on_the_lab_camera_and_names_its_model_and_rovers(lab: 
         assert np.allclose(source.camera.camera_matrix, twin.camera_model.camera_matrix)
         assert np.allclose(source.camera.tvec, twin.camera_model.tvec)
         assert [r.id for r in source.rover_configs()] == IDS
+        calibration = source.exact_calibration()
+        assert (calibration.width_px, calibration.height_px) == (1280, 720)
         assert all(r.front_color_bgr is not None for r in source.rover_configs())  # two-tone markers
         frames = [source.read() for _ in range(4)]
     finally:

@@ -203,6 +203,11 @@ class LinkRelay:
         self._thread.start()
         return self
 
+    @property
+    def thread(self) -> threading.Thread:
+        """The relay's own thread (what it costs: its CPU time)."""
+        return self._thread
+
     # -- the loop's side -----------------------------------------------------------------------------------------
     def wait_for(self, payloads: Mapping[str, bytes], timeout_s: float) -> bool:
         """Wait until the broker has sent this rover the newest of ``payloads`` (topic -> payload) on every topic;

@@ -113,6 +113,10 @@ class TwinCamera:
             slot.put(frame)
         self.frames += 1
 
+    @property
+    def thread(self) -> threading.Thread | None:
+        return self._thread
+
     def join(self, timeout_s: float = 5.0) -> None:
         if self._thread is not None:
             self._thread.join(timeout_s)

@@ -39,7 +39,7 @@ from edge.sim.rover import BODY_LENGTH_CM, BODY_WIDTH_CM, MotorPhysics, fleet_dr
 from edge.sim.scene import Heading, Scene
 from edge.sim.starts import random_layout
 from edge.sim.twin.camera import TwinCamera
-from edge.sim.twin.rovers import TwinRover
+from edge.sim.twin.rovers import TwinRover, thread_cpu_s
 from edge.sim.twin.wire import LAB_FAULTS, CameraDescription
 from edge.sim.world import Pose, WheelCommand, WorldState
 from edge.tracker_config import RoverConfig
@@ -312,6 +312,15 @@ class TwinLab:
         self.events.add("edge", f"fault: {label}")
         self._watch(label, self.ids)
 
+    def cpu_s(self) -> dict[str, Any]:
+        """CPU seconds used so far by the camera (rendering), the physics, and each rover (its firmware's thread and
+        its link's relay)."""
+        return {
+            "camera": round(thread_cpu_s(self.camera.thread), 3),
+            "physics": round(thread_cpu_s(self._physics), 3),
+            "rovers": {r.id: {"firmware": round(r.cpu_s()[0], 3), "link": round(r.cpu_s()[1], 3)} for r in self.rovers},
+        }
+
     def status(self, events_after: int = 0) -> dict[str, Any]:
         now = self.clock()
         state = self.state().by_id()
@@ -334,6 +343,7 @@ class TwinLab:
             for rid in self.ids
         ]
         return {
+            "cpu_s": self.cpu_s(),
             "link": "wire" if self.settings.link.is_wire else str(self.settings.link),
             "rovers": rovers,
             "faults": faults,

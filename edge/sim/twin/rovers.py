@@ -152,6 +152,10 @@ class TwinRover:
         del delays[:-KEEP_DELAYS]  # a lab runs for hours: keep the newest
         return list(delays)
 
+    def cpu_s(self) -> tuple[float, float]:
+        """CPU seconds used so far by (this rover's firmware thread, its link's relay thread)."""
+        return thread_cpu_s(self._thread), thread_cpu_s(self.relay.thread)
+
     def start(self, stop: threading.Event) -> TwinRover:
         self._thread = threading.Thread(target=self._run, args=(stop,), name=f"rover-{self.id}", daemon=True)
         self._thread.start()
@@ -181,3 +185,13 @@ class TwinRover:
         self.host.close()
         self.relay.release(self.link_time_s() + 60.0)  # the goodbye crosses the link however slow it is
         self.relay.close()
+
+
+def thread_cpu_s(thread: threading.Thread | None) -> float:
+    """CPU seconds a running thread has used (0 when it is not running): for what each part of the lab costs."""
+    if thread is None or thread.ident is None or not thread.is_alive():
+        return 0.0
+    try:
+        return time.clock_gettime(time.pthread_getcpuclockid(thread.ident))
+    except (OSError, ProcessLookupError):  # it ended meanwhile
+        return 0.0

@@ -31,6 +31,7 @@ from edge.sources import SourceInfo
 from edge.tracking import Frame
 
 if TYPE_CHECKING:
+    from edge.calibration import Calibration
     from edge.camera import PinholeCamera
     from edge.config import EdgeConfig
     from edge.tracker_config import RoverConfig
@@ -180,6 +181,12 @@ class TwinSource:
         if self._description is None:
             raise SourceError("twin source: the camera is known once the source is open")
         return self._description.camera
+
+    def exact_calibration(self) -> Calibration:
+        """The exact calibration of the lab's camera on the marker plane (a simulated camera knows its model)."""
+        from edge.calibration.exact import exact_calibration
+
+        return exact_calibration(self.camera)
 
     def rover_configs(self) -> tuple[RoverConfig, ...]:
         """The lab's rovers: ids, marker colours as its camera sees them (after :meth:`open`)."""
