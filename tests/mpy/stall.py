@@ -20,7 +20,7 @@ MICROPYTHON = sys.implementation.name == "micropython"
 ME = "red"
 WORLD = (("red", 120.0, 100.0, 0.3), ("green", 250.0, 320.0, 2.0), ("blue", 330.0, 90.0, -1.0))
 FORMATION = b'{"v":1,"seq":1,"kind":"triangle","ids":["red","green","blue"],"side":100.0}'
-POSE = '{"v":1,"id":"%s","seq":%d,"frame":%d,"t":%d.5,"x":%s,"y":%s,"theta":%s,"vx":null,"vy":null,"q":1.0}'
+POSE = '{"v":1,"id":"%s","seq":%d,"frame":%d,"t":%d.%03d,"x":%s,"y":%s,"theta":%s,"vx":null,"vy":null,"q":1.0}'
 FRAME_MS = 33
 CHUNK = 1  # steps between collections: one step can wait for seconds of simulated traffic
 
@@ -40,6 +40,7 @@ CASES = {
     "no SUBACK": {"no_suback": True},
     "oversize retained": {"oversize": 6000},
     "wifi back": {"cut": -20, "back_ms": 1000},
+    "backlog": {"hold_ms": 1500},
     "ctrl-c": {"interrupt": True},
 }
 
@@ -55,7 +56,7 @@ class _Edge:
         self.stall_ms = stall_ms
         self.frame = 0
         self.next_ms = 0
-        self.own = []  # (connection, arrival ms, end offset in that connection's stream) of each own pose
+        self.own = []  # (connection, arrival ms, end offset in that connection's stream, capture ms) of own poses
         self.cut_done = False
 
     def __call__(self, now):
@@ -65,7 +66,8 @@ class _Edge:
         self.next_ms = now + FRAME_MS
         self.frame += 1
         for rid, x, y, th in WORLD:
-            payload = (POSE % (rid, self.frame, self.frame, 1763900000 + now // 1000, x, y, th)).encode()
+            t = 1763900000000 + now  # the edge's clock at capture, ms
+            payload = (POSE % (rid, self.frame, self.frame, t // 1000, t % 1000, x, y, th)).encode()
             topic = b"ips/v1/rovers/" + rid.encode() + b"/pose"
             cut = self.case.get("cut")
             if rid == ME and cut is not None and not self.cut_done and now >= self.stall_ms:
@@ -75,7 +77,7 @@ class _Edge:
                 b.room = 2920
             at = b.publish(topic, payload)
             if rid == ME and at is not None:
-                self.own.append((b.connections, at, b.queued))
+                self.own.append((b.connections, at, b.queued, now))
 
 
 def _motors(now):
@@ -99,6 +101,8 @@ def _strike(now):
             _s["clock"].interrupt_at = now
         if "oversize" in case:
             b.publish(b"ips/v1/formation", FORMATION, 1)  # a legal formation after the dropped one
+        if "hold_ms" in case:
+            b.hold_until = now + case["hold_ms"]  # an outage TCP rides out: then everything at once, in order
     back = case.get("back_ms")
     if back is not None and now == _s["stall_ms"] + back:
         b.cut_at = None  # the air is back; the old TCP connection is gone for good
@@ -173,14 +177,22 @@ def _summary():
     off = stops[0] if stops else None
     # The freshest own pose the rover could have had when the motors went off: the last one that arrived whole.
     last = None
-    for conn, at, end in edge.own:
+    for conn, at, end, _ in edge.own:
         if end <= b.delivered[conn - 1] and (off is None or at <= off):
             last = at
+    # When it drove again after the stall: how old (since capture) the newest own pose it could have had was.
+    rejoin_age = None
+    again = [t for t in drove if t > _s["stall_ms"]]
+    if again:
+        for conn, at, end, captured in edge.own:
+            if end <= b.delivered[conn - 1] and at <= again[0]:
+                rejoin_age = again[0] - captured
     return {
         "stall_ms": _s["stall_ms"],
         "end_ms": _s["clock"].now,
         "first_drive_ms": drove[0] if drove else None,
-        "drove_after_stall": [t for t in drove if t > _s["stall_ms"]],
+        "drove_after_stall": again,
+        "rejoin_pose_age_ms": rejoin_age,
         "stops": stops,
         "off_ms": off,
         "last_pose_ms": last,
