@@ -289,7 +289,8 @@ def test_the_rover_works_under_an_acl_that_lets_it_publish_only_its_status(tmp_p
             nonlocal seq
             for rid, (x, y, theta) in WORLD.items():
                 pub.publish(
-                    messages.pose_topic(rid), messages.encode_pose(rid, seq, seq, 0.0, x, y, theta, None, None, 1.0)
+                    messages.pose_topic(rid),
+                    messages.encode_pose(rid, seq, seq, time.time(), x, y, theta, None, None, 1.0),
                 )
             seq += 1
             return rover.halt == "none" and any(s["halt"] == "none" for s in seen)

@@ -225,7 +225,8 @@ class KinematicFleet:
                 self.events.append(f"s {self.now_ms}")
                 self.commands.append((self.now_ms, first.halt, list(first.rover.command), first.wheel_speeds_rad_s))
                 self.scales.append(first.rover._scale)
-                self.own_seqs.append(first.last_seq(first.id))
+                me = first.rover._me
+                self.own_seqs.append(int(first.rover._seq[me]) if me >= 0 else None)
             for k, (r, b) in enumerate(zip(self.rovers, self.bodies, strict=True)):
                 left, right = r.wheel_speeds_rad_s
                 g = self.gains[k]
