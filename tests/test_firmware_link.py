@@ -140,9 +140,9 @@ def test_motor_commands_are_the_ones_the_law_computes(mosquitto: Mosquitto, edge
     # the pose's heading has just pulled to itself (fused with the commanded turn since the last pose).
     step_until(rover, lambda: rover.halt == "none" and all(rover.last_seq(r) is not None for r in WORLD))
     while checked < 10:
-        own = rover.rover._own
+        seq = rover.rover._seq[me()] if me() >= 0 else None
         rover.step(now_ms())
-        if me() >= 0 and rover.rover._own != own:  # its own pose arrived in this step
+        if me() >= 0 and rover.rover._seq[me()] != seq:  # its own pose arrived in this step
             heading = rover.rover.heading
             # The pose's heading was fused, not set aside as an outlier; how far odometry carried the estimate
             # since the last pose depends on the wall time between steps (a loaded machine steps less often).

@@ -210,9 +210,8 @@ class Rover:
         self.steps = 0
         self._now = 0
         self._last_step = None
-        self._own = 0  # own poses taken
-        self._law_own = -1  # own pose (count) and formation the standing command was computed from
-        self._law_for = None
+        self._news = False  # an own pose taken that the law has not used yet
+        self._law_for = None  # the formation the standing command was computed from
         self._status_halt = None  # what the last status said (None: none sent on this connection)
         self._status_for = None
         self._status_at = 0
@@ -274,7 +273,7 @@ class Rover:
         if slot == self._me:
             stamp = (at - self.clock.own(at, p[msg.P_T])) & (_TICKS_PERIOD - 1)
             self._stamp[slot] = stamp
-            self._own += 1
+            self._news = True
             # Its heading is fused at its age when captured, as of the last step (the turn history ends there).
             age = 0 if self._last_step is None else tdiff(self._last_step, stamp)
             self.heading.measured(p[msg.P_X], p[msg.P_Y], p[msg.P_THETA], (age if age > 0 else 0) + self.latency_ms)
@@ -401,7 +400,7 @@ class Rover:
                 self._qx[nq] = self._x[s]
                 self._qy[nq] = self._y[s]
                 nq += 1
-        if self.halt == HALT_NONE and self._own == self._law_own and self.formation is self._law_for:
+        if self.halt == HALT_NONE and not self._news and self.formation is self._law_for:
             # Nothing new since the last command: it stands (the next own pose comes within a frame). While the own
             # pose ages from fade_ms to stale_ms the rover slows down along it, so it is at rest when the motors are
             # cut instead of coasting on from full speed.
@@ -413,7 +412,7 @@ class Rover:
                 self.motors.drive(c[fm.C_LEFT] * k, c[fm.C_RIGHT] * k)
             return
         self._scale = 1.0
-        self._law_own = self._own
+        self._news = False
         self._law_for = self.formation
         x = self._x[me]
         y = self._y[me]

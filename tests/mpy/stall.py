@@ -56,7 +56,8 @@ class _Edge:
         self.stall_ms = stall_ms
         self.frame = 0
         self.next_ms = 0
-        self.own = []  # (connection, arrival ms, end offset in that connection's stream, capture ms) of own poses
+        self.own = []  # (connection, arrival ms, end offset in that connection's stream) of each own pose
+        self.captured = {}  # frame -> capture ms, of own poses
         self.cut_done = False
 
     def __call__(self, now):
@@ -77,7 +78,8 @@ class _Edge:
                 b.room = 2920
             at = b.publish(topic, payload)
             if rid == ME and at is not None:
-                self.own.append((b.connections, at, b.queued, now))
+                self.own.append((b.connections, at, b.queued))
+                self.captured[self.frame] = now
 
 
 def _motors(now):
@@ -86,6 +88,9 @@ def _motors(now):
     if on != _s["on"]:
         _s["on"] = on
         _s["changes"].append((now, on))
+        if on:  # the own pose it drives on (seq = frame here)
+            r = _s["rover"]
+            _s["drove_on"].append(r._seq[r._me] if r._me >= 0 else None)
 
 
 def _strike(now):
@@ -134,6 +139,7 @@ def _setup(case_name, path, stall_ms):
         stall_ms=stall_ms,
         on=False,
         changes=[],
+        drove_on=[],
         log=[],
         interrupted=None,
     )
@@ -177,16 +183,15 @@ def _summary():
     off = stops[0] if stops else None
     # The freshest own pose the rover could have had when the motors went off: the last one that arrived whole.
     last = None
-    for conn, at, end, _ in edge.own:
+    for conn, at, end in edge.own:
         if end <= b.delivered[conn - 1] and (off is None or at <= off):
             last = at
-    # When it drove again after the stall: how old (since capture) the newest own pose it could have had was.
+    # When it drove again after the stall: how old (since capture) the own pose it drove on was.
     rejoin_age = None
     again = [t for t in drove if t > _s["stall_ms"]]
     if again:
-        for conn, at, end, captured in edge.own:
-            if end <= b.delivered[conn - 1] and at <= again[0]:
-                rejoin_age = again[0] - captured
+        seq = _s["drove_on"][len(drove) - len(again)]
+        rejoin_age = again[0] - edge.captured[seq]
     return {
         "stall_ms": _s["stall_ms"],
         "end_ms": _s["clock"].now,
