@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from tests.support.firmware import run_stall, stall_config
+from tests.support.firmware import STALL_CASES, run_stall, stall_config
 
 STOP_BOUND_MS = 500
 CUTS = ("boundary", "first byte", "remaining length", "topic length", "topic", "payload", "broker silent")
@@ -26,18 +26,8 @@ TIMEOUT_MS = int(stall_config()["broker"]["timeout_s"] * 1000)
 def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, str], dict[str, Any]]:
     """Every case in both interpreters, once per module."""
     tmp = tmp_path_factory.mktemp("stall")
-    cases = (
-        *CUTS,
-        "send buffer full",
-        "broker never answers",
-        "no SUBACK",
-        "oversize retained",
-        "wifi back",
-        "backlog",
-        "ctrl-c",
-    )
     out = {}
-    for case in cases:
+    for case in STALL_CASES:
         run_ms = 6000 if case == "wifi back" else 4000
         for interpreter in ("cpython", "micropython"):
             out[case, interpreter] = run_stall(case, interpreter, tmp, run_ms)
