@@ -140,9 +140,9 @@ def test_motor_commands_are_the_ones_the_law_computes(mosquitto: Mosquitto, edge
     # the pose's heading has just pulled to itself (fused with the commanded turn since the last pose).
     step_until(rover, lambda: rover.halt == "none" and all(rover.last_seq(r) is not None for r in WORLD))
     while checked < 10:
-        t = now_ms()
-        rover.step(t)
-        if me() >= 0 and rover.rover._rx[me()] == (t & ((1 << 30) - 1)):
+        seq = rover.rover._seq[me()] if me() >= 0 else None
+        rover.step(now_ms())
+        if me() >= 0 and rover.rover._seq[me()] != seq:  # its own pose arrived in this step
             heading = rover.rover.heading
             # The pose's heading was fused, not set aside as an outlier; how far odometry carried the estimate
             # since the last pose depends on the wall time between steps (a loaded machine steps less often).
@@ -171,12 +171,12 @@ def test_motors_stop_within_half_a_second_of_the_last_pose_when_the_publisher_st
     rover = HostRover(rover_configs(["red"])[0], mosquitto.host, mosquitto.port)
     step_until(rover, lambda: rover.halt == "none")
     edge.stop()
-    times: list[tuple[int, int, bool]] = []  # (firmware time, receive time of own pose, motors running)
+    times: list[tuple[int, int, bool]] = []  # (firmware time, own pose's age stamp, motors running)
 
     def record() -> bool:  # until the stale halt (the fade may bring the duties to 0 a little before it)
         r = rover.rover
         state = rover.motor_state
-        times.append((r._last_step, r._rx[r._me], state.left_duty > 0 or state.right_duty > 0))
+        times.append((r._last_step, r._stamp[r._me], state.left_duty > 0 or state.right_duty > 0))
         return rover.halt == "stale"
 
     t_stop = step_until(rover, record)
@@ -289,7 +289,8 @@ def test_the_rover_works_under_an_acl_that_lets_it_publish_only_its_status(tmp_p
             nonlocal seq
             for rid, (x, y, theta) in WORLD.items():
                 pub.publish(
-                    messages.pose_topic(rid), messages.encode_pose(rid, seq, seq, 0.0, x, y, theta, None, None, 1.0)
+                    messages.pose_topic(rid),
+                    messages.encode_pose(rid, seq, seq, time.time(), x, y, theta, None, None, 1.0),
                 )
             seq += 1
             return rover.halt == "none" and any(s["halt"] == "none" for s in seen)
