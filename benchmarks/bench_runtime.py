@@ -82,7 +82,7 @@ def render_clip(directory: Path, width: int, height: int, fps: float, seconds: f
     frames = int(seconds * fps)
     writer = cv2.VideoWriter(str(clip), cv2.VideoWriter.fourcc(*"MJPG"), fps, (width, height))
     from edge.calibration import save_calibration
-    from edge.runtime import exact_calibration
+    from edge.calibration.exact import exact_calibration
     from edge.sim.source import SimSource
 
     sim = SimSource("lab", seed=0, realtime=False, frames=frames)

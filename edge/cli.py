@@ -167,8 +167,8 @@ def start(
     """
     import logging
 
+    from edge.appliance import prepare_appliance, run_until_signalled
     from edge.broker.clients import broker_summary
-    from edge.runtime import prepare_appliance, run_until_signalled
 
     config, where, env_keys = _load(
         config_path,
@@ -239,7 +239,7 @@ def formation(
 
         edge-ips formation line --spacing 60 --rovers red,green,blue
     """
-    from edge.broker.clients import edge_target
+    from edge.broker.clients import select_broker
     from edge.commands import build_formation, send_formation
     from edge.messages import dumps
     from edge.mqttclient import TlsFiles
@@ -249,7 +249,7 @@ def formation(
     ids = [r for r in rovers.split(",") if r.strip()] if rovers else [r.id for r in config.rovers]
     build_formation(shape, ids, seq=1, spacing_cm=spacing, side_cm=side, x_cm=x_cm, y_cm=y_cm, theta_rad=theta_rad)
     sent = send_formation(
-        edge_target(config),
+        select_broker(config).target,
         lambda seq: build_formation(
             shape, ids, seq=seq, spacing_cm=spacing, side_cm=side, x_cm=x_cm, y_cm=y_cm, theta_rad=theta_rad
         ),
@@ -405,8 +405,8 @@ def doctor(ctx: click.Context, config_path: Path | None, source: str | None, bro
 
         edge-ips doctor --config /etc/edge-ips/config.toml
     """
+    from edge.appliance import default_sim_factory
     from edge.doctor import run_checks
-    from edge.runtime import default_sim_factory
 
     cfg, where, env_keys = _load(config_path, **{"camera.source": source, "broker.url": broker_url})
     failed = False
@@ -987,7 +987,7 @@ def rovers_enroll(
     if image is not None:
         frame, where = read_image(image), str(image)
     else:
-        from edge.runtime import default_sim_factory
+        from edge.appliance import default_sim_factory
         from edge.sources import camera_source, grab_frame
 
         live = camera_source(config.camera, default_sim_factory(config), realtime=False)

@@ -20,6 +20,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from edge.calibration import Calibration
+from edge.calibration.exact import exact_calibration
 from edge.camera import MARKER_HEIGHT_CM, paper_camera
 from edge.config import EdgeConfig, masked
 from edge.dashboard.events import EventHub, Overlay, pose_event, sse, status_event
@@ -30,7 +31,6 @@ from edge.dashboard.streams import EventFanout
 from edge.errors import MessageError
 from edge.messages import parse_formation
 from edge.metrics import Latency, RoverSnapshot, Snapshot
-from edge.runtime import exact_calibration
 from edge.tracking import Frame, FrameResult, RoverEstimate
 from tests.support.appliance import edge_config, running
 from tests.support.dashboard import FormationSubscriber, call, read_events

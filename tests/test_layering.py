@@ -144,9 +144,9 @@ def cycles(type_checking: bool) -> list[list[str]]:
 def test_the_reader_sees_every_module_and_its_imports() -> None:
     assert {"edge.pipeline", "edge.trackers", "edge.trackers.paper", "edge.sim.loop"} <= set(modules())
     assert "edge.trackers.base" in imports("edge.pipeline", False)
-    assert "edge.dashboard" in imports("edge.runtime", False)  # a lazy import inside a function counts
-    assert "edge.runtime" in imports("edge.dashboard.server", True)  # under TYPE_CHECKING
-    assert "edge.runtime" not in imports("edge.dashboard.server", False)
+    assert "edge.dashboard" in imports("edge.appliance", False)  # a lazy import inside a function counts
+    assert "edge.broker.embedded" in imports("edge.appliance", True)  # under TYPE_CHECKING
+    assert "edge.broker.embedded" not in imports("edge.appliance", False)
 
 
 def test_no_module_imports_itself_back_through_others() -> None:

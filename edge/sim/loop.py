@@ -308,8 +308,8 @@ def build_tracker(camera: PinholeCamera, scene: Scene, effects: Any, seed: int) 
     """The tracker `edge-ips start` runs on the simulated camera: :class:`edge.pipeline.Pipeline` with the default
     settings, the rovers' measured colours and the camera's exact calibration."""
     # (the ignores: Pipeline, TrackerConfig and the two-tone fields land with the tracker's branch)
+    from edge.calibration.exact import exact_calibration
     from edge.pipeline import Pipeline, RoverConfig, TrackerConfig  # type: ignore[attr-defined,unused-ignore]
-    from edge.runtime import exact_calibration
 
     colors = marker_colors(camera, scene, effects, seed)
     rovers = tuple(

@@ -8,8 +8,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from edge.appliance import Appliance, prepare_appliance
 from edge.config import EdgeConfig, default_state_dir, with_overrides
-from edge.runtime import Appliance, prepare_appliance
 from edge.sources import MemorySource
 from tests.support.runtime import CentroidTracker, scene
 
