@@ -206,7 +206,8 @@ def main() -> None:
     from bench_runtime import render_clip
 
     from edge.appliance import default_tracker_factory, prepare_appliance
-    from edge.config import EdgeConfig, with_overrides
+    from edge.config import EdgeConfig
+    from edge.config_load import with_overrides
 
     logging.basicConfig(level=logging.WARNING)
     conditions = [c.strip() for c in args.viewers.split(",") if c.strip()]

@@ -13,7 +13,8 @@
 9. :func:`start_dashboard_for` and :func:`add_health_routes`: the page, then ``/healthz`` and ``/metrics``.
 
 Every user-fixable problem raises an :class:`edge.errors.EdgeIpsError` before any frame is published, and what
-was already started is stopped again. :func:`run_until_signalled` runs the result until SIGTERM or SIGINT.
+was already started is stopped again. :func:`run_until_signalled` runs the result until SIGTERM or SIGINT;
+:func:`start` is ``edge-ips start``: say what runs and why, assemble, run.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 from edge.broker.clients import SelectedBroker, select_broker
 from edge.config import BrokerTarget, EdgeConfig, broker_target
+from edge.config_load import LoadedConfig
 from edge.errors import CalibrationError
 from edge.mqttclient import TlsFiles
 from edge.publisher import MqttPublisher
@@ -71,6 +73,13 @@ def default_sim_factory(config: EdgeConfig) -> SimFactory:
         return SimSource(scenario or "lab", seed=0, realtime=config.camera.realtime)
 
     return make
+
+
+def grab_configured_frame(config: EdgeConfig) -> Any:
+    """One frame of the configured source (its size and controls; the simulator not paced), as a BGR image."""
+    from edge.sources import grab_frame
+
+    return grab_frame(camera_source(config.camera, default_sim_factory(config), realtime=False))
 
 
 def default_tracker_factory(inputs: TrackerInputs) -> Tracker:
@@ -282,7 +291,7 @@ def prepare_appliance(
     already started is stopped again.
     """
     cam = config.camera
-    tls = TlsFiles(config.broker.ca_file, config.broker.cert_file, config.broker.key_file)
+    tls = TlsFiles.of(config.broker)
     if broker_target(config.broker).tls:
         tls.check()
     with contextlib.ExitStack() as started:
@@ -342,3 +351,38 @@ def run_until_signalled(appliance: Appliance) -> None:
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
     appliance.run(stop)
+
+
+def why_this_source(loaded: LoadedConfig, *, source_given: bool) -> str:
+    """Why the appliance runs the source it runs, for the first log line."""
+    if source_given:
+        return "from --source"
+    if loaded.path is not None:
+        return f"camera.source in {loaded.where}"
+    import glob
+
+    cameras = sorted(glob.glob("/dev/video*"))
+    return "no configuration found, so the simulated camera; " + (
+        f"a camera is attached at {cameras[0]}: calibrate it (edge-ips calibrate) and use --source {cameras[0]}"
+        if cameras
+        else "no camera is attached: plug one in and use --source /dev/video0"
+    )
+
+
+def start(loaded: LoadedConfig, *, source_given: bool = False) -> None:
+    """``edge-ips start``: log what runs (edge, source and why, broker, configuration), assemble the appliance and
+    run it until SIGTERM or SIGINT."""
+    from edge.broker.clients import broker_summary
+
+    config = loaded.config
+    log.info(
+        "edge-ips start: edge %s, source %s (%s), broker %s, configuration: %s",
+        config.edge.id,
+        config.camera.source,
+        why_this_source(loaded, source_given=source_given),
+        broker_summary(config),
+        loaded.where,
+    )
+    if loaded.env_keys:
+        log.info("environment overrides: %s", ", ".join(loaded.env_keys))
+    run_until_signalled(prepare_appliance(config, config_where=loaded.where))

@@ -143,7 +143,7 @@ def _probe_broker(target: BrokerTarget, config: EdgeConfig, timeout_s: float) ->
     if target.username is not None:
         client.username_pw_set(target.username, target.password)
     if target.tls:
-        files = TlsFiles(config.broker.ca_file, config.broker.cert_file, config.broker.key_file)
+        files = TlsFiles.of(config.broker)
         files.check()
         client.tls_set(
             ca_certs=str(files.ca_file) if files.ca_file else None,

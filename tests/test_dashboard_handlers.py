@@ -450,7 +450,7 @@ def test_no_dashboard_leaves_health_and_metrics(mosquitto: Mosquitto) -> None:
 
 # -- configuration ---------------------------------------------------------------------------------------------------
 def test_the_token_is_masked_and_settings_are_validated(tmp_path: Path) -> None:
-    from edge.config import load_config
+    from edge.config_load import load_config
     from edge.errors import ConfigError
 
     config = EdgeConfig.model_validate({"dashboard": {"token": TOKEN, "viewer_token": "viewer-only-1", "frame_fps": 5}})

@@ -17,7 +17,7 @@ from click.testing import CliRunner, Result
 from edge.calibration.exact import exact_calibration
 from edge.camera import PinholeCamera, paper_camera, save_camera
 from edge.cli import main
-from edge.config import load_config
+from edge.config_load import load_config
 from edge.enroll import enroll
 from edge.errors import EnrollmentError
 from edge.sim.render import Renderer

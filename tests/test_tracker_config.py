@@ -12,7 +12,7 @@ import pytest
 
 from edge.appliance import TrackerInputs, default_tracker_factory
 from edge.camera import MARKER_HEIGHT_CM
-from edge.config import load_config
+from edge.config_load import load_config
 from edge.errors import SourceError
 from edge.pipeline import Pipeline
 from edge.sources import MemorySource

@@ -9,7 +9,8 @@ from contextlib import contextmanager
 from typing import Any
 
 from edge.appliance import Appliance, prepare_appliance
-from edge.config import EdgeConfig, default_state_dir, with_overrides
+from edge.config import EdgeConfig, default_state_dir
+from edge.config_load import with_overrides
 from edge.sources import MemorySource
 from tests.support.runtime import CentroidTracker, scene
 
