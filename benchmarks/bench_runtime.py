@@ -159,7 +159,7 @@ def run_once(
     import psutil
     from _common import MOSQUITTO_BENCH, private_mosquitto
 
-    from edge.config import to_toml
+    from edge.config_text import to_toml
 
     http_port = free_port()
     settings: dict[str, dict[str, Any]] = {

@@ -22,7 +22,8 @@ from hypothesis import strategies as st
 from edge.calibration import Calibration
 from edge.calibration.exact import exact_calibration
 from edge.camera import MARKER_HEIGHT_CM, paper_camera
-from edge.config import EdgeConfig, masked
+from edge.config import EdgeConfig
+from edge.config_text import masked
 from edge.dashboard.events import EventHub, Overlay, pose_event, sse, status_event
 from edge.dashboard.formation import authorize, formation_targets, parse_request, with_targets
 from edge.dashboard.frames import FrameEncoder, encode_jpeg
@@ -261,10 +262,12 @@ def test_pages_share_one_hub_viewer_and_the_hub_sleeps_when_they_leave() -> None
         assert [await page.__anext__() for page in pages] == [b"hello 0\n", b"hello 1\n", b"hello 2\n"]
         assert fanout.pages == 3 and fanout._thread is not None
         thread = fanout._thread
-        for _ in range(3000):  # until the fan-out thread has joined the hub (a guard of 30 s, not a pause)
-            if hub.viewers:
-                break
-            await asyncio.sleep(0.01)
+
+        def joined() -> bool:  # the hub notifies its condition when a viewer joins
+            with hub._cond:
+                return hub._cond.wait_for(lambda: bool(hub._viewers), timeout=30)
+
+        assert await asyncio.to_thread(joined)  # the fan-out thread has joined the hub
         hub.publish("formation", {"kind": "line"})
         for page in pages:  # every page gets it, through one viewer of the hub
             chunk = await asyncio.wait_for(page.__anext__(), 30)

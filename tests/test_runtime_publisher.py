@@ -112,7 +112,7 @@ def test_wrong_credentials_are_a_clear_error(tmp_path: Path) -> None:
 
 
 LAST_WILL_CHILD = """
-import sys, time
+import signal, sys
 from edge.config import parse_broker_url
 from edge.messages import StatusV1
 from edge.publisher import MqttPublisher
@@ -121,7 +121,7 @@ pub.start()
 assert pub.wait_connected(10)
 pub.publish_status(StatusV1(v=1, edge="edge-w", state="online", camera="ok", fps=30.0, rovers=["red"], t=1.0))
 print("online", flush=True)
-time.sleep(600)
+signal.pause()  # until killed
 """
 
 
