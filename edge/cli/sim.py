@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, cast
 
@@ -153,36 +154,41 @@ def _experiment_options(f: Any) -> Any:
     return f
 
 
-def _run_experiment(
-    kind: str,
-    rovers: int,
-    seed: int,
-    out_dir: Path | None,
-    broker_url: str | None,
-    frames: int | None,
-    heading: str,
-    video: bool,
-    as_json: bool,
-) -> dict[str, Any]:
+@dataclass(frozen=True)
+class ExperimentOptions:
+    """The options the closed-loop commands share (:func:`_experiment_options`), by name."""
+
+    rovers: int
+    seed: int
+    out_dir: Path | None
+    broker_url: str | None
+    frames: int | None
+    heading: str
+    video: bool
+    as_json: bool
+
+
+def _run_experiment(kind: str, options: ExperimentOptions) -> dict[str, Any]:
     from edge.sim.loop import LoopConfig
     from edge.sim.report import run_to_directory
 
+    o = options
     config = LoopConfig(
-        kind, rovers=rovers, seed=seed, frames=frames, broker_url=broker_url, heading=cast("Any", heading)
+        kind, rovers=o.rovers, seed=o.seed, frames=o.frames, broker_url=o.broker_url, heading=cast("Any", o.heading)
     )
-    out = out_dir if out_dir is not None else Path("runs") / f"{kind}-{seed}"
+    out = o.out_dir if o.out_dir is not None else Path("runs") / f"{kind}-{o.seed}"
     with click.progressbar(
-        length=config.n_frames if config.formation else 0, label=f"{kind} (seed {seed})", file=sys.stderr
+        length=config.n_frames if config.formation else 0, label=f"{kind} (seed {o.seed})", file=sys.stderr
     ) as bar:
-        metrics = run_to_directory(config, out, video=video, progress=lambda k: bar.update(1))
-    if as_json:
+        metrics = run_to_directory(config, out, video=o.video, progress=lambda k: bar.update(1))
+    if o.as_json:
         import json
 
         click.echo(json.dumps(metrics, indent=2))
     else:
         click.echo(
             f"wrote {out}: metrics.json, truth.csv, poses.jsonl, motors.csv, map.png, snapshots.png, "
-            f"xy_time.png{', camera.mp4' if video else ''}"
+            f"xy_time.png{', camera.mp4' if o.video else ''}"
         )
         e = metrics["ips_error_cm"]
         if e["n"]:
@@ -199,17 +205,7 @@ def _run_experiment(
 @sim.command("formation")
 @click.argument("kind", type=click.Choice(["line", "rendezvous", "triangle"]))
 @_experiment_options
-def sim_formation(
-    kind: str,
-    rovers: int,
-    seed: int,
-    out_dir: Path | None,
-    broker_url: str | None,
-    frames: int | None,
-    heading: str,
-    video: bool,
-    as_json: bool,
-) -> None:
+def sim_formation(kind: str, **options: Any) -> None:
     """Closed-loop formation (paper Figs. 27-32): rendered camera -> tracker -> MQTT -> rover firmware -> rovers.
 
     The rovers start at random places at least 1.5 m apart (1 m beyond 8 rovers; --seed) and form KIND: a
@@ -223,8 +219,9 @@ def sim_formation(
         edge-ips sim formation line --seed 3 --out runs/line-3
         edge-ips sim formation triangle --broker mqtt://localhost:1883 --video
     """
-    metrics = _run_experiment(kind, rovers, seed, out_dir, broker_url, frames, heading, video, as_json)
-    if not as_json:
+    run = ExperimentOptions(**options)
+    metrics = _run_experiment(kind, run)
+    if not run.as_json:
         conv = metrics["converged_frame"]
         final = metrics["final"]
         shape = ", ".join(
@@ -244,17 +241,7 @@ def sim_formation(
 @sim.command("trajectory")
 @click.argument("kind", type=click.Choice(["circle", "diagonal"]))
 @_experiment_options
-def sim_trajectory(
-    kind: str,
-    rovers: int,
-    seed: int,
-    out_dir: Path | None,
-    broker_url: str | None,
-    frames: int | None,
-    heading: str,
-    video: bool,
-    as_json: bool,
-) -> None:
+def sim_trajectory(kind: str, **options: Any) -> None:
     """Scripted paths tracked by the IPS (paper Figs. 33-38): circles, or the diagonal of the working area.
 
     The rovers follow edge.sim.trajectories plans; every frame is rendered, tracked and published through the
@@ -266,7 +253,7 @@ def sim_trajectory(
         edge-ips sim trajectory circle --out runs/circle
         edge-ips sim trajectory diagonal --seed 2
     """
-    _run_experiment(kind, rovers, seed, out_dir, broker_url, frames, heading, video, as_json)
+    _run_experiment(kind, ExperimentOptions(**options))
 
 
 @sim.command("rovers")
