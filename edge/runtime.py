@@ -3,7 +3,8 @@
 Threads and what they share:
 
 * ``capture`` (:class:`edge.capture.CaptureThread`) reads the source into a newest-frame :class:`FrameSlot`;
-* ``tracker`` (:class:`EdgeRuntime`) takes the newest frame, runs the tracker, publishes one pose per rover;
+* ``tracker`` (:class:`EdgeRuntime`) takes the newest frame, runs the tracker, publishes one pose per rover
+  (:func:`edge.poses.publish_poses`, the rule the simulator's closed loop uses too);
 * ``status`` publishes the retained edge status every ``status_interval_s`` and at once after a reconnect;
 * paho's network thread (reconnects with backoff), the recorder's writer, the HTTP server, the embedded broker.
 
@@ -23,9 +24,9 @@ from typing import Any
 
 from edge.capture import CaptureThread, FrameSlot
 from edge.clock import SYSTEM_CLOCK, Clock
-from edge.errors import MessageError
-from edge.messages import StatusV1, encode_pose
+from edge.messages import StatusV1
 from edge.metrics import Latency, LatencyWindow, RateMeter, RoverSnapshot, Snapshot
+from edge.poses import publish_poses
 from edge.publisher import Publisher, offline_status
 from edge.sources import FrameSource, SourceInfo
 from edge.tracking import Frame, FrameResult, Tracker
@@ -44,11 +45,10 @@ class _Pose:
 
 
 class _RoverStats:
-    __slots__ = ("detections", "id", "last", "last_seen_mono", "missed", "rate", "seq")
+    __slots__ = ("detections", "id", "last", "last_seen_mono", "missed", "rate")
 
     def __init__(self, rover_id: str) -> None:
         self.id = rover_id
-        self.seq = 0
         self.detections = 0
         self.missed = 0
         self.last_seen_mono: float | None = None
@@ -113,6 +113,7 @@ class EdgeRuntime:
         self._first_result_mono: float | None = None
         self.error: BaseException | None = None
         self._rovers = {r: _RoverStats(r) for r in self.rover_ids}
+        self._seq = dict.fromkeys(self.rover_ids, 0)  # each rover's next pose seq (edge.poses)
         self._status_due = threading.Event()
         self._threads: list[threading.Thread] = []
         self._started_mono = self.clock.monotonic()
@@ -121,32 +122,18 @@ class EdgeRuntime:
 
     # -- the hot path -------------------------------------------------------------------------------------------
     def _publish_result(self, result: FrameResult, frame_index: int, t_capture_s: float) -> None:
+        out = publish_poses(self.publisher, result.estimates, self._seq, frame_index, t_capture_s)
+        for _, exc in out.invalid:
+            self.poses_invalid += 1
+            if self.poses_invalid in (1, 10, 100, 1000) or self.poses_invalid % 10000 == 0:
+                log.warning("pose not publishable (%d so far): %s", self.poses_invalid, exc)
+        invalid = {rover_id for rover_id, _ in out.invalid}
         seen = set()
-        for est in result.estimates:
-            stats = self._rovers.get(est.rover_id)
-            if stats is None:
-                continue  # the tracker knows a rover the configuration does not: nobody subscribed for it
-            seen.add(est.rover_id)
-            try:
-                payload = encode_pose(
-                    est.rover_id,
-                    stats.seq,
-                    frame_index,
-                    t_capture_s,
-                    est.x_cm,
-                    est.y_cm,
-                    est.theta_rad,
-                    est.vx_cm_s,
-                    est.vy_cm_s,
-                    est.quality,
-                )
-            except MessageError as exc:
-                self.poses_invalid += 1
-                if self.poses_invalid in (1, 10, 100, 1000) or self.poses_invalid % 10000 == 0:
-                    log.warning("pose not publishable (%d so far): %s", self.poses_invalid, exc)
+        for est in out.seen:
+            if est.rover_id in invalid:
                 continue
-            if self.publisher.publish_pose(est.rover_id, payload):
-                stats.seq += 1
+            seen.add(est.rover_id)
+            stats = self._rovers[est.rover_id]
             stats.detections += 1
             stats.last_seen_mono = result.t_mono_s
             stats.last = _Pose(est.x_cm, est.y_cm, est.theta_rad, est.quality)

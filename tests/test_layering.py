@@ -56,7 +56,6 @@ MAX_LINES = 450
 STILL_OVER = {
     "edge/pipeline.py",
     "edge/trackers/base.py",
-    "edge/sim/loop.py",
     "edge/sim/render.py",
     "edge/sim/scenarios.py",
     "edge/sim/world.py",
