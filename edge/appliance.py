@@ -39,6 +39,9 @@ from edge.sources import FrameSource, SimulatedScene, SourceInfo, camera_source,
 from edge.tracking import Tracker
 
 if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+
     from edge.broker.embedded import EmbeddedBroker
     from edge.calibration import Calibration
     from edge.commands import StopAtStart
@@ -75,7 +78,7 @@ def default_sim_factory(config: EdgeConfig) -> SimFactory:
     return make
 
 
-def grab_configured_frame(config: EdgeConfig) -> Any:
+def grab_configured_frame(config: EdgeConfig) -> NDArray[np.uint8]:
     """One frame of the configured source (its size and controls; the simulator not paced), as a BGR image."""
     from edge.sources import grab_frame
 
