@@ -529,11 +529,13 @@ class Heading:
 
 # -- the whole step --------------------------------------------------------------------------------------------------
 class Controller:
-    """Steps 2-7 for one rover; parameters in cm, s, rad. Call command() with the present members' positions and
-    oriented offsets, the other rovers' positions, and a known heading."""
+    """Steps 2-7 for one rover; parameters in cm, s, rad, named (keyword-only: fourteen numbers in a row would be
+    read by position). Call command() with the present members' positions and oriented offsets, the other rovers'
+    positions, and a known heading."""
 
     def __init__(
         self,
+        *,
         gain_per_s,
         anchor_gain_per_s,
         max_speed_cm_s,

@@ -132,20 +132,20 @@ def make_law(cfg):
     c = cfg["control"]
     g = cfg["geometry"]
     return fm.Controller(
-        c["gain_per_s"],
-        c["anchor_gain_per_s"],
-        c["max_speed_cm_s"],
-        c["min_speed_cm_s"],
-        c["hold_cm"],
-        c["safety_cm"],
-        c["barrier_gain_per_s"],
-        c["slide_gain"],
-        c["pass_cm"],
-        c["heading_margin_rad"],
-        g["lookahead_cm"],
-        g["wheel_radius_cm"],
-        g["track_cm"],
-        cfg["motors"]["max_wheel_rad_s"],
+        gain_per_s=c["gain_per_s"],
+        anchor_gain_per_s=c["anchor_gain_per_s"],
+        max_speed_cm_s=c["max_speed_cm_s"],
+        min_speed_cm_s=c["min_speed_cm_s"],
+        hold_cm=c["hold_cm"],
+        safety_cm=c["safety_cm"],
+        barrier_gain_per_s=c["barrier_gain_per_s"],
+        slide_gain=c["slide_gain"],
+        pass_cm=c["pass_cm"],
+        heading_margin_rad=c["heading_margin_rad"],
+        lookahead_cm=g["lookahead_cm"],
+        wheel_radius_cm=g["wheel_radius_cm"],
+        track_cm=g["track_cm"],
+        max_wheel_rad_s=cfg["motors"]["max_wheel_rad_s"],
     )
 
 
