@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner, Result
 
+from edge.calibration.exact import exact_calibration
 from edge.camera import PinholeCamera, paper_camera, save_camera
 from edge.cli import main
-from edge.config import load_config
+from edge.config_load import load_config
 from edge.enroll import enroll
 from edge.errors import EnrollmentError
-from edge.runtime import exact_calibration
 from edge.sim.render import Renderer
 from edge.sim.scenarios import lab_effects
 from edge.sim.scene import RoverLook, Scene, fleet_looks, marker_albedo_for_hue

@@ -12,6 +12,8 @@ from __future__ import annotations
 import secrets
 from pathlib import Path
 
+from edge.config import EdgeConfig, state_dir
+from edge.config_load import with_overrides
 from edge.errors import ConfigError
 from edge.private_files import private_dir, write_private
 
@@ -38,3 +40,19 @@ def dashboard_token(state_dir: Path) -> tuple[str, bool]:
     if len(token) < MIN_LENGTH or any(c.isspace() for c in token):
         raise ConfigError(f"{path}: not a dashboard token (at least {MIN_LENGTH} characters, no spaces); delete it")
     return token, False
+
+
+def with_dashboard_token(config: EdgeConfig) -> tuple[EdgeConfig, str]:
+    """The configuration with its dashboard token (the configured one, else the state directory's, made now on the
+    first start) and the line that gives the page's address with it; ("", unchanged) when there is no page."""
+    if not (config.http.enabled and config.dashboard.enabled):
+        return config, ""
+    host = config.http.host if config.http.host not in ("0.0.0.0", "::", "") else "localhost"
+    port = "PORT" if config.http.port == 0 else str(config.http.port)
+    if config.dashboard.token is not None:
+        return config, f"dashboard: http://{host}:{port}/ (with the configured dashboard.token)"
+    directory = state_dir(config)
+    token, made = dashboard_token(directory)
+    kept = "made now, kept" if made else "kept"
+    address = f"dashboard: http://{host}:{port}/?token={token} (the token is {kept} in {token_path(directory)})"
+    return with_overrides(config, **{"dashboard.token": token}), address

@@ -2,9 +2,10 @@
 
 :class:`TwinSource` is a camera like any other to the appliance: it opens, hands over frames (stamped when they
 arrive, as a USB camera's are), stalls when the lab's camera hangs (a read times out and the capture thread reopens
-it), and closes. Like the other simulated sources it names its exact camera model (``camera``, for the calibration)
-and the rovers' marker colours as its camera sees them (``rover_configs()``, for the tracker when none are
-configured), and it offers the lab's controls (``controls``: scatter, faults), which the dashboard shows.
+it), and closes. Like the other simulated sources it is an :class:`edge.sources.SimulatedScene`: it gives its
+exact calibration (``exact_calibration()``, from the camera model the lab describes) and the rovers' marker colours
+as its camera sees them (``rover_configs()``, for the tracker when none are configured); and it offers the lab's
+controls (``controls``: scatter, faults), which the dashboard shows.
 
 When no lab answers on the socket, the source starts one (``edge-ips sim twin`` as a child process, its output in
 ``twin.log`` beside the socket) with the rovers connecting to the edge's embedded broker with the state directory's

@@ -1,17 +1,19 @@
-"""The twin's commands under ``edge-ips sim``: ``twin`` (the lab), ``scatter`` and ``fault``. Thin, as the rest of
-the command line: each parses its options and calls the library (:mod:`edge.sim.twin`); :mod:`edge.cli` adds them
-to its ``sim`` group, which turns library errors into one-line messages."""
+"""The live twin's commands: ``edge-ips sim twin`` (the lab), ``sim scatter`` and ``sim fault``, and what
+``edge-ips start`` does first for it (:func:`first_start`). Thin, as the rest of the command line: each parses its
+options and calls the library (:mod:`edge.sim.twin`); :mod:`edge.cli` adds them to its ``sim`` group."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import click
 
+from edge.cli.common import load
+
 if TYPE_CHECKING:
     from edge.config import EdgeConfig
+    from edge.config_load import LoadedConfig
 
 _config_option = click.option(
     "--config",
@@ -30,9 +32,7 @@ _socket_option = click.option(
 
 
 def _config(config_path: Path | None) -> EdgeConfig:
-    from edge.config import find_config, load_config
-
-    return load_config(find_config(config_path, os.environ), os.environ).config
+    return load(config_path).config
 
 
 def _lab_socket(config_path: Path | None, socket_file: Path | None) -> Path:
@@ -223,36 +223,32 @@ def sim_fault(
 
 
 # -- what `edge-ips start` does before it starts -------------------------------------------------------------------
-def start_defaults(
-    config: EdgeConfig, after_kill: float | None, *, source_given: bool, where: str, env_keys: tuple[str, ...]
-) -> tuple[EdgeConfig, str]:
+def first_start(loaded: LoadedConfig, after_kill: float | None, *, source_given: bool) -> LoadedConfig:
     """``start``'s first steps: wait out a simulated kill's restart delay; with nothing configured, the live twin as
-    the source; the dashboard's token (the state directory's, made on the first start, unless one is configured);
-    returns the configuration and the line that gives the dashboard's address (with the token it made)."""
+    the source; the dashboard's token (the state directory's, made on the first start, unless one is configured),
+    and the page's address with it printed first."""
     import logging
+    import sys
     import threading
+    from dataclasses import replace
 
-    from edge.config import state_dir, with_overrides
-    from edge.dashboard.first_token import dashboard_token, token_path
+    from edge.config_load import with_overrides
+    from edge.dashboard.first_token import with_dashboard_token
 
-    log = logging.getLogger("edge.cli")
     if after_kill is not None:
-        log.warning("starting again %g s after a kill, as a service manager would", after_kill)
+        logging.getLogger("edge.cli").warning(
+            "starting again %g s after a kill, as a service manager would", after_kill
+        )
         threading.Event().wait(after_kill)
-    nothing_configured = where.startswith("no configuration") and "EDGE_IPS_CAMERA__SOURCE" not in env_keys
+    config = loaded.config
+    nothing_configured = loaded.path is None and "EDGE_IPS_CAMERA__SOURCE" not in loaded.env_keys
     if not source_given and nothing_configured and config.camera.source == "sim":
         config = with_overrides(config, **{"camera.source": "sim:twin"})
-    if not (config.http.enabled and config.dashboard.enabled):
-        return config, ""
-    host = config.http.host if config.http.host not in ("0.0.0.0", "::", "") else "localhost"
-    port = "PORT" if config.http.port == 0 else str(config.http.port)
-    if config.dashboard.token is not None:
-        return config, f"dashboard: http://{host}:{port}/ (with the configured dashboard.token)"
-    directory = state_dir(config)
-    token, made = dashboard_token(directory)
-    config = with_overrides(config, **{"dashboard.token": token})
-    kept = "made now, kept" if made else "kept"
-    return config, f"dashboard: http://{host}:{port}/?token={token} (the token is {kept} in {token_path(directory)})"
+    config, address = with_dashboard_token(config)
+    if address:
+        click.echo(address)
+        sys.stdout.flush()
+    return replace(loaded, config=config)
 
 
 def restart_argv() -> list[str] | None:
@@ -261,4 +257,6 @@ def restart_argv() -> list[str] | None:
     (a test runner), which a restart must not replace."""
     import sys
 
-    return list(sys.orig_argv[1:]) if Path(sys.argv[0]).name in ("edge-ips", "cli.py") else None
+    script = Path(sys.argv[0])
+    ours = script.name == "edge-ips" or (script.name == "__main__.py" and script.parent.name == "cli")
+    return list(sys.orig_argv[1:]) if ours else None
