@@ -39,8 +39,8 @@ class Watched(LabEvents):
         super().__init__()
         self.changed = threading.Condition()
 
-    def add(self, who: str, text: str) -> None:
-        super().add(who, text)
+    def add(self, who: str, text: str, **data: Any) -> None:
+        super().add(who, text, **data)
         with self.changed:
             self.changed.notify_all()
 
