@@ -97,6 +97,17 @@ def _scatter(twin: Twin) -> float:
     return t
 
 
+def _why(twin: Twin, after: float) -> dict[str, object]:
+    """For a failure's message: how late the poses since ``after`` reached the observer (from their frame's time at
+    the edge: p50, p95, max, ms) and what the rovers said meanwhile (their halt reasons)."""
+    late = sorted(1000.0 * (p.t_recv - p.t) for p in twin.poses.since(after))
+    said = [m.payload.decode() for m in list(twin.rec.messages) if m.topic.endswith("/status") and m.t_recv >= after]
+    if not late:
+        return {"statuses": said}
+    pick = [late[min(len(late) - 1, int(q * len(late)))] for q in (0.5, 0.95)]
+    return {"pose_latency_ms": [round(v) for v in (*pick, late[-1])], "statuses": said}
+
+
 def _moving(twin: Twin, after: float) -> None:
     """Until a rover drives at 10 cm/s or more (by its poses)."""
     twin.poses.wait(lambda ps: any(p.speed > 10.0 for p in twin.poses.since(after)), "a rover driving")
@@ -113,7 +124,7 @@ def test_the_dashboards_formations_meet_the_closed_loop_bars_and_stop_leaves_eve
         t_command = arrival(twin.rec, kind, sent["seq"], after)
         run = formation_run(twin.poses, ROVERS, kind, t_command, FRAMES)
         results.append(asdict(run))
-        assert run.holds_by(240), run
+        assert run.holds_by(240), (run, _why(twin, t_command))
 
         # The retained formation still holds: scattered again, the rovers drive back; STOP while they do.
         after = _scatter(twin)
