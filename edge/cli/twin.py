@@ -9,19 +9,12 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from edge.cli.common import load
+from edge.cli.common import config_option, load
 
 if TYPE_CHECKING:
     from edge.config import EdgeConfig
     from edge.config_load import LoadedConfig
 
-_config_option = click.option(
-    "--config",
-    "config_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    default=None,
-    help="The appliance's TOML configuration (broker, state directory, HTTP port) [as edge-ips start finds it].",
-)
 _socket_option = click.option(
     "--socket",
     "socket_file",
@@ -95,7 +88,7 @@ def _lab_socket(config_path: Path | None, socket_file: Path | None) -> Path:
     help="End when no edge has watched the camera for this long [run until Ctrl-C].",
 )
 @_socket_option
-@_config_option
+@config_option
 def sim_twin(
     rovers: int,
     seed: int,
@@ -169,7 +162,7 @@ def sim_twin(
 
 @click.command("scatter")
 @_socket_option
-@_config_option
+@config_option
 def sim_scatter(socket_file: Path | None, config_path: Path | None) -> None:
     """Pick every rover of the twin's lab up and put it down at a random free spot (to try a formation again).
 
@@ -194,7 +187,7 @@ def sim_scatter(socket_file: Path | None, config_path: Path | None) -> None:
     "--url", default=None, help="The edge's dashboard (broker and edge faults) [http://127.0.0.1:<http.port>/]."
 )
 @_socket_option
-@_config_option
+@config_option
 def sim_fault(
     kind: str, rover: str | None, seconds: float, url: str | None, socket_file: Path | None, config_path: Path | None
 ) -> None:
