@@ -97,12 +97,12 @@ class Enrolment:
     def rover_configs(self) -> list[RoverConfig]:
         return [m.rover_config() for m in self.markers]
 
-    def toml(self, source: str = "") -> str:
+    def toml(self, source: str = "", by: str = "`edge-ips rovers enroll`") -> str:
         """``[[rovers]]`` tables that ``--config`` and ``edge-ips start`` read, with what was measured as comments."""
         w, h = self.image_size
         when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
         lines = [
-            f"# Enrolled by `edge-ips rovers enroll` {when}{f' from {source}' if source else ''} ({w}x{h}).",
+            f"# Enrolled by {by} {when}{f' from {source}' if source else ''} ({w}x{h}).",
             "# Each colour is the median of the marker's interior as this camera saw it under this light: enroll",
             "# again after changing the camera's white balance, exposure or the lamps.",
         ]
@@ -417,9 +417,10 @@ def _odd_sizes(markers: Sequence[EnrolledMarker], length_cm: float, width_cm: fl
     ]
 
 
-def save_enrolment(enrolment: Enrolment, path: Path, source: str = "") -> None:
-    """Write :meth:`Enrolment.toml` to ``path``, replacing an earlier rovers file but never a configuration with
-    other sections in it (``/etc/edge-ips/config.toml`` given by mistake)."""
+def save_enrolment(enrolment: Enrolment, path: Path, source: str = "", *, text: str | None = None) -> None:
+    """Write :meth:`Enrolment.toml` (or ``text``, the TOML already shown for it) to ``path``, replacing an earlier
+    rovers file but never a configuration with other sections in it (``/etc/edge-ips/config.toml`` given by
+    mistake)."""
     if path.exists():
         try:
             existing = tomllib.loads(path.read_text(encoding="utf-8"))
@@ -433,7 +434,7 @@ def save_enrolment(enrolment: Enrolment, path: Path, source: str = "") -> None:
             )
     tmp = path.with_name(f".{path.name}.tmp")
     try:
-        tmp.write_text(enrolment.toml(source), encoding="utf-8")
+        tmp.write_text(enrolment.toml(source) if text is None else text, encoding="utf-8")
         tmp.replace(path)
     except OSError as exc:
         raise EnrollmentError(f"{path}: cannot write ({exc.strerror})") from exc
