@@ -366,7 +366,7 @@ class EnrolDesk:
             )
         finally:
             self._busy.release()
-        where = f"the dashboard (frame {frame.index}{f' of {self.source}' if self.source else ''})"
+        where = f"frame {frame.index}{f' of {self.source}' if self.source else ''}"
         with self._lock:
             self._count += 1
             done = _Done(self._count, enrolment, enrolment.toml(where, by="the dashboard"))
