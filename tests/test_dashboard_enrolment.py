@@ -38,9 +38,8 @@ from edge.sim.scene import fleet_looks
 from edge.tracker_config import RoverConfig, TrackerConfig
 from edge.trackers.factory import build_tracker
 from edge.tracking import Frame, FrameResult, RoverEstimate
-from tests.support.appliance import edge_config, running
 from tests.support.dashboard import call
-from tests.support.lab import Lab, Stage, track, tracked_since, until_tracking
+from tests.support.lab import Lab, Stage, lab_appliance, track, tracked_since, until_tracking
 from tests.support.mosquitto import Mosquitto
 
 TOKEN = "enrol-control-token"
@@ -354,24 +353,7 @@ class Floor:
 def floor(lab: Lab, broker: Mosquitto, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Floor]:
     """An appliance with the real pipeline tracking the lab's three rovers, over a floor that starts empty."""
     folder = tmp_path_factory.mktemp("appliance")
-    rovers = [{"id": k.rover_id, "color_bgr": list(lab.renderer.nominal_marker_bgr(k.rover_id))} for k in lab.looks]
-    config = edge_config(**{
-        "edge.state_dir": str(folder / "state"), "http.enabled": True, "http.port": 0, "broker.url": broker.url,
-        "dashboard.token": TOKEN, "dashboard.viewer_token": VIEWER,
-        "dashboard.rovers_file": str(folder / "rovers.toml"), "rovers": rovers,
-    })  # fmt: skip
-    stage = Stage(lab.background())
-
-    def tracker(inputs: Any) -> Any:
-        return build_tracker(TrackerConfig.of(inputs.config.tracker, inputs.config.rovers), inputs.calibration)
-
-    with running(
-        config,
-        sim_factory=lambda scenario: stage,
-        tracker_factory=tracker,
-        calibration_loader=lambda *a: lab.calibration,
-    ) as app:
-        tracked_since(app.runtime, 1)
+    with lab_appliance(lab, broker.url, folder, token=TOKEN, viewer_token=VIEWER) as (app, stage):
         yield Floor(app, stage, lab, folder / "rovers.toml")
 
 

@@ -6,13 +6,16 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from edge.camera import PinholeCamera, paper_camera
-from edge.runtime import EdgeRuntime, exact_calibration
+from edge.runtime import Appliance, EdgeRuntime, TrackerInputs, exact_calibration
 from edge.sim.render import Renderer
 from edge.sim.scenarios import lab_effects
 from edge.sim.scene import RoverLook, Scene, marker_albedo_for_hue
@@ -20,7 +23,8 @@ from edge.sim.world import RoverState, WorldState
 from edge.sources import SourceInfo
 from edge.tracker_config import RoverConfig, TrackerConfig
 from edge.trackers.factory import build_tracker
-from edge.tracking import Frame
+from edge.tracking import Frame, Tracker
+from tests.support.appliance import edge_config, running
 
 PALETTE = (("red", 0), ("orange", 30), ("yellow", 60), ("green", 120), ("cyan", 180), ("blue", 240),
            ("purple", 270), ("magenta", 300))  # fmt: skip
@@ -144,3 +148,31 @@ def until_tracking(runtime: EdgeRuntime, rover_ids: Sequence[str], timeout_s: fl
         if time.monotonic() > deadline:
             raise AssertionError(f"not all of {', '.join(rover_ids)} tracked within {timeout_s} s")
         runtime.wait_tracked(1.0)
+
+
+@contextmanager
+def lab_appliance(
+    lab: Lab, broker_url: str, folder: Path, *, token: str | None, viewer_token: str | None = None
+) -> Iterator[tuple[Appliance, Stage]]:
+    """A running appliance (HTTP on a free port, the real pipeline tracking ``lab``'s rovers in their nominal
+    colours, ``dashboard.rovers_file`` = ``folder/rovers.toml``) whose camera is a :class:`Stage` showing the empty
+    floor; it has tracked its first frame when this yields."""
+    rovers = [{"id": k.rover_id, "color_bgr": list(lab.renderer.nominal_marker_bgr(k.rover_id))} for k in lab.looks]
+    settings: dict[str, Any] = {
+        "edge.state_dir": str(folder / "state"), "http.enabled": True, "http.port": 0, "broker.url": broker_url,
+        "dashboard.rovers_file": str(folder / "rovers.toml"), "rovers": rovers,
+        "dashboard.token": token, "dashboard.viewer_token": viewer_token,
+    }  # fmt: skip
+    stage = Stage(lab.background())
+
+    def tracker(inputs: TrackerInputs) -> Tracker:
+        return build_tracker(TrackerConfig.of(inputs.config.tracker, inputs.config.rovers), inputs.calibration)
+
+    with running(
+        edge_config(**{k: v for k, v in settings.items() if v is not None}),
+        sim_factory=lambda scenario: stage,
+        tracker_factory=tracker,
+        calibration_loader=lambda *a: lab.calibration,
+    ) as app:
+        tracked_since(app.runtime, 1)
+        yield app, stage
