@@ -85,8 +85,18 @@ def enroll(page: Any, ids: str, status: str = "200") -> None:
     page.wait_for_function(MESSAGE_STATUS, arg=status, timeout=WAIT_MS)
 
 
+def enroll_tracked(page: Any, ids: str, attempts: int = 5) -> None:
+    """Enroll until the tracker had every rover in the enrolled frame (on a loaded machine it loses one now and
+    then: the rovers move further between the frames it gets to); each enrolment is answered, none is waited for."""
+    for _ in range(attempts):
+        enroll(page, ids)
+        if page.evaluate("() => enrolling.result.markers.every(m => m.tracked_as !== null)"):
+            return
+    raise AssertionError(f"the tracker missed a rover in each of {attempts} enrolled frames")
+
+
 def test_the_simulators_rovers_are_enrolled_by_hue_each_on_the_rover_tracked_there(page: Any) -> None:
-    enroll(page, "")
+    enroll_tracked(page, "")
     assert page.locator("#enroll-message").text_content().startswith("enrolled 3 rovers from frame")
     rows = page.evaluate(ROWS)
     assert [(r[0], r[6]) for r in rows] == [("red", "red"), ("green", "green"), ("azure", "blue")]
@@ -109,7 +119,7 @@ def test_the_simulators_rovers_are_enrolled_by_hue_each_on_the_rover_tracked_the
 
 
 def test_ids_typed_in_go_to_the_nearest_hue_and_the_download_tracks(page: Any, tmp_path: Path) -> None:
-    enroll(page, "blue, red, green")
+    enroll_tracked(page, "blue, red, green")
     rows = page.evaluate(ROWS)
     assert [r[0] for r in rows] == ["blue", "red", "green"]
     assert all(r[0] == r[6] for r in rows), rows  # each id on the rover the tracker knows by it

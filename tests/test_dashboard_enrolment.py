@@ -197,7 +197,7 @@ def test_the_trackers_model_says_when_it_does_not_account_for_every_rover(lab: L
     desk = EnrolDesk(camera, lab.calibration, enabled=True, marker_length_cm=21.5, marker_width_cm=16.8)
     status, out = post(desk.post_enroll)
     assert status == 200 and len(out["markers"]) == 3
-    assert len(out["warnings"]) == 1 and "the tracker tracks 2 rovers but 3 markers" in out["warnings"][0]
+    assert len(out["warnings"]) == 1 and "the tracker tracks 2 rovers in this frame but 3 markers" in out["warnings"][0]
 
 
 @pytest.mark.parametrize(

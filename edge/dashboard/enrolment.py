@@ -162,6 +162,10 @@ def tracked_on(marker: EnrolledMarker, result: FrameResult | None) -> str | None
     return nearest.rover_id if math.hypot(nearest.x_cm - x, nearest.y_cm - y) <= TRACKED_WITHIN_CM else None
 
 
+def _rovers(n: int) -> str:
+    return f"{n} rover" if n == 1 else f"{n} rovers"
+
+
 def marker_json(marker: EnrolledMarker, tracked_as: str | None) -> dict[str, Any]:
     """One enrolled marker for the page: the ``[[rovers]]`` values and what was measured."""
     front = None
@@ -375,9 +379,9 @@ class EnrolDesk:
         tracked = [] if result is None else result.estimates
         if floor.kind == "tracker" and len(tracked) != len(enrolment.markers):
             warnings.append(
-                f"the tracker tracks {len(tracked)} rovers but {len(enrolment.markers)} markers differ from its "
-                "background model, which learns any rover it does not track into the floor: to enroll new rovers, "
-                "capture the empty floor first"
+                f"the tracker tracks {_rovers(len(tracked))} in this frame but {len(enrolment.markers)} markers differ "
+                "from its background model, which learns any rover it does not track into the floor: to enroll new "
+                "rovers, capture the empty floor first"
             )
         log.info(
             "dashboard: enrolled %s (frame %d, against the %s)",
