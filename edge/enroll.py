@@ -315,8 +315,11 @@ def _measure(
         if (part & near).any():
             front_mask |= part
     front_cm2 = 0.0
-    if front_mask[y0:y1, x0:x1].any():
-        front_cm2 = float(np.sum(areas[front_mask[y0:y1, x0:x1]]))
+    if front_mask.any():  # over the front's own box: a front pointing along a row or column sticks out of the blob's
+        fvs, fus = np.nonzero(front_mask)
+        fx0, fy0, fx1, fy1 = int(fus.min()), int(fvs.min()), int(fus.max()) + 1, int(fvs.max()) + 1
+        front_areas = _pixel_areas_cm2(calibration, (fx0, fy0, fx1, fy1))
+        front_cm2 = float(np.sum(front_areas[front_mask[fy0:fy1, fx0:fx1]]))
     front_color: tuple[int, int, int] | None = None
     front_fraction: float | None = None
     whole = blob.mask

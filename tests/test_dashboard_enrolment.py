@@ -34,7 +34,7 @@ from edge.enroll import EnrolledMarker
 from edge.httpserver import Request
 from edge.runtime import Appliance
 from edge.segmentation import BackgroundModel
-from edge.sim.scene import fleet_looks
+from edge.sim.scene import RoverLook, fleet_looks, marker_albedo_for_hue
 from edge.tracker_config import RoverConfig, TrackerConfig
 from edge.trackers.factory import build_tracker
 from edge.tracking import Frame, FrameResult, RoverEstimate
@@ -198,6 +198,27 @@ def test_the_trackers_model_says_when_it_does_not_account_for_every_rover(lab: L
     status, out = post(desk.post_enroll)
     assert status == 200 and len(out["markers"]) == 3
     assert len(out["warnings"]) == 1 and "the tracker tracks 2 rovers in this frame but 3 markers" in out["warnings"][0]
+
+
+def test_two_tone_fronts_and_hues_too_close_to_tell_apart_are_in_the_answer() -> None:
+    looks = (RoverLook("a", marker_albedo_for_hue(0.0), heading="two_tone"),
+             RoverLook("b", marker_albedo_for_hue(12.0), heading="two_tone"),
+             RoverLook("c", marker_albedo_for_hue(200.0), heading="two_tone"))  # fmt: skip
+    lab = Lab(looks)
+    camera = Camera()
+    camera.shows(lab.background())
+    desk = EnrolDesk(camera, lab.calibration, enabled=True, marker_length_cm=21.5, marker_width_cm=16.8)
+    assert desk.capture_floor(Request("POST", "/api/enroll/floor", {}, {}, b"")).status == 200
+    camera.shows(lab.frame(POSES))
+    status, out = post(desk.post_enroll, {"ids": ["r1", "r2", "r3"]})
+    assert status == 200, out
+    for marker in out["markers"]:
+        front = marker["front"]
+        assert front is not None and min(front["color_bgr"]) > 150 and front["fraction"] == pytest.approx(0.3, abs=0.03)
+    assert len(out["warnings"]) == 1 and "too close to tell apart" in out["warnings"][0]
+    reds = [m["id"] for m in out["markers"] if m["hue_deg"] < 30 or m["hue_deg"] > 330]
+    assert len(reds) == 2 and all(r in out["warnings"][0] for r in reds)  # naming both
+    assert "front_color_bgr" in out["toml"] and "# WARNING:" in out["toml"]
 
 
 @pytest.mark.parametrize(

@@ -54,6 +54,15 @@ def test_two_tone_markers_are_enrolled_with_their_front_part_and_track_with_head
         assert max(errs) < 1.0, f"{rover_id}: {errs}"
 
 
+@pytest.mark.parametrize("theta", [0.0, math.pi / 2, math.pi, -math.pi / 2])
+def test_a_two_tone_front_pointing_along_the_image_rows_or_columns_is_measured_whole(theta: float) -> None:
+    # the front sticks out of the coloured part's bounding box: it is measured over its own
+    lab = Lab(tuple(RoverLook(look.rover_id, look.marker_bgr, heading="two_tone") for look in fleet_looks(1)))
+    (marker,) = enroll(lab.frame([(100.0, 150.0, theta)]), lab.background(), lab.calibration).markers
+    assert marker.front_fraction == pytest.approx(0.3, abs=0.03)
+    assert marker.area_cm2 == pytest.approx(21.5 * 16.8, rel=0.15)
+
+
 def test_a_glare_on_part_of_a_marker_does_not_move_its_colour() -> None:
     lab = Lab(fleet_looks(3))
     poses = [(100.0, 150.0, 0.0), (250.0, 300.0, 1.0), (180.0, 460.0, 2.0)]

@@ -29,6 +29,7 @@ import json
 import logging
 import math
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Protocol
@@ -220,7 +221,7 @@ class EnrolDesk:
         self.rovers_file = rovers_file
         self.source = source
         self._lock = threading.Lock()  # the floor and the last enrolment
-        self._busy = threading.Lock()  # one enrolment at a time: it takes a core for half a second
+        self._busy = threading.Lock()  # one enrolment at a time: each takes a core for a while
         self._floor: Floor | None = None
         self._last: _Done | None = None
         self._count = 0
@@ -297,7 +298,7 @@ class EnrolDesk:
     def status(self, request: Request) -> Response:
         return json_response(200, self.state())
 
-    def _serve(self, work: Any) -> Response:
+    def _serve(self, work: Callable[[], dict[str, Any]]) -> Response:
         reason = self._unavailable()
         if reason is not None:
             return json_response(403, {"error": reason})
