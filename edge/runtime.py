@@ -25,6 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from edge.calibration.exact import exact_calibration
 from edge.capture import CaptureThread, FrameSlot
 from edge.clock import SYSTEM_CLOCK, Clock
 from edge.config import BrokerTarget, EdgeConfig, broker_target
@@ -38,7 +39,6 @@ from edge.tracking import Frame, FrameResult, Tracker
 
 if TYPE_CHECKING:
     from edge.calibration import Calibration
-    from edge.camera import PinholeCamera
 
 log = logging.getLogger("edge.runtime")
 
@@ -410,24 +410,6 @@ def _with_sim_rovers(config: EdgeConfig, source: FrameSource) -> EdgeConfig:
     rovers = list(own())
     log.info("rovers: the simulator's, %s", ", ".join(f"{r.id} {r.color_bgr}" for r in rovers))
     return config.model_copy(update={"rovers": rovers})
-
-
-def exact_calibration(camera: PinholeCamera, z_cm: float | None = None) -> Calibration:
-    """The exact :class:`edge.calibration.Calibration` of a known camera (the simulator's) on the marker plane."""
-    from edge.calibration import Calibration, Intrinsics
-    from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM, MARKER_HEIGHT_CM
-
-    z = MARKER_HEIGHT_CM if z_cm is None else z_cm
-    lens = Intrinsics(camera.camera_matrix, camera.dist_coeffs, camera.width_px, camera.height_px)
-    return Calibration(
-        camera.plane_homography(z),
-        camera.width_px,
-        camera.height_px,
-        z,
-        (0.0, 0.0, AREA_WIDTH_CM, AREA_LENGTH_CM),
-        lens,
-        camera,
-    )
 
 
 def load_calibration_for(config: EdgeConfig, source: FrameSource, info: SourceInfo, where: str) -> Calibration:

@@ -1,7 +1,6 @@
 """The closed loop end to end: rendered frames -> Pipeline -> MqttPublisher -> a real broker -> the rovers' firmware
-(HostRover) -> wheel commands -> the simulated world. The short version of the formation bars (the full one, 20
-seeds per formation, is benchmarks/bench_formation.py), and the safety bar: camera feed stopped or broker killed
-mid-run."""
+(HostRover) -> wheel commands -> the simulated world. The short version of the formation bars (the full one, 20 seeds
+per formation, is benchmarks/bench_formation.py), and the safety bar: camera feed stopped or broker killed mid-run."""
 
 from __future__ import annotations
 

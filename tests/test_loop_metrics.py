@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
 from edge.errors import ConfigError
-from edge.sim.loop import LoopConfig, random_layout, trajectory_plans
+from edge.sim.loop import LoopConfig
 from edge.sim.metrics import (
     Bar,
     box_corners_cm,
@@ -33,6 +33,7 @@ from edge.sim.rover import (
     rover_config,
     rover_looks,
 )
+from edge.sim.starts import random_layout, trajectory_plans
 
 
 def triangle(side: float, centre: tuple[float, float] = (100.0, 200.0), turn: float = 0.3) -> np.ndarray:

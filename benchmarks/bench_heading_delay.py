@@ -1,0 +1,149 @@
+"""How wrong the rovers' heading estimate gets over Wi-Fi, and what fusing pose headings at their age would change.
+
+    .venv/bin/python benchmarks/bench_heading_delay.py                               # line, seeds 0-4 and 17
+    .venv/bin/python benchmarks/bench_heading_delay.py --kinds line,rendezvous --seeds 0,1,2 --links wire,poor
+
+The firmware (formation.Heading) integrates its *commanded* turn rate and gates each pose heading against its
+current estimate. A pose heading is as old as the pose: 80 ms on a wire (capture to publish, and the wait for the
+next control step), 100-250 ms over a poor link, more in a burst after a retransmission; a rover turning at 3 rad/s
+has turned 25-40 degrees since. For every control step in which a rover drives, this prints the error of its heading
+estimate against the simulated truth, and how often the error exceeds what the safety layer allows for (its heading
+margin, 0.35 rad, plus the estimate's spread): there the barrier certificate protects the wrong heading.
+
+``--delay-aware`` runs the same closed loop with an experimental variant of the fusion, NOT the flashed firmware: the
+estimate is wound back by the turn commanded since the pose was captured, the pose heading fused there, and the
+estimate wound forward again. The pose's age is taken from the simulator (the firmware would have to estimate it,
+e.g. from the pose's frame counter); the figures bound what such a change can gain.
+"""
+
+from __future__ import annotations
+
+import argparse
+import bisect
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from edge.rover_host import firmware_modules
+from edge.sim import loop as loop_module
+from edge.sim import loop_fleet as fleet_module
+from edge.sim.link import LinkSettings
+from edge.sim.loop import FPS, LoopConfig, run
+from edge.sim.report import summarize
+
+MARGIN_DEG = math.degrees(0.35)  # control.heading_margin_rad of the example configs
+
+
+def install_delay_aware_heading() -> None:
+    """Replace the firmware's Heading by the experimental delay-aware variant (this process only)."""
+    fw = firmware_modules()
+    fm, rover, msg = fw["formation"], fw["rover"], fw["msg"]
+    base = fm.Heading
+
+    class DelayAwareHeading(base):  # type: ignore[misc, valid-type]
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            super().__init__(*args, **kwargs)
+            self.times = [0.0]
+            self.turns = [0.0]  # cumulative commanded turn
+            self.age_s = 0.0
+
+        def moved(self, v: float, w: float, dt_s: float, moving_cm_s: float) -> None:
+            super().moved(v, w, dt_s, moving_cm_s)
+            self.times.append(self.times[-1] + dt_s)
+            self.turns.append(self.turns[-1] + w * dt_s)
+            if len(self.times) > 400:
+                del self.times[:200], self.turns[:200]
+
+        def measured(self, x: float, y: float, theta: float | None) -> None:
+            k = max(0, bisect.bisect_right(self.times, self.times[-1] - self.age_s) - 1)
+            back = self.turns[-1] - self.turns[k]
+            if self.known:
+                self.theta = fm.wrap(self.theta - back)
+            super().measured(x, y, theta)
+            if self.known:
+                self.theta = fm.wrap(self.theta + back)
+
+    take = rover.Rover._take
+
+    def take_with_age(self: Any, payload: bytes, at: int, topic: bytes) -> None:
+        p = msg.parse_pose(payload)
+        if p is not None and p[msg.P_ID] == self.id:  # frame k was captured at k / FPS s of simulated time
+            self.heading.age_s = max(0.0, self._now / 1000.0 - p[msg.P_FRAME] / FPS)
+        take(self, payload, at, topic)
+
+    fm.Heading = DelayAwareHeading
+    rover.Rover._take = take_with_age
+
+
+def heading_errors(config: LoopConfig) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """(error deg, allowed deg) at every driving step of every rover, and the run's metrics."""
+    errors: list[float] = []
+    allowed: list[float] = []
+    world: dict[str, Any] = {}
+    init, step = loop_module.ClosedLoop.__init__, fleet_module.Fleet.step
+
+    def remember_world(self: Any, *args: Any, **kwargs: Any) -> None:
+        init(self, *args, **kwargs)
+        world["w"] = self.world
+
+    def step_and_look(self: Any, now_ms: int) -> Any:
+        out = step(self, now_ms)
+        truth = world["w"].state().by_id()
+        for rid, host in self.rovers.items():
+            h = host.rover.heading
+            if host.halt == "none" and h.known:
+                errors.append(math.degrees(abs(math.remainder(h.theta - truth[rid].theta_rad, math.tau))))
+                allowed.append(MARGIN_DEG + math.degrees(h.spread))
+        return out
+
+    loop_module.ClosedLoop.__init__ = remember_world  # type: ignore[method-assign]
+    fleet_module.Fleet.step = step_and_look  # type: ignore[method-assign]
+    try:
+        metrics = summarize(run(config))
+    finally:
+        loop_module.ClosedLoop.__init__ = init  # type: ignore[method-assign]
+        fleet_module.Fleet.step = step  # type: ignore[method-assign]
+    return np.asarray(errors), np.asarray(allowed), metrics
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--kinds", default="line", help="formations, comma separated (default line)")
+    parser.add_argument("--seeds", default="0,1,2,3,4,17", help="seeds, comma separated")
+    parser.add_argument("--links", default="wire,typical,poor", help="link presets, comma separated")
+    parser.add_argument("--delay-aware", action="store_true", help="the experimental fusion, not the firmware's")
+    args = parser.parse_args()
+    if args.delay_aware:
+        install_delay_aware_heading()
+    print(
+        "| link | formation | heading error p50 / p95 / p99 / max deg | driving steps beyond the margin | "
+        "closest bodies cm | runs passing |"
+    )
+    print("|---|---|---|---|---|---|")
+    for link in args.links.split(","):
+        for kind in args.kinds.split(","):
+            errs, allow, gaps, passing = [], [], [], 0
+            seeds = [int(s) for s in args.seeds.split(",")]
+            for seed in seeds:
+                e, a, m = heading_errors(LoopConfig(kind, seed=seed, frames=360, link=LinkSettings.parse(link)))
+                errs.append(e)
+                allow.append(a)
+                gaps.append(m["min_body_gap_cm"])
+                passing += all(m["passed"].values())
+            e, a = np.concatenate(errs), np.concatenate(allow)
+            p50, p95, p99 = np.percentile(e, [50, 95, 99])
+            print(
+                f"| {link} | {kind} | {p50:.1f} / {p95:.1f} / {p99:.1f} / {e.max():.1f} | {100 * np.mean(e > a):.1f} % "
+                f"| {min(gaps):.1f} | {passing} / {len(seeds)} |",
+                flush=True,
+            )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
