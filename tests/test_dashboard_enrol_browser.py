@@ -164,7 +164,7 @@ def test_a_floor_captured_with_rovers_on_it_is_refused_with_the_reason(page: Any
     page.click("#enroll-capture")
     page.wait_for_function(MESSAGE_STATUS, arg="200", timeout=WAIT_MS)
     message = page.locator("#enroll-message").text_content()
-    assert "empty floor captured" in message and "the tracker sees blue, green, red in this frame" in message
+    assert "empty floor captured" in message and "WARNING: the tracker sees " in message  # rovers on the floor
     page.wait_for_function("() => document.getElementById('enroll-floor').textContent.startsWith('captured at')")
     page.wait_for_function("() => document.getElementById('enroll-floor-image').naturalWidth > 0", timeout=WAIT_MS)
     at_capture = page.evaluate(
