@@ -7,7 +7,7 @@ viewers connected (bar: no more than 10 % worse), and what the viewers get.
 
 What runs, as on the camera board: the simulator's ``lab`` scenario (3 rovers, seed 0) pre-rendered to a 1280x720
 MJPG clip, looped and paced at 30 fps (as ``bench_runtime.py``: rendering is not the edge's work, decoding is),
-through the appliance exactly as ``edge-ips start`` assembles it (:func:`edge.runtime.prepare_appliance`: real
+through the appliance exactly as ``edge-ips start`` assembles it (:func:`edge.appliance.prepare_appliance`: real
 tracking pipeline with ``[tracker]`` defaults, the clip's exact calibration, a private Mosquitto, the HTTP server
 with the dashboard at its defaults: 10 fps JPEG at 960 px, quality 70, 15 Hz poses). The appliance runs in this
 process; the benchmark's own thread only sleeps. The tracker's time per frame is taken around
@@ -205,8 +205,9 @@ def main() -> None:
     import psutil
     from bench_runtime import render_clip
 
-    from edge.config import EdgeConfig, with_overrides
-    from edge.runtime import default_tracker_factory, prepare_appliance
+    from edge.appliance import default_tracker_factory, prepare_appliance
+    from edge.config import EdgeConfig
+    from edge.config_load import with_overrides
 
     logging.basicConfig(level=logging.WARNING)
     conditions = [c.strip() for c in args.viewers.split(",") if c.strip()]

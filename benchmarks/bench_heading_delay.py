@@ -1,25 +1,26 @@
-"""How wrong the rovers' heading estimate gets over Wi-Fi, and what fusing pose headings at their age would change.
+"""How wrong the rovers' heading estimate gets over Wi-Fi, fused at the pose's age (the firmware) or at its arrival.
 
     .venv/bin/python benchmarks/bench_heading_delay.py                               # line, seeds 0-4 and 17
+    .venv/bin/python benchmarks/bench_heading_delay.py --at-arrival                  # the fusion before dating poses
     .venv/bin/python benchmarks/bench_heading_delay.py --kinds line,rendezvous --seeds 0,1,2 --links wire,poor
 
 The firmware (formation.Heading) integrates its *commanded* turn rate and gates each pose heading against its
-current estimate. A pose heading is as old as the pose: 80 ms on a wire (capture to publish, and the wait for the
-next control step), 100-250 ms over a poor link, more in a burst after a retransmission; a rover turning at 3 rad/s
-has turned 25-40 degrees since. For every control step in which a rover drives, this prints the error of its heading
-estimate against the simulated truth, and how often the error exceeds what the safety layer allows for (its heading
-margin, 0.35 rad, plus the estimate's spread): there the barrier certificate protects the wrong heading.
+estimate. A pose heading is as old as the pose: 50-80 ms on a wire (capture to publish, and the wait for the next
+control step), 100-250 ms over a poor link, more in a burst after a retransmission; a rover turning at 3 rad/s has
+turned 15-40 degrees since. The firmware dates each pose by its capture time `t` (rover.PoseClock: its age beyond the
+fastest delivery, plus control.latency_ms for the fastest delivery itself), winds the estimate back by the turn it
+commanded since, fuses the pose there, and winds forward again. For every control step in which a rover drives, this
+prints the error of its heading estimate against the simulated truth, and how often the error exceeds what the
+safety layer allows for (its heading margin, 0.35 rad, plus the estimate's spread): there the barrier certificate
+protects the wrong heading.
 
-``--delay-aware`` runs the same closed loop with an experimental variant of the fusion, NOT the flashed firmware: the
-estimate is wound back by the turn commanded since the pose was captured, the pose heading fused there, and the
-estimate wound forward again. The pose's age is taken from the simulator (the firmware would have to estimate it,
-e.g. from the pose's frame counter); the figures bound what such a change can gain.
+``--at-arrival`` runs the same closed loop with each pose heading fused as if it had just been captured (age 0: the
+firmware before it dated poses; freshness is still judged by age), to show what the dating buys.
 """
 
 from __future__ import annotations
 
 import argparse
-import bisect
 import math
 import sys
 from pathlib import Path
@@ -33,51 +34,21 @@ from edge.rover_host import firmware_modules
 from edge.sim import loop as loop_module
 from edge.sim import loop_fleet as fleet_module
 from edge.sim.link import LinkSettings
-from edge.sim.loop import FPS, LoopConfig, run
+from edge.sim.loop import LoopConfig, run
 from edge.sim.report import summarize
 
 MARGIN_DEG = math.degrees(0.35)  # control.heading_margin_rad of the example configs
 
 
-def install_delay_aware_heading() -> None:
-    """Replace the firmware's Heading by the experimental delay-aware variant (this process only)."""
-    fw = firmware_modules()
-    fm, rover, msg = fw["formation"], fw["rover"], fw["msg"]
-    base = fm.Heading
+def install_fusion_at_arrival() -> None:
+    """Make the firmware's Heading fuse every pose as if it were new (this process only)."""
+    fm = firmware_modules()["formation"]
+    measured = fm.Heading.measured
 
-    class DelayAwareHeading(base):  # type: ignore[misc, valid-type]
-        def __init__(self, *args: Any, **kwargs: Any) -> None:
-            super().__init__(*args, **kwargs)
-            self.times = [0.0]
-            self.turns = [0.0]  # cumulative commanded turn
-            self.age_s = 0.0
+    def at_arrival(self: Any, x: float, y: float, theta: float | None, age_ms: int = 0) -> None:
+        measured(self, x, y, theta, 0)
 
-        def moved(self, v: float, w: float, dt_s: float, moving_cm_s: float) -> None:
-            super().moved(v, w, dt_s, moving_cm_s)
-            self.times.append(self.times[-1] + dt_s)
-            self.turns.append(self.turns[-1] + w * dt_s)
-            if len(self.times) > 400:
-                del self.times[:200], self.turns[:200]
-
-        def measured(self, x: float, y: float, theta: float | None) -> None:
-            k = max(0, bisect.bisect_right(self.times, self.times[-1] - self.age_s) - 1)
-            back = self.turns[-1] - self.turns[k]
-            if self.known:
-                self.theta = fm.wrap(self.theta - back)
-            super().measured(x, y, theta)
-            if self.known:
-                self.theta = fm.wrap(self.theta + back)
-
-    take = rover.Rover._take
-
-    def take_with_age(self: Any, payload: bytes, at: int, topic: bytes) -> None:
-        p = msg.parse_pose(payload)
-        if p is not None and p[msg.P_ID] == self.id:  # frame k was captured at k / FPS s of simulated time
-            self.heading.age_s = max(0.0, self._now / 1000.0 - p[msg.P_FRAME] / FPS)
-        take(self, payload, at, topic)
-
-    fm.Heading = DelayAwareHeading
-    rover.Rover._take = take_with_age
+    fm.Heading.measured = at_arrival
 
 
 def heading_errors(config: LoopConfig) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
@@ -116,10 +87,10 @@ def main() -> int:
     parser.add_argument("--kinds", default="line", help="formations, comma separated (default line)")
     parser.add_argument("--seeds", default="0,1,2,3,4,17", help="seeds, comma separated")
     parser.add_argument("--links", default="wire,typical,poor", help="link presets, comma separated")
-    parser.add_argument("--delay-aware", action="store_true", help="the experimental fusion, not the firmware's")
+    parser.add_argument("--at-arrival", action="store_true", help="fuse pose headings as if new (for comparison)")
     args = parser.parse_args()
-    if args.delay_aware:
-        install_delay_aware_heading()
+    if args.at_arrival:
+        install_fusion_at_arrival()
     print(
         "| link | formation | heading error p50 / p95 / p99 / max deg | driving steps beyond the margin | "
         "closest bodies cm | runs passing |"

@@ -82,7 +82,7 @@ def render_clip(directory: Path, width: int, height: int, fps: float, seconds: f
     frames = int(seconds * fps)
     writer = cv2.VideoWriter(str(clip), cv2.VideoWriter.fourcc(*"MJPG"), fps, (width, height))
     from edge.calibration import save_calibration
-    from edge.runtime import exact_calibration
+    from edge.calibration.exact import exact_calibration
     from edge.sim.source import SimSource
 
     sim = SimSource("lab", seed=0, realtime=False, frames=frames)
@@ -159,7 +159,7 @@ def run_once(
     import psutil
     from _common import MOSQUITTO_BENCH, private_mosquitto
 
-    from edge.config import to_toml
+    from edge.config_text import to_toml
 
     http_port = free_port()
     settings: dict[str, dict[str, Any]] = {

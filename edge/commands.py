@@ -16,7 +16,7 @@ from typing import Any
 import paho.mqtt.client as mqtt
 from pydantic import ValidationError
 
-from edge.config import BrokerTarget
+from edge.config import BrokerTarget, EdgeConfig
 from edge.errors import BrokerError, EdgeIpsError, MessageError, describe_validation
 from edge.messages import FORMATION_TOPIC, FormationKind, FormationV1, dumps, next_seq, parse_formation
 from edge.mqttclient import TlsFiles, connect_blocking, make_client
@@ -129,6 +129,38 @@ def send_formation(
     finally:
         client.disconnect()
         client.loop_stop()
+
+
+def publish_formation(
+    config: EdgeConfig,
+    kind: FormationKind,
+    ids: Sequence[str] | None = None,
+    *,
+    spacing_cm: float | None = None,
+    side_cm: float | None = None,
+    x_cm: float | None = None,
+    y_cm: float | None = None,
+    theta_rad: float | None = None,
+) -> FormationV1:
+    """``edge-ips formation``: the command checked first (a mistake is said before connecting), then published
+    retained on the edge's broker (:func:`edge.broker.clients.select_broker`) with the seq after the one it holds.
+    ``ids``: the rovers in formation order (None: the configured ones)."""
+    from edge.broker.clients import select_broker
+
+    chosen = list(ids) if ids is not None else [r.id for r in config.rovers]
+
+    def make(seq: int) -> FormationV1:
+        return build_formation(
+            kind, chosen, seq=seq, spacing_cm=spacing_cm, side_cm=side_cm, x_cm=x_cm, y_cm=y_cm, theta_rad=theta_rad
+        )
+
+    make(1)
+    return send_formation(
+        select_broker(config).target,
+        make,
+        client_id=f"edge-ips-formation-{config.edge.id}",
+        tls=TlsFiles.of(config.broker),
+    )
 
 
 class StopAtStart:

@@ -98,7 +98,7 @@ def check_controls(config: EdgeConfig, source: Any) -> Check | None:
 
 
 def check_calibration(config: EdgeConfig, source: Any, info: Any, where: str) -> Check:
-    from edge.runtime import load_calibration_for
+    from edge.appliance import load_calibration_for
 
     if source is None:
         return Check("calibration", "warn", "not checked: no camera", "fix the camera first")
@@ -143,7 +143,7 @@ def _probe_broker(target: BrokerTarget, config: EdgeConfig, timeout_s: float) ->
     if target.username is not None:
         client.username_pw_set(target.username, target.password)
     if target.tls:
-        files = TlsFiles(config.broker.ca_file, config.broker.cert_file, config.broker.key_file)
+        files = TlsFiles.of(config.broker)
         files.check()
         client.tls_set(
             ca_certs=str(files.ca_file) if files.ca_file else None,
@@ -209,14 +209,14 @@ def _embedded_logins(config: EdgeConfig) -> tuple[str, BrokerTarget | None, str]
     problem with the file ("" if none)."""
     import stat
 
-    from edge.broker.clients import edge_target, embedded_credentials
+    from edge.broker.clients import embedded_credentials, select_broker
 
     path = embedded_credentials(config)
     if not path.exists():
         return f"logins generated on the first start in {path}", None, ""
     mode = stat.S_IMODE(path.stat().st_mode)
     try:
-        target = edge_target(config)
+        target = select_broker(config).target
     except EdgeIpsError as exc:
         return f"logins in {path}", None, str(exc)
     if mode & 0o077:

@@ -101,7 +101,8 @@ def state_logins(env: Mapping[str, str]) -> StoredLogin:
     usual lookup: $EDGE_IPS_CONFIG, ./edge-ips.toml, /etc/edge-ips/config.toml). With an external broker there are
     none: its logins come from ``broker-config``'s credentials.toml through EDGE_IPS_MQTT_PASSWORD."""
     from edge.broker.credentials import rover_login
-    from edge.config import broker_target, find_config, load_config, state_dir
+    from edge.config import broker_target, state_dir
+    from edge.config_load import find_config, load_config
 
     config = load_config(find_config(None, env), env).config
     if not broker_target(config.broker).embedded:

@@ -13,7 +13,7 @@ from typing import Any
 
 import paho.mqtt.client as mqtt
 
-from edge.config import BrokerTarget
+from edge.config import BrokerSection, BrokerTarget
 from edge.errors import BrokerError, ConfigError
 
 
@@ -22,6 +22,11 @@ class TlsFiles:
     ca_file: Path | None = None
     cert_file: Path | None = None
     key_file: Path | None = None
+
+    @classmethod
+    def of(cls, section: BrokerSection) -> TlsFiles:
+        """The files ``[broker]`` names (used when its URL is ``mqtts://``)."""
+        return cls(section.ca_file, section.cert_file, section.key_file)
 
     def check(self) -> None:
         for key, path in (("ca_file", self.ca_file), ("cert_file", self.cert_file), ("key_file", self.key_file)):

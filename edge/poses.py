@@ -14,7 +14,7 @@ from typing import Protocol
 
 from edge.errors import MessageError
 from edge.messages import encode_pose
-from edge.pipeline import RoverEstimate
+from edge.tracking import RoverEstimate
 
 
 class PoseSink(Protocol):

@@ -3,42 +3,33 @@
 Threads and what they share:
 
 * ``capture`` (:class:`edge.capture.CaptureThread`) reads the source into a newest-frame :class:`FrameSlot`;
-* ``tracker`` (:class:`EdgeRuntime`) takes the newest frame, runs the tracker, publishes one pose per rover;
+* ``tracker`` (:class:`EdgeRuntime`) takes the newest frame, runs the tracker, publishes one pose per rover
+  (:func:`edge.poses.publish_poses`, the rule the simulator's closed loop uses too);
 * ``status`` publishes the retained edge status every ``status_interval_s`` and at once after a reconnect;
 * paho's network thread (reconnects with backoff), the recorder's writer, the HTTP server, the embedded broker.
 
 They talk through the slot, ``threading.Event`` for stop, and the recorder's bounded queue. Stopping publishes
 the ``offline`` status, waits for the broker's acknowledgement, then flushes the recording.
 
-:func:`prepare_appliance` assembles everything from an :class:`EdgeConfig`, failing before anything starts when
-the camera, calibration, ports or broker credentials are wrong.
+:mod:`edge.appliance` assembles it, and everything around it, from the configuration.
 """
 
 from __future__ import annotations
 
-import contextlib
-import json
 import logging
-import signal
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from edge.calibration.exact import exact_calibration
 from edge.capture import CaptureThread, FrameSlot
 from edge.clock import SYSTEM_CLOCK, Clock
-from edge.config import BrokerTarget, EdgeConfig, broker_target
-from edge.errors import CalibrationError, MessageError
-from edge.messages import StatusV1, encode_pose
+from edge.messages import StatusV1
 from edge.metrics import Latency, LatencyWindow, RateMeter, RoverSnapshot, Snapshot
-from edge.mqttclient import TlsFiles
-from edge.publisher import MqttPublisher, Publisher, offline_status
-from edge.sources import FrameSource, SourceInfo, camera_source, parse_source
+from edge.poses import publish_poses
+from edge.publisher import Publisher, offline_status
+from edge.sources import FrameSource, SourceInfo
 from edge.tracking import Frame, FrameResult, Tracker
-
-if TYPE_CHECKING:
-    from edge.calibration import Calibration
 
 log = logging.getLogger("edge.runtime")
 
@@ -54,11 +45,10 @@ class _Pose:
 
 
 class _RoverStats:
-    __slots__ = ("detections", "id", "last", "last_seen_mono", "missed", "rate", "seq")
+    __slots__ = ("detections", "id", "last", "last_seen_mono", "missed", "rate")
 
     def __init__(self, rover_id: str) -> None:
         self.id = rover_id
-        self.seq = 0
         self.detections = 0
         self.missed = 0
         self.last_seen_mono: float | None = None
@@ -123,6 +113,7 @@ class EdgeRuntime:
         self._first_result_mono: float | None = None
         self.error: BaseException | None = None
         self._rovers = {r: _RoverStats(r) for r in self.rover_ids}
+        self._seq = dict.fromkeys(self.rover_ids, 0)  # each rover's next pose seq (edge.poses)
         self._status_due = threading.Event()
         self._threads: list[threading.Thread] = []
         self._started_mono = self.clock.monotonic()
@@ -131,32 +122,18 @@ class EdgeRuntime:
 
     # -- the hot path -------------------------------------------------------------------------------------------
     def _publish_result(self, result: FrameResult, frame_index: int, t_capture_s: float) -> None:
+        out = publish_poses(self.publisher, result.estimates, self._seq, frame_index, t_capture_s)
+        for _, exc in out.invalid:
+            self.poses_invalid += 1
+            if self.poses_invalid in (1, 10, 100, 1000) or self.poses_invalid % 10000 == 0:
+                log.warning("pose not publishable (%d so far): %s", self.poses_invalid, exc)
+        invalid = {rover_id for rover_id, _ in out.invalid}
         seen = set()
-        for est in result.estimates:
-            stats = self._rovers.get(est.rover_id)
-            if stats is None:
-                continue  # the tracker knows a rover the configuration does not: nobody subscribed for it
-            seen.add(est.rover_id)
-            try:
-                payload = encode_pose(
-                    est.rover_id,
-                    stats.seq,
-                    frame_index,
-                    t_capture_s,
-                    est.x_cm,
-                    est.y_cm,
-                    est.theta_rad,
-                    est.vx_cm_s,
-                    est.vy_cm_s,
-                    est.quality,
-                )
-            except MessageError as exc:
-                self.poses_invalid += 1
-                if self.poses_invalid in (1, 10, 100, 1000) or self.poses_invalid % 10000 == 0:
-                    log.warning("pose not publishable (%d so far): %s", self.poses_invalid, exc)
+        for est in out.seen:
+            if est.rover_id in invalid:
                 continue
-            if self.publisher.publish_pose(est.rover_id, payload):
-                stats.seq += 1
+            seen.add(est.rover_id)
+            stats = self._rovers[est.rover_id]
             stats.detections += 1
             stats.last_seen_mono = result.t_mono_s
             stats.last = _Pose(est.x_cm, est.y_cm, est.theta_rad, est.quality)
@@ -187,6 +164,10 @@ class EdgeRuntime:
                 self._tracked.notify_all()
             if self._first_result_mono is None:
                 self._first_result_mono = t2
+
+    def newest_frame(self) -> Frame | None:
+        """The newest captured frame, tracked or not (the dashboard's calibration panel draws on it)."""
+        return self.slot.peek()
 
     def wait_tracked(self, timeout_s: float) -> None:
         """Block until the tracker has finished its next frame (or ``timeout_s``): the dashboard's threads do their
@@ -364,246 +345,3 @@ class EdgeRuntime:
             recording_lines=0 if self.recorder is None else self.recorder.lines_written,
             recording_dropped=0 if self.recorder is None else self.recorder.lines_dropped,
         )
-
-
-# -- assembling the appliance from its configuration -------------------------------------------------------------
-@dataclass(frozen=True)
-class TrackerInputs:
-    """What a tracker factory gets: the configuration, the opened source, what it granted, the calibration."""
-
-    config: EdgeConfig
-    source: FrameSource
-    info: SourceInfo
-    calibration: Any
-
-
-TrackerFactory = Callable[[TrackerInputs], Tracker]
-SimFactory = Callable[[str], FrameSource]
-
-
-def default_sim_factory(config: EdgeConfig) -> SimFactory:
-    """The simulator's source, paced in real time, for ``--source sim[:SCENARIO]``."""
-
-    def make(scenario: str) -> FrameSource:
-        from edge.sim.source import SimSource
-
-        return SimSource(scenario or "lab", seed=0, realtime=config.camera.realtime)
-
-    return make
-
-
-def default_tracker_factory(inputs: TrackerInputs) -> Tracker:
-    """The tracking pipeline built from the rovers, the ``[tracker]`` settings and the calibration."""
-    from edge.tracker_config import TrackerConfig
-    from edge.trackers.factory import build_tracker
-
-    return build_tracker(TrackerConfig.of(inputs.config.tracker, inputs.config.rovers), inputs.calibration)
-
-
-def _with_sim_rovers(config: EdgeConfig, source: FrameSource) -> EdgeConfig:
-    """With the simulated camera and no rovers configured, track the simulator's rovers in its colours."""
-    from edge.tracker_config import DEFAULT_ROVERS
-
-    own = getattr(source, "rover_configs", None)
-    if parse_source(config.camera.source).kind != "sim" or not callable(own) or config.rovers != list(DEFAULT_ROVERS):
-        return config
-    rovers = list(own())
-    log.info("rovers: the simulator's, %s", ", ".join(f"{r.id} {r.color_bgr}" for r in rovers))
-    return config.model_copy(update={"rovers": rovers})
-
-
-def load_calibration_for(config: EdgeConfig, source: FrameSource, info: SourceInfo, where: str) -> Calibration:
-    """The calibration for a real source (required), or the simulator's own exact one (from its camera)."""
-    if parse_source(config.camera.source).kind == "sim":
-        camera = getattr(getattr(source, "setup", None), "camera", None) or getattr(source, "camera", None)
-        if camera is None:
-            raise CalibrationError("the simulated camera does not expose its camera model")
-        return exact_calibration(camera)
-    path = config.calibration.path
-    if path is None:
-        raise CalibrationError(
-            f"no calibration configured: set calibration.path in {where} (make one with `edge-ips calibrate`), "
-            "or use --source sim"
-        )
-    if not path.is_file():
-        raise CalibrationError(f"{path}: calibration file not found (calibration.path in {where})")
-    from edge.calibration import load_calibration
-
-    return load_calibration(path, expected_size=(info.width_px, info.height_px))
-
-
-CalibrationLoader = Callable[[EdgeConfig, FrameSource, SourceInfo, str], Any]
-
-
-@dataclass
-class Appliance:
-    """Everything ``edge-ips start`` runs, assembled and checked; :meth:`run` until ``stop`` is set."""
-
-    runtime: EdgeRuntime
-    target: BrokerTarget
-    broker: Any = None
-    http: Any = None
-    dashboard: Any = None
-
-    def run(self, stop: threading.Event) -> None:
-        self.runtime.start()
-        try:
-            self.runtime.wait(stop)
-        finally:
-            self.close()
-        if self.runtime.error is not None:
-            raise self.runtime.error
-
-    def close(self) -> None:
-        """Stop the runtime (offline status, recording flushed), then the HTTP server and the embedded broker."""
-        self.runtime.stop()
-        if self.dashboard is not None:
-            self.dashboard.close()
-        if self.http is not None:
-            self.http.stop()
-        if self.broker is not None:
-            self.broker.stop()
-
-
-def prepare_appliance(
-    config: EdgeConfig,
-    *,
-    config_where: str = "the configuration",
-    tracker_factory: TrackerFactory = default_tracker_factory,
-    sim_factory: SimFactory | None = None,
-    calibration_loader: CalibrationLoader | None = None,
-    connect_timeout_s: float = 3.0,
-) -> Appliance:
-    """Open the source, load the calibration, build the tracker, bind the ports, start the broker, connect.
-
-    Every user-fixable problem raises an :class:`EdgeIpsError` here, before any frame is published; whatever was
-    already started is stopped again.
-    """
-    from edge.broker.clients import start_embedded
-    from edge.commands import StopAtStart
-    from edge.httpserver import HttpServer, Response
-    from edge.metrics import exposition, metrics_registry
-    from edge.recording import Recorder
-
-    cam = config.camera
-    tls = TlsFiles(config.broker.ca_file, config.broker.cert_file, config.broker.key_file)
-    if broker_target(config.broker).tls:
-        tls.check()
-    with contextlib.ExitStack() as started:
-        # The source, its calibration and the tracker first: a missing camera or a bad calibration is said before
-        # any port is bound (and not hidden behind a port that is taken).
-        source = camera_source(cam, sim_factory or default_sim_factory(config))
-        info = source.open()
-        started.callback(source.close)
-        log.info("source: %s", info.description)
-        config = _with_sim_rovers(config, source)
-        calibration = (calibration_loader or load_calibration_for)(config, source, info, config_where)
-        tracker = tracker_factory(TrackerInputs(config, source, info, calibration))
-
-        http = None
-        if config.http.enabled:
-            http = HttpServer.from_config(config.http, config.dashboard).start()
-            started.callback(http.stop)
-
-        target = broker_target(config.broker)
-        broker = None
-        if target.embedded:  # with the state directory's logins; the edge's clients use the edge's
-            broker, target = start_embedded(config)
-            started.callback(broker.stop)
-
-        recorder = None
-        if config.recording.dir is not None:
-            recorder = Recorder(
-                config.recording.dir, max_bytes=config.recording.max_bytes, max_files=config.recording.max_files
-            ).start()
-            started.callback(recorder.close)
-            log.info("recording everything published to %s", config.recording.dir)
-
-        rovers = [r.id for r in config.rovers]
-        runtime_ref: list[EdgeRuntime] = []
-        # A retained stop on the first connection: after a restart every rover halts until commanded again.
-        tap = recorder.record if recorder is not None else None
-        stop_at_start = StopAtStart(target, client_id=f"edge-ips-{config.edge.id}-stop", tls=tls, tap=tap)
-
-        def on_connected() -> None:
-            stop_at_start.on_connected()
-            if runtime_ref:
-                runtime_ref[0].status_now()
-
-        publisher = MqttPublisher(
-            target,
-            edge_id=config.edge.id,
-            rovers=rovers,
-            client_id=config.broker.client_id,
-            keepalive_s=config.broker.keepalive_s,
-            reconnect_min_s=config.broker.reconnect_min_s,
-            reconnect_max_s=config.broker.reconnect_max_s,
-            tls=tls,
-            tap=tap,
-            on_connected=on_connected,
-        )
-        publisher.start()
-        started.callback(publisher.stop)
-        if not publisher.wait_connected(connect_timeout_s):
-            log.warning("broker %s not reachable yet; retrying in the background", target.display())
-        elif not stop_at_start.done.wait(connect_timeout_s):  # before any command can be taken (dashboard)
-            log.warning("the retained stop at start is not acknowledged yet; it is sent again on reconnect")
-
-        runtime = EdgeRuntime(
-            edge_id=config.edge.id,
-            source=source,
-            info=info,
-            tracker=tracker,
-            publisher=publisher,
-            rovers=rovers,
-            broker_display=target.display(),
-            status_interval_s=config.edge.status_interval_s,
-            stall_timeout_s=cam.stall_timeout_s,
-            reopen_min_s=cam.reopen_min_s,
-            reopen_max_s=cam.reopen_max_s,
-            recorder=recorder,
-        )
-        runtime_ref.append(runtime)
-        dashboard = None
-        if http is not None and config.dashboard.enabled:
-            from edge.dashboard import start_dashboard
-
-            dashboard = start_dashboard(config, runtime, http, calibration=calibration, target=target, tls=tls)
-            started.callback(dashboard.close)
-            log.info("dashboard on http://%s:%d/", _display_host(http.host), http.port)
-        if http is not None:  # last: once /healthz answers, every route is there
-            registry = metrics_registry(runtime.snapshot, http=http, recorder=recorder)
-            http.route("/healthz", _health_route(runtime))
-            http.route("/metrics", lambda request: Response(200, *exposition(registry)))
-        started.pop_all()  # all checks passed: the appliance owns what was started
-    return Appliance(runtime=runtime, target=target, broker=broker, http=http, dashboard=dashboard)
-
-
-def _display_host(host: str) -> str:
-    return "localhost" if host in ("0.0.0.0", "::", "") else host
-
-
-def run_until_signalled(appliance: Appliance) -> None:
-    """Run until SIGTERM or SIGINT (call from the main thread), then stop cleanly."""
-    stop = threading.Event()
-
-    def on_signal(signum: int, frame: Any) -> None:
-        if not stop.is_set():  # a signal sent to the process and to its group arrives twice
-            log.info("%s received: stopping", signal.Signals(signum).name)
-        stop.set()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
-    appliance.run(stop)
-
-
-def _health_route(runtime: EdgeRuntime) -> Any:
-    """``/healthz``, answered on the HTTP server's loop (a snapshot is quick): no worker thread needed."""
-    from edge.httpserver import Request, Response
-
-    async def health(request: Request) -> Response:
-        snap = runtime.snapshot()
-        body = json.dumps(snap.health()).encode() + b"\n"
-        return Response(200 if snap.state == "online" else 503, body, "application/json")
-
-    return health

@@ -33,7 +33,9 @@ from edge.errors import SourceError
 from edge.tracking import Frame
 
 if TYPE_CHECKING:
+    from edge.calibration import Calibration
     from edge.config import CameraSection
+    from edge.tracker_config import RoverConfig
 
 log = logging.getLogger("edge.sources")
 
@@ -57,6 +59,16 @@ class FrameSource(Protocol):
     def read(self) -> Frame | None: ...
 
     def close(self) -> None: ...
+
+
+@runtime_checkable
+class SimulatedScene(Protocol):
+    """What a simulated camera knows that a real one does not, for the appliance (optional: check with
+    ``isinstance``): its exact calibration, and its rovers' ids and marker colours as it renders them."""
+
+    def exact_calibration(self) -> Calibration: ...
+
+    def rover_configs(self) -> tuple[RoverConfig, ...]: ...
 
 
 # -- OpenCV-backed sources ---------------------------------------------------------------------------------------

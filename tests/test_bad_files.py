@@ -15,10 +15,10 @@ from typing import Any
 import pytest
 from click.testing import CliRunner, Result
 
+from edge.calibration.exact import exact_calibration
 from edge.calibration.files import calibration_record, save_calibration
 from edge.camera import PinholeCamera, save_camera
 from edge.cli import main
-from edge.runtime import exact_calibration
 from tests.support.calibration import DISTORTION, write_csv
 from tests.support.runtime import write_clip
 

@@ -17,7 +17,8 @@ from click.testing import CliRunner
 from edge.camera_controls import CameraControls, ControlError, apply_controls
 from edge.capture import CaptureThread, FrameSlot
 from edge.cli import main
-from edge.config import EdgeConfig, with_overrides
+from edge.config import EdgeConfig
+from edge.config_load import with_overrides
 from edge.doctor import check_controls
 from edge.sources import CameraSource
 from edge.v4l2 import CONTROL_IDS, VIDIOC_G_CTRL, VIDIOC_QUERYCTRL, VIDIOC_QUERYMENU, VIDIOC_S_CTRL, V4l2Controls

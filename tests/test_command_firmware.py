@@ -66,7 +66,8 @@ class Script:
     def run(self, ms: int) -> None:
         for _ in range(ms // 20):
             for rid, (x, y, theta) in WORLD.items():
-                pose = messages.encode_pose(rid, self.frame, self.frame, 1.7e9, x, y, theta, None, None, 1.0)
+                t = 1.7e9 + self.t_ms / 1000  # captured now by the edge's clock: the rover dates poses by t
+                pose = messages.encode_pose(rid, self.frame, self.frame, t, x, y, theta, None, None, 1.0)
                 self.lines.append(f"m {self.t_ms} {messages.pose_topic(rid)} {pose.hex()}")
             self.frame += 1
             self.lines.append(f"s {self.t_ms}")

@@ -217,7 +217,8 @@ def test_the_runner_steps_on_the_clock_it_is_given_and_exposes_the_motor_command
     for k in range(25):  # 0.5 s of the simulation's time, at the firmware's 20 ms period
         clock.t_ms = 20 * k
         for rid, (x, y) in {"red": (100.0, 100.0), "green": (300.0, 100.0)}.items():
-            rover.deliver(pose_topic(rid), encode_pose(rid, k, k, 1.7e9, x, y, 0.0, None, None, 1.0), clock.t_ms)
+            pose = encode_pose(rid, k, k, 1.7e9 + clock.t_ms / 1000, x, y, 0.0, None, None, 1.0)  # t: capture time
+            rover.deliver(pose_topic(rid), pose, clock.t_ms)
         runner.step()
     assert rover.rover._last_step == 480  # the firmware ran on the simulation's clock, not the host's
     assert runner.halt == "none"

@@ -17,8 +17,8 @@ from typing import Any
 
 import pytest
 
-from edge.config import load_config
-from edge.runtime import exact_calibration
+from edge.calibration.exact import exact_calibration
+from edge.config_load import load_config
 from edge.sim.scene import fleet_looks
 from edge.sim.source import SimSource
 from edge.tracker_config import TrackerConfig

@@ -19,7 +19,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from edge.config import load_config
+from edge.appliance import Appliance
+from edge.config_load import load_config
 from edge.dashboard.enrolment import (
     MIN_KNOWN_SHARE,
     EnrolDesk,
@@ -32,7 +33,6 @@ from edge.dashboard.enrolment import (
 )
 from edge.enroll import EnrolledMarker
 from edge.httpserver import Request
-from edge.runtime import Appliance
 from edge.segmentation import BackgroundModel
 from edge.sim.scene import RoverLook, fleet_looks, marker_albedo_for_hue
 from edge.tracker_config import RoverConfig, TrackerConfig

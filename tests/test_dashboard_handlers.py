@@ -20,8 +20,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from edge.calibration import Calibration
+from edge.calibration.exact import exact_calibration
 from edge.camera import MARKER_HEIGHT_CM, paper_camera
-from edge.config import EdgeConfig, masked
+from edge.config import EdgeConfig
+from edge.config_text import masked
 from edge.dashboard.events import EventHub, Overlay, pose_event, sse, status_event
 from edge.dashboard.formation import authorize, formation_targets, parse_request, with_targets
 from edge.dashboard.frames import FrameEncoder, encode_jpeg
@@ -30,7 +32,6 @@ from edge.dashboard.streams import EventFanout
 from edge.errors import MessageError
 from edge.messages import parse_formation
 from edge.metrics import Latency, RoverSnapshot, Snapshot
-from edge.runtime import exact_calibration
 from edge.tracking import Frame, FrameResult, RoverEstimate
 from tests.support.appliance import edge_config, running
 from tests.support.dashboard import FormationSubscriber, call, read_events
@@ -261,14 +262,18 @@ def test_pages_share_one_hub_viewer_and_the_hub_sleeps_when_they_leave() -> None
         assert [await page.__anext__() for page in pages] == [b"hello 0\n", b"hello 1\n", b"hello 2\n"]
         assert fanout.pages == 3 and fanout._thread is not None
         thread = fanout._thread
-        for _ in range(3000):  # until the fan-out thread has joined the hub (a guard of 30 s, not a pause)
-            if hub.viewers:
-                break
-            await asyncio.sleep(0.01)
+
+        def joined() -> bool:  # the hub notifies its condition when a viewer joins
+            with hub._cond:
+                return hub._cond.wait_for(lambda: bool(hub._viewers), timeout=30)
+
+        assert await asyncio.to_thread(joined)  # the fan-out thread has joined the hub
         hub.publish("formation", {"kind": "line"})
-        for page in pages:  # every page gets it, through one viewer of the hub
-            chunk = await asyncio.wait_for(page.__anext__(), 30)
-            assert b'event: formation\ndata: {"kind":"line"}\n\n' in chunk
+        for page in pages:  # every page gets it (after the hub's first status), through one viewer of the hub
+            received = b""
+            while b"event: formation" not in received:
+                received += await asyncio.wait_for(page.__anext__(), 30)
+            assert b'event: formation\ndata: {"kind":"line"}\n\n' in received
         assert hub.viewers == 1
         for page in pages:
             await page.aclose()
@@ -450,7 +455,7 @@ def test_no_dashboard_leaves_health_and_metrics(mosquitto: Mosquitto) -> None:
 
 # -- configuration ---------------------------------------------------------------------------------------------------
 def test_the_token_is_masked_and_settings_are_validated(tmp_path: Path) -> None:
-    from edge.config import load_config
+    from edge.config_load import load_config
     from edge.errors import ConfigError
 
     config = EdgeConfig.model_validate({"dashboard": {"token": TOKEN, "viewer_token": "viewer-only-1", "frame_fps": 5}})

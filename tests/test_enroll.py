@@ -15,7 +15,7 @@ from click.testing import CliRunner, Result
 
 from edge.camera import PinholeCamera, paper_camera, save_camera
 from edge.cli import main
-from edge.config import load_config
+from edge.config_load import load_config
 from edge.enroll import enroll
 from edge.errors import EnrollmentError
 from edge.sim.scene import RoverLook, fleet_looks, marker_albedo_for_hue

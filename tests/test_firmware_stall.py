@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from tests.support.firmware import run_stall, stall_config
+from tests.support.firmware import STALL_CASES, run_stall, stall_config
 
 STOP_BOUND_MS = 500
 CUTS = ("boundary", "first byte", "remaining length", "topic length", "topic", "payload", "broker silent")
@@ -26,9 +26,8 @@ TIMEOUT_MS = int(stall_config()["broker"]["timeout_s"] * 1000)
 def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, str], dict[str, Any]]:
     """Every case in both interpreters, once per module."""
     tmp = tmp_path_factory.mktemp("stall")
-    cases = (*CUTS, "send buffer full", "broker never answers", "no SUBACK", "oversize retained", "wifi back", "ctrl-c")
     out = {}
-    for case in cases:
+    for case in STALL_CASES:
         run_ms = 6000 if case == "wifi back" else 4000
         for interpreter in ("cpython", "micropython"):
             out[case, interpreter] = run_stall(case, interpreter, tmp, run_ms)
@@ -93,6 +92,18 @@ def test_after_a_wifi_drop_mid_packet_the_rover_stops_then_reconnects_and_drives
     assert r["off_ms"] - r["last_pose_ms"] <= STOP_BOUND_MS
     assert r["connects"] == 2 and r["drops"] == 1
     assert r["drove_after_stall"] and r["drove_after_stall"][0] > r["off_ms"]
+
+
+def test_the_backlog_after_an_outage_is_not_driven_on(runs: dict[tuple[str, str], dict[str, Any]]) -> None:
+    """1.5 s without a byte, the TCP connection kept: then everything sent meanwhile at once (PINGRESP included), in
+    order. The rover stopped within the bound, and drove again only on a pose younger than stale_ms."""
+    r = both(runs, "backlog")
+    assert r["off_ms"] - r["last_pose_ms"] <= STOP_BOUND_MS
+    assert r["connects"] == 1 and r["drops"] == 0  # the link rode the outage out
+    release = r["stall_ms"] + 1500
+    assert r["drove_after_stall"] and r["drove_after_stall"][0] > release
+    stale_ms = stall_config()["control"]["stale_ms"]
+    assert r["rejoin_pose_age_ms"] <= stale_ms  # young: the backlog was 0-1.5 s old
 
 
 def test_ctrl_c_stops_the_motors_and_the_watchdog_for_good(runs: dict[tuple[str, str], dict[str, Any]]) -> None:

@@ -39,7 +39,8 @@ class Rig:
     seq: int = 0
 
     def publish_own_pose(self, x_cm: float = 150.0, y_cm: float = 200.0) -> None:
-        payload = encode_pose("red", self.seq, self.seq, 0.0, x_cm, y_cm, 0.0, 0.0, 0.0, 1.0)
+        t = 1.7e9 + self.clock.now_s  # captured now by the edge's clock: the rover dates poses by it
+        payload = encode_pose("red", self.seq, self.seq, t, x_cm, y_cm, 0.0, 0.0, 0.0, 1.0)
         assert self.publisher.publish_pose("red", payload)
         self.seq += 1
         self.fleet.await_poses({pose_topic("red"): payload}, timeout_s=5.0)

@@ -89,8 +89,8 @@ def test_start_refuses_bad_setups_before_starting(
 
 def test_start_refuses_a_calibration_made_for_another_resolution(tmp_path: Path, env: dict[str, str]) -> None:
     from edge.calibration import save_calibration
+    from edge.calibration.exact import exact_calibration
     from edge.camera import paper_camera
-    from edge.runtime import exact_calibration
 
     save_calibration(exact_calibration(paper_camera()), tmp_path / "cal.json")  # 1280x720
     (tmp_path / "edge-ips.toml").write_text("[calibration]\npath = 'cal.json'\n")

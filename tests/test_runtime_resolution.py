@@ -13,10 +13,11 @@ from collections.abc import Sequence
 import numpy as np
 import pytest
 
+from edge.appliance import TrackerInputs
+from edge.calibration.exact import exact_calibration
 from edge.camera import PinholeCamera
 from edge.capture import CaptureThread, FrameSlot
 from edge.errors import SourceError
-from edge.runtime import TrackerInputs, exact_calibration
 from edge.sources import SourceInfo
 from edge.tracker_config import TrackerConfig
 from edge.trackers.factory import build_tracker

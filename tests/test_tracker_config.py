@@ -10,11 +10,11 @@ from typing import Any
 import numpy as np
 import pytest
 
+from edge.appliance import TrackerInputs, default_tracker_factory
 from edge.camera import MARKER_HEIGHT_CM
-from edge.config import load_config
+from edge.config_load import load_config
 from edge.errors import SourceError
 from edge.pipeline import Pipeline
-from edge.runtime import TrackerInputs, default_tracker_factory
 from edge.sources import MemorySource
 from edge.tracker_config import RoverConfig, TrackerConfig, TrackerSettings
 from edge.trackers import CentroidTracker

@@ -15,23 +15,24 @@ from edge.dashboard.server import Dashboard
 
 if TYPE_CHECKING:
     from edge.config import BrokerTarget, EdgeConfig
+    from edge.dashboard.runtime_view import RuntimeView
     from edge.httpserver import HttpServer
     from edge.mqttclient import TlsFiles
-    from edge.runtime import EdgeRuntime
 
 __all__ = ["Dashboard", "start_dashboard"]
 
 
 def start_dashboard(
     config: EdgeConfig,
-    runtime: EdgeRuntime,
+    runtime: RuntimeView,
     http: HttpServer,
     *,
     calibration: Any,
     target: BrokerTarget,
     tls: TlsFiles | None = None,
 ) -> Dashboard:
-    """Build the dashboard for a prepared runtime and register its routes on ``http``.
+    """Build the dashboard for a prepared runtime (an :class:`edge.runtime.EdgeRuntime`) and register its routes on
+    ``http``.
 
     ``calibration``: the tracker's :class:`edge.calibration.Calibration` (None when unknown: no overlays).
     ``target``: the broker the formation commands go to (the appliance's own, embedded port resolved).
@@ -50,7 +51,7 @@ def start_dashboard(
     area_cm = calibration.area_cm if calibration is not None else (0.0, 0.0, AREA_WIDTH_CM, AREA_LENGTH_CM)
 
     def background() -> Any:
-        frame = runtime.slot.peek()
+        frame = runtime.newest_frame()
         return None if frame is None else frame.image
 
     view = CalibrationView(

@@ -38,7 +38,7 @@ if TYPE_CHECKING:
     from edge.dashboard.events import EventHub, Overlay
     from edge.dashboard.formation import FormationDesk
     from edge.dashboard.frames import FrameEncoder
-    from edge.runtime import EdgeRuntime
+    from edge.dashboard.runtime_view import RuntimeView
     from edge.tracker_config import RoverConfig
 
 log = logging.getLogger("edge.dashboard")
@@ -78,12 +78,12 @@ def _fixed(response: Response) -> Callable[[Request], Awaitable[Response]]:
 
 
 class Dashboard:
-    """The page's routes over one running :class:`EdgeRuntime`; :meth:`attach` registers them, :meth:`close`
+    """The page's routes over one running runtime (:class:`RuntimeView`); :meth:`attach` registers them, :meth:`close`
     ends the event streams, the encoder and the formation watcher."""
 
     def __init__(
         self,
-        runtime: EdgeRuntime,
+        runtime: RuntimeView,
         *,
         settings: DashboardSection,
         rovers: Sequence[RoverConfig],

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
 
-from edge.config import BrokerTarget, parse_broker_url
-from edge.errors import ConfigError, SimulationError
+from edge.config import BrokerTarget
+from edge.errors import SimulationError
 from edge.rover_host import HostRover, firmware_modules
 from edge.sim.link import LinkModel, LinkSettings
 from edge.sim.relay import LinkRelay, RelayLog, Station
@@ -22,29 +22,20 @@ from edge.sim.world import WheelCommand
 
 
 class LoopBroker:
-    """The broker a run talks through: the embedded amqtt broker (started here), or one at a URL."""
+    """The broker a run talks through (:func:`edge.broker.clients.simulation_broker`, the edge's one rule for
+    choosing it): an open embedded amqtt broker started here, or one at a URL."""
 
     def __init__(self, url: str | None) -> None:
-        from edge.broker import EmbeddedBroker
+        from edge.broker.clients import simulation_broker
 
-        self._embedded: Any = None
-        target = None
-        if url is not None:
-            try:
-                target = parse_broker_url(url)
-            except ValueError as exc:
-                raise ConfigError(f"--broker: {exc}") from None
-        if target is None or target.embedded:
-            self._embedded = EmbeddedBroker("127.0.0.1", 0).start()
-            target = BrokerTarget(embedded=False, host="127.0.0.1", port=self._embedded.port)
-        self.target: BrokerTarget = target
+        self._broker = simulation_broker(url)
+        self.target: BrokerTarget = self._broker.target
 
     def kill(self) -> bool:
         """Stop the embedded broker (True); a broker at a URL is not ours to stop (False)."""
-        if self._embedded is None:
+        if self._broker.started is None:
             return False
-        self._embedded.stop(timeout_s=5.0)
-        self._embedded = None
+        self._broker.stop(timeout_s=5.0)
         return True
 
     def close(self) -> None:

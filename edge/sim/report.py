@@ -61,10 +61,39 @@ def ips_errors_cm(record: LoopRecord) -> np.ndarray:
     return np.asarray(out)
 
 
+YOUNG_BAR_MS = 500  # no rover may drive on a pose of its own older than this since its frame was captured
+
+
+def _frames(record: LoopRecord) -> dict[tuple[str, int], int]:
+    """(rover id, seq) -> the frame of every pose published."""
+    return {(rid, parse_pose(payload).seq): frame for frame, rid, payload in record.published}
+
+
+def young_arrivals(record: LoopRecord, rover_id: str) -> list[int]:
+    """When (simulated ms, the firmware step) a rover took a new pose of its own that was *young*: it arrived at most
+    ``stale_ms`` later than the fastest capture-to-arrival of the run. A pose that waited on the air (a backlog after
+    an outage) arrives, but is not fresh: the firmware dates it by its capture time and does not drive on it."""
+    log = record.motors.get(rover_id)
+    if log is None:
+        return []
+    frame_of = _frames(record)
+    arrivals: list[tuple[int, float]] = []
+    last = None
+    for t, seq in zip(log.t_ms, log.own_seq, strict=True):
+        if seq is not None and seq != last and (rover_id, seq) in frame_of:
+            arrivals.append((t, t - frame_of[(rover_id, seq)] * 1000.0 / record.fps))
+        last = seq
+    if not arrivals:
+        return []
+    fastest = min(age for _, age in arrivals)
+    stale_ms = rover_config(rover_id)["control"]["stale_ms"]
+    return [t for t, age in arrivals if age - fastest <= stale_ms]
+
+
 def safety(record: LoopRecord) -> dict[str, Any] | None:
-    """After the camera feed stopped or the broker died: for each rover, its last fresh own pose (receive time,
-    simulated ms), when its motors were cut for good (both duties 0 from then on), and when its body came to rest
-    (ground truth)."""
+    """After the camera feed stopped or the broker died: for each rover, its last fresh (young) own pose (simulated
+    ms of the step that took it), when its motors were cut for good (both duties 0 from then on), and when its body
+    came to rest (ground truth)."""
     cfg = record.config
     stop_frame = min(f for f in (cfg.feed_stop_frame, cfg.broker_stop_frame, len(record.truth)) if f is not None)
     if stop_frame >= len(record.truth) or not record.motors:
@@ -73,7 +102,7 @@ def safety(record: LoopRecord) -> dict[str, Any] | None:
     rovers: dict[str, Any] = {}
     for k, rid in enumerate(record.ids):
         log = record.motors[rid]
-        fresh = record.fresh_ms[rid]
+        fresh = young_arrivals(record, rid)
         last_fresh = fresh[-1] if fresh else 0
         duty = np.asarray(log.left_duty) + np.asarray(log.right_duty)
         t = np.asarray(log.t_ms)
@@ -107,15 +136,16 @@ def safety(record: LoopRecord) -> dict[str, Any] | None:
 
 
 def stale_stops(record: LoopRecord, bar_ms: int = 500) -> list[dict[str, Any]]:
-    """Every time a rover went without a fresh pose of its own for longer than its stale bound (an outage, a long
-    retransmission, the feed or the broker gone): when its motors were cut for good and its body came to rest,
-    counted from its last fresh pose, and when it drove again after the next one (None: the run ended first).
+    """Every time a rover went without a fresh (young: :func:`young_arrivals`) pose of its own for longer than its
+    stale bound (an outage and the backlog after it, a long retransmission, the feed or the broker gone): when its
+    motors were cut for good and its body came to rest, counted from its last fresh pose, and when it drove again
+    after the next one (None: the run ended first).
 
     Times are simulated ms; ``passed``: motors off and body at rest within ``bar_ms`` of the last fresh pose."""
     out: list[dict[str, Any]] = []
     for k, rid in enumerate(record.ids):
         log = record.motors.get(rid)
-        fresh = record.fresh_ms.get(rid, [])
+        fresh = young_arrivals(record, rid)
         if log is None or not fresh:
             continue
         stale_ms = stale_bound_ms(rid)
@@ -157,11 +187,9 @@ def stale_stops(record: LoopRecord, bar_ms: int = 500) -> list[dict[str, Any]]:
 
 def driven_pose_age_ms(record: LoopRecord) -> dict[str, Any]:
     """How old (since its frame was captured) the newest pose of its own was at every control step in which a rover
-    drove: the firmware judges a pose by when it *arrived*, and a pose that waited on the air (a retransmission,
-    the backlog after an outage) arrives fresh but old. Stats over all rovers and steps, ms."""
-    frame_of: dict[tuple[str, int], int] = {}
-    for frame, rid, payload in record.published:
-        frame_of[(rid, parse_pose(payload).seq)] = frame
+    drove: a pose that waited on the air (a retransmission, the backlog after an outage) arrives recently but old,
+    and the firmware must judge it by its age. Stats over all rovers and steps, ms."""
+    frame_of = _frames(record)
     ages: list[float] = []
     for rid, log in record.motors.items():
         for t, seq, halt, left, right in zip(
@@ -329,6 +357,8 @@ def summarize(record: LoopRecord) -> dict[str, Any]:
         out["link"] = link_summary(record)
         if "passed" in out:
             out["passed"]["stops_in_time"] = out["link"]["stops_passed"]
+            oldest = out["link"]["driven_pose_age_ms"]["max"]
+            out["passed"]["young_poses"] = oldest is None or oldest <= YOUNG_BAR_MS
     return out
 
 

@@ -6,8 +6,10 @@
 #     joins Wi-Fi (the ESP8266 keeps retrying on its own; connect is re-issued every 10 s while down);
 #   - connects to the broker with a last will (retained status "offline" on ips/v1/rovers/<id>/status), calls
 #     on_connect() after CONNACK and before SUBSCRIBE, subscribes to every rover's pose and to the formation;
-#   - hands over what arrived (the callback gets every message), sends its own keepalive pings (umqtt.simple sends
-#     none), and declares the link dead when the broker has been silent for 1.5 keepalives (PINGRESP included);
+#   - hands over what arrived (the callback gets every message, up to 16 a poll: a PINGRESP in the middle of a
+#     backlog does not end the drain, although umqtt's check_msg() returns None for it as when nothing is there),
+#     sends its own keepalive pings (umqtt.simple sends none), and declares the link dead when the broker has been
+#     silent for 1.5 keepalives (PINGRESP included);
 #   - after a drop: closes the socket, retries with exponential backoff (0.25 s doubling to 8 s), and subscribes
 #     again on every new session (umqtt.robust reconnects but does not resubscribe).
 #
@@ -56,6 +58,7 @@ class _Stream:
         self.sock = None
         self.blocking = True
         self.heard = False  # any byte from the broker since the link last looked
+        self.idle = False  # umqtt asked for a packet and none had arrived whole
         self.dropped = 0  # packets dropped for their length
         self.dropped_bytes = 0  # the length of the last one
         self.waits = 0  # times a call had to wait (motors made safe first)
@@ -140,6 +143,7 @@ class _Stream:
         if self._pos < 0:  # umqtt asks for a new packet's first byte
             if not self._pump():
                 if not self.blocking:
+                    self.idle = True
                     return None
                 self._wait(self._pump)
             self._pos = 0
@@ -296,9 +300,12 @@ class Link:
                 self._connect(now_ms)
             s = self.stream
             for _ in range(_DRAIN_MAX):
+                s.idle = False
                 op = self.client.check_msg()
                 if op is None:
-                    break
+                    if s.idle:
+                        break
+                    continue  # a PINGRESP: more may wait behind it
                 if op & 0xF0 != PUBLISH:
                     raise OSError(-3)  # a packet the session does not expect: start afresh
             if s.dropped != self._dropped:

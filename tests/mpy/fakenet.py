@@ -92,6 +92,7 @@ class Broker:
         self.room = -1  # bytes the rover may still write; -1: no limit
         self.retained = None  # the retained formation payload
         self.latency_ms = 2
+        self.hold_until = None  # nothing arrives before this time (an outage that TCP rides out)
         self.conn = None
         self.connections = 0
         self.subscribed = []
@@ -105,6 +106,8 @@ class Broker:
     def send(self, data, delay_ms=None):
         """Queue bytes for the rover; they arrive delay_ms from now (and after what is already queued)."""
         at = self.clock.now + (self.latency_ms if delay_ms is None else delay_ms)
+        if self.hold_until is not None and at < self.hold_until:
+            at = self.hold_until
         if self.queue and self.queue[-1][0] > at:
             at = self.queue[-1][0]
         self.queue.append([at, data])

@@ -20,7 +20,7 @@ MICROPYTHON = sys.implementation.name == "micropython"
 ME = "red"
 WORLD = (("red", 120.0, 100.0, 0.3), ("green", 250.0, 320.0, 2.0), ("blue", 330.0, 90.0, -1.0))
 FORMATION = b'{"v":1,"seq":1,"kind":"triangle","ids":["red","green","blue"],"side":100.0}'
-POSE = '{"v":1,"id":"%s","seq":%d,"frame":%d,"t":%d.5,"x":%s,"y":%s,"theta":%s,"vx":null,"vy":null,"q":1.0}'
+POSE = '{"v":1,"id":"%s","seq":%d,"frame":%d,"t":%d.%03d,"x":%s,"y":%s,"theta":%s,"vx":null,"vy":null,"q":1.0}'
 FRAME_MS = 33
 CHUNK = 1  # steps between collections: one step can wait for seconds of simulated traffic
 
@@ -40,6 +40,7 @@ CASES = {
     "no SUBACK": {"no_suback": True},
     "oversize retained": {"oversize": 6000},
     "wifi back": {"cut": -20, "back_ms": 1000},
+    "backlog": {"hold_ms": 1500},
     "ctrl-c": {"interrupt": True},
 }
 
@@ -56,6 +57,7 @@ class _Edge:
         self.frame = 0
         self.next_ms = 0
         self.own = []  # (connection, arrival ms, end offset in that connection's stream) of each own pose
+        self.captured = {}  # frame -> capture ms, of own poses
         self.cut_done = False
 
     def __call__(self, now):
@@ -65,7 +67,8 @@ class _Edge:
         self.next_ms = now + FRAME_MS
         self.frame += 1
         for rid, x, y, th in WORLD:
-            payload = (POSE % (rid, self.frame, self.frame, 1763900000 + now // 1000, x, y, th)).encode()
+            t = 1763900000000 + now  # the edge's clock at capture, ms
+            payload = (POSE % (rid, self.frame, self.frame, t // 1000, t % 1000, x, y, th)).encode()
             topic = b"ips/v1/rovers/" + rid.encode() + b"/pose"
             cut = self.case.get("cut")
             if rid == ME and cut is not None and not self.cut_done and now >= self.stall_ms:
@@ -76,6 +79,7 @@ class _Edge:
             at = b.publish(topic, payload)
             if rid == ME and at is not None:
                 self.own.append((b.connections, at, b.queued))
+                self.captured[self.frame] = now
 
 
 def _motors(now):
@@ -84,6 +88,9 @@ def _motors(now):
     if on != _s["on"]:
         _s["on"] = on
         _s["changes"].append((now, on))
+        if on:  # the own pose it drives on (seq = frame here)
+            r = _s["rover"]
+            _s["drove_on"].append(r._seq[r._me] if r._me >= 0 else None)
 
 
 def _strike(now):
@@ -99,6 +106,8 @@ def _strike(now):
             _s["clock"].interrupt_at = now
         if "oversize" in case:
             b.publish(b"ips/v1/formation", FORMATION, 1)  # a legal formation after the dropped one
+        if "hold_ms" in case:
+            b.hold_until = now + case["hold_ms"]  # an outage TCP rides out: then everything at once, in order
     back = case.get("back_ms")
     if back is not None and now == _s["stall_ms"] + back:
         b.cut_at = None  # the air is back; the old TCP connection is gone for good
@@ -130,6 +139,7 @@ def _setup(case_name, path, stall_ms):
         stall_ms=stall_ms,
         on=False,
         changes=[],
+        drove_on=[],
         log=[],
         interrupted=None,
     )
@@ -176,11 +186,18 @@ def _summary():
     for conn, at, end in edge.own:
         if end <= b.delivered[conn - 1] and (off is None or at <= off):
             last = at
+    # When it drove again after the stall: how old (since capture) the own pose it drove on was.
+    rejoin_age = None
+    again = [t for t in drove if t > _s["stall_ms"]]
+    if again:
+        seq = _s["drove_on"][len(drove) - len(again)]
+        rejoin_age = again[0] - edge.captured[seq]
     return {
         "stall_ms": _s["stall_ms"],
         "end_ms": _s["clock"].now,
         "first_drive_ms": drove[0] if drove else None,
-        "drove_after_stall": [t for t in drove if t > _s["stall_ms"]],
+        "drove_after_stall": again,
+        "rejoin_pose_age_ms": rejoin_age,
         "stops": stops,
         "off_ms": off,
         "last_pose_ms": last,

@@ -148,6 +148,16 @@ class KinematicFleet:
         self.events: list[str] = []  # what the first rover got, in the format of tests/mpy/replay.py
         self.commands: list[tuple[int, str, list[float], tuple[float, float]]] = []  # and what it did
         self.scales: list[float] = []  # the share of its command the first rover drove at each step
+        self.own_seqs: list[int | None] = []  # the seq (= frame) of the newest own pose the first rover had
+        self.captured_ms: dict[int, int] = {}  # frame -> when it was captured (the simulated clock, ms)
+        self.edge_clock_s = 1.7639e9  # the edge's clock when the simulated clock reads 0 (a test may step it)
+        self._hold: tuple[int, int, int] | None = None
+
+    def hold(self, start_ms: int, end_ms: int, per_step: int = 16) -> None:
+        """A Wi-Fi outage that TCP rides out: poses due from ``start_ms`` to ``end_ms`` wait, then arrive in order,
+        ``per_step`` messages before each control step (the firmware's link drains 16 a poll), ahead of everything
+        captured later, until the backlog is gone."""
+        self._hold = (start_ms, end_ms, per_step)
 
     def command(self, formation: dict[str, Any]) -> None:
         payload = json.dumps({"v": 1, **formation}, separators=(",", ":")).encode()
@@ -171,13 +181,24 @@ class KinematicFleet:
                 theta = math.remainder(theta + self.rng.choice((-1, 1)) * self.rng.uniform(0.7, math.pi), math.tau)
                 self.outliers_sent += 1
             payload = encode_pose(
-                rid, self.frame, self.frame, 1.7639e9 + self.now_ms / 1000, x, y, theta, None, None, 1.0
+                rid, self.frame, self.frame, self.edge_clock_s + self.now_ms / 1000, x, y, theta, None, None, 1.0
             )
+            self.captured_ms[self.frame] = self.now_ms
             self.pending.append((self.now_ms + self.latency_ms, f"ips/v1/rovers/{rid}/pose", payload))
 
     def _deliver_due(self) -> None:
-        due = [p for p in self.pending if p[0] <= self.now_ms]
-        self.pending = [p for p in self.pending if p[0] > self.now_ms]
+        n = sum(1 for p in self.pending if p[0] <= self.now_ms)  # pending is in order of delivery time
+        if self._hold is not None:
+            start, end, per_step = self._hold
+            if self.now_ms < end:
+                n = sum(1 for p in self.pending if p[0] <= self.now_ms and p[0] < start)  # due before it: through
+            elif self.now_ms % self.period_ms:
+                n = 0  # the backlog arrives in the link's drains, one before each step
+            elif n < per_step:
+                self._hold = None  # the last of the backlog
+            else:
+                n = per_step
+        due, self.pending = self.pending[:n], self.pending[n:]
         for _, topic, payload in due:
             self._send(topic, payload)
 
@@ -204,6 +225,8 @@ class KinematicFleet:
                 self.events.append(f"s {self.now_ms}")
                 self.commands.append((self.now_ms, first.halt, list(first.rover.command), first.wheel_speeds_rad_s))
                 self.scales.append(first.rover._scale)
+                me = first.rover._me
+                self.own_seqs.append(int(first.rover._seq[me]) if me >= 0 else None)
             for k, (r, b) in enumerate(zip(self.rovers, self.bodies, strict=True)):
                 left, right = r.wheel_speeds_rad_s
                 g = self.gains[k]
@@ -303,7 +326,7 @@ def host_module(name: str) -> ModuleType:
     return _load_as(name, HOST / f"{name}.py")
 
 
-_DRIVER_NEEDS = {"stall": ("fakenet", "app")}
+_DRIVER_NEEDS = {"stall": ("fakenet", "app"), "drain": ("fakenet",)}
 
 
 def mpy_driver(name: str) -> ModuleType:
@@ -563,6 +586,7 @@ STALL_CASES = (
     "no SUBACK",
     "oversize retained",
     "wifi back",
+    "backlog",
     "ctrl-c",
 )
 

@@ -14,8 +14,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from edge.appliance import Appliance, TrackerInputs
+from edge.calibration.exact import exact_calibration
 from edge.camera import PinholeCamera, paper_camera
-from edge.runtime import Appliance, EdgeRuntime, TrackerInputs, exact_calibration
+from edge.runtime import EdgeRuntime
 from edge.sim.render import Renderer
 from edge.sim.scenarios import lab_effects
 from edge.sim.scene import RoverLook, Scene, marker_albedo_for_hue

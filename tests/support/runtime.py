@@ -153,6 +153,32 @@ def statuses(messages: list[Received]) -> list[dict[str, Any]]:
     return [json.loads(m.payload) for m in messages if m.topic.startswith("ips/v1/edge/")]
 
 
+class Switch:
+    """An on/off a test flips (``set``/``clear``, as :class:`threading.Event`) and a thread can wait to see off."""
+
+    def __init__(self) -> None:
+        self._on = False
+        self._changed = threading.Condition()
+
+    def set(self) -> None:
+        with self._changed:
+            self._on = True
+            self._changed.notify_all()
+
+    def clear(self) -> None:
+        with self._changed:
+            self._on = False
+            self._changed.notify_all()
+
+    def is_set(self) -> bool:
+        return self._on
+
+    def wait_off(self, stop: threading.Event, timeout_s: float = 1.0) -> None:
+        """Until off, or up to ``timeout_s`` (the caller checks ``stop`` then: a stopped server does not wait)."""
+        with self._changed:
+            self._changed.wait_for(lambda: not self._on or stop.is_set(), timeout_s)
+
+
 class MjpegServer:
     """An HTTP multipart-JPEG stream of :func:`scene` frames at ``fps`` that a test can stall, kill and revive
     (at another ``size`` if it likes); ``requests`` counts the connections it answered."""
@@ -162,7 +188,7 @@ class MjpegServer:
         self.size = size
         self.requests = 0
         self._answered = threading.Condition()
-        self.stalled = threading.Event()
+        self.stalled = Switch()  # set: the connection stays open, no frames
         self._port = port
         self._server: ThreadingHTTPServer | None = None
         self._stop = threading.Event()
@@ -187,7 +213,7 @@ class MjpegServer:
                 try:
                     while not owner._stop.is_set():
                         if owner.stalled.is_set():
-                            time.sleep(0.02)
+                            owner.stalled.wait_off(owner._stop)
                             continue
                         _, jpg = cv2.imencode(".jpg", scene(i, *owner.size))
                         data = jpg.tobytes()
@@ -198,7 +224,7 @@ class MjpegServer:
                         )
                         owner.frames_sent += 1
                         i += 1
-                        time.sleep(1.0 / owner.fps)
+                        owner._stop.wait(1.0 / owner.fps)  # the camera's frame period
                 except (BrokenPipeError, ConnectionResetError):
                     pass
 
