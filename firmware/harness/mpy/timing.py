@@ -1,5 +1,5 @@
 # MicroPython driver: time per call of the parser and of one control step, in microseconds (ticks_us).
-# Collections happen between batches, are not timed, and run only from small frames (tests/support/firmware.py).
+# Collections happen between batches, are not timed, and run only from small frames (firmware/harness/runner.py).
 # Each figure is the fastest of 20 batches of 100 calls: the machine is shared, and the minimum is the least noisy.
 import binascii
 import gc
