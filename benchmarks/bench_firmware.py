@@ -130,6 +130,8 @@ def heap_loop() -> dict[str, object]:
 def timings() -> dict[str, float]:
     out = run_micropython("timing.main()", {"events": record_events("triangle", 2.0, 6).encode()})
     wasm = json.loads(out)
+    if wasm.pop("halt") != "none":  # a control step timed while halted (stale poses) is not the step that drives
+        raise SystemExit(f"timing: the rover was halted ({out.strip()}): the step timed is not a driving one")
     msg = firmware_modules()["msg"]
     pose = b'{"v":1,"id":"red","seq":42,"frame":1234,"t":1763900000.123,"x":81.5,"y":32.47,"theta":1.5708,'
     pose += b'"vx":12.3,"vy":-4.5,"q":0.97}'
