@@ -101,3 +101,24 @@ def test_plot_draws_a_recordings_poses_from_its_directory(tmp_path: Path, env: d
     assert result.exit_code == 0, result.output
     assert "(green: 20, red: 20 poses)" in result.output
     assert (tmp_path / "run.png").read_bytes().startswith(b"\x89PNG")
+
+
+@pytest.mark.parametrize(
+    ("argv0", "orig", "expected"),
+    [
+        ("/opt/venv/bin/edge-ips", ["py", "/opt/venv/bin/edge-ips", "start"], ["/opt/venv/bin/edge-ips", "start"]),
+        ("/repo/edge/cli/__main__.py", ["py", "-m", "edge.cli", "start"], ["-m", "edge.cli", "start"]),
+        ("/usr/lib/python3/site-packages/pytest/__main__.py", ["py", "-m", "pytest"], None),
+    ],
+    ids=["the edge-ips script", "python -m edge.cli", "inside a test runner"],
+)
+def test_a_killed_edge_restarts_as_it_was_started_and_only_when_it_is_the_command(
+    monkeypatch: pytest.MonkeyPatch, argv0: str, orig: list[str], expected: list[str] | None
+) -> None:
+    import sys
+
+    from edge.cli.twin import restart_argv
+
+    monkeypatch.setattr(sys, "argv", [argv0, *orig[2:]])
+    monkeypatch.setattr(sys, "orig_argv", orig)
+    assert restart_argv() == expected
