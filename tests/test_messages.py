@@ -95,7 +95,27 @@ def test_invalid_example_is_rejected_by_the_json_schema_or_the_byte_rules(path: 
         return
     if _int_fields_written_as_floats(doc, schema):
         return
+    if _breaks_a_rule_beyond_the_schema(kind, doc):
+        return
     assert not _validator(kind).is_valid(doc)
+
+
+def _breaks_a_rule_beyond_the_schema(kind: str, doc: object) -> bool:
+    """The README's rules for detections that JSON Schema cannot state: each covariance positive definite, each
+    rover id once per message."""
+    if kind != "detections" or not isinstance(doc, dict) or not isinstance(doc.get("rovers"), list):
+        return False
+    rovers = [r for r in doc["rovers"] if isinstance(r, dict)]
+    ids = [r.get("id") for r in rovers]
+    if len(set(ids)) != len(ids):
+        return True
+    for r in rovers:
+        cov = r.get("cov")
+        if isinstance(cov, list) and len(cov) == 3 and all(isinstance(c, int | float) for c in cov):
+            xx, xy, yy = cov
+            if not (xx > 0 and yy > 0 and xx * yy > xy * xy):
+                return True
+    return False
 
 
 NON_CANONICAL = {"pose-integers.json", "pose-reordered-spaced.json"}  # valid, but not what the edge writes
