@@ -420,6 +420,45 @@ def doctor(ctx: click.Context, config_path: Path | None, source: str | None, bro
         ctx.exit(1)
 
 
+# -- fuse ----------------------------------------------------------------------------------------------------------
+@main.command()
+@click.argument("detections", nargs=-1, type=click.Path(path_type=Path))
+@click.option("--out", "out_path", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Poses file.")
+@click.option("--fps", type=click.FloatRange(min=1.0, max=240.0), default=30.0, show_default=True, help="Shared clock.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON object.")
+def fuse(detections: tuple[Path, ...], out_path: Path | None, fps: float, as_json: bool) -> None:
+    """Fuse several boards' detections into one pose v1 line per rover per frame of the shared clock.
+
+    Each DETECTIONS file is one board's `edge-ips track --detections` output (or a recording of its topic). The
+    first file's clock is the reference; the other boards' clock offsets are estimated from rovers seen by two
+    boards. Prints each board's offset and how many poses each rover got.
+
+    Example:
+
+    \b
+        edge-ips fuse cam1.jsonl cam2.jsonl cam3.jsonl cam4.jsonl --out poses.jsonl
+    """
+    import json
+
+    from edge.fusion.core import FusionSettings
+    from edge.fusion.offline import fuse_files
+
+    if not detections:
+        raise UserError("give the detections files to fuse (one per board)")
+    if out_path is None:
+        raise UserError("--out is required (the live service, --broker, comes with the fusion service)")
+    summary = fuse_files(list(detections), out_path, FusionSettings(fps=fps))
+    if as_json:
+        click.echo(json.dumps(summary.as_dict()))
+        return
+    click.echo(f"{summary.frames} detections messages from {len(detections)} boards, {summary.poses} poses")
+    for edge_id, est in summary.offsets.items():
+        click.echo(f"  {edge_id}: clock offset {1e3 * est.offset_s:+.2f} ms (+-{1e3 * est.sigma_s:.2f}, {est.source})")
+    for rover_id, count in sorted(summary.per_rover.items()):
+        click.echo(f"  {rover_id}: {count} poses")
+    click.echo(f"wrote {out_path}")
+
+
 # -- track, plot -------------------------------------------------------------------------------------------------
 @main.command()
 @click.argument("video", type=click.Path(path_type=Path))

@@ -58,7 +58,7 @@ class Detections:
 
 
 def _num(value: float, ndigits: int) -> str:
-    return repr(round(value, ndigits) + 0.0)
+    return repr(round(float(value), ndigits) + 0.0)  # float(): a numpy scalar's repr is not a JSON number
 
 
 def _cov(cov: tuple[float, float, float]) -> tuple[float, float, float]:

@@ -1,0 +1,313 @@
+"""The fusion core: every board's detections in, one pose per rover per frame of the shared clock out (pure).
+
+* **Time**: each detection's capture time is moved onto the reference clock with its board's estimated offset
+  (:mod:`edge.fusion.clock`). Live, a detection older than ``max_age_s`` on the fuser's clock when it arrives is
+  dropped (a bridge that comes back with queued messages replays nothing stale).
+* **Association**: by id (each board's tracker knows the rovers by their markers), checked by position: a detection
+  whose normalised innovation against the rover's filter exceeds ``gate_nis`` is refused (a board that mistook one
+  rover for another cannot drag the fused track); if only refused detections arrive for ``reacquire_s`` the rover
+  is re-initialised where they say it is (it really moved: there is no other evidence).
+* **One filter per rover** (:class:`edge.filtering.ConstantVelocityFilter`, constant velocity, the detections'
+  covariances as measurement noise) for as long as any board sees it: overlaps are fused by uncertainty, and a
+  rover passing from one view to the next keeps its filter, its id and its estimate. Each board's covariance grows
+  near the edge of its view, so the weight moves from one board to the next over a few centimetres of travel.
+* **Order**: detections are fused in the order of their (corrected) capture times; one that arrives late (a slower
+  board) is put in its place and the last ``replay_s`` are filtered again.
+* **Output**: the first detection of a rover in frame ``k`` of the shared clock (``k = round(t * fps)``) gives that
+  rover's pose for frame ``k``: the filter's state moved to ``k / fps``. A rover not measured for ``timeout_s`` is
+  missing: no pose is published for it (the rovers' own staleness stops them).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from edge.filtering import ConstantVelocityFilter, FilterSettings
+from edge.fusion.clock import ClockAligner, ClockSettings, OffsetEstimate
+from edge.fusion.detections import Detection, Detections
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """Tuning of :class:`Fuser` (units in the names)."""
+
+    fps: float = 30.0  # the shared clock's frame rate
+    max_age_s: float = 0.25  # live: a detection older than this when it arrives is stale
+    timeout_s: float = 0.5  # a rover not measured for this long is missing
+    board_timeout_s: float = 1.0  # a board silent this long is missing, its view reported
+    gate_nis: float = 25.0  # chi-square, 2 dof: about 5 sigma
+    reacquire_s: float = 0.3
+    replay_s: float = 0.2
+    accel_sigma_cm_s2: float = 40.0
+    fade_nis: float = 13.8  # chi-square, 2 dof, 99.9 %: a manoeuvre, not a seam between two calibrations
+    heading_s: float = 0.2  # a board's heading is used this long
+    heading_min_speed_cm_s: float = 5.0
+    clock: ClockSettings = field(default_factory=ClockSettings)
+
+    def filter_settings(self) -> FilterSettings:
+        # the fuser gates itself (by position and by time); the filter never rejects nor jumps on its own
+        return FilterSettings(
+            accel_sigma_cm_s2=self.accel_sigma_cm_s2, gate_nis=math.inf, fade_nis=self.fade_nis, confirm_after=1
+        )
+
+
+@dataclass(frozen=True)
+class FusedPose:
+    """One rover's fused state for frame ``tick`` of the shared clock (``t_s = tick / fps``, reference clock).
+    ``boards``: the boards whose detections the filter took in this frame's period."""
+
+    rover_id: str
+    tick: int
+    t_s: float
+    x_cm: float
+    y_cm: float
+    theta_rad: float | None
+    vx_cm_s: float | None
+    vy_cm_s: float | None
+    quality: float
+    boards: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class _Measurement:
+    t_s: float  # reference clock
+    z_cm: FloatArray
+    r_cm2: FloatArray
+    board: str
+
+
+@dataclass
+class _Track:
+    """One rover: its filter (at ``t_s``), the last ``replay_s`` of measurements and the state before them."""
+
+    filter: ConstantVelocityFilter
+    t_s: float
+    checkpoint: ConstantVelocityFilter
+    checkpoint_t_s: float
+    log: deque[_Measurement] = field(default_factory=deque)
+    last_tick: int = -1
+    last_measured_s: float = -math.inf
+    refused_since_s: float | None = None
+    theta_rad: float | None = None
+    theta_t_s: float = -math.inf
+    boards_now: dict[str, float] = field(default_factory=dict)  # board -> last time it measured this rover
+
+
+@dataclass
+class BoardState:
+    """What the fuser knows of one board."""
+
+    edge_id: str
+    frames: int = 0
+    last_arrival_s: float | None = None  # the fuser's clock (live)
+    last_capture_s: float | None = None  # reference clock
+    stale: int = 0
+    refused: int = 0
+    late: int = 0
+    view_cm: tuple[tuple[float, float], ...] = ()
+    online: bool = True  # False once its retained status says offline
+    rovers: set[str] = field(default_factory=set)
+
+
+@dataclass(frozen=True)
+class FusionStatus:
+    """The fuser's view of the system at one instant."""
+
+    boards: tuple[BoardState, ...]
+    offsets: dict[str, OffsetEstimate]
+    rovers: tuple[str, ...]  # measured within timeout_s
+    missing: tuple[str, ...]  # seen before, not within timeout_s
+    missing_boards: tuple[str, ...]  # offline or silent for board_timeout_s
+    missing_views: tuple[tuple[tuple[float, float], ...], ...]  # their views: the areas nobody watches now
+
+
+class Fuser:
+    """Fuses the detections of every board into one pose per rover per shared-clock frame.
+
+    ``reference``: the board whose clock is the reference (offline: the first file); None live (the fuser's own
+    clock, through arrival times). ``aligner``: an already-trained :class:`ClockAligner` (offline, estimated over
+    the whole recording first); by default one of its own, learning as detections arrive.
+    """
+
+    def __init__(
+        self,
+        settings: FusionSettings = FusionSettings(),
+        reference: str | None = None,
+        aligner: ClockAligner | None = None,
+        learn_offsets: bool = True,
+    ) -> None:
+        self.settings = settings
+        self.aligner = aligner if aligner is not None else ClockAligner(settings.clock, reference)
+        self.learn_offsets = learn_offsets
+        self.boards: dict[str, BoardState] = {}
+        self.tracks: dict[str, _Track] = {}
+        self._filter_settings = settings.filter_settings()
+        self._latest_s = -math.inf
+
+    # -- input ------------------------------------------------------------------------------------------------------
+    def add(self, d: Detections, now_s: float | None = None) -> list[FusedPose]:
+        """Fuse one board's frame; returns the poses due now. ``now_s``: the fuser's clock at arrival (live)."""
+        board = self.boards.get(d.edge_id)
+        if board is None:
+            board = self.boards[d.edge_id] = BoardState(d.edge_id)
+        board.view_cm = d.view_cm
+        if now_s is not None:
+            board.last_arrival_s = now_s
+            board.online = True
+            if self.learn_offsets:
+                self.aligner.observe_arrival(d.edge_id, d.t_sent_s, now_s)
+        offset = self.aligner.offset_s(d.edge_id)
+        t_ref = d.t_capture_s - offset
+        if now_s is not None and now_s - t_ref > self.settings.max_age_s:
+            board.stale += 1
+            return []
+        if self.learn_offsets:
+            self.aligner.observe(d)
+        board.frames += 1
+        board.last_capture_s = t_ref if board.last_capture_s is None else max(board.last_capture_s, t_ref)
+        board.rovers = {r.rover_id for r in d.rovers}
+        self._latest_s = max(self._latest_s, t_ref)
+        out = []
+        for r in d.rovers:
+            pose = self._fuse(r, d.edge_id, t_ref, board)
+            if pose is not None:
+                out.append(pose)
+        return out
+
+    def board_offline(self, edge_id: str) -> None:
+        """The board's retained status says it is offline (its last will): its view is reported missing at once."""
+        board = self.boards.get(edge_id)
+        if board is None:
+            board = self.boards[edge_id] = BoardState(edge_id)
+        board.online = False
+
+    # -- one detection ----------------------------------------------------------------------------------------------
+    def _fuse(self, r: Detection, edge_id: str, t_s: float, board: BoardState) -> FusedPose | None:
+        s = self.settings
+        xx, xy, yy = r.cov_cm2
+        m = _Measurement(t_s, np.array(r.xy_cm, dtype=np.float64), np.array([[xx, xy], [xy, yy]]), edge_id)
+        track = self.tracks.get(r.rover_id)
+        if track is None or t_s - track.last_measured_s > s.timeout_s:
+            track = self._start(r.rover_id, m)
+        elif t_s < track.checkpoint_t_s:
+            board.late += 1  # older than everything kept for replay: its moment has passed
+            return None
+        elif not self._inside_gate(track, m):
+            board.refused += 1
+            if track.refused_since_s is None:
+                track.refused_since_s = t_s
+            if t_s - track.refused_since_s < s.reacquire_s:
+                return None
+            track = self._start(r.rover_id, m)  # only refused detections for a while: the rover is there
+        else:
+            track.refused_since_s = None
+            self._apply(track, m)
+        track.last_measured_s = max(track.last_measured_s, t_s)
+        track.boards_now[edge_id] = t_s
+        if r.theta_rad is not None and t_s >= track.theta_t_s:
+            track.theta_rad, track.theta_t_s = r.theta_rad, t_s
+        tick = round(t_s * s.fps)
+        if tick <= track.last_tick:
+            return None  # this frame's pose is out; the detection is in the filter for the next one
+        track.last_tick = tick
+        return self._pose(r.rover_id, track, tick, r.quality)
+
+    def _start(self, rover_id: str, m: _Measurement) -> _Track:
+        f = ConstantVelocityFilter(self._filter_settings, (float(m.z_cm[0]), float(m.z_cm[1])), m.r_cm2)
+        track = _Track(filter=f, t_s=m.t_s, checkpoint=copy.deepcopy(f), checkpoint_t_s=m.t_s)
+        track.log.append(m)
+        old = self.tracks.get(rover_id)
+        if old is not None:
+            track.last_tick = old.last_tick
+        self.tracks[rover_id] = track
+        return track
+
+    def _inside_gate(self, track: _Track, m: _Measurement) -> bool:
+        f = track.filter
+        dt = m.t_s - track.t_s
+        x = f.x[:2] + f.x[2:] * dt if f.updates >= 2 else f.x[:2]
+        p = f.p[:2, :2] + (np.eye(2) * (self.settings.accel_sigma_cm_s2 * dt * dt) ** 2 if dt > 0 else 0.0)
+        nu = m.z_cm - x
+        s = p + m.r_cm2
+        return float(nu @ np.linalg.solve(s, nu)) <= self.settings.gate_nis
+
+    def _apply(self, track: _Track, m: _Measurement) -> None:
+        if m.t_s >= track.t_s:
+            _step(track.filter, track.t_s, m)
+            track.t_s = m.t_s
+            track.log.append(m)
+        else:  # late: put it in its place and filter the kept measurements again
+            entries = sorted([*track.log, m], key=lambda e: e.t_s)
+            track.log = deque(entries)
+            f, t = copy.deepcopy(track.checkpoint), track.checkpoint_t_s
+            for e in entries:
+                _step(f, t, e)
+                t = max(t, e.t_s)
+            track.filter, track.t_s = f, t
+        horizon = track.t_s - self.settings.replay_s
+        while len(track.log) > 1 and track.log[0].t_s < horizon:
+            e = track.log.popleft()
+            _step(track.checkpoint, track.checkpoint_t_s, e)
+            track.checkpoint_t_s = max(track.checkpoint_t_s, e.t_s)
+
+    def _pose(self, rover_id: str, track: _Track, tick: int, quality: float) -> FusedPose:
+        s = self.settings
+        t_tick = tick / s.fps
+        f = track.filter
+        vel = f.velocity
+        x, y = f.position
+        if vel is not None:
+            x += vel[0] * (t_tick - track.t_s)
+            y += vel[1] * (t_tick - track.t_s)
+        theta = track.theta_rad if track.t_s - track.theta_t_s <= s.heading_s else None
+        if theta is None and vel is not None and math.hypot(*vel) >= s.heading_min_speed_cm_s:
+            theta = math.atan2(vel[1], vel[0])
+        recent = tuple(sorted(b for b, t in track.boards_now.items() if track.t_s - t <= 1.5 / s.fps))
+        return FusedPose(
+            rover_id,
+            tick,
+            t_tick,
+            x,
+            y,
+            theta,
+            None if vel is None else vel[0],
+            None if vel is None else vel[1],
+            quality,
+            recent,
+        )
+
+    # -- state ------------------------------------------------------------------------------------------------------
+    def status(self, now_s: float | None = None) -> FusionStatus:
+        """Boards, offsets, rovers and what is missing at ``now_s`` (the fuser's clock; offline: the newest data)."""
+        s = self.settings
+        now = self._latest_s if now_s is None else now_s
+        seen = tuple(sorted(r for r, t in self.tracks.items() if now - t.last_measured_s <= s.timeout_s))
+        missing = tuple(sorted(r for r in self.tracks if r not in seen))
+        silent = []
+        for b in self.boards.values():
+            last = b.last_arrival_s if now_s is not None else b.last_capture_s
+            if not b.online or last is None or now - last > s.board_timeout_s:
+                silent.append(b)
+        return FusionStatus(
+            boards=tuple(self.boards.values()),
+            offsets=self.aligner.estimates(),
+            rovers=seen,
+            missing=missing,
+            missing_boards=tuple(b.edge_id for b in silent),
+            missing_views=tuple(b.view_cm for b in silent if b.view_cm),
+        )
+
+
+def _step(f: ConstantVelocityFilter, t_s: float, m: _Measurement) -> None:
+    """Predict ``f`` from ``t_s`` to the measurement's time (if later) and fuse it."""
+    if m.t_s > t_s:
+        f.predict(m.t_s - t_s)
+    f.update(m.z_cm, m.r_cm2)
