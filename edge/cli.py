@@ -925,51 +925,105 @@ def calibrate_aruco_cmd(
 
 
 @calibrate.command("check")
-@click.argument("calibration_json", type=click.Path(path_type=Path))
-@click.argument("check_csv", type=click.Path(path_type=Path))
+@click.argument("pairs", nargs=-1, required=True, metavar="CALIBRATION CHECK_CSV [CALIBRATION CHECK_CSV ...]")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object (mean_cm, max_cm, n, points...).")
-def calibrate_check_cmd(calibration_json: Path, check_csv: Path, as_json: bool) -> None:
+def calibrate_check_cmd(pairs: tuple[str, ...], as_json: bool) -> None:
     """Check a calibration against points measured but not used in the fit (CSV u,v,x,y).
 
-    Maps each point's u,v and reports its distance to the surveyed x,y, and the mean and max.
+    Maps each point's u,v and reports its distance to the surveyed x,y, and the mean and max. Given several boards
+    (a calibration and its check points each, all in one floor frame), also reports the seam error of every pair:
+    where the two boards put the check points both see (the same x,y), and how far apart.
 
     Example:
 
+    \b
         edge-ips calibrate check calibration.json check.csv --json
+        edge-ips calibrate check cam1/calibration.json cam1/check.csv cam2/calibration.json cam2/check.csv
     """
     import json
 
     from edge.calibration.files import load_calibration
-    from edge.calibration.points import check_calibration, read_points_csv
+    from edge.calibration.points import read_points_csv
+    from edge.fusion.seams import check_boards, seams
 
-    cal = load_calibration(calibration_json)
-    result = check_calibration(cal, read_points_csv(check_csv))
-    t = result.table
+    if len(pairs) % 2:
+        raise UserError("give a calibration file and its check points CSV for every board (pairs of arguments)")
+    paths = [Path(p) for p in pairs]
+    boards = [(paths[i], load_calibration(paths[i]), read_points_csv(paths[i + 1])) for i in range(0, len(paths), 2)]
+    checks = check_boards(boards)
+    names = [c.name for c in checks]
+    if len(set(names)) != len(names):
+        raise UserError(f"two calibrations have the same board name ({', '.join(names)}): name them apart")
+    found = seams(checks)
     if as_json:
-        points = [
-            {
-                "row": int(t.rows[i]),
-                "u": float(t.uv_px[i, 0]),
-                "v": float(t.uv_px[i, 1]),
-                "x": float(t.xy_world_cm[i, 0]),
-                "y": float(t.xy_world_cm[i, 1]),
-                "x_mapped": round(float(result.mapped_cm[i, 0]), 4),
-                "y_mapped": round(float(result.mapped_cm[i, 1]), 4),
-                "error_cm": round(float(result.error_cm[i]), 4),
-            }
-            for i in range(result.n)
-        ]
-        summary = {
-            "calibration": str(calibration_json),
-            "points_file": str(check_csv),
-            "n": result.n,
-            "mean_cm": round(result.mean_cm, 4),
-            "max_cm": round(result.max_cm, 4),
-            "rms_cm": round(result.rms_cm, 4),
-            "points": points,
+        if len(checks) == 1:
+            click.echo(json.dumps(_check_json(checks[0].check, paths[0], paths[1])))
+            return
+        doc = {
+            "boards": [
+                _check_json(c.check, c.calibration_path, paths[2 * k + 1]) | {"board": c.name}
+                for k, c in enumerate(checks)
+            ],
+            "seams": [
+                {
+                    "a": s.a,
+                    "b": s.b,
+                    "n": s.n,
+                    "mean_cm": round(s.mean_cm, 4),
+                    "max_cm": round(s.max_cm, 4),
+                    "rms_cm": round(s.rms_cm, 4),
+                }
+                for s in found
+            ],
         }
-        click.echo(json.dumps(summary))
+        click.echo(json.dumps(doc))
         return
+    if len(checks) == 1:
+        _print_check(checks[0].check, paths[0], paths[1])
+        return
+    for k, c in enumerate(checks):
+        r = c.check
+        click.echo(
+            f"{c.name}: {r.n} check points from {paths[2 * k + 1]}: mean {r.mean_cm:.3f} cm, max {r.max_cm:.3f} cm, "
+            f"rms {r.rms_cm:.3f} cm"
+        )
+    if not found:
+        click.echo("no check point is seen by two boards: survey some in the overlaps to measure the seams")
+    for s in found:
+        click.echo(
+            f"seam {s.a}/{s.b}: {s.n} shared points, the boards disagree by mean {s.mean_cm:.3f} cm, "
+            f"max {s.max_cm:.3f} cm, rms {s.rms_cm:.3f} cm"
+        )
+
+
+def _check_json(result: Any, calibration_json: Path, check_csv: Path) -> dict[str, Any]:
+    t = result.table
+    points = [
+        {
+            "row": int(t.rows[i]),
+            "u": float(t.uv_px[i, 0]),
+            "v": float(t.uv_px[i, 1]),
+            "x": float(t.xy_world_cm[i, 0]),
+            "y": float(t.xy_world_cm[i, 1]),
+            "x_mapped": round(float(result.mapped_cm[i, 0]), 4),
+            "y_mapped": round(float(result.mapped_cm[i, 1]), 4),
+            "error_cm": round(float(result.error_cm[i]), 4),
+        }
+        for i in range(result.n)
+    ]
+    return {
+        "calibration": str(calibration_json),
+        "points_file": str(check_csv),
+        "n": result.n,
+        "mean_cm": round(result.mean_cm, 4),
+        "max_cm": round(result.max_cm, 4),
+        "rms_cm": round(result.rms_cm, 4),
+        "points": points,
+    }
+
+
+def _print_check(result: Any, calibration_json: Path, check_csv: Path) -> None:
+    t = result.table
     click.echo(f"{'row':>4} {'u':>9} {'v':>9} {'x':>8} {'y':>8} {'mapped x':>9} {'mapped y':>9} {'error cm':>8}")
     for i in range(result.n):
         click.echo(

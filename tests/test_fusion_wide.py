@@ -213,3 +213,37 @@ def test_live_boards_render_the_same_world_at_the_same_wall_time() -> None:
     # stamped by each board's (wrong) clock at its exposure instant
     t_exposed = later.index / 30.0 + two.cam.phase_s
     assert later.t_capture_s == pytest.approx(t_exposed + two.cam.clock_offset_s)
+
+
+def test_calibrate_check_across_boards_shows_the_seam_error_in_the_overlap(wide: Path, tmp_path: Path) -> None:
+    args = []
+    for cam in ("cam1", "cam2"):
+        where = wide / cam
+        cal = tmp_path / cam / "calibration.json"
+        cal.parent.mkdir()
+        invoke(
+            "calibrate",
+            "points",
+            str(where / "points.csv"),
+            "--out",
+            str(cal),
+            "--image",
+            str(where / "background.png"),
+        )
+        args += [str(cal), str(where / "check.csv")]
+    text = invoke("calibrate", "check", *args)
+    assert "seam cam1/cam2:" in text
+    doc = json.loads(invoke("calibrate", "check", *args, "--json"))
+    assert [b["board"] for b in doc["boards"]] == ["cam1", "cam2"]
+    (seam,) = doc["seams"]
+    assert (seam["a"], seam["b"]) == ("cam1", "cam2")
+    assert seam["n"] >= 10  # the overlap's shared check points
+    # two independent surveys and two clicks per point: under a centimetre on average, never several
+    assert 0.05 < seam["mean_cm"] < 1.2 and seam["max_cm"] < 3.0
+
+
+def test_calibrate_check_wants_a_check_file_for_every_calibration(wide: Path) -> None:
+    result = CliRunner().invoke(
+        main, ["calibrate", "check", str(wide / "cam1" / "camera.json"), str(wide / "cam1" / "check.csv"), "x.json"]
+    )
+    assert result.exit_code == 2 and "pairs of arguments" in result.output
