@@ -357,3 +357,68 @@ def parse_detections(payload: bytes) -> DetectionsV1:
 
 MODELS["detections"] = DetectionsV1
 PARSERS["detections"] = parse_detections
+
+
+# -- the fusion service's own status ------------------------------------------------------------------------------
+FUSER_STATUS_MAX_BYTES = 16_384
+
+
+def fuser_status_topic(fuser_id: str) -> str:
+    """A fuser's retained status: ``ips/v1/fuser/<fuser-id>/status``."""
+    return f"{TOPIC_PREFIX}/fuser/{fuser_id}/status"
+
+
+FUSER_STATUS_WILDCARD = fuser_status_topic("+")
+Ms = Annotated[float, Field(ge=-1e7, le=1e7, allow_inf_nan=False)]
+
+
+class BoardStateV1(BaseModel):
+    """One camera board as a fuser sees it."""
+
+    model_config = ConfigDict(**_STRICT, title="board state v1")
+
+    edge: RoverId = Field(description="The board's id.")
+    state: Literal["ok", "silent", "offline"] = Field(
+        description="ok: its detections arrive; silent: none for a second or more; offline: its status says so."
+    )
+    offset_ms: Ms | None = Field(description="Its clock minus the fuser's, ms, as estimated from the data.")
+    offset_sigma_ms: Ms | None = Field(description="The estimate's 1-sigma, ms.")
+    offset_source: Literal["overlap", "arrival", "overlap+arrival", "reference", "none"] = Field(
+        description="What the estimate rests on: rovers seen in an overlap with other boards, arrival times, both."
+    )
+    age_ms: Ms | None = Field(description="Since its last detections arrived, ms (null: never).")
+    stale: Counter = Field(description="Detections dropped as too old on arrival, since the fuser started.")
+    rovers: list[RoverId] = Field(max_length=64, description="The rovers in its latest detections.")
+    view: list[Annotated[list[Cm], Field(min_length=2, max_length=2)]] = Field(
+        max_length=DETECTIONS_MAX_VIEW_POINTS, description="Its view on the floor (from its detections)."
+    )
+
+
+class FuserStatusV1(BaseModel):
+    """A fusion service's health, retained on ``ips/v1/fuser/<fuser-id>/status`` (published at a clean stop as
+    ``offline``; a crashed fuser's lease is released by its last will on ``ips/v1/fuser/lease``)."""
+
+    model_config = ConfigDict(
+        **_STRICT,
+        title="fuser status v1",
+        json_schema_extra={"x-max-bytes": FUSER_STATUS_MAX_BYTES, "x-topic": "ips/v1/fuser/<fuser-id>/status"},
+    )
+
+    v: Version = Field(description="Message version, always 1.")
+    fuser: RoverId = Field(description="The fuser's id.")
+    state: Literal["active", "standby", "offline"] = Field(
+        description="active: it publishes the poses (it holds the lease); standby: it fuses, ready to take over."
+    )
+    holder: RoverId | None = Field(description="The fuser that holds the lease, as this one sees it.")
+    boards: list[BoardStateV1] = Field(max_length=16, description="Every board it has heard of.")
+    rovers: list[RoverId] = Field(max_length=64, description="Rovers measured within the timeout.")
+    missing: list[RoverId] = Field(max_length=64, description="Rovers seen before, not within the timeout.")
+    t: float = Field(ge=0.0, le=1e10, description="Wall-clock time of the status, Unix seconds.")
+
+
+def parse_fuser_status(payload: bytes) -> FuserStatusV1:
+    return _loads(FuserStatusV1, payload, FUSER_STATUS_MAX_BYTES)
+
+
+MODELS["fuser_status"] = FuserStatusV1
+PARSERS["fuser_status"] = parse_fuser_status

@@ -28,11 +28,14 @@ from typing import TYPE_CHECKING, Any
 
 from edge.config import BrokerTarget, EdgeConfig, broker_target
 from edge.errors import CalibrationError, MessageError
-from edge.messages import StatusV1, encode_pose
+from edge.fusion.board import detection_builder_for, listed_rovers
+from edge.fusion.detections import encode_detections
+from edge.fusion.uncertainty import DetectionBuilder
+from edge.messages import StatusV1, detections_topic, encode_pose
 from edge.metrics import Latency, LatencyWindow, RateMeter, RoverSnapshot, Snapshot
 from edge.publisher import MqttPublisher, Publisher, TlsFiles, offline_status
 from edge.sources import CaptureThread, FrameSlot, FrameSource, SourceInfo, make_source, parse_source
-from edge.tracking import Frame, FrameResult, Tracker
+from edge.tracking import Frame, FrameResult, RoverEstimate, Tracker
 
 if TYPE_CHECKING:
     from edge.calibration import Calibration
@@ -52,6 +55,12 @@ class _RoverStats:
         self.last_seen_mono: float | None = None
         self.last: tuple[float, float, float | None, float] | None = None  # x_cm, y_cm, theta_rad, quality
         self.rate = RateMeter()
+
+    def saw(self, est: RoverEstimate, t_mono_s: float) -> None:
+        self.detections += 1
+        self.last_seen_mono = t_mono_s
+        self.last = (est.x_cm, est.y_cm, est.theta_rad, est.quality)
+        self.rate.tick(t_mono_s)
 
 
 class EdgeRuntime:
@@ -76,8 +85,10 @@ class EdgeRuntime:
         reopen_min_s: float = 0.5,
         reopen_max_s: float = 8.0,
         recorder: Any = None,
+        detections: DetectionBuilder | None = None,
     ) -> None:
         self.edge_id = edge_id
+        self.detections = detections  # a board of several: publish detections, not poses
         self.info = info
         self.tracker = tracker
         self.publisher = publisher
@@ -136,10 +147,28 @@ class EdgeRuntime:
                 continue
             if self.publisher.publish_pose(est.rover_id, payload):
                 stats.seq += 1
-            stats.detections += 1
-            stats.last_seen_mono = result.t_mono_s
-            stats.last = (est.x_cm, est.y_cm, est.theta_rad, est.quality)
-            stats.rate.tick(result.t_mono_s)
+            stats.saw(est, result.t_mono_s)
+        for rover_id, stats in self._rovers.items():
+            if rover_id not in seen:
+                stats.missed += 1
+
+    def _publish_detections(self, result: FrameResult, frame: Frame) -> None:
+        """A board of several: this frame's detections for the fuser instead of poses."""
+        assert self.detections is not None
+        try:
+            payload = encode_detections(self.detections.build(result, frame.image, t_sent_s=time.time()))
+        except MessageError as exc:
+            self.poses_invalid += 1
+            if self.poses_invalid in (1, 10, 100, 1000) or self.poses_invalid % 10000 == 0:
+                log.warning("detections not publishable (%d so far): %s", self.poses_invalid, exc)
+            return
+        self.publisher.publish(detections_topic(self.edge_id), payload)
+        seen = set()
+        for est in result.estimates:
+            stats = self._rovers.get(est.rover_id)
+            if stats is not None:
+                seen.add(est.rover_id)
+                stats.saw(est, result.t_mono_s)
         for rover_id, stats in self._rovers.items():
             if rover_id not in seen:
                 stats.missed += 1
@@ -154,7 +183,10 @@ class EdgeRuntime:
             t0 = time.monotonic()
             result = self.tracker.process(frame)
             t1 = time.monotonic()
-            self._publish_result(result, frame.index, frame.t_capture_s)
+            if self.detections is not None:
+                self._publish_detections(result, frame)
+            else:
+                self._publish_result(result, frame.index, frame.t_capture_s)
             t2 = time.monotonic()
             self.processing.add(t1 - t0)
             self.end_to_end.add(t2 - frame.t_mono_s)
@@ -217,6 +249,8 @@ class EdgeRuntime:
         now = time.monotonic()
         camera = self.camera_state()
         seen, missing = self._seen_recently(now)
+        if self.detections is not None:  # a board of several: the others' rovers are not missing here
+            seen, missing = listed_rovers(seen), []
         state, reason = self._state(camera, missing)
         if (state, reason) != self._last_state:
             level = logging.INFO if state == "online" else logging.WARNING
@@ -287,6 +321,7 @@ class EdgeRuntime:
         now = time.monotonic()
         camera = self.camera_state() if not self._stopped else "stopped"
         _, missing = self._seen_recently(now)
+        missing = missing if self.detections is None else []
         state, reason = self._state(camera, missing) if not self._stopped else ("offline", "stopped")
         rovers = tuple(
             RoverSnapshot(
@@ -351,6 +386,10 @@ def default_sim_factory(config: EdgeConfig) -> SimFactory:
     def make(scenario: str) -> FrameSource:
         from edge.sim.source import SimSource
 
+        if scenario.startswith("wide"):  # one camera of the wide arena (a board of several)
+            from edge.sim.wide_source import WideCameraSource
+
+            return WideCameraSource(scenario, realtime=config.camera.realtime)
         return SimSource(scenario or "lab", seed=0, realtime=config.camera.realtime)
 
     return make
@@ -542,6 +581,7 @@ def prepare_appliance(
             reopen_min_s=cam.reopen_min_s,
             reopen_max_s=cam.reopen_max_s,
             recorder=recorder,
+            detections=detection_builder_for(config, calibration, info, parse_source(cam.source).kind == "sim"),
         )
         runtime_ref.append(runtime)
         if http is not None:

@@ -42,6 +42,7 @@ class ClockSettings:
 
     max_gap_s: float = 0.1  # board b's two samples around the instant must be this close
     max_residual_cm: float = 5.0  # larger residuals are an association mistake, not a clock
+    velocity_window_s: float = 0.2  # a rover's velocity is fitted over this much of a board's track
     seam_sigma_cm: float = 1.0  # prior: two boards' calibrations agree to about this in their overlap
     memory_s: float = 60.0  # time constant of forgetting old evidence
     history_s: float = 1.0  # how much of each board's track of each rover is kept for interpolation
@@ -136,7 +137,7 @@ class ClockAligner:
             if track and 0.0 < sample.t_local_s - track[-1].t_local_s <= s.max_gap_s:
                 for board, other in by_board.items():
                     if board != d.edge_id:
-                        self._compare(d.edge_id, track[-1], sample, board, other, offsets)
+                        self._compare(d.edge_id, track, sample, board, other, offsets)
             track.append(sample)
             while track and track[0].t_local_s < d.t_capture_s - s.history_s:
                 track.popleft()
@@ -156,16 +157,23 @@ class ClockAligner:
             self._dirty = True
 
     def _compare(
-        self, b: str, p0: _Sample, p1: _Sample, a: str, others: deque[_Sample], offsets: dict[str, float]
+        self, b: str, track: deque[_Sample], p1: _Sample, a: str, others: deque[_Sample], offsets: dict[str, float]
     ) -> None:
-        """Board ``a``'s samples inside board ``b``'s interval ``p0``..``p1`` against ``b``'s interpolated track.
+        """Board ``a``'s samples inside board ``b``'s interval from its last sample to ``p1``, against ``b``'s track
+        interpolated there.
 
         With ``e = p_a - p_b(tau)``: ``e = seam + v * (d_ab - d_ab_used)``, ``d_ab = off_b - off_a``; the pair's
-        normal equations are kept in the orientation of its sorted names."""
+        normal equations are kept in the orientation of its sorted names. ``v`` is fitted over the last
+        ``velocity_window_s`` of ``b``'s track, not taken from the two samples interpolated: a velocity from two
+        noisy samples 33 ms apart is off by several cm/s in a random direction, which would look like evidence
+        that separates the seam from the clock."""
         s = self.settings
         off_a, off_b = offsets.get(a, 0.0), offsets.get(b, 0.0)
+        p0 = track[-1]
         dt = p1.t_local_s - p0.t_local_s
-        v = (p1.xy_cm - p0.xy_cm) / dt
+        v = _velocity([q for q in track if q.t_local_s >= p1.t_local_s - s.velocity_window_s] + [p1])
+        if v is None:
+            return
         sign = 1.0 if a < b else -1.0
         key = (a, b) if a < b else (b, a)
         for sample in others:
@@ -259,3 +267,16 @@ class ClockAligner:
             out[b] = OffsetEstimate(b, float(offsets[i]), float(math.sqrt(max(cov[i, i], 0.0))), name)
         self._estimates, self._dirty = out, False
         return out
+
+
+def _velocity(samples: list[_Sample]) -> FloatArray | None:
+    """(2,) cm/s: the least-squares slope of a track's positions over time; None with fewer than 4 samples."""
+    if len(samples) < 4:
+        return None
+    t = np.array([q.t_local_s for q in samples])
+    xy = np.array([q.xy_cm for q in samples])
+    tc = t - t.mean()
+    denom = float(tc @ tc)
+    if denom <= 0.0:
+        return None
+    return np.asarray(tc @ (xy - xy.mean(axis=0)) / denom, dtype=np.float64)

@@ -77,7 +77,7 @@ class WideSetup:
     def rover_ids(self) -> tuple[str, ...]:
         return tuple(look.rover_id for look in self.scene.rovers)
 
-    def camera(self, name: str) -> WideCamera:
+    def camera_named(self, name: str) -> WideCamera:
         for cam in self.cameras:
             if cam.name == name:
                 return cam

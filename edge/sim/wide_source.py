@@ -57,7 +57,7 @@ class WideCameraSource:
     ) -> None:
         name, n = parse_wide(target)
         self.setup: WideSetup = build_wide(n, seed=seed, rovers=rovers)
-        self.cam: WideCamera = self.setup.camera(name)
+        self.cam: WideCamera = self.setup.camera_named(name)
         self.realtime = realtime
         self._wall, self._clock, self._sleep = wall_clock, clock, sleep
         self._renderer: Renderer | None = None
