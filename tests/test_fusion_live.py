@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from edge.messages import parse_fuser_status, parse_pose
+from edge.messages import parse_fuser_status, parse_pose, parse_status
 from tests.conftest import REPO
 from tests.support.mosquitto import Mosquitto
 from tests.support.runtime import MqttRecorder, Received, stop_process
@@ -212,9 +212,16 @@ def test_edge_ips_start_boards_on_the_wide_arena_and_a_fuser_make_one_map(mosqui
         t0 = recorder.messages[-1].t_recv
         assert poses_after(recorder, t0, 200)
         detections = [m for m in recorder.messages if m.topic.endswith("/detections")]
-        single_camera_poses_from_boards = [m for m in recorder.messages if m.topic.endswith("/pose") and m.retain]
+        statuses = [
+            parse_status(m.payload)
+            for m in recorder.messages
+            if m.topic.startswith("ips/v1/edge/") and m.topic.endswith("/status")
+        ]
     assert {m.topic for m in detections} == {"ips/v1/edge/cam1/detections", "ips/v1/edge/cam2/detections"}
-    assert not single_camera_poses_from_boards
+    # a board of several does not call the other boards' rovers missing, nor degrade for them
+    latest = {s.edge: s for s in statuses}
+    assert set(latest) == {"cam1", "cam2"}
+    assert all(s.missing == [] and s.state == "online" and s.rovers for s in latest.values())
     world = WideCameraSource("wide:cam1:2", realtime=False)
     errors = []
     for _, p in pose_list(recorder.messages, t0):

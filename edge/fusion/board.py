@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     from edge.sources import SourceInfo
     from edge.trackers.base import PlaneMapping
 
-_STATUS_FIXED_BYTES = 200  # a status without its lists of rovers, with room to spare
+_STATUS_FIXED_BYTES = 140  # the longest status without its lists of rovers is 131 bytes
 _MAX_LISTED = 32  # the status contract's limit on each list
 
 

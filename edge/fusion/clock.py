@@ -43,6 +43,7 @@ class ClockSettings:
     max_gap_s: float = 0.1  # board b's two samples around the instant must be this close
     max_residual_cm: float = 5.0  # larger residuals are an association mistake, not a clock
     velocity_window_s: float = 0.2  # a rover's velocity is fitted over this much of a board's track
+    compare_every_s: float = 0.1  # each rover's track is compared this often per board (the evidence is ample)
     seam_sigma_cm: float = 1.0  # prior: two boards' calibrations agree to about this in their overlap
     memory_s: float = 60.0  # time constant of forgetting old evidence
     history_s: float = 1.0  # how much of each board's track of each rover is kept for interpolation
@@ -115,6 +116,7 @@ class ClockAligner:
         self.interpolate_with = interpolate_with  # offsets to compare tracks at (a second pass), else the estimates
         self._tracks: dict[str, dict[str, deque[_Sample]]] = {}  # rover -> board -> its recent samples
         self._pairs: dict[tuple[str, str], _Pair] = {}  # (a, b), a < b -> evidence on off_b - off_a
+        self._compared: dict[tuple[str, str], float] = {}  # (rover, board) -> its last sample compared
         self._arrivals: dict[str, _Arrivals] = {}
         self._boards: list[str] = []
         self._estimates: dict[str, OffsetEstimate] = {}
@@ -134,9 +136,12 @@ class ClockAligner:
             sample = _Sample(d.t_capture_s, np.array(r.xy_cm), np.array([[xx, xy], [xy, yy]]))
             by_board = self._tracks.setdefault(r.rover_id, {})
             track = by_board.setdefault(d.edge_id, deque())
-            if track and 0.0 < sample.t_local_s - track[-1].t_local_s <= s.max_gap_s:
+            key = (r.rover_id, d.edge_id)
+            due = sample.t_local_s - self._compared.get(key, -math.inf) >= s.compare_every_s
+            if due and track and 0.0 < sample.t_local_s - track[-1].t_local_s <= s.max_gap_s:
+                self._compared[key] = sample.t_local_s
                 for board, other in by_board.items():
-                    if board != d.edge_id:
+                    if board != d.edge_id and other:
                         self._compare(d.edge_id, track, sample, board, other, offsets)
             track.append(sample)
             while track and track[0].t_local_s < d.t_capture_s - s.history_s:

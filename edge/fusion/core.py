@@ -7,12 +7,14 @@
   whose normalised innovation against the rover's filter exceeds ``gate_nis`` is refused (a board that mistook one
   rover for another cannot drag the fused track); if only refused detections arrive for ``reacquire_s`` the rover
   is re-initialised where they say it is (it really moved: there is no other evidence).
-* **One filter per rover** (:class:`edge.filtering.ConstantVelocityFilter`, constant velocity, the detections'
-  covariances as measurement noise) for as long as any board sees it: overlaps are fused by uncertainty, and a
+* **One filter per rover** (:class:`edge.fusion.track.CvState`, constant velocity, the detections' covariances as
+  measurement noise) for as long as any board sees it: overlaps are fused by uncertainty, and a
   rover passing from one view to the next keeps its filter, its id and its estimate. Each board's covariance grows
   near the edge of its view, so the weight moves from one board to the next over a few centimetres of travel.
-* **Order**: detections are fused in the order of their (corrected) capture times; one that arrives late (a slower
-  board) is put in its place and the last ``replay_s`` are filtered again.
+* **Order**: detections are fused in the order of their (corrected) capture times. One that arrives up to
+  ``late_direct_s`` late (another board's frame of the same period) is moved to the filter's time along the
+  estimated velocity, its covariance grown by the velocity's uncertainty over the gap; a later one (a slower board)
+  is put in its place and the last ``replay_s`` are filtered again.
 * **Output**: the first detection of a rover in frame ``k`` of the shared clock (``k = round(t * fps)``) gives that
   rover's pose for frame ``k``: the filter's state moved to ``k / fps``. A rover not measured for ``timeout_s`` is
   missing: no pose is published for it (the rovers' own staleness stops them).
@@ -20,7 +22,6 @@
 
 from __future__ import annotations
 
-import copy
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -28,9 +29,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.filtering import ConstantVelocityFilter, FilterSettings
 from edge.fusion.clock import ClockAligner, ClockSettings, OffsetEstimate
 from edge.fusion.detections import Detection, Detections
+from edge.fusion.track import CvState
 
 FloatArray = NDArray[np.float64]
 
@@ -46,17 +47,14 @@ class FusionSettings:
     gate_nis: float = 25.0  # chi-square, 2 dof: about 5 sigma
     reacquire_s: float = 0.3
     replay_s: float = 0.2
-    accel_sigma_cm_s2: float = 40.0
+    accel_sigma_cm_s2: float = 20.0  # smoother than one camera's filter: several boards' seams meet in it
     fade_nis: float = 13.8  # chi-square, 2 dof, 99.9 %: a manoeuvre, not a seam between two calibrations
     heading_s: float = 0.2  # a board's heading is used this long
     heading_min_speed_cm_s: float = 5.0
     clock: ClockSettings = field(default_factory=ClockSettings)
 
-    def filter_settings(self) -> FilterSettings:
-        # the fuser gates itself (by position and by time); the filter never rejects nor jumps on its own
-        return FilterSettings(
-            accel_sigma_cm_s2=self.accel_sigma_cm_s2, gate_nis=math.inf, fade_nis=self.fade_nis, confirm_after=1
-        )
+    late_direct_s: float = 0.035  # about one frame
+    initial_speed_sigma_cm_s: float = 50.0
 
 
 @dataclass(frozen=True)
@@ -79,8 +77,11 @@ class FusedPose:
 @dataclass(frozen=True)
 class _Measurement:
     t_s: float  # reference clock
-    z_cm: FloatArray
-    r_cm2: FloatArray
+    x: float
+    y: float
+    rxx: float
+    rxy: float
+    ryy: float
     board: str
 
 
@@ -88,9 +89,9 @@ class _Measurement:
 class _Track:
     """One rover: its filter (at ``t_s``), the last ``replay_s`` of measurements and the state before them."""
 
-    filter: ConstantVelocityFilter
+    filter: CvState
     t_s: float
-    checkpoint: ConstantVelocityFilter
+    checkpoint: CvState
     checkpoint_t_s: float
     log: deque[_Measurement] = field(default_factory=deque)
     last_tick: int = -1
@@ -149,7 +150,6 @@ class Fuser:
         self.learn_offsets = learn_offsets
         self.boards: dict[str, BoardState] = {}
         self.tracks: dict[str, _Track] = {}
-        self._filter_settings = settings.filter_settings()
         self._latest_s = -math.inf
 
     # -- input ------------------------------------------------------------------------------------------------------
@@ -193,7 +193,7 @@ class Fuser:
     def _fuse(self, r: Detection, edge_id: str, t_s: float, board: BoardState) -> FusedPose | None:
         s = self.settings
         xx, xy, yy = r.cov_cm2
-        m = _Measurement(t_s, np.array(r.xy_cm, dtype=np.float64), np.array([[xx, xy], [xy, yy]]), edge_id)
+        m = _Measurement(t_s, float(r.xy_cm[0]), float(r.xy_cm[1]), float(xx), float(xy), float(yy), edge_id)
         track = self.tracks.get(r.rover_id)
         if track is None or t_s - track.last_measured_s > s.timeout_s:
             track = self._start(r.rover_id, m)
@@ -221,8 +221,8 @@ class Fuser:
         return self._pose(r.rover_id, track, tick, r.quality)
 
     def _start(self, rover_id: str, m: _Measurement) -> _Track:
-        f = ConstantVelocityFilter(self._filter_settings, (float(m.z_cm[0]), float(m.z_cm[1])), m.r_cm2)
-        track = _Track(filter=f, t_s=m.t_s, checkpoint=copy.deepcopy(f), checkpoint_t_s=m.t_s)
+        f = CvState.start(m.x, m.y, m.rxx, m.rxy, m.ryy, self.settings.initial_speed_sigma_cm_s)
+        track = _Track(filter=f, t_s=m.t_s, checkpoint=f.copy(), checkpoint_t_s=m.t_s)
         track.log.append(m)
         old = self.tracks.get(rover_id)
         if old is not None:
@@ -231,39 +231,50 @@ class Fuser:
         return track
 
     def _inside_gate(self, track: _Track, m: _Measurement) -> bool:
-        f = track.filter
-        dt = m.t_s - track.t_s
-        x = f.x[:2] + f.x[2:] * dt if f.updates >= 2 else f.x[:2]
-        p = f.p[:2, :2] + (np.eye(2) * (self.settings.accel_sigma_cm_s2 * dt * dt) ** 2 if dt > 0 else 0.0)
-        nu = m.z_cm - x
-        s = p + m.r_cm2
-        return float(nu @ np.linalg.solve(s, nu)) <= self.settings.gate_nis
+        f, dt = track.filter, m.t_s - track.t_s
+        # the filter's covariance grows between its time and the measurement's (either way) by the acceleration
+        grow = (self.settings.accel_sigma_cm_s2 * dt * dt / 2.0) ** 2 + (f.puu + f.pvv) / 2.0 * dt * dt
+        nis = f.nis(m.x, m.y, m.rxx + grow, m.rxy, m.ryy + grow, dt if f.updates >= 2 else 0.0)
+        return nis <= self.settings.gate_nis
 
     def _apply(self, track: _Track, m: _Measurement) -> None:
-        if m.t_s >= track.t_s:
-            _step(track.filter, track.t_s, m)
+        s = self.settings
+        late = track.t_s - m.t_s
+        if late <= 0.0:
+            self._step(track.filter, track.t_s, m)
             track.t_s = m.t_s
+            track.log.append(m)
+        elif late <= s.late_direct_s:  # another board's frame of the same period: brought forward, no replay
+            f = track.filter
+            grow = (f.puu + f.pvv) / 2.0 * late * late
+            f.update(m.x + f.vx * late, m.y + f.vy * late, m.rxx + grow, m.rxy, m.ryy + grow, s.fade_nis)
             track.log.append(m)
         else:  # late: put it in its place and filter the kept measurements again
             entries = sorted([*track.log, m], key=lambda e: e.t_s)
             track.log = deque(entries)
-            f, t = copy.deepcopy(track.checkpoint), track.checkpoint_t_s
+            f, t = track.checkpoint.copy(), track.checkpoint_t_s
             for e in entries:
-                _step(f, t, e)
+                self._step(f, t, e)
                 t = max(t, e.t_s)
             track.filter, track.t_s = f, t
-        horizon = track.t_s - self.settings.replay_s
+        horizon = track.t_s - s.replay_s
         while len(track.log) > 1 and track.log[0].t_s < horizon:
             e = track.log.popleft()
-            _step(track.checkpoint, track.checkpoint_t_s, e)
+            self._step(track.checkpoint, track.checkpoint_t_s, e)
             track.checkpoint_t_s = max(track.checkpoint_t_s, e.t_s)
+
+    def _step(self, f: CvState, t_s: float, m: _Measurement) -> None:
+        """Predict ``f`` from ``t_s`` to the measurement's time (if later) and fuse it."""
+        if m.t_s > t_s:
+            f.predict(m.t_s - t_s, self.settings.accel_sigma_cm_s2)
+        f.update(m.x, m.y, m.rxx, m.rxy, m.ryy, self.settings.fade_nis)
 
     def _pose(self, rover_id: str, track: _Track, tick: int, quality: float) -> FusedPose:
         s = self.settings
         t_tick = tick / s.fps
         f = track.filter
         vel = f.velocity
-        x, y = f.position
+        x, y = f.x, f.y
         if vel is not None:
             x += vel[0] * (t_tick - track.t_s)
             y += vel[1] * (t_tick - track.t_s)
@@ -304,10 +315,3 @@ class Fuser:
             missing_boards=tuple(b.edge_id for b in silent),
             missing_views=tuple(b.view_cm for b in silent if b.view_cm),
         )
-
-
-def _step(f: ConstantVelocityFilter, t_s: float, m: _Measurement) -> None:
-    """Predict ``f`` from ``t_s`` to the measurement's time (if later) and fuse it."""
-    if m.t_s > t_s:
-        f.predict(m.t_s - t_s)
-    f.update(m.z_cm, m.r_cm2)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from edge.errors import ConfigError, MessageError
@@ -80,11 +80,12 @@ def read_detections(path: Path) -> list[Detections]:
 def estimate_offsets(boards: Sequence[Sequence[Detections]], settings: FusionSettings, passes: int = 2) -> ClockAligner:
     """A :class:`ClockAligner` trained over the whole recording, the first board's clock the reference."""
     reference = boards[0][0].edge_id
-    aligner = ClockAligner(settings.clock, reference)
+    clock = replace(settings.clock, compare_every_s=0.0)  # offline there is time to compare every frame
+    aligner = ClockAligner(clock, reference)
     for k in range(passes):
         previous = {b: e.offset_s for b, e in aligner.estimates().items()}
         # the first pass learns as it goes; the next compare the tracks at the last pass's estimates throughout
-        aligner = ClockAligner(settings.clock, reference, previous if k > 0 else None)
+        aligner = ClockAligner(clock, reference, previous if k > 0 else None)
         for d in sorted(
             (d for frames in boards for d in frames), key=lambda d: d.t_capture_s - previous.get(d.edge_id, 0.0)
         ):
