@@ -211,6 +211,18 @@ def test_edge_ips_start_boards_on_the_wide_arena_and_a_fuser_make_one_map(mosqui
         assert recorder.wait_for(lambda msgs: len({p.id for _, p in pose_list(msgs)}) >= 10, 120.0)  # type: ignore[attr-defined]
         t0 = recorder.messages[-1].t_recv
         assert poses_after(recorder, t0, 200)
+
+        def boards_report_their_rovers(msgs: list[Received]) -> bool:
+            said = [
+                parse_status(m.payload)
+                for m in msgs
+                if m.topic.startswith("ips/v1/edge/") and m.topic.endswith("/status")
+            ]
+            return all(
+                any(s.edge == cam and s.state == "online" and s.rovers for s in said) for cam in ("cam1", "cam2")
+            )
+
+        assert recorder.wait_for(boards_report_their_rovers, 30.0)
         detections = [m for m in recorder.messages if m.topic.endswith("/detections")]
         statuses = [
             parse_status(m.payload)
@@ -221,8 +233,6 @@ def test_edge_ips_start_boards_on_the_wide_arena_and_a_fuser_make_one_map(mosqui
     # a board of several does not call the other boards' rovers missing, nor degrade for them
     assert {s.edge for s in statuses} == {"cam1", "cam2"}
     assert all(s.missing == [] for s in statuses)
-    for cam in ("cam1", "cam2"):
-        assert any(s.edge == cam and s.state == "online" and s.rovers for s in statuses), statuses
     world = WideCameraSource("wide:cam1:2", realtime=False)
     errors = []
     for _, p in pose_list(recorder.messages, t0):
