@@ -296,6 +296,16 @@ def formation(
     help="Where the files will live on the broker machine (default: --out).",
 )
 @click.option("--force", is_flag=True, help="Overwrite existing files.")
+@click.option(
+    "--bridge",
+    is_flag=True,
+    help="Several boards: a central broker (OUT/central) and one bridged broker per board (OUT/<board>).",
+)
+@click.option("--boards", default=None, help="--bridge: comma-separated board ids (each board's edge.id).")
+@click.option("--central-host", default=None, help="--bridge: the name or address the boards reach the central by.")
+@click.option(
+    "--fusers", default="fuser-a,fuser-b", show_default=True, help="--bridge: the fusers' logins at the central."
+)
 @config_option
 def broker_config(
     out_dir: Path,
@@ -308,6 +318,10 @@ def broker_config(
     tls_names: tuple[str, ...],
     install_dir: Path | None,
     force: bool,
+    bridge: bool,
+    boards: str | None,
+    central_host: str | None,
+    fusers: str,
     config_path: Path | None,
 ) -> None:
     """Write a Mosquitto configuration with users, ACLs and (--tls) a TLS listener for this deployment.
@@ -317,9 +331,15 @@ def broker_config(
     id is its user name, so no login can take another client's session. Random passwords go to
     credentials.toml; passwords and private keys are written with mode 600.
 
+    With --bridge (several boards), OUT/central is the central broker (the fusers and the rovers connect there)
+    and OUT/<board> each board's own Mosquitto, bridged to the central one: detections and statuses out, poses in,
+    the formation both ways, over TLS with --tls (the link that leaves the board).
+
     Example:
 
+    \b
         edge-ips broker-config --out /etc/mosquitto/edge-ips --rovers red,green,blue --tls --tls-name pi.lab
+        edge-ips broker-config --bridge --boards cam1,cam2 --central-host central.lab --tls --out brokers
     """
     import socket
 
@@ -327,6 +347,29 @@ def broker_config(
 
     config, _, _ = _load(config_path)
     ids = [r.strip() for r in rovers.split(",") if r.strip()] if rovers else [r.id for r in config.rovers]
+    if bridge:
+        from edge.broker.bridge import write_bridge_configs
+
+        board_ids = [b.strip() for b in (boards or "").split(",") if b.strip()]
+        if not board_ids or central_host is None:
+            raise UserError("--bridge needs --boards (the boards' ids) and --central-host (how they reach it)")
+        written = write_bridge_configs(
+            out_dir,
+            boards=board_ids,
+            rovers=ids,
+            central_host=central_host,
+            fusers=[f.strip() for f in fusers.split(",") if f.strip()],
+            port=port,
+            local_port=local_port,
+            tls_port=tls_port if tls else None,
+            tls_names=list(tls_names) or [central_host],
+            install_dir=install_dir,
+            force=force,
+        )
+        for path in written.all():
+            click.echo(f"wrote {path}")
+        click.echo(f"central broker: {written.central}; one bridged broker per board: {', '.join(board_ids)}")
+        return
     files = write_mosquitto_config(
         out_dir,
         rovers=ids,

@@ -236,3 +236,23 @@ def test_fuse_refuses_bad_input_in_one_line(tmp_path: Path, what: str, files, me
     assert result.exit_code == 2, result.output
     assert message in result.output
     assert "Traceback" not in result.output
+
+
+def test_a_bridges_queue_replayed_after_a_long_outage_is_stale_and_moves_no_clock() -> None:
+    """Ten seconds of a board's frames arrive at once when its link returns: every one is dropped as stale, and
+    the board's clock estimate stays where it was (their late arrival says nothing about its clock)."""
+    board = Board("a", (0, 0, 800, 550), clock_offset_s=0.004)
+    rec = record([board], {"r1": circle((400, 275), 100, 25)}, 20.0)
+    fuser = Fuser(SETTINGS)
+    frames = rec.frames["a"]
+    for d in frames[:150]:  # five seconds live
+        fuser.add(d, now_s=rec.arrivals[("a", d.seq)])
+    before = fuser.status(now_s=5.0).offsets["a"].offset_s
+    reconnect = rec.arrivals[("a", frames[449].seq)]  # the link returns after ten seconds
+    published = [p for d in frames[150:450] for p in fuser.add(d, now_s=reconnect)]
+    # only the last few frames, still within the age limit, give poses; nothing older
+    assert published and all(reconnect - p.t_s <= SETTINGS.max_age_s + 1 / 30 for p in published)
+    assert fuser.boards["a"].stale >= 290
+    assert fuser.status(now_s=reconnect).offsets["a"].offset_s == pytest.approx(before, abs=0.001)
+    fresh = [p for d in frames[451:460] for p in fuser.add(d, now_s=rec.arrivals[("a", d.seq)])]
+    assert fresh  # and it goes on with fresh frames

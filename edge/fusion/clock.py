@@ -15,9 +15,11 @@ Two sources, combined by weighted least squares over all boards (:meth:`ClockAli
   solvable, and where every rover crossed one way at one speed the offset's variance says it is unknown. Old
   evidence fades with ``memory_s``, so a slowly drifting clock is followed.
 * **arrival times** (live only): ``ts`` (the board's clock when it sent) minus the arrival time on the fuser's
-  clock is ``off_b - latency``; its maximum over a window is the offset less the smallest network latency (about
-  0.2 ms on a LAN). It anchors every board to the fuser's clock, and is the only source for a board without
-  overlap. A delayed message (a bridge that queued it) only lowers that difference, so it never moves the maximum.
+  clock is ``off_b - latency``; its running maximum is the offset less the smallest network latency (about 0.2 ms
+  on a LAN). It anchors every board to the fuser's clock, and is the only source for a board without overlap. A
+  delayed message (a bridge that queued it through an outage) only lowers that difference, so it never moves the
+  maximum; the maximum itself falls no faster than a clock can drift (``drift_rate``), so a board whose clock is
+  stepped back is followed at that pace (5 ms in 10 s).
 
 Without the seam term, a 3 mm disagreement crossed one way at 25 cm/s reads as a 12 ms offset.
 """
@@ -47,7 +49,7 @@ class ClockSettings:
     seam_sigma_cm: float = 1.0  # prior: two boards' calibrations agree to about this in their overlap
     memory_s: float = 60.0  # time constant of forgetting old evidence
     history_s: float = 1.0  # how much of each board's track of each rover is kept for interpolation
-    arrival_window_s: float = 10.0
+    drift_rate: float = 5e-4  # how fast the arrival bound may fall: NTP slews a clock by at most 500 ppm
     arrival_sigma_s: float = 0.002  # how well the arrival bound pins a board to the fuser's clock
     prior_sigma_s: float = 1.0  # a board with no evidence at all: offset 0, this unsure
 
@@ -95,7 +97,19 @@ class _Sample:
 
 @dataclass
 class _Arrivals:
-    window: deque[tuple[float, float]] = field(default_factory=deque)  # (arrival, ts - arrival)
+    """The largest ``ts - arrival`` seen, allowed to fall only as fast as a clock can drift: messages that arrive
+    late (a bridge's queue replayed after an outage) never lower it, however long the outage was."""
+
+    bound: float | None = None
+    t_s: float = 0.0
+
+    def add(self, value: float, t_arrival_s: float, drift_rate: float) -> None:
+        if self.bound is None:
+            self.bound = value
+        else:
+            decayed = self.bound - drift_rate * max(0.0, t_arrival_s - self.t_s)
+            self.bound = max(value, decayed)
+        self.t_s = t_arrival_s
 
 
 class ClockAligner:
@@ -151,9 +165,7 @@ class ClockAligner:
         """A message sent at ``t_sent_board_s`` (board clock) arrived at ``t_arrival_s`` (the reference clock)."""
         self._board(edge_id)
         arrivals = self._arrivals.setdefault(edge_id, _Arrivals())
-        arrivals.window.append((t_arrival_s, t_sent_board_s - t_arrival_s))
-        while arrivals.window and arrivals.window[0][0] < t_arrival_s - self.settings.arrival_window_s:
-            arrivals.window.popleft()
+        arrivals.add(t_sent_board_s - t_arrival_s, t_arrival_s, self.settings.drift_rate)
         self._dirty = True
 
     def _board(self, edge_id: str) -> None:
@@ -239,9 +251,9 @@ class ClockAligner:
             info[i, i] += 1e12
             sources[self.reference].add("reference")
         for b, arrivals in self._arrivals.items():
-            if arrivals.window and b in index:
+            if arrivals.bound is not None and b in index:
                 i = index[b]
-                bound = max(v for _, v in arrivals.window)
+                bound = arrivals.bound
                 w = 1.0 / s.arrival_sigma_s**2
                 info[i, i] += w
                 rhs[i] += w * bound

@@ -1,4 +1,4 @@
-"""``python -m tests.support.synthetic_board URL EDGE_ID X0,Y0,X1,Y1 [CLOCK_OFFSET_MS]``: a camera board without a
+"""``python -m tests.support.synthetic_board URL EDGE_ID X0,Y0,X1,Y1 [CLOCK_OFFSET_MS [QOS]]``: a camera board without a
 camera, for the fuser's process tests: it publishes detections v1 of a few rovers on fixed paths at 30 frames/s on
 the wall clock (each stamped by its own clock, ``CLOCK_OFFSET_MS`` wrong), its retained status, and a last will,
 through a real MQTT connection, like ``edge-ips start`` with ``edge.publish = "detections"``. Much lighter than
@@ -56,6 +56,7 @@ def status(edge_id: str, state: str, rovers: list[str]) -> bytes:
 def main(argv: list[str]) -> None:
     url, edge_id, view = argv[0], argv[1], tuple(float(v) for v in argv[2].split(","))
     offset_s = float(argv[3]) / 1e3 if len(argv) > 3 else 0.0
+    qos = int(argv[4]) if len(argv) > 4 else 0  # 1: what a bridge could queue while its link is down
     target = urlsplit(url)
     client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"edge-ips-{edge_id}")
     if target.username:
@@ -93,7 +94,7 @@ def main(argv: list[str]) -> None:
                 Detection(rover_id, (x + noise[0], y + noise[1]), (var, 0.0, var), None, 0.95, (640.0, 360.0))
             )
         d = Detections(edge_id, seq, k, t_exposed + offset_s, time.time() + offset_s, 1.0, polygon, tuple(rovers))
-        client.publish(detections_topic(edge_id), encode_detections(d), qos=0)
+        client.publish(detections_topic(edge_id), encode_detections(d), qos=qos)
         if time.time() >= next_status:
             client.publish(
                 edge_status_topic(edge_id), status(edge_id, "online", [r.rover_id for r in rovers]), qos=1, retain=True
