@@ -241,3 +241,29 @@ def test_edge_ips_start_boards_on_the_wide_arena_and_a_fuser_make_one_map(mosqui
     # the boards' own clock errors (a few ms) and a loaded machine's latencies included
     assert float(np.median(errors)) < 1.0, errors
     no_frame_twice(recorder.messages)
+
+
+def test_doctor_on_the_fuser_checks_every_board_and_its_clock(system, mosquitto: Mosquitto) -> None:  # type: ignore[no-untyped-def]
+    recorder, procs = system
+    doctor = [PY, "-m", "edge.cli", "doctor", "--fusion", "--broker", mosquitto.url]
+    assert recorder.wait_for(lambda msgs: len(fuser_states(msgs)) == 2, 30.0)
+    healthy = subprocess.run(doctor, capture_output=True, text=True, env=_env(), timeout=60)
+    assert healthy.returncode == 0, healthy.stdout + healthy.stderr
+    lines = healthy.stdout.splitlines()
+    assert any(line.startswith("OK    fusers") and "standby" in line for line in lines), lines
+    (board_a,) = [line for line in lines if "board a" in line]
+    assert board_a.startswith(("OK", "WARN")) and "clock +" in board_a  # a's clock is 3 ms ahead
+    procs["b"].kill()  # its last will: offline
+    assert recorder.wait_for(
+        lambda msgs: any(
+            b.edge == "b" and b.state == "offline"
+            for m in msgs[-40:]
+            if m.topic.startswith("ips/v1/fuser/") and m.topic.endswith("/status")
+            for b in parse_fuser_status(m.payload).boards
+        ),
+        30.0,
+    )
+    broken = subprocess.run(doctor, capture_output=True, text=True, env=_env(), timeout=60)
+    assert broken.returncode == 1
+    (board_b,) = [line for line in broken.stdout.splitlines() if "board b" in line]
+    assert board_b.startswith("FAIL") and "offline" in board_b
