@@ -142,6 +142,8 @@ def apparent_lags(work: Path, layout: dict[str, Any]) -> dict[str, float]:
             state = world.state_at(d.frame / layout["fps"] + cam["phase_s"]).by_id()
             for r in d.rovers:
                 t = state[r.id]
+                if math.hypot(r.x - t.x_cm, r.y - t.y_cm) > 5.0:
+                    continue  # the board took another rover for this one: no timing in that
                 ve += t.vx_cm_s * (r.x - t.x_cm) + t.vy_cm_s * (r.y - t.y_cm)
                 vv += t.vx_cm_s**2 + t.vy_cm_s**2
         out[cam["name"]] = -ve / vv if vv else 0.0

@@ -45,7 +45,7 @@ class ClockSettings:
     max_gap_s: float = 0.1  # board b's two samples around the instant must be this close
     max_residual_cm: float = 5.0  # larger residuals are an association mistake, not a clock
     velocity_window_s: float = 0.2  # a rover's velocity is fitted over this much of a board's track
-    compare_every_s: float = 0.1  # each rover's track is compared this often per board (the evidence is ample)
+    compare_every_s: float = 0.25  # each rover's track is compared this often per board (the evidence is ample)
     seam_sigma_cm: float = 1.0  # prior: two boards' calibrations agree to about this in their overlap
     memory_s: float = 60.0  # time constant of forgetting old evidence
     history_s: float = 1.0  # how much of each board's track of each rover is kept for interpolation

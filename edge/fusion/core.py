@@ -6,7 +6,10 @@
 * **Association**: by id (each board's tracker knows the rovers by their markers), checked by position: a detection
   whose normalised innovation against the rover's filter exceeds ``gate_nis`` is refused (a board that mistook one
   rover for another cannot drag the fused track); if only refused detections arrive for ``reacquire_s`` the rover
-  is re-initialised where they say it is (it really moved: there is no other evidence).
+  is re-initialised where they say it is (it really moved: there is no other evidence), unless another rover's
+  live track is there (``claim_radius_cm``): then the board took that rover for this one. Each board's
+  covariances are scaled by the robust level of its innovations (:meth:`BoardState.saw_nis`): a board more wrong
+  than its model says is trusted less, not refused.
 * **One filter per rover** (:class:`edge.fusion.track.CvState`, constant velocity, the detections' covariances as
   measurement noise) for as long as any board sees it: overlaps are fused by uncertainty, and a
   rover passing from one view to the next keeps its filter, its id and its estimate. Each board's covariance grows
@@ -36,6 +39,12 @@ from edge.fusion.track import CvState
 FloatArray = NDArray[np.float64]
 
 
+NOISE_WINDOW = 256
+NOISE_MIN_SAMPLES = 64
+CHI2_2_MEDIAN = 1.386
+MAX_NOISE_SCALE = 25.0
+
+
 @dataclass(frozen=True)
 class FusionSettings:
     """Tuning of :class:`Fuser` (units in the names)."""
@@ -48,12 +57,15 @@ class FusionSettings:
     reacquire_s: float = 0.3
     replay_s: float = 0.2
     accel_sigma_cm_s2: float = 20.0  # smoother than one camera's filter: several boards' seams meet in it
-    fade_nis: float = 13.8  # chi-square, 2 dof, 99.9 %: a manoeuvre, not a seam between two calibrations
+    # no fading step (the single camera's filter has one for manoeuvres): with several boards an innovation that
+    # large is mostly one board's outlier, and fading would give it the gain; the process noise follows the turns
+    fade_nis: float = math.inf
     heading_s: float = 0.2  # a board's heading is used this long
     heading_min_speed_cm_s: float = 5.0
     clock: ClockSettings = field(default_factory=ClockSettings)
 
     late_direct_s: float = 0.035  # about one frame
+    claim_radius_cm: float = 20.0  # two markers' centres are never closer: a body is 20 cm wide
     initial_speed_sigma_cm_s: float = 50.0
 
 
@@ -116,6 +128,22 @@ class BoardState:
     view_cm: tuple[tuple[float, float], ...] = ()
     online: bool = True  # False once its retained status says offline
     rovers: set[str] = field(default_factory=set)
+    noise_scale: float = 1.0  # how much larger its errors are than its covariances say (>= 1)
+    _nis: deque[float] = field(default_factory=lambda: deque(maxlen=NOISE_WINDOW))
+    _nis_count: int = 0
+
+    def saw_nis(self, nis: float) -> None:
+        """Track the board's normalised innovations; its covariances are scaled by their robust level.
+
+        The median of a 2-dof chi-square is 1.386: a board whose detections are truly as good as their covariances
+        say keeps the scale at 1; one whose tracker is overconfident (crowded markers, a worse view than its model
+        knows) gets its covariances widened, so it is neither refused nor trusted too much. A median ignores the
+        few detections of the wrong rover."""
+        self._nis.append(min(nis, 1e6))
+        self._nis_count += 1
+        if len(self._nis) >= NOISE_MIN_SAMPLES and self._nis_count % 32 == 0:
+            level = float(np.median(self._nis)) / CHI2_2_MEDIAN
+            self.noise_scale = min(max(level * self.noise_scale, 1.0), MAX_NOISE_SCALE)
 
 
 @dataclass(frozen=True)
@@ -193,18 +221,22 @@ class Fuser:
     def _fuse(self, r: Detection, edge_id: str, t_s: float, board: BoardState) -> FusedPose | None:
         s = self.settings
         xx, xy, yy = r.cov_cm2
-        m = _Measurement(t_s, float(r.xy_cm[0]), float(r.xy_cm[1]), float(xx), float(xy), float(yy), edge_id)
+        k = board.noise_scale
+        m = _Measurement(t_s, float(r.xy_cm[0]), float(r.xy_cm[1]), k * xx, k * xy, k * yy, edge_id)
         track = self.tracks.get(r.rover_id)
         if track is None or t_s - track.last_measured_s > s.timeout_s:
+            if self._claimed(r.rover_id, m):
+                board.refused += 1  # where another rover is: this board took that rover for this one
+                return None
             track = self._start(r.rover_id, m)
         elif t_s < track.checkpoint_t_s:
             board.late += 1  # older than everything kept for replay: its moment has passed
             return None
-        elif not self._inside_gate(track, m):
+        elif not self._inside_gate(track, m, board):
             board.refused += 1
             if track.refused_since_s is None:
                 track.refused_since_s = t_s
-            if t_s - track.refused_since_s < s.reacquire_s:
+            if t_s - track.refused_since_s < s.reacquire_s or self._claimed(r.rover_id, m):
                 return None
             track = self._start(r.rover_id, m)  # only refused detections for a while: the rover is there
         else:
@@ -230,12 +262,25 @@ class Fuser:
         self.tracks[rover_id] = track
         return track
 
-    def _inside_gate(self, track: _Track, m: _Measurement) -> bool:
+    def _inside_gate(self, track: _Track, m: _Measurement, board: BoardState) -> bool:
         f, dt = track.filter, m.t_s - track.t_s
         # the filter's covariance grows between its time and the measurement's (either way) by the acceleration
         grow = (self.settings.accel_sigma_cm_s2 * dt * dt / 2.0) ** 2 + (f.puu + f.pvv) / 2.0 * dt * dt
         nis = f.nis(m.x, m.y, m.rxx + grow, m.rxy, m.ryy + grow, dt if f.updates >= 2 else 0.0)
+        if f.updates >= 3:
+            board.saw_nis(nis)
         return nis <= self.settings.gate_nis
+
+    def _claimed(self, rover_id: str, m: _Measurement) -> bool:
+        """A live track of another rover is within a marker's reach of ``m``: the detection is that rover's."""
+        reach = self.settings.claim_radius_cm
+        for other_id, other in self.tracks.items():
+            if other_id == rover_id or m.t_s - other.last_measured_s > self.settings.timeout_s:
+                continue
+            f, dt = other.filter, m.t_s - other.t_s
+            if math.hypot(f.x + f.vx * dt - m.x, f.y + f.vy * dt - m.y) < reach:
+                return True
+        return False
 
     def _apply(self, track: _Track, m: _Measurement) -> None:
         s = self.settings
