@@ -21,8 +21,8 @@ resumes with an expired lease and learns it lost before its next beat could coun
 cut off stops on its own; the others take over after ``takeover_s``).
 
 What it cannot stop: poses already handed to the operating system before a pause or a partition, delivered late by
-TCP (at most ``lease_s`` of them; pose v1 has no field a rover could fence them with). And a fuser that joins reads
-the retained entry as the state; in the rare case it is a beat the old holder sent just after losing (a window of
+TCP (at most ``lease_s`` of them, 0.2 s; pose v1 has no field a rover could fence them with). And a fuser that joins
+reads the retained entry as the state; in the rare case it is a beat the old holder sent just after losing (a window of
 one round trip, overwritten by the next beat), the newcomer takes the next live beat or release as the state
 instead (:attr:`Lease.synced` is False until then) and claims on the retained entry alone only when no beat at all
 arrived for ``takeover_s`` after it joined.
@@ -70,8 +70,8 @@ def new_session() -> str:
 @dataclass(frozen=True)
 class LeaseSettings:
     beat_s: float = 0.05
-    lease_s: float = 0.25  # the holder's own validity after a beat it sent
-    takeover_s: float = 0.40  # a standby's patience since the last valid beat it received
+    lease_s: float = 0.20  # the holder's own validity after a beat it sent
+    takeover_s: float = 0.30  # a standby's patience since the last valid beat it received
     retry_s: float = 0.05  # after a claim that lost, before the next
 
     def __post_init__(self) -> None:
