@@ -131,7 +131,7 @@ def apparent_lags(work: Path, layout: dict[str, Any]) -> dict[str, float]:
     """Each camera's detections against the world at its own exposure instants: the error along the motion over
     the speed (s). The tracker's centroid trails a moving marker slightly; boards that differ in it look to the
     fuser like boards whose clocks differ by as much, and correcting for it is what aligns their measurements."""
-    from edge.messages import parse_detections
+    from edge.board_messages import parse_detections
     from edge.sim.wide import build_wide
 
     world = build_wide(len(layout["cameras"]), seed=layout["seed"], rovers=len(layout["rovers"])).world()
@@ -288,8 +288,9 @@ def replay_board(url: str, edge_id: str, det_path: Path, times_path: Path) -> No
 
     import paho.mqtt.client as mqtt
 
+    from edge.board_messages import detections_topic, parse_detections
     from edge.fusion.detections import encode_detections, from_message
-    from edge.messages import StatusV1, detections_topic, dumps, edge_status_topic, parse_detections
+    from edge.messages import StatusV1, dumps, edge_status_topic
 
     frames = [from_message(parse_detections(line)) for line in det_path.read_bytes().splitlines()]
     track_ms = json.loads(times_path.read_text()) if times_path.name != "none" else [0.0] * len(frames)
@@ -363,7 +364,7 @@ def _poses(messages: list[tuple[float, str, bytes]]) -> list[tuple[float, Any]]:
 
 
 def _fuser_state(messages: list[tuple[float, str, bytes]]) -> dict[str, str]:
-    from edge.messages import parse_fuser_status
+    from edge.board_messages import parse_fuser_status
 
     out = {}
     for _, topic, p in messages:
@@ -515,7 +516,7 @@ def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) 
         dead = names[-1]
         t_kill = time.time()
         boards[dead].kill()
-        from edge.messages import parse_fuser_status
+        from edge.board_messages import parse_fuser_status
 
         def dead_reported() -> bool:
             for _, topic, p in reversed(at_central.since(t_kill)):

@@ -1,7 +1,8 @@
 """``edge-ips doctor``: is this board ready to run ``edge-ips start``? One line per check, with a fix hint.
 
-Checks the configuration, the camera (opens, resolution, fps), the calibration (loads, matches the resolution),
-the broker (connects, may publish) and the clock (synchronised: poses carry the board's wall-clock time).
+Checks the configuration, the camera (opens, resolution, fps), its controls (granted as configured; autofocus and
+auto white balance off under a calibration), the calibration (loads, matches the resolution), the broker (connects,
+may publish) and the clock (synchronised: poses carry the board's wall-clock time).
 """
 
 from __future__ import annotations
@@ -41,21 +42,11 @@ def check_config(where: str, env_keys: tuple[str, ...]) -> Check:
 
 def check_camera(config: EdgeConfig, sim_factory: Callable[[str], Any] | None = None) -> tuple[Check, Any, Any]:
     """Open the source and read one frame. Returns the check, the (closed) source and what it granted."""
-    from edge.sources import make_source, parse_source
+    from edge.sources import camera_source, parse_source
 
     cam = config.camera
     try:
-        source = make_source(
-            cam.source,
-            width=cam.width,
-            height=cam.height,
-            fps=cam.fps,
-            fourcc=cam.fourcc,
-            loop=cam.loop,
-            realtime=False,
-            stall_timeout_s=cam.stall_timeout_s,
-            sim_factory=sim_factory,
-        )
+        source = camera_source(cam, sim_factory, realtime=False)
         info = source.open()
     except EdgeIpsError as exc:
         hint = "plug the camera in and check `ls /dev/video*`, or try --source sim"
@@ -80,8 +71,34 @@ def check_camera(config: EdgeConfig, sim_factory: Callable[[str], Any] | None = 
     return check, source, info
 
 
+def check_controls(config: EdgeConfig, source: Any) -> Check | None:
+    """A V4L2 camera's controls: what was not granted, and automatic modes that move a calibration or the hues."""
+    from edge.sources import CameraSource
+
+    if not isinstance(source, CameraSource):
+        return None
+    report = source.controls_report
+    try:
+        modes = source.automatic_modes()
+    except EdgeIpsError as exc:
+        return Check("controls", "warn", f"cannot read the camera's controls: {exc}", "check the camera's driver")
+    if modes and config.calibration.path is not None:
+        on = " and ".join(modes)
+        return Check(
+            "controls",
+            "warn",
+            f"{on} on: {'they move' if len(modes) > 1 else 'it moves'} the focal length or the marker colours "
+            "under a calibration",
+            "set [camera.controls] autofocus = false, focus = N, auto_white_balance = false, white_balance_k = K "
+            "(docs/deploy.md gives the C920's)",
+        )
+    if not report.ok:
+        return Check("controls", "warn", f"not all granted: {report.line()}", "see docs/deploy.md, camera controls")
+    return Check("controls", "ok", report.line() if report.granted else "the camera's own settings")
+
+
 def check_calibration(config: EdgeConfig, source: Any, info: Any, where: str) -> Check:
-    from edge.runtime import load_calibration_for
+    from edge.appliance import load_calibration_for
 
     if source is None:
         return Check("calibration", "warn", "not checked: no camera", "fix the camera first")
@@ -115,7 +132,8 @@ def _probe_broker(target: BrokerTarget, config: EdgeConfig, timeout_s: float) ->
     from paho.mqtt.reasoncodes import ReasonCode
 
     from edge.messages import dumps
-    from edge.publisher import TlsFiles, connect_host, offline_status
+    from edge.mqttclient import TlsFiles, connect_host
+    from edge.publisher import offline_status
 
     client = mqtt.Client(
         mqtt.CallbackAPIVersion.VERSION2,
@@ -125,7 +143,7 @@ def _probe_broker(target: BrokerTarget, config: EdgeConfig, timeout_s: float) ->
     if target.username is not None:
         client.username_pw_set(target.username, target.password)
     if target.tls:
-        files = TlsFiles(config.broker.ca_file, config.broker.cert_file, config.broker.key_file)
+        files = TlsFiles.of(config.broker)
         files.check()
         client.tls_set(
             ca_certs=str(files.ca_file) if files.ca_file else None,
@@ -191,14 +209,14 @@ def _embedded_logins(config: EdgeConfig) -> tuple[str, BrokerTarget | None, str]
     problem with the file ("" if none)."""
     import stat
 
-    from edge.broker.clients import edge_target, embedded_credentials
+    from edge.broker.clients import embedded_credentials, select_broker
 
     path = embedded_credentials(config)
     if not path.exists():
         return f"logins generated on the first start in {path}", None, ""
     mode = stat.S_IMODE(path.stat().st_mode)
     try:
-        target = edge_target(config)
+        target = select_broker(config).target
     except EdgeIpsError as exc:
         return f"logins in {path}", None, str(exc)
     if mode & 0o077:
@@ -260,6 +278,9 @@ def run_checks(
     yield check_config(where, env_keys)
     camera, source, info = check_camera(config, sim_factory)
     yield camera
+    controls = check_controls(config, source)
+    if controls is not None:
+        yield controls
     yield check_calibration(config, source, info, where)
     try:
         yield check_broker(config)

@@ -1,7 +1,8 @@
 """The versioned message contract between the edge and the rovers (``shared/schema/``).
 
-The pydantic models here are the single source of truth: ``shared/schema/*.schema.json`` are generated from them
-(``edge-ips schema --out shared/schema``) and a test fails when the committed files drift. The hot path does not
+The pydantic models here (and those of several boards in :mod:`edge.board_messages`) are the single source of
+truth: ``shared/schema/*.schema.json`` are generated from them (:mod:`edge.contract`, ``edge-ips schema --out
+shared/schema``) and a test fails when the committed files drift. The hot path does not
 build models: :func:`encode_pose` formats the canonical bytes directly, and tests pin that those bytes are exactly
 what the model validates and re-serialises.
 
@@ -13,20 +14,23 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
 
-from edge.errors import MessageError
+from edge.errors import MessageError, describe_validation
 
 VERSION = 1
 TOPIC_PREFIX = "ips/v1"
 POSE_MAX_BYTES = 160
 FORMATION_MAX_BYTES = 512
 STATUS_MAX_BYTES = 512
+ROVER_STATUS_VERSION = 2  # v1 (seq only) could not say which command a rover applies; see shared/schema/README.md
+ROVER_STATUS_PREFIX = f"ips/v{ROVER_STATUS_VERSION}"
+ROVER_STATUS_MAX_BYTES = 160
 
 ID_PATTERN = r"^[a-z0-9_-]{1,16}$"
+FW_PATTERN = r"^[0-9A-Za-z.+-]{1,16}$"
 MAX_INT = 999_999_999  # seq and frame wrap here: below 2**30, so small ints on the ESP8266 (no allocation)
 MAX_ABS_CM = 9_999.99  # 100 m: anything beyond is a bug, not a lab
 MAX_ABS_CM_S = 999.9  # 10 m/s: far beyond any small rover; the filter output is clipped to it
@@ -49,8 +53,8 @@ def pose_topic(rover_id: str) -> str:
 
 
 def rover_status_topic(rover_id: str) -> str:
-    """A rover's own retained status (its last will says ``offline``)."""
-    return f"{TOPIC_PREFIX}/rovers/{rover_id}/status"
+    """A rover's own retained status, rover status v2 (its last will says ``offline``)."""
+    return f"{ROVER_STATUS_PREFIX}/rovers/{rover_id}/status"
 
 
 def edge_status_topic(edge_id: str) -> str:
@@ -60,6 +64,7 @@ def edge_status_topic(edge_id: str) -> str:
 
 FORMATION_TOPIC = f"{TOPIC_PREFIX}/formation"
 POSE_WILDCARD = f"{TOPIC_PREFIX}/rovers/+/pose"
+ROVER_STATUS_WILDCARD = f"{ROVER_STATUS_PREFIX}/rovers/+/status"
 
 
 # -- models ------------------------------------------------------------------------------------------------------
@@ -100,7 +105,10 @@ class FormationV1(BaseModel):
     )
 
     v: Version = Field(description="Message version, always 1.")
-    seq: Counter = Field(description="Increments with every new formation command.")
+    seq: Counter = Field(
+        description="Increments with every new formation command (999999999 is followed by 1); a label for people "
+        "and logs: rovers compare whole commands, not seq."
+    )
     kind: FormationKind = Field(description="Which formation: line, rendezvous, triangle, or stop (all halt).")
     ids: list[RoverId] = Field(max_length=16, description="Ordered ids of the rovers taking part.")
     spacing: float | None = Field(
@@ -142,7 +150,45 @@ class StatusV1(BaseModel):
     t: float = Field(ge=0.0, le=1e10, description="Wall-clock time of the status, Unix seconds.")
 
 
-MODELS: dict[str, type[BaseModel]] = {"pose": PoseV1, "formation": FormationV1, "status": StatusV1}
+HaltReason = Literal["none", "probe", "idle", "stop", "stale", "disconnected", "error", "heading"]
+
+
+class RoverStatusV2(BaseModel):
+    """What a rover applies and why its motors are stopped, retained on ``ips/v2/rovers/<id>/status`` (published by
+    the rover; its last will is ``state: offline``)."""
+
+    model_config = ConfigDict(
+        **_STRICT,
+        title="rover status v2",
+        json_schema_extra={
+            "x-max-bytes": ROVER_STATUS_MAX_BYTES,
+            "x-topic": f"{ROVER_STATUS_PREFIX}/rovers/<id>/status",
+            "x-retained": True,
+        },
+    )
+
+    v: Annotated[
+        int,
+        Field(
+            ge=ROVER_STATUS_VERSION,
+            le=ROVER_STATUS_VERSION,
+            json_schema_extra={"const": ROVER_STATUS_VERSION},
+            description="Message version, always 2.",
+        ),
+    ]
+    id: RoverId = Field(description="The rover's id (the topic's <id>).")
+    state: Literal["online", "offline"] = Field(description="online, or offline (the last will, or a clean stop).")
+    halt: HaltReason = Field(
+        description="Why the motors are stopped: none and probe drive; idle, stop, stale, disconnected, error and "
+        "heading halt (docs/firmware.md, safety behaviour)."
+    )
+    formation: FormationKind | None = Field(
+        description="Kind of the formation command the rover applies, or null: none received since it (re)connected."
+    )
+    seq: Counter | None = Field(description="seq of that formation command, or null.")
+    fw: Annotated[str, StringConstraints(pattern=FW_PATTERN)] | None = Field(
+        description="Firmware version, or null (the last will)."
+    )
 
 
 # -- encoding ----------------------------------------------------------------------------------------------------
@@ -206,6 +252,12 @@ def dumps(message: BaseModel) -> bytes:
     return json.dumps(message.model_dump(mode="json"), separators=(",", ":"), allow_nan=False).encode()
 
 
+def next_seq(seq: int | None) -> int:
+    """The formation seq after ``seq`` (None: nothing retained): +1, and 999999999 is followed by 1, not 0 (0 is
+    never written, so a wrapped seq never looks like a fresh start)."""
+    return 1 if seq is None or seq >= MAX_INT or seq < 0 else seq + 1
+
+
 # -- decoding ----------------------------------------------------------------------------------------------------
 def _loads(model: type[BaseModel], payload: bytes, max_bytes: int) -> Any:
     if len(payload) > max_bytes:
@@ -217,9 +269,7 @@ def _loads(model: type[BaseModel], payload: bytes, max_bytes: int) -> Any:
     try:
         return model.model_validate_json(text)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-        raise MessageError(f"{model.__name__}: {where}: {first['msg']}") from exc
+        raise MessageError(f"{model.__name__}: {describe_validation(exc)}") from exc
 
 
 def parse_pose(payload: bytes) -> PoseV1:
@@ -234,191 +284,5 @@ def parse_status(payload: bytes) -> StatusV1:
     return _loads(StatusV1, payload, STATUS_MAX_BYTES)
 
 
-PARSERS = {"pose": parse_pose, "formation": parse_formation, "status": parse_status}
-
-
-# -- JSON Schema -------------------------------------------------------------------------------------------------
-def schema_documents() -> dict[str, dict[str, Any]]:
-    """``{file name: JSON Schema}`` for every message and version, as committed under ``shared/schema/``."""
-    docs: dict[str, dict[str, Any]] = {}
-    for name, model in MODELS.items():
-        schema = model.model_json_schema(mode="validation")
-        schema = {
-            "$schema": "https://json-schema.org/draft/2020-12/schema",
-            "$id": f"https://edge-ips.invalid/schema/{name}.v{VERSION}.schema.json",
-            **schema,
-        }
-        docs[f"{name}.v{VERSION}.schema.json"] = schema
-    return docs
-
-
-def render_schema(doc: dict[str, Any]) -> str:
-    return json.dumps(doc, indent=2, sort_keys=False) + "\n"
-
-
-def write_schemas(directory: Path) -> list[Path]:
-    """Write every schema document into ``directory``; returns the paths written."""
-    directory.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, doc in schema_documents().items():
-        path = directory / name
-        path.write_text(render_schema(doc))
-        written.append(path)
-    return written
-
-
-# -- detections: what one camera board measured, for the fusion service (several cameras) ------------------------
-DETECTIONS_MAX_BYTES = 12_288
-DETECTIONS_MAX_ROVERS = 64
-DETECTIONS_MAX_VIEW_POINTS = 8
-MAX_COV_CM2 = 1e6  # a variance of (10 m)^2: a detection that uncertain carries no information
-MAX_PX = 99_999.9
-
-
-def detections_topic(edge_id: str) -> str:
-    """A board's own measurements, one message per processed frame: ``ips/v1/edge/<edge-id>/detections``."""
-    return f"{TOPIC_PREFIX}/edge/{edge_id}/detections"
-
-
-DETECTIONS_WILDCARD = detections_topic("+")
-Px = Annotated[float, Field(ge=-MAX_PX, le=MAX_PX, allow_inf_nan=False)]
-Seconds = Annotated[float, Field(ge=0.0, lt=1e10, allow_inf_nan=False)]
-
-
-class DetectedRoverV1(BaseModel):
-    """One rover as one board measured it: a world position with its covariance, heading, quality, pixel."""
-
-    model_config = ConfigDict(**_STRICT, title="detected rover v1")
-
-    id: RoverId = Field(description="Rover id (the marker's colour as this board's tracker knows it).")
-    x: Cm = Field(description="Measured world x of the marker centre, cm (the shared floor frame).")
-    y: Cm = Field(description="Measured world y, cm.")
-    cov: list[Annotated[float, Field(ge=-MAX_COV_CM2, le=MAX_COV_CM2, allow_inf_nan=False)]] = Field(
-        min_length=3,
-        max_length=3,
-        description="Covariance of (x, y) as [xx, xy, yy], cm^2: the calibration's error at this point plus the "
-        "detection's pixel noise through the mapping, scaled by image and marker quality; positive definite.",
-    )
-    theta: float | None = Field(
-        ge=-THETA_LIMIT, le=THETA_LIMIT, description="Heading, radians in (-pi, pi], or null when unknown."
-    )
-    q: float = Field(ge=0.0, le=1.0, description="The tracker's quality of this measurement, 0..1.")
-    px: list[Px] = Field(
-        min_length=2, max_length=2, description="Image position [u, v] of the marker centre, px (for overlays)."
-    )
-
-    @model_validator(mode="after")
-    def _positive_definite(self) -> DetectedRoverV1:
-        xx, xy, yy = self.cov
-        if not (xx > 0.0 and yy > 0.0 and xx * yy - xy * xy > 0.0):
-            raise ValueError("cov must be positive definite (xx > 0, yy > 0, xx*yy > xy^2)")
-        return self
-
-
-class DetectionsV1(BaseModel):
-    """What one camera board measured in one frame, on ``ips/v1/edge/<edge-id>/detections`` (QoS 0, not retained).
-
-    The fusion service (``edge-ips fuse``) turns every board's detections into the canonical poses; rovers never
-    read this topic.
-    """
-
-    model_config = ConfigDict(
-        **_STRICT,
-        title="detections v1",
-        json_schema_extra={"x-max-bytes": DETECTIONS_MAX_BYTES, "x-topic": "ips/v1/edge/<edge-id>/detections"},
-    )
-
-    v: Version = Field(description="Message version, always 1.")
-    edge: RoverId = Field(description="Id of the board that measured (same alphabet as rover ids).")
-    seq: Counter = Field(description="Per-board message counter, +1 per message, wraps like pose seq.")
-    frame: Counter = Field(description="The board's own frame index.")
-    t: Seconds = Field(description="Capture time of the frame, Unix seconds, the board's clock (0.1 ms resolution).")
-    ts: Seconds = Field(description="When the board sent the message, Unix seconds, the board's clock.")
-    iq: float = Field(ge=0.0, le=1.0, description="Image quality of the frame 0..1 (exposure: dark or clipped).")
-    view: list[Annotated[list[Cm], Field(min_length=2, max_length=2)]] = Field(
-        max_length=DETECTIONS_MAX_VIEW_POINTS,
-        description="The board's view on the floor as a polygon of [x, y] cm corners (empty when unknown).",
-    )
-    rovers: list[DetectedRoverV1] = Field(
-        max_length=DETECTIONS_MAX_ROVERS, description="Every rover this board measured in the frame, ids unique."
-    )
-
-    @model_validator(mode="after")
-    def _unique_ids(self) -> DetectionsV1:
-        ids = [r.id for r in self.rovers]
-        if len(set(ids)) != len(ids):
-            raise ValueError("rover ids must be unique within one message")
-        return self
-
-
-def parse_detections(payload: bytes) -> DetectionsV1:
-    return _loads(DetectionsV1, payload, DETECTIONS_MAX_BYTES)
-
-
-MODELS["detections"] = DetectionsV1
-PARSERS["detections"] = parse_detections
-
-
-# -- the fusion service's own status ------------------------------------------------------------------------------
-FUSER_STATUS_MAX_BYTES = 16_384
-
-
-def fuser_status_topic(fuser_id: str) -> str:
-    """A fuser's retained status: ``ips/v1/fuser/<fuser-id>/status``."""
-    return f"{TOPIC_PREFIX}/fuser/{fuser_id}/status"
-
-
-FUSER_STATUS_WILDCARD = fuser_status_topic("+")
-Ms = Annotated[float, Field(ge=-1e7, le=1e7, allow_inf_nan=False)]
-
-
-class BoardStateV1(BaseModel):
-    """One camera board as a fuser sees it."""
-
-    model_config = ConfigDict(**_STRICT, title="board state v1")
-
-    edge: RoverId = Field(description="The board's id.")
-    state: Literal["ok", "silent", "offline"] = Field(
-        description="ok: its detections arrive; silent: none for a second or more; offline: its status says so."
-    )
-    offset_ms: Ms | None = Field(description="Its clock minus the fuser's, ms, as estimated from the data.")
-    offset_sigma_ms: Ms | None = Field(description="The estimate's 1-sigma, ms.")
-    offset_source: Literal["overlap", "arrival", "overlap+arrival", "reference", "none"] = Field(
-        description="What the estimate rests on: rovers seen in an overlap with other boards, arrival times, both."
-    )
-    age_ms: Ms | None = Field(description="Since its last detections arrived, ms (null: never).")
-    stale: Counter = Field(description="Detections dropped as too old on arrival, since the fuser started.")
-    rovers: list[RoverId] = Field(max_length=64, description="The rovers in its latest detections.")
-    view: list[Annotated[list[Cm], Field(min_length=2, max_length=2)]] = Field(
-        max_length=DETECTIONS_MAX_VIEW_POINTS, description="Its view on the floor (from its detections)."
-    )
-
-
-class FuserStatusV1(BaseModel):
-    """A fusion service's health, retained on ``ips/v1/fuser/<fuser-id>/status`` (published at a clean stop as
-    ``offline``; a crashed fuser's lease is released by its last will on ``ips/v1/fuser/lease``)."""
-
-    model_config = ConfigDict(
-        **_STRICT,
-        title="fuser status v1",
-        json_schema_extra={"x-max-bytes": FUSER_STATUS_MAX_BYTES, "x-topic": "ips/v1/fuser/<fuser-id>/status"},
-    )
-
-    v: Version = Field(description="Message version, always 1.")
-    fuser: RoverId = Field(description="The fuser's id.")
-    state: Literal["active", "standby", "offline"] = Field(
-        description="active: it publishes the poses (it holds the lease); standby: it fuses, ready to take over."
-    )
-    holder: RoverId | None = Field(description="The fuser that holds the lease, as this one sees it.")
-    boards: list[BoardStateV1] = Field(max_length=16, description="Every board it has heard of.")
-    rovers: list[RoverId] = Field(max_length=64, description="Rovers measured within the timeout.")
-    missing: list[RoverId] = Field(max_length=64, description="Rovers seen before, not within the timeout.")
-    t: float = Field(ge=0.0, le=1e10, description="Wall-clock time of the status, Unix seconds.")
-
-
-def parse_fuser_status(payload: bytes) -> FuserStatusV1:
-    return _loads(FuserStatusV1, payload, FUSER_STATUS_MAX_BYTES)
-
-
-MODELS["fuser_status"] = FuserStatusV1
-PARSERS["fuser_status"] = parse_fuser_status
+def parse_rover_status(payload: bytes) -> RoverStatusV2:
+    return _loads(RoverStatusV2, payload, ROVER_STATUS_MAX_BYTES)

@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from edge.broker import read_credentials
-from edge.messages import FORMATION_TOPIC, edge_status_topic, parse_status, rover_status_topic
+from edge.messages import FORMATION_TOPIC, ROVER_STATUS_WILDCARD, edge_status_topic, parse_status, rover_status_topic
 from tests.conftest import REPO
 from tests.support.mosquitto import free_port
 from tests.support.probe import Probe, other_host
@@ -33,7 +33,9 @@ def test_the_default_appliance_is_closed_to_other_hosts_and_to_rover_logins(tmp_
     with open(log, "w") as err:
         edge = subprocess.Popen([*EDGE_IPS, "start", "--http-port", "0"], cwd=tmp_path, env=env, stderr=err)
     try:
-        with MqttRecorder("127.0.0.1", port) as watcher:  # anonymous, from this machine: may read
+        with MqttRecorder(
+            "127.0.0.1", port, topics=("ips/v1/#", ROVER_STATUS_WILDCARD)
+        ) as watcher:  # anonymous, from this machine: may read
             assert watcher.wait_for(lambda m: len(poses(m)) >= 3, 90)
             creds = read_credentials(state / "broker-credentials.toml")
             assert (state / "broker-credentials.toml").stat().st_mode & 0o777 == 0o600

@@ -13,7 +13,8 @@ from click.testing import CliRunner
 from edge.broker import ensure_credentials, read_credentials, rover_login, verify_mosquitto_hash
 from edge.broker.credentials import credentials_path
 from edge.cli import main
-from edge.config import default_state_dir, load_config
+from edge.config import default_state_dir
+from edge.config_load import load_config
 from edge.errors import BrokerError, ConfigError
 from edge.flashing import provisioned_config
 from edge.private_files import write_private

@@ -15,7 +15,7 @@ from edge.broker import BrokerAccess, Credentials, EmbeddedBroker, ensure_creden
 from edge.broker.access import MAX_PACKET_BYTES, Policy, payload_limit
 from edge.broker.gate import IDENTIFIER_REJECTED, NOT_AUTHORIZED, PacketLimit, PacketTooLarge
 from edge.config import BrokerTarget
-from edge.messages import FORMATION_TOPIC, edge_status_topic, pose_topic, rover_status_topic
+from edge.messages import FORMATION_TOPIC, ROVER_STATUS_WILDCARD, edge_status_topic, pose_topic, rover_status_topic
 from edge.publisher import MqttPublisher
 from tests.support.probe import OtherHost, Probe, edge_states_until_marker, other_host
 
@@ -77,6 +77,7 @@ def test_a_rover_login_publishes_its_own_status_and_nothing_else(
     ):
         assert watcher.accepted and red.accepted and edge.accepted
         watcher.subscribe("ips/v1/#")
+        watcher.subscribe(ROVER_STATUS_WILDCARD)
         red.publish(FORMATION_TOPIC, b'{"forged":"formation"}', retain=True)
         red.publish(pose_topic("blue"), b'{"forged":"pose"}')
         red.publish(rover_status_topic("green"), b'{"forged":"status"}', retain=True)

@@ -13,7 +13,8 @@ from edge.broker.access import MAX_PACKET_BYTES, MAX_PAYLOAD_BYTES
 from edge.broker.mosquitto import LOCAL_PORT, TLS_PORT
 from edge.config import BrokerTarget
 from edge.messages import FORMATION_TOPIC, edge_status_topic, rover_status_topic
-from edge.publisher import MqttPublisher, TlsFiles
+from edge.mqttclient import TlsFiles
+from edge.publisher import MqttPublisher
 from tests.support.mosquitto import Mosquitto
 from tests.support.probe import Probe, edge_states_until_marker
 

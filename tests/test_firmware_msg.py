@@ -23,7 +23,7 @@ msg: Any = firmware_modules()["msg"]
 
 VALID = sorted((EXAMPLES / "valid").iterdir())
 INVALID = sorted((EXAMPLES / "invalid").iterdir())
-ROVER_KINDS = ("pose", "formation")  # what the firmware parses; the edge's status and detections are not for it
+ROVER_KINDS = ("pose", "formation")  # what the firmware parses; statuses and detections are not for it
 
 
 def parse(kind: str, payload: bytes) -> Any:
@@ -51,7 +51,7 @@ def test_invalid_example_is_rejected(path: Path) -> None:
 
 
 @pytest.mark.parametrize("path", [p for p in VALID + INVALID if _kind(p) not in ROVER_KINDS], ids=lambda p: p.name)
-def test_edge_status_and_detections_are_neither_a_pose_nor_a_formation(path: Path) -> None:
+def test_statuses_and_detections_are_neither_a_pose_nor_a_formation(path: Path) -> None:
     assert msg.parse_pose(path.read_bytes()) is None
     assert msg.parse_formation(path.read_bytes()) is None
 
@@ -112,6 +112,7 @@ def test_unusual_but_valid_json_takes_the_slow_path_and_parses(what: str, payloa
 
 
 # -- properties -------------------------------------------------------------------------------------------------------
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.binary(max_size=200))
 @example(b"")
@@ -160,6 +161,7 @@ def near_poses(draw: st.DrawFn) -> dict[str, Any]:
     return doc
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None)
 @given(near_poses(), st.sampled_from(["compact", "spaced", "canonical"]))
 def test_near_valid_poses_are_accepted_exactly_when_the_contract_accepts_them(doc: dict[str, Any], style: str) -> None:
@@ -191,6 +193,7 @@ def test_near_valid_poses_are_accepted_exactly_when_the_contract_accepts_them(do
         assert oracle.same_fields(got, oracle.as_fields("pose", want)), f"{payload!r}: {got} != {want}"
 
 
+@pytest.mark.slow
 def test_mutated_messages_are_accepted_exactly_when_the_contract_accepts_them() -> None:
     corpus = oracle.mutation_corpus(3000)
     accepted = 0
@@ -205,6 +208,7 @@ def test_mutated_messages_are_accepted_exactly_when_the_contract_accepts_them() 
     assert 100 < accepted < len(corpus) - 100  # the corpus exercises both verdicts
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(
     rover_id=st.from_regex(r"\A[a-z0-9_-]{1,16}\Z"),

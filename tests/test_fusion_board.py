@@ -35,7 +35,7 @@ def test_more_than_32_rovers_take_several_boards(publish: str, n: int, ok: bool)
 
 
 def test_the_error_for_too_many_rovers_says_what_to_do(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    from edge.config import load_config
+    from edge.config_load import load_config
 
     path = tmp_path / "edge-ips.toml"
     path.write_text("".join(f'[[rovers]]\nid = "r{k}"\ncolor_bgr = [{k}, 100, 200]\n' for k in range(40)))

@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
+from edge.board_messages import parse_detections, parse_fuser_status
 from edge.cli import main
-from edge.messages import parse_detections, parse_fuser_status
 from tests.support.mosquitto import Mosquitto
 from tests.support.proxy import Proxy
 from tests.support.runtime import MqttRecorder, Received

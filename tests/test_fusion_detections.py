@@ -14,6 +14,7 @@ from click.testing import CliRunner
 from hypothesis import given
 from hypothesis import strategies as st
 
+from edge.board_messages import DETECTIONS_MAX_BYTES, parse_detections
 from edge.camera import paper_camera
 from edge.cli import main
 from edge.errors import MessageError
@@ -24,7 +25,7 @@ from edge.fusion.uncertainty import (
     calibration_error_model,
     image_quality,
 )
-from edge.messages import DETECTIONS_MAX_BYTES, dumps, parse_detections
+from edge.messages import dumps
 from edge.trackers.base import CameraPlaneMapping
 from edge.tracking import FrameResult, RoverEstimate
 

@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from edge.messages import parse_fuser_status, parse_pose, parse_status
+from edge.board_messages import parse_fuser_status
+from edge.messages import parse_pose, parse_status
 from tests.conftest import REPO
 from tests.support.mosquitto import Mosquitto
 from tests.support.runtime import MqttRecorder, Received, stop_process

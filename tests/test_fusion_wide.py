@@ -13,11 +13,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from edge.board_messages import parse_detections
 from edge.calibration.points import read_points_csv
 from edge.camera import load_camera
 from edge.cli import main
 from edge.errors import SimulationError
-from edge.messages import parse_detections, parse_pose
+from edge.messages import parse_pose
 from edge.sim.wide import build_wide, regions
 from edge.sim.wide_source import WideCameraSource, parse_wide
 

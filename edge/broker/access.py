@@ -3,9 +3,10 @@
 Users: the edge (its publisher, dashboard, ``edge-ips formation`` and ``doctor`` share one login), one per rover
 (its id), and an optional read-only viewer (a laptop watching the topics). The rules:
 
-* the edge publishes every pose, its own status and the formation, and reads everything under ``ips/v1/``;
+* the edge publishes every pose, its own status and the formation, and reads everything under ``ips/v1/`` and
+  the rovers' statuses (``ips/v2/rovers/+/status``);
 * a rover reads poses, the formation and the edge's status, and publishes only its own status;
-* the viewer reads everything under ``ips/v1/`` and publishes nothing; an anonymous client (embedded broker, from
+* the viewer reads what the edge reads and publishes nothing; an anonymous client (embedded broker, from
   this machine only) has the viewer's rights.
 
 Client ids belong to users too (the embedded broker enforces it; Mosquitto gets ``use_username_as_clientid`` on
@@ -30,6 +31,8 @@ from edge.messages import (
     ID_PATTERN,
     POSE_MAX_BYTES,
     POSE_WILDCARD,
+    ROVER_STATUS_MAX_BYTES,
+    ROVER_STATUS_WILDCARD,
     STATUS_MAX_BYTES,
     TOPIC_PREFIX,
     edge_status_topic,
@@ -45,10 +48,9 @@ ROVER_CLIENT_PREFIX = "rover-"  # firmware/esp8266/link.py connects as rover-<id
 EDGE_CLIENT_PREFIX = "edge-ips-"  # the publisher, the dashboard, `edge-ips formation` and `doctor`
 
 ALL_TOPICS = f"{TOPIC_PREFIX}/#"
-ROVER_STATUS_WILDCARD = rover_status_topic("+")
 EDGE_STATUS_WILDCARD = edge_status_topic("+")
 
-MAX_PAYLOAD_BYTES = max(POSE_MAX_BYTES, FORMATION_MAX_BYTES, STATUS_MAX_BYTES)
+MAX_PAYLOAD_BYTES = max(POSE_MAX_BYTES, FORMATION_MAX_BYTES, STATUS_MAX_BYTES, ROVER_STATUS_MAX_BYTES)
 # Largest MQTT packet either broker reads: the biggest contract message with its topic and headers, or the edge's
 # CONNECT (64-byte client id, last will of one status, user name, password), with room to spare. A 2 MiB retained
 # message is refused here, before it is read into memory.
@@ -64,14 +66,16 @@ class Rights:
 
 
 def edge_rights(edge_id: str) -> Rights:
-    return Rights(publish=(POSE_WILDCARD, edge_status_topic(edge_id), FORMATION_TOPIC), read=(ALL_TOPICS,))
+    return Rights(
+        publish=(POSE_WILDCARD, edge_status_topic(edge_id), FORMATION_TOPIC), read=(ALL_TOPICS, ROVER_STATUS_WILDCARD)
+    )
 
 
 def rover_rights(rover: str) -> Rights:
     return Rights(publish=(rover_status_topic(rover),), read=(POSE_WILDCARD, FORMATION_TOPIC, EDGE_STATUS_WILDCARD))
 
 
-VIEWER_RIGHTS = Rights(publish=(), read=(ALL_TOPICS,))
+VIEWER_RIGHTS = Rights(publish=(), read=(ALL_TOPICS, ROVER_STATUS_WILDCARD))
 
 
 def topic_matches(topic: str, topic_filter: str) -> bool:
@@ -91,7 +95,9 @@ def payload_limit(topic: str) -> int:
         return FORMATION_MAX_BYTES
     if topic_matches(topic, POSE_WILDCARD):
         return POSE_MAX_BYTES
-    if topic_matches(topic, ROVER_STATUS_WILDCARD) or topic_matches(topic, EDGE_STATUS_WILDCARD):
+    if topic_matches(topic, ROVER_STATUS_WILDCARD):
+        return ROVER_STATUS_MAX_BYTES
+    if topic_matches(topic, EDGE_STATUS_WILDCARD):
         return STATUS_MAX_BYTES
     return MAX_PAYLOAD_BYTES
 

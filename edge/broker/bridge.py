@@ -28,6 +28,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from edge.board_messages import DETECTIONS_MAX_BYTES, FUSER_STATUS_MAX_BYTES, FUSER_STATUS_WILDCARD, fuser_status_topic
 from edge.broker.access import (
     ALL_TOPICS,
     VIEWER_RIGHTS,
@@ -42,16 +43,7 @@ from edge.broker.mosquitto import write_password_file
 from edge.broker.tls import write_tls_files
 from edge.errors import BrokerError
 from edge.fusion.lease import LEASE_TOPIC
-from edge.messages import (
-    DETECTIONS_MAX_BYTES,
-    FORMATION_TOPIC,
-    FUSER_STATUS_MAX_BYTES,
-    FUSER_STATUS_WILDCARD,
-    POSE_WILDCARD,
-    TOPIC_PREFIX,
-    fuser_status_topic,
-    rover_status_topic,
-)
+from edge.messages import FORMATION_TOPIC, POSE_WILDCARD, TOPIC_PREFIX, rover_status_topic
 from edge.private_files import private_dir, write_private
 
 EDGE_USER = "edge"

@@ -2,7 +2,7 @@
 
 The hot path (a board publishing 30 messages a second with up to 64 rovers each) formats the bytes directly, as
 :func:`edge.messages.encode_pose` does for poses; tests pin that the bytes are exactly what
-:class:`edge.messages.DetectionsV1` validates and re-serialises. Numbers are rounded on the wire: positions to
+:class:`edge.board_messages.DetectionsV1` validates and re-serialises. Numbers are rounded on the wire: positions to
 0.01 cm, covariances to 1e-5 cm^2 (variances at least 1e-4 cm^2), times to 0.1 ms, pixels to 0.1 px, heading to
 1e-4 rad, qualities to 0.01, view corners to 0.1 cm.
 """
@@ -12,19 +12,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from edge.errors import MessageError
-from edge.messages import (
+from edge.board_messages import (
     DETECTIONS_MAX_BYTES,
     DETECTIONS_MAX_ROVERS,
     DETECTIONS_MAX_VIEW_POINTS,
-    MAX_ABS_CM,
     MAX_COV_CM2,
-    MAX_INT,
     MAX_PX,
-    THETA_LIMIT,
     DetectionsV1,
-    wrap_angle,
 )
+from edge.errors import MessageError
+from edge.messages import MAX_ABS_CM, MAX_INT, THETA_LIMIT, wrap_angle
 
 MIN_VARIANCE_CM2 = 1e-4  # (0.01 cm)^2: the wire's position resolution
 

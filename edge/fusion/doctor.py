@@ -12,11 +12,12 @@ from typing import Any
 
 import paho.mqtt.client as mqtt
 
-from edge.config import BrokerTarget
+from edge.board_messages import FUSER_STATUS_WILDCARD, FuserStatusV1, parse_fuser_status
+from edge.config import BrokerTarget, EdgeConfig, broker_target
 from edge.doctor import Check
-from edge.errors import MessageError
-from edge.messages import FUSER_STATUS_WILDCARD, FuserStatusV1, StatusV1, parse_fuser_status, parse_status
-from edge.publisher import TlsFiles, connect_host, make_client
+from edge.errors import BrokerError, MessageError
+from edge.messages import StatusV1, parse_status
+from edge.mqttclient import TlsFiles, connect_host, make_client
 
 EDGE_STATUS_WILDCARD = "ips/v1/edge/+/status"
 BRIDGE_WILDCARD = "ips/v1/edge/+/bridge"
@@ -159,6 +160,17 @@ def fusion_checks(snap: Snapshot, now_s: float | None = None) -> list[Check]:
     else:
         checks.append(Check("rovers", "ok", f"{len(fuser.rovers)} seen, none missing"))
     return checks
+
+
+def central_checks(config: EdgeConfig) -> list[Check]:
+    """``doctor --fusion``: the checks, from the central broker the configuration (or ``--broker``) names."""
+    target = broker_target(config.broker)
+    if target.embedded:
+        raise BrokerError("--fusion reads the central broker of several boards: give its URL with --broker")
+    tls = TlsFiles.of(config.broker)
+    if target.tls:
+        tls.check()
+    return fusion_checks(read_snapshot(target, tls))
 
 
 def _names(items: dict[str, FuserStatusV1] | list[FuserStatusV1]) -> str:

@@ -15,11 +15,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from edge.board_messages import parse_detections
 from edge.errors import ConfigError, MessageError
 from edge.fusion.clock import ClockAligner, OffsetEstimate
 from edge.fusion.core import FusedPose, Fuser, FusionSettings, FusionStatus
 from edge.fusion.detections import Detections, from_message
-from edge.messages import encode_pose, parse_detections
+from edge.messages import encode_pose
 
 
 @dataclass

@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from edge.calibration.check import CheckResult, check_calibration
 from edge.calibration.files import Calibration
-from edge.calibration.points import CheckResult, PointTable, check_calibration
+from edge.calibration.points import PointTable
 
 FloatArray = NDArray[np.float64]
 

@@ -23,24 +23,15 @@ from typing import Any
 import paho.mqtt.client as mqtt
 from pydantic import ValidationError
 
-from edge.config import BrokerTarget
+from edge.board_messages import DETECTIONS_WILDCARD, BoardStateV1, FuserStatusV1, fuser_status_topic, parse_detections
+from edge.config import BrokerTarget, EdgeConfig, broker_target
 from edge.errors import BrokerError, MessageError
 from edge.fusion.core import FusedPose, Fuser, FusionSettings, FusionStatus
 from edge.fusion.detections import from_message
 from edge.fusion.lease import LEASE_QOS, LEASE_TOPIC, Lease, LeaseMessage, LeaseSettings
 from edge.fusion.offline import pose_line
-from edge.messages import (
-    DETECTIONS_WILDCARD,
-    BoardStateV1,
-    FuserStatusV1,
-    dumps,
-    edge_status_topic,
-    fuser_status_topic,
-    parse_detections,
-    parse_status,
-    pose_topic,
-)
-from edge.publisher import TlsFiles, connect_host, make_client
+from edge.messages import dumps, edge_status_topic, parse_status, pose_topic
+from edge.mqttclient import TlsFiles, connect_host, make_client
 
 log = logging.getLogger("edge.fusion")
 
@@ -253,6 +244,18 @@ class FuserService:
             missing=list(st.missing[:64]),
             t=round(now, 3),
         )
+
+
+def fuser_for(config: EdgeConfig, fuser_id: str, settings: FusionSettings) -> FuserService:
+    """The fuser ``edge-ips fuse --broker`` runs, on the central broker the configuration's ``[broker]`` names (its
+    credentials and TLS files)."""
+    target = broker_target(config.broker)
+    if target.embedded:
+        raise BrokerError("the fuser connects to the central Mosquitto (several boards' detections): give its URL")
+    tls = TlsFiles.of(config.broker)
+    if target.tls:
+        tls.check()
+    return FuserService(target, fuser_id, settings=settings, tls=tls)
 
 
 def run_fuser(service: FuserService, stop: threading.Event) -> None:

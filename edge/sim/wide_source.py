@@ -19,6 +19,8 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from edge.calibration.exact import exact_calibration
+from edge.calibration.files import Calibration
 from edge.camera import PinholeCamera
 from edge.errors import SimulationError, SourceError
 from edge.sim.render import Renderer
@@ -109,6 +111,11 @@ class WideCameraSource:
     def close(self) -> None:
         self._renderer = None
         self._world = None
+
+    # -- edge.sources.SimulatedScene -----------------------------------------------------------------------------------
+    def exact_calibration(self) -> Calibration:
+        """The exact calibration of this camera on the marker plane, in the shared floor frame."""
+        return exact_calibration(self.camera)
 
     def rover_configs(self) -> tuple[RoverConfig, ...]:
         return self.setup.rover_configs(self._renderer or self.setup.renderer(self.cam))

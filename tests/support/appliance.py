@@ -8,8 +8,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from edge.config import EdgeConfig, default_state_dir, with_overrides
-from edge.runtime import Appliance, prepare_appliance
+from edge.appliance import Appliance, prepare_appliance
+from edge.config import EdgeConfig, default_state_dir
+from edge.config_load import with_overrides
 from edge.sources import MemorySource
 from tests.support.runtime import CentroidTracker, scene
 

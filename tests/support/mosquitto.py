@@ -5,32 +5,18 @@ from __future__ import annotations
 import os
 import socket
 import subprocess
-import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from benchmarks._common import start_mosquitto, stop_process
 from edge.broker import write_password_file
-
-MOSQUITTO = "/usr/sbin/mosquitto"
 
 
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def wait_for_port(host: str, port: int, timeout_s: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while True:
-        try:
-            with socket.create_connection((host, port), timeout=0.2):
-                return
-        except OSError:
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"nothing listens on {host}:{port} after {timeout_s} s") from None
-            time.sleep(0.02)
 
 
 def _user_line() -> str:
@@ -95,37 +81,15 @@ class Mosquitto:
         conf.write_text("\n".join(lines) + "\n")
         return conf
 
-    def start(self) -> Mosquitto:
-        conf = self._write_config()
-        self.proc = subprocess.Popen(
-            [MOSQUITTO, "-c", str(conf)],
-            stdout=subprocess.DEVNULL,
-            stderr=open(self.workdir / "mosquitto.log", "ab"),  # noqa: SIM115 - closed with the process
-        )
-        try:
-            deadline = time.monotonic() + 10.0
-            while True:
-                if self.proc.poll() is not None:
-                    raise TimeoutError
-                try:
-                    wait_for_port(self.host, self.port, timeout_s=0.2)
-                    break
-                except TimeoutError:
-                    if time.monotonic() > deadline:
-                        raise
-        except TimeoutError:
-            self.stop()
-            raise RuntimeError(f"mosquitto did not start: {(self.workdir / 'mosquitto.log').read_text()}") from None
+    def start(self, timeout_s: float = 10.0) -> Mosquitto:
+        """Start the process and wait for its readiness line (logged once its listeners are open); ``timeout_s``
+        only guards against a broker that never says it."""
+        self.proc = start_mosquitto(self._write_config(), self.workdir / "mosquitto.log", timeout_s)
         return self
 
     def stop(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        if self.proc is not None:
+            stop_process(self.proc)
         self.proc = None
 
     def restart(self) -> None:

@@ -20,8 +20,9 @@ from urllib.parse import urlsplit
 import numpy as np
 import paho.mqtt.client as mqtt
 
+from edge.board_messages import detections_topic
 from edge.fusion.detections import Detection, Detections, encode_detections
-from edge.messages import StatusV1, detections_topic, dumps, edge_status_topic
+from edge.messages import StatusV1, dumps, edge_status_topic
 
 FPS = 30.0
 PATHS = {
