@@ -29,6 +29,12 @@ if TYPE_CHECKING:
     show_default=True,
     help="Live: detections older than this (s, capture to arrival on the fuser's clock) are stale and dropped.",
 )
+@click.option(
+    "--http-port",
+    type=click.IntRange(0, 65535),
+    default=None,
+    help="Live: serve the fused map (every board's view, the rovers, which boards saw each) on this port (0: any).",
+)
 def fuse(
     detections: tuple[Path, ...],
     out_path: Path | None,
@@ -38,6 +44,7 @@ def fuse(
     config_path: Path | None,
     fuser_id: str,
     max_age_s: float,
+    http_port: int | None,
 ) -> None:
     """Fuse several boards' detections into one pose v1 line per rover per frame of the shared clock.
 
@@ -51,7 +58,7 @@ def fuse(
 
     \b
         edge-ips fuse cam1.jsonl cam2.jsonl cam3.jsonl cam4.jsonl --out poses.jsonl
-        edge-ips fuse --broker mqtt://fuser:PASSWORD@central.lab:1883 --id fuser-a
+        edge-ips fuse --broker mqtt://fuser:PASSWORD@central.lab:1883 --id fuser-a --http-port 8090
     """
     import json
     import re
@@ -65,10 +72,12 @@ def fuse(
             raise UserError("--broker fuses live: give no detections files and no --out")
         if not re.match(ID_PATTERN, fuser_id):
             raise UserError(f"--id {fuser_id!r}: use 1-16 characters of a-z, 0-9, _ and -")
-        _fuse_live(config_path, broker_url, fuser_id, settings)
+        _fuse_live(config_path, broker_url, fuser_id, settings, http_port)
         return
     from edge.fusion.offline import fuse_files
 
+    if http_port is not None:
+        raise UserError("--http-port serves the live fused map: use it with --broker")
     if not detections:
         raise UserError("give the detections files to fuse (one per board), or --broker URL to fuse live")
     if out_path is None:
@@ -85,17 +94,24 @@ def fuse(
     click.echo(f"wrote {out_path}")
 
 
-def _fuse_live(config_path: Path | None, broker_url: str, fuser_id: str, settings: FusionSettings) -> None:
+def _fuse_live(
+    config_path: Path | None, broker_url: str, fuser_id: str, settings: FusionSettings, http_port: int | None
+) -> None:
     import signal
     import threading
 
     from edge.fusion.service import fuser_for, run_fuser
+    from edge.httpserver import HttpServer
 
-    loaded = load(config_path, **{"broker.url": broker_url})
+    loaded = load(config_path, **{"broker.url": broker_url, "http.port": http_port})
     setup_logging(loaded.config.edge.log_level)
     service = fuser_for(loaded.config, fuser_id, settings)
+    http = None
+    if http_port is not None:
+        http = HttpServer.from_config(loaded.config.http, loaded.config.dashboard).start()
+        click.echo(f"fused map on http://{loaded.config.http.host}:{http.port}/")
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())
     signal.signal(signal.SIGINT, lambda signum, frame: stop.set())
     click.echo(f"fuser {fuser_id}: fusing the detections on {service.target.display()} (configuration: {loaded.where})")
-    run_fuser(service, stop)
+    run_fuser(service, stop, http)

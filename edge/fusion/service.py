@@ -18,7 +18,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import paho.mqtt.client as mqtt
 from pydantic import ValidationError
@@ -28,10 +28,14 @@ from edge.config import BrokerTarget, EdgeConfig, broker_target
 from edge.errors import BrokerError, MessageError
 from edge.fusion.core import FusedPose, Fuser, FusionSettings, FusionStatus
 from edge.fusion.detections import from_message
+from edge.fusion.fusedmap import map_state
 from edge.fusion.lease import LEASE_QOS, LEASE_TOPIC, Lease, LeaseMessage, LeaseSettings
 from edge.fusion.offline import pose_line
 from edge.messages import dumps, edge_status_topic, parse_status, pose_topic
 from edge.mqttclient import TlsFiles, connect_host, make_client
+
+if TYPE_CHECKING:
+    from edge.httpserver import HttpServer
 
 log = logging.getLogger("edge.fusion")
 
@@ -83,6 +87,7 @@ class FuserService:
         self._connected = threading.Event()
         self._thread: threading.Thread | None = None
         self._status_topic = fuser_status_topic(fuser_id)
+        self._latest: dict[str, FusedPose] = {}  # each rover's newest fused pose, published or not (the map)
         self._client = make_client(target, client_id or f"edge-ips-fuser-{fuser_id}", tls=tls)
         # the lease's release for this session is the connection's last will: a killed holder is replaced at once
         self._client.will_set(LEASE_TOPIC, dumps(self.lease.will()), qos=LEASE_QOS, retain=True)
@@ -178,6 +183,7 @@ class FuserService:
             self.stats.detections += 1
             poses = self.fuser.add(d, now_s=self._wall())
             for pose in poses:
+                self._latest[pose.rover_id] = pose
                 n = self.stats.seq.get(pose.rover_id, 0)
                 line = pose_line(pose, n)
                 # asked right before each publish: a fuser that lost the lease (or was paused past it) stays quiet
@@ -212,6 +218,13 @@ class FuserService:
     def status(self) -> FusionStatus:
         with self._lock:
             return self.fuser.status(now_s=self._wall())
+
+    def map_state(self) -> dict[str, Any]:
+        """The fused map's state (:func:`edge.fusion.fusedmap.map_state`): boards, views, rovers and who saw them."""
+        with self._lock:
+            status = self._status("active" if self.lease.is_holder else "standby")
+            poses = dict(self._latest)
+        return map_state(status, poses, status.t, self.fuser.settings.timeout_s)
 
     def _status(self, state: str) -> FuserStatusV1:
         """The retained status (call with the lock held)."""
@@ -258,10 +271,16 @@ def fuser_for(config: EdgeConfig, fuser_id: str, settings: FusionSettings) -> Fu
     return FuserService(target, fuser_id, settings=settings, tls=tls)
 
 
-def run_fuser(service: FuserService, stop: threading.Event) -> None:
-    """Run until ``stop`` is set, then stop cleanly."""
+def run_fuser(service: FuserService, stop: threading.Event, http: HttpServer | None = None) -> None:
+    """Run until ``stop`` is set, then stop cleanly; with ``http`` (started), the fused map on it too."""
+    if http is not None:
+        from edge.fusion.fusedmap import serve_map
+
+        serve_map(http, service.map_state)
     service.start()
     try:
         stop.wait()
     finally:
         service.stop()
+        if http is not None:
+            http.stop()
