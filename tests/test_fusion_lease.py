@@ -39,8 +39,8 @@ class Broker:
     retained: LeaseMessage | None = None
     inbox: dict[str, deque[tuple[float, LeaseMessage, bool]]] = field(default_factory=dict)
 
-    def publish(self, t: float, m: LeaseMessage, fusers: dict[str, Fuser]) -> None:
-        if m.kind != "claim":
+    def publish(self, t: float, m: LeaseMessage, fusers: dict[str, Fuser], retain: bool = True) -> None:
+        if retain:
             self.retained = m
         for name in self.inbox:
             self._deliver(t, name, m, False)
@@ -69,9 +69,9 @@ def run(events: list[tuple[float, str, str, float]], seconds: float, seed: int) 
         while pending and pending[0][0] <= t:
             _, name, what, duration = pending.pop(0)
             f = fusers[name]
-            if what == "kill":
+            if what == "kill" and f.alive:  # the broker publishes a dead connection's will once
                 f.alive = False
-                broker.publish(t, f.lease.will(), fusers)  # the broker sees the socket close: the last will
+                broker.publish(t, f.lease.will(), fusers, retain=False)  # the socket closed: the last will
             elif what == "pause":
                 f.paused_until = t + duration
             elif what == "cut":

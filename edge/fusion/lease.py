@@ -8,9 +8,12 @@ is ``(holder, session, n)``; ``session`` is a random name the holder chose for i
   session match the state;
 * ``claim (claimant, session, after=(holder, session, n))``: valid only when ``after`` is the state at the claim's
   place in the log (compare-and-set), so of two fusers claiming at once exactly one wins, and a claim made on old
-  information (a beat slipped in before it) loses. Not retained;
-* ``release (holder, session)``: a clean stop, or the holder's last will (the broker publishes it when the
-  connection dies, so a standby takes over at once when the holder is killed); retained.
+  information (a beat slipped in before it) loses. Retained too: a fuser that joins between a claim and the
+  winner's first beat (the winner paused in between) must name that claim's state in a claim of its own;
+* ``release (holder, session)``: a clean stop (retained), or the holder's last will (the broker publishes it when the
+  connection dies, so a standby takes over at once when the holder is killed). The will is not retained: every
+  fuser has one, and a standby's must not stand for the state a newcomer reads (the holder's last beat stays, and a
+  claim naming that beat is valid once its holder has released).
 
 **Safety.** The holder publishes a pose only while ``now < s + lease_s``, ``s`` being the time it *sent* its last
 beat that came back valid; :meth:`Lease.may_publish` is asked immediately before each publish. A standby claims
@@ -22,10 +25,13 @@ cut off stops on its own; the others take over after ``takeover_s``).
 
 What it cannot stop: poses already handed to the operating system before a pause or a partition, delivered late by
 TCP (at most ``lease_s`` of them, 0.2 s; pose v1 has no field a rover could fence them with). And a fuser that joins
-reads the retained entry as the state; in the rare case it is a beat the old holder sent just after losing (a window of
-one round trip, overwritten by the next beat), the newcomer takes the next live beat or release as the state
-instead (:attr:`Lease.synced` is False until then) and claims on the retained entry alone only when no beat at all
-arrived for ``takeover_s`` after it joined.
+reads the retained entry as the state; in the rare case it is not the state (a beat the old holder sent just after
+losing, a claim that lost: each overwritten by the holder's next beat within ``beat_s``), the newcomer takes the
+live beats as the state instead (:attr:`Lease.synced` is False until two in a row come from one holder) and claims
+on the retained entry alone only when no beat at all arrived for ``takeover_s`` after it joined. Only the holder's
+release frees the lease, for a newcomer too. What remains: a newcomer that joins within that ``beat_s`` window while
+the holder is paused for ``takeover_s`` may claim on the wrong state; the holder, resuming, could then publish
+beside it.
 
 **Liveness.** Killed: its last will arrives at once and a standby claims (a few milliseconds). Paused, frozen or
 cut off: ``takeover_s`` plus one round trip. A fuser that (re)connects starts as a standby.
@@ -47,10 +53,11 @@ LEASE_QOS = 1
 
 Kind = Literal["beat", "claim", "release"]
 State = tuple[str | None, str | None, int]  # (holder, session, n); n == -1: free
+FREE: State = (None, None, -1)  # nobody has held it (released: the last holder and session, n == -1)
 
 
 class LeaseMessage(BaseModel):
-    """One entry of the lease log on ``ips/v1/fuser/lease`` (QoS 1; beats and releases retained)."""
+    """One entry of the lease log on ``ips/v1/fuser/lease`` (QoS 1, retained: the newest entry is the state)."""
 
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
 
@@ -87,7 +94,7 @@ class Lease:
     me: str
     session: str = field(default_factory=new_session)
     settings: LeaseSettings = field(default_factory=LeaseSettings)
-    state: State = (None, None, -1)
+    state: State = FREE
     synced: bool = False  # a live entry (not only the retained one) has been applied since joining
     claims_won: int = 0
     _joined_s: float = 0.0
@@ -105,7 +112,7 @@ class Lease:
         """(Re)connected (with a new ``session``): forget the state, become a standby, wait for the log."""
         was = self.is_holder
         self.session = session or new_session()
-        self.state, self.synced = (None, None, -1), False
+        self.state, self.synced = FREE, False
         self._joined_s = now_s
         self._last_valid_s = -math.inf
         self._valid_until_s = -math.inf
@@ -118,17 +125,25 @@ class Lease:
         """Apply the next entry of the log (``retained``: the broker's stored entry, sent on subscribing)."""
         holder, session, n = self.state
         valid = False
-        if retained:  # the state as the log left it (a beat or a release: claims are never retained)
-            if m.kind != "claim":
-                self._set((m.fuser, m.session, m.n if m.kind == "beat" else -1), now_s)
+        if retained:  # the state as the log left it, to be confirmed by the live entries that follow
+            self._set((m.fuser, m.session, -1 if m.kind == "release" else m.n), now_s)
             return True
+        follows = False  # this entry continues the state this fuser holds (a beat of the same holder and session)
         if m.kind == "beat":
-            # a live beat while not yet synced is the holder's word: the retained entry was stale
-            valid = ((m.fuser, m.session) == (holder, session) and m.n > n) or not self.synced
+            # a live beat while not yet synced is the holder's word: the retained entry was stale. But a lone beat may
+            # be a loser's last (sent before it learned it lost): synced only once two in a row come from one holder
+            follows = (m.fuser, m.session) == (holder, session) and m.n > n >= 0
+            valid = follows or not self.synced
             if valid:
                 self._set((m.fuser, m.session, m.n), now_s)
         elif m.kind == "claim":
-            if m.after == self.state:
+            # valid on the state it names; or on the same holder's session when one side has seen it released
+            # (its last will is not retained: a fuser that joined after it names the holder's last beat, and one
+            # that joined before it, but after the release, holds that beat as the state)
+            named = tuple(m.after) if m.after is not None else None
+            if named == self.state or (
+                named is not None and holder is not None and named[:2] == (holder, session) and -1 in (n, named[2])
+            ):
                 self._set((m.fuser, m.session, m.n), now_s)
                 valid = True
                 if m.fuser == self.me:
@@ -136,10 +151,11 @@ class Lease:
             if m.fuser == self.me and m.session == self.session:
                 self._claim_pending = False
                 self._next_claim_s = now_s + self.settings.retry_s
-        elif m.kind == "release" and ((m.fuser, m.session) == (holder, session) or not self.synced):
-            self._set((m.fuser, m.session, -1), now_s)
+        elif m.kind == "release" and (m.fuser, m.session) == (holder, session) and n >= 0:
+            # only the holder's release frees the lease, synced or not: any fuser's last will arrives when it dies
+            self._set((holder, session, -1), now_s)
             valid = True
-        if valid:
+        if valid and (m.kind != "beat" or follows or self.synced):
             self.synced = True
             if m.fuser == self.me and m.session == self.session and self.is_holder:
                 sent = self._sent.pop(m.n, None)

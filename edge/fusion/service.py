@@ -89,8 +89,9 @@ class FuserService:
         self._status_topic = fuser_status_topic(fuser_id)
         self._latest: dict[str, FusedPose] = {}  # each rover's newest fused pose, published or not (the map)
         self._client = make_client(target, client_id or f"edge-ips-fuser-{fuser_id}", tls=tls)
-        # the lease's release for this session is the connection's last will: a killed holder is replaced at once
-        self._client.will_set(LEASE_TOPIC, dumps(self.lease.will()), qos=LEASE_QOS, retain=True)
+        # the lease's release for this session is the connection's last will (not retained: a standby has one too): a
+        # killed holder is replaced at once
+        self._client.will_set(LEASE_TOPIC, dumps(self.lease.will()), qos=LEASE_QOS, retain=False)
         self._client.on_connect = self._on_connect
         self._client.on_disconnect = self._on_disconnect
         self._client.on_message = self._on_message
@@ -206,7 +207,7 @@ class FuserService:
                 with self._lock:
                     entry = self.lease.due(now, self._wall())
                 if entry is not None:
-                    self._client.publish(LEASE_TOPIC, dumps(entry), qos=LEASE_QOS, retain=entry.kind != "claim")
+                    self._client.publish(LEASE_TOPIC, dumps(entry), qos=LEASE_QOS, retain=True)
                 if now >= next_status or self._wake.is_set():
                     self._wake.clear()
                     with self._lock:
