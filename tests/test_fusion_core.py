@@ -256,3 +256,29 @@ def test_a_bridges_queue_replayed_after_a_long_outage_is_stale_and_moves_no_cloc
     assert fuser.status(now_s=reconnect).offsets["a"].offset_s == pytest.approx(before, abs=0.001)
     fresh = [p for d in frames[451:460] for p in fuser.add(d, now_s=rec.arrivals[("a", d.seq)])]
     assert fresh  # and it goes on with fresh frames
+
+
+def test_a_better_board_joining_moves_the_rover_by_small_steps_to_where_it_is() -> None:
+    """A board 1 cm off (and unsure: 1 cm sigma) sees a rover alone; then a precise board sees it too. The filter
+    jumps to the precise board; the published pose does not: each frame it moves at most ``max_correction_cm``
+    beyond the rover's estimated motion, and it arrives where the precise board says."""
+    from edge.fusion.detections import Detection, Detections
+
+    settings = FusionSettings()
+    fuser = Fuser(settings, learn_offsets=False)
+    poses: list[FusedPose] = []
+    for k in range(90):
+        t = k / 30.0
+        x, y = 100.0 + 30.0 * t, 200.0  # 30 cm/s along x
+        seen = [("off", (x, y + 1.0), 1.0)] + ([("good", (x, y), 0.0025)] if k >= 45 else [])
+        for edge_id, xy, var in seen:
+            rover = Detection("r1", xy, (var, 0.0, var), None, 0.9, (0.0, 0.0))
+            poses.extend(fuser.add(Detections(edge_id, k, k, t, t, 1.0, (), (rover,))))
+    steps = []
+    for prev, cur in itertools.pairwise(poses):
+        assert cur.tick == prev.tick + 1 and cur.vx_cm_s is not None and cur.vy_cm_s is not None
+        predicted = (prev.x_cm + cur.vx_cm_s / 30.0, prev.y_cm + cur.vy_cm_s / 30.0)
+        steps.append(math.dist((cur.x_cm, cur.y_cm), predicted))
+    assert max(steps) <= settings.max_correction_cm + 1e-9
+    assert max(steps[44:]) == pytest.approx(settings.max_correction_cm)  # the correction was spread, not skipped
+    assert abs(poses[-1].y_cm - 200.0) < 0.3  # and it arrived: the precise board is believed

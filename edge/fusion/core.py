@@ -60,6 +60,7 @@ class FusionSettings:
     # no fading step (the single camera's filter has one for manoeuvres): with several boards an innovation that
     # large is mostly one board's outlier, and fading would give it the gain; the process noise follows the turns
     fade_nis: float = math.inf
+    robust_nis: float = math.inf
     heading_s: float = 0.2  # a board's heading is used this long
     heading_min_speed_cm_s: float = 5.0
     clock: ClockSettings = field(default_factory=ClockSettings)
@@ -67,6 +68,7 @@ class FusionSettings:
     late_direct_s: float = 0.035  # about one frame
     claim_radius_cm: float = 20.0  # two markers' centres are never closer: a body is 20 cm wide
     initial_speed_sigma_cm_s: float = 50.0
+    max_correction_cm: float = 0.3  # per frame beyond the estimated motion: a handover moves a rover smoothly
 
 
 @dataclass(frozen=True)
@@ -107,6 +109,7 @@ class _Track:
     checkpoint_t_s: float
     log: deque[_Measurement] = field(default_factory=deque)
     last_tick: int = -1
+    shown: tuple[int, float, float] | None = None  # the last published (tick, x, y): corrections are spread from it
     last_measured_s: float = -math.inf
     refused_since_s: float | None = None
     theta_rad: float | None = None
@@ -292,7 +295,7 @@ class Fuser:
         elif late <= s.late_direct_s:  # another board's frame of the same period: brought forward, no replay
             f = track.filter
             grow = (f.puu + f.pvv) / 2.0 * late * late
-            f.update(m.x + f.vx * late, m.y + f.vy * late, m.rxx + grow, m.rxy, m.ryy + grow, s.fade_nis)
+            f.update(m.x + f.vx * late, m.y + f.vy * late, m.rxx + grow, m.rxy, m.ryy + grow, s.fade_nis, s.robust_nis)
             track.log.append(m)
         else:  # late: put it in its place and filter the kept measurements again
             entries = sorted([*track.log, m], key=lambda e: e.t_s)
@@ -312,7 +315,7 @@ class Fuser:
         """Predict ``f`` from ``t_s`` to the measurement's time (if later) and fuse it."""
         if m.t_s > t_s:
             f.predict(m.t_s - t_s, self.settings.accel_sigma_cm_s2)
-        f.update(m.x, m.y, m.rxx, m.rxy, m.ryy, self.settings.fade_nis)
+        f.update(m.x, m.y, m.rxx, m.rxy, m.ryy, self.settings.fade_nis, self.settings.robust_nis)
 
     def _pose(self, rover_id: str, track: _Track, tick: int, quality: float) -> FusedPose:
         s = self.settings
@@ -323,6 +326,16 @@ class Fuser:
         if vel is not None:
             x += vel[0] * (t_tick - track.t_s)
             y += vel[1] * (t_tick - track.t_s)
+        if track.shown is not None and vel is not None and 0 < tick - track.shown[0] <= 3:
+            # a correction (a better board joins, a worse one leaves) is spread over frames, not jumped
+            k, sx, sy = track.shown
+            px, py = sx + vel[0] * (tick - k) / s.fps, sy + vel[1] * (tick - k) / s.fps
+            dx, dy = x - px, y - py
+            step = math.hypot(dx, dy)
+            limit = s.max_correction_cm * (tick - k)
+            if step > limit:
+                x, y = px + dx * limit / step, py + dy * limit / step
+        track.shown = (tick, x, y)
         theta = track.theta_rad if track.t_s - track.theta_t_s <= s.heading_s else None
         if theta is None and vel is not None and math.hypot(*vel) >= s.heading_min_speed_cm_s:
             theta = math.atan2(vel[1], vel[0])
