@@ -60,7 +60,6 @@ class FusionSettings:
     # no fading step (the single camera's filter has one for manoeuvres): with several boards an innovation that
     # large is mostly one board's outlier, and fading would give it the gain; the process noise follows the turns
     fade_nis: float = math.inf
-    robust_nis: float = math.inf
     heading_s: float = 0.2  # a board's heading is used this long
     heading_min_speed_cm_s: float = 5.0
     clock: ClockSettings = field(default_factory=ClockSettings)
@@ -295,7 +294,7 @@ class Fuser:
         elif late <= s.late_direct_s:  # another board's frame of the same period: brought forward, no replay
             f = track.filter
             grow = (f.puu + f.pvv) / 2.0 * late * late
-            f.update(m.x + f.vx * late, m.y + f.vy * late, m.rxx + grow, m.rxy, m.ryy + grow, s.fade_nis, s.robust_nis)
+            f.update(m.x + f.vx * late, m.y + f.vy * late, m.rxx + grow, m.rxy, m.ryy + grow, s.fade_nis)
             track.log.append(m)
         else:  # late: put it in its place and filter the kept measurements again
             entries = sorted([*track.log, m], key=lambda e: e.t_s)
@@ -315,7 +314,7 @@ class Fuser:
         """Predict ``f`` from ``t_s`` to the measurement's time (if later) and fuse it."""
         if m.t_s > t_s:
             f.predict(m.t_s - t_s, self.settings.accel_sigma_cm_s2)
-        f.update(m.x, m.y, m.rxx, m.rxy, m.ryy, self.settings.fade_nis, self.settings.robust_nis)
+        f.update(m.x, m.y, m.rxx, m.rxy, m.ryy, self.settings.fade_nis)
 
     def _pose(self, rover_id: str, track: _Track, tick: int, quality: float) -> FusedPose:
         s = self.settings

@@ -73,18 +73,11 @@ class CvState:
             return math.inf
         return (d * nx * nx - 2.0 * b * nx * ny + a * ny * ny) / det
 
-    def update(
-        self, zx: float, zy: float, rxx: float, rxy: float, ryy: float, fade_nis: float, robust_nis: float = math.inf
-    ) -> None:
+    def update(self, zx: float, zy: float, rxx: float, rxy: float, ryy: float, fade_nis: float) -> None:
         nx, ny = zx - self.x, zy - self.y
         a, b, d = self.pxx + rxx, self.pxy + rxy, self.pyy + ryy
         det = a * d - b * b
         nis = (d * nx * nx - 2.0 * b * nx * ny + a * ny * ny) / det
-        if nis > robust_nis:  # Huber: beyond it the noise grows with the distance, so the pull is bounded
-            w = math.sqrt(nis / robust_nis)
-            rxx, rxy, ryy = rxx * w, rxy * w, ryy * w
-            a, b, d = self.pxx + rxx, self.pxy + rxy, self.pyy + ryy
-            det = a * d - b * b
         if nis > fade_nis:  # a manoeuvre: trust the prediction less for this step, follow at once
             f = min(nis / fade_nis, 100.0)
             for name in ("pxx", "pxy", "pyy", "pxu", "pxv", "pyu", "pyv", "puu", "puv", "pvv"):
