@@ -19,7 +19,9 @@
   estimated velocity, its covariance grown by the velocity's uncertainty over the gap; a later one (a slower board)
   is put in its place and the last ``replay_s`` are filtered again.
 * **Output**: the first detection of a rover in frame ``k`` of the shared clock (``k = round(t * fps)``) gives that
-  rover's pose for frame ``k``: the filter's state moved to ``k / fps``. A rover not measured for ``timeout_s`` is
+  rover's pose for frame ``k``: the filter's state moved to ``k / fps``, except that a correction (a better board
+  joins, a worse one leaves) moves the published pose by at most ``max_correction_cm`` a frame beyond the rover's
+  estimated motion: the rovers' controllers see no step at a handover. A rover not measured for ``timeout_s`` is
   missing: no pose is published for it (the rovers' own staleness stops them).
 """
 
