@@ -13,9 +13,9 @@ from typing import Any
 import paho.mqtt.client as mqtt
 
 from edge.board_messages import FUSER_STATUS_WILDCARD, FuserStatusV1, parse_fuser_status
-from edge.config import BrokerTarget, EdgeConfig, broker_target
+from edge.config import BrokerTarget, EdgeConfig
 from edge.doctor import Check
-from edge.errors import BrokerError, MessageError
+from edge.errors import MessageError
 from edge.messages import StatusV1, parse_status
 from edge.mqttclient import TlsFiles, connect_host, make_client
 
@@ -164,13 +164,9 @@ def fusion_checks(snap: Snapshot, now_s: float | None = None) -> list[Check]:
 
 def central_checks(config: EdgeConfig) -> list[Check]:
     """``doctor --fusion``: the checks, from the central broker the configuration (or ``--broker``) names."""
-    target = broker_target(config.broker)
-    if target.embedded:
-        raise BrokerError("--fusion reads the central broker of several boards: give its URL with --broker")
-    tls = TlsFiles.of(config.broker)
-    if target.tls:
-        tls.check()
-    return fusion_checks(read_snapshot(target, tls))
+    from edge.fusion.service import central_broker
+
+    return fusion_checks(read_snapshot(*central_broker(config, "doctor --fusion")))
 
 
 def _names(items: dict[str, FuserStatusV1] | list[FuserStatusV1]) -> str:

@@ -260,15 +260,21 @@ class FuserService:
         )
 
 
-def fuser_for(config: EdgeConfig, fuser_id: str, settings: FusionSettings) -> FuserService:
-    """The fuser ``edge-ips fuse --broker`` runs, on the central broker the configuration's ``[broker]`` names (its
-    credentials and TLS files)."""
+def central_broker(config: EdgeConfig, who: str) -> tuple[BrokerTarget, TlsFiles]:
+    """The central Mosquitto of several boards as the configuration's ``[broker]`` names it (credentials, TLS files
+    checked); ``who`` (the fuser, ``doctor --fusion``) is named in the error when it is the embedded broker."""
     target = broker_target(config.broker)
     if target.embedded:
-        raise BrokerError("the fuser connects to the central Mosquitto (several boards' detections): give its URL")
+        raise BrokerError(f"{who} connects to the central Mosquitto of several boards: give its URL with --broker")
     tls = TlsFiles.of(config.broker)
     if target.tls:
         tls.check()
+    return target, tls
+
+
+def fuser_for(config: EdgeConfig, fuser_id: str, settings: FusionSettings) -> FuserService:
+    """The fuser ``edge-ips fuse --broker`` runs, on the central broker the configuration's ``[broker]`` names."""
+    target, tls = central_broker(config, "the fuser")
     return FuserService(target, fuser_id, settings=settings, tls=tls)
 
 
