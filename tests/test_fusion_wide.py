@@ -58,6 +58,7 @@ def _truth(path: Path) -> dict[tuple[int, str], tuple[float, float]]:
         return {(int(r["frame"]), r["id"]): (float(r["x"]), float(r["y"])) for r in csv.DictReader(f)}
 
 
+@pytest.mark.slow
 def test_one_truth_for_the_arena_and_a_directory_per_camera(wide: Path) -> None:
     with (wide / "truth.csv").open() as f:
         rows = list(csv.DictReader(f))
@@ -103,6 +104,7 @@ def test_every_region_is_whole_in_its_cameras_image() -> None:
         assert np.all((uv >= 0) & (uv <= [1279, 719]))
 
 
+@pytest.mark.slow
 def test_the_cameras_expose_the_one_world_at_their_own_instants(wide: Path, tmp_path: Path) -> None:
     """Camera 2's detections, compared with the world at cam1's instants, lag or lead by camera 2's phase."""
     layout = json.loads((wide / "wide.json").read_text())
@@ -136,6 +138,7 @@ def test_the_cameras_expose_the_one_world_at_their_own_instants(wide: Path, tmp_
     assert ve / vv == pytest.approx(phase, abs=0.002)  # the position error along the motion is the phase
 
 
+@pytest.mark.slow
 def test_calibrated_tracked_and_fused_the_boards_give_one_map_of_the_world(wide: Path, tmp_path: Path) -> None:
     detections = []
     for cam in ("cam1", "cam2"):
@@ -198,6 +201,7 @@ def test_a_live_board_refuses_a_camera_the_layout_lacks(spec: str) -> None:
         WideCameraSource(spec)
 
 
+@pytest.mark.slow
 def test_live_boards_render_the_same_world_at_the_same_wall_time() -> None:
     """Two processes started at different times agree on the world: its time is the wall clock."""
     now = [1_763_900_000.0]
@@ -216,6 +220,7 @@ def test_live_boards_render_the_same_world_at_the_same_wall_time() -> None:
     assert later.t_capture_s == pytest.approx(t_exposed + two.cam.clock_offset_s)
 
 
+@pytest.mark.slow
 def test_calibrate_check_across_boards_shows_the_seam_error_in_the_overlap(wide: Path, tmp_path: Path) -> None:
     args = []
     for cam in ("cam1", "cam2"):
@@ -243,6 +248,7 @@ def test_calibrate_check_across_boards_shows_the_seam_error_in_the_overlap(wide:
     assert 0.05 < seam["mean_cm"] < 1.2 and seam["max_cm"] < 3.0
 
 
+@pytest.mark.slow
 def test_calibrate_check_wants_a_check_file_for_every_calibration(wide: Path) -> None:
     result = CliRunner().invoke(
         main, ["calibrate", "check", str(wide / "cam1" / "camera.json"), str(wide / "cam1" / "check.csv"), "x.json"]
