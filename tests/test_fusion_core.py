@@ -238,6 +238,23 @@ def test_fuse_refuses_bad_input_in_one_line(tmp_path: Path, what: str, files, me
     assert "Traceback" not in result.output
 
 
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--broker", "embedded"], "the fuser connects to the central Mosquitto"),
+        (["--broker", "mqtt://127.0.0.1:1", "x.jsonl"], "--broker fuses live: give no detections files"),
+        (["--broker", "mqtt://127.0.0.1:1", "--id", "Fuser A"], "--id 'Fuser A'"),
+        (["x.jsonl", "--out", "p.jsonl", "--http-port", "8090"], "--http-port serves the live fused map"),
+        (["x.jsonl"], "--out is required"),
+    ],
+)
+def test_fuse_refuses_wrong_options_in_one_line(args: list[str], message: str) -> None:
+    result = CliRunner().invoke(main, ["fuse", *args])
+    assert result.exit_code == 2, result.output
+    assert message in result.output
+    assert len(result.output.strip().splitlines()) == 1
+
+
 def test_a_bridges_queue_replayed_after_a_long_outage_is_stale_and_moves_no_clock() -> None:
     """Ten seconds of a board's frames arrive at once when its link returns: every one is dropped as stale, and
     the board's clock estimate stays where it was (their late arrival says nothing about its clock)."""
