@@ -10,7 +10,8 @@
 6. :func:`start_recorder`: the recording of everything published;
 7. :func:`start_publisher`: the MQTT publisher, connected, with the retained stop at start;
 8. the :class:`edge.runtime.EdgeRuntime` over all of them;
-9. :func:`start_dashboard_for` and :func:`add_health_routes`: the page, then ``/healthz`` and ``/metrics``.
+9. :func:`start_dashboard_for`, :func:`add_sim_panel` and :func:`add_health_routes`: the page, the simulator's
+   controls when the source offers them, then ``/healthz`` and ``/metrics``.
 
 Every user-fixable problem raises an :class:`edge.errors.EdgeIpsError` before any frame is published, and what
 was already started is stopped again. :func:`run_until_signalled` runs the result until SIGTERM or SIGINT;
@@ -24,7 +25,7 @@ import json
 import logging
 import signal
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -72,6 +73,10 @@ def default_sim_factory(config: EdgeConfig) -> SimFactory:
     """The simulator's source, paced in real time, for ``--source sim[:SCENARIO]``."""
 
     def make(scenario: str) -> FrameSource:
+        if scenario == "twin":  # the live twin: a lab process with the rovers' firmware, seen through its camera
+            from edge.sim.twin.source import twin_source
+
+            return twin_source(config)
         from edge.sim.source import SimSource
 
         if scenario.startswith("wide"):  # one camera of the wide arena (a board of several)
@@ -258,6 +263,20 @@ def start_dashboard_for(
     return dashboard
 
 
+def add_sim_panel(
+    config: EdgeConfig,
+    http: HttpServer,
+    source: FrameSource,
+    broker: SelectedBroker,
+    restart_argv: Sequence[str] | None,
+) -> None:
+    """The simulator panel's routes (scatter, faults) when the source is a lab that offers them (``sim:twin``)."""
+    from edge.dashboard.sim_panel import attach_sim_panel
+
+    enabled = config.dashboard.token is not None
+    attach_sim_panel(http, source, broker=broker.started, restart_argv=restart_argv, enabled=enabled)
+
+
 def add_health_routes(http: HttpServer, runtime: EdgeRuntime, recorder: Recorder | None) -> None:
     """``/healthz`` and ``/metrics``: last, so that once ``/healthz`` answers every route is there."""
     from edge.httpserver import Response
@@ -293,11 +312,13 @@ def prepare_appliance(
     sim_factory: SimFactory | None = None,
     calibration_loader: CalibrationLoader | None = None,
     connect_timeout_s: float = 3.0,
+    restart_argv: Sequence[str] | None = None,
 ) -> Appliance:
     """Open the source, load the calibration, build the tracker, bind the ports, start the broker, connect.
 
     Every user-fixable problem raises an :class:`EdgeIpsError` here, before any frame is published; whatever was
-    already started is stopped again.
+    already started is stopped again. ``restart_argv``: how this process was started (``edge-ips start``), for a
+    simulated lab's "edge killed" fault.
     """
     cam = config.camera
     tls = TlsFiles.of(config.broker)
@@ -344,6 +365,7 @@ def prepare_appliance(
             dashboard = start_dashboard_for(config, runtime, http, calibration, broker.target, tls)
             if dashboard is not None:
                 started.callback(dashboard.close)
+                add_sim_panel(config, http, source, broker, restart_argv)
             add_health_routes(http, runtime, recorder)
         started.pop_all()  # all checks passed: the appliance owns what was started
     return Appliance(runtime=runtime, target=broker.target, broker=broker.started, http=http, dashboard=dashboard)
@@ -372,16 +394,17 @@ def why_this_source(loaded: LoadedConfig, *, source_given: bool) -> str:
     import glob
 
     cameras = sorted(glob.glob("/dev/video*"))
-    return "no configuration found, so the simulated camera; " + (
+    runs = "the live twin" if loaded.config.camera.source == "sim:twin" else "the simulated camera"
+    return f"no configuration found, so {runs}; " + (
         f"a camera is attached at {cameras[0]}: calibrate it (edge-ips calibrate) and use --source {cameras[0]}"
         if cameras
         else "no camera is attached: plug one in and use --source /dev/video0"
     )
 
 
-def start(loaded: LoadedConfig, *, source_given: bool = False) -> None:
+def start(loaded: LoadedConfig, *, source_given: bool = False, restart_argv: Sequence[str] | None = None) -> None:
     """``edge-ips start``: log what runs (edge, source and why, broker, configuration), assemble the appliance and
-    run it until SIGTERM or SIGINT."""
+    run it until SIGTERM or SIGINT (``restart_argv``: see :func:`prepare_appliance`)."""
     from edge.broker.clients import broker_summary
 
     config = loaded.config
@@ -395,4 +418,4 @@ def start(loaded: LoadedConfig, *, source_given: bool = False) -> None:
     )
     if loaded.env_keys:
         log.info("environment overrides: %s", ", ".join(loaded.env_keys))
-    run_until_signalled(prepare_appliance(config, config_where=loaded.where))
+    run_until_signalled(prepare_appliance(config, config_where=loaded.where, restart_argv=restart_argv))

@@ -40,11 +40,15 @@ class Trajectory:
 
 
 def read_trajectories(path: Path) -> dict[str, Trajectory]:
-    """Pose v1 JSON lines -> trajectory per rover id. A bad line is an error naming the file and line."""
-    try:
-        lines = path.read_bytes().splitlines()
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read poses ({exc.strerror})") from exc
+    """Pose v1 JSON lines, or the poses of a recording (``edge-ips start --record DIR``: give the directory) ->
+    trajectory per rover id. A bad line is an error naming the file and line."""
+    if path.is_dir():
+        lines = _recorded_poses(path)
+    else:
+        try:
+            lines = path.read_bytes().splitlines()
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot read poses ({exc.strerror})") from exc
     out: dict[str, Trajectory] = {}
     for number, raw in enumerate(lines, start=1):
         if not raw.strip():
@@ -60,6 +64,19 @@ def read_trajectories(path: Path) -> dict[str, Trajectory]:
     if not out:
         raise ConfigError(f"{path}: no poses to plot")
     return out
+
+
+def _recorded_poses(directory: Path) -> list[bytes]:
+    """The pose payloads of a recording directory, in the order they were published."""
+    import json
+
+    from edge.recording import read_recording
+
+    return [
+        json.dumps(record["payload"], separators=(",", ":")).encode()
+        for record in read_recording(directory)
+        if str(record.get("topic", "")).endswith("/pose") and isinstance(record.get("payload"), dict)
+    ]
 
 
 def plot_trajectories(trajectories: dict[str, Trajectory], out: Path, title: str | None = None) -> None:

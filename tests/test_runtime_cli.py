@@ -105,7 +105,7 @@ def test_start_says_when_the_http_port_is_taken(env: dict[str, str]) -> None:
         holder.bind(("0.0.0.0", 0))
         holder.listen()
         port = holder.getsockname()[1]
-        result = _run(["start", "--http-port", str(port)], env)
+        result = _run(["start", "--source", "sim", "--http-port", str(port)], env)
     _one_line_error(result, rf"http: port {port} on 0.0.0.0 is already in use; choose another with --http-port")
 
 

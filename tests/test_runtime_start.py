@@ -78,7 +78,7 @@ def test_start_with_the_simulator_publishes_live_poses_that_mosquitto_sub_shows(
     assert float(np.median(errors)) < 2.0, f"poses far from the simulator's truth: {errors}"
 
 
-def test_start_with_no_configuration_runs_the_simulator_and_the_embedded_broker(tmp_path: Path) -> None:
+def test_start_with_no_configuration_runs_the_live_twin_and_the_embedded_broker(tmp_path: Path) -> None:
     port = free_port()
     env = _env(EDGE_IPS_BROKER__EMBEDDED_PORT=str(port))
     with edge_process([], tmp_path, env) as edge, MqttRecorder("127.0.0.1", port) as rec:
@@ -86,9 +86,10 @@ def test_start_with_no_configuration_runs_the_simulator_and_the_embedded_broker(
         assert rec.wait_for(lambda m: any(b'"state":"online","camera":"ok"' in x.payload for x in m), 30)
         edge.send_signal(signal.SIGTERM)
         assert edge.wait(30) == 0
-    _, stderr = edge.communicate()
+    stdout, stderr = edge.communicate()
+    assert stdout.splitlines()[0].startswith("dashboard: http://localhost:PORT/?token=")  # the token made for it
     first = stderr.splitlines()[0]
-    assert "source sim (no configuration found, so the simulated camera; " in first
+    assert "source sim:twin (no configuration found, so the live twin; " in first
     camera = sorted(Path("/dev").glob("video*"))  # what the machine has decides the hint
     hint = f"a camera is attached at {camera[0]}" if camera else "no camera is attached: plug one in and use --source"
     assert hint in first

@@ -8,14 +8,15 @@ terminal's exit code. The commands:
 - :mod:`edge.cli.settings`: ``config show``, ``config init``, ``schema``;
 - :mod:`edge.cli.formation`: ``formation``; :mod:`edge.cli.broker`: ``broker-config``;
 - :mod:`edge.cli.calibrate`: ``calibrate points|intrinsics|aruco|check``; :mod:`edge.cli.rovers`: ``rovers enroll``;
-- :mod:`edge.cli.track`: ``track``, ``plot``; :mod:`edge.cli.sim`: ``sim ...``; :mod:`edge.cli.flash`: ``flash``.
+- :mod:`edge.cli.track`: ``track``, ``plot``; :mod:`edge.cli.sim`: ``sim ...``; :mod:`edge.cli.flash`: ``flash``;
+- :mod:`edge.cli.twin`: ``sim twin``, ``sim scatter``, ``sim fault`` (the live twin).
 """
 
 from __future__ import annotations
 
 import click
 
-from edge.cli import broker, calibrate, flash, formation, fuse, rovers, settings, sim, start, track
+from edge.cli import broker, calibrate, flash, formation, fuse, rovers, settings, sim, start, track, twin
 from edge.cli.common import EdgeGroup, UserError
 
 __all__ = ["UserError", "main"]
@@ -46,3 +47,5 @@ for command in (
     sim.sim,
 ):
     main.add_command(command)
+for command in (twin.sim_twin, twin.sim_scatter, twin.sim_fault):
+    sim.sim.add_command(command)

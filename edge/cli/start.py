@@ -34,6 +34,9 @@ from edge.cli.common import broker_option, config_option, load, setup_logging
 @click.option("--loop/--no-loop", default=None, help="Video files: start again at the end.")
 @click.option("--edge-id", default=None, help="Edge id (status topic ips/v1/edge/<id>/status).")
 @click.option("--no-dashboard", is_flag=True, help="Do not serve the live web page (dashboard.enabled = false).")
+@click.option(
+    "--after-kill", type=float, default=None, hidden=True, help="Wait this long first (restart after a kill)."
+)
 def start(
     config_path: Path | None,
     source: str | None,
@@ -43,19 +46,22 @@ def start(
     loop: bool | None,
     edge_id: str | None,
     no_dashboard: bool,
+    after_kill: float | None,
 ) -> None:
     """Run the appliance: capture, track, publish every rover's pose over MQTT until SIGTERM or Ctrl-C.
 
-    With no configuration file and no --source it runs the simulated camera and the embedded MQTT broker, so
-    `mosquitto_sub -h localhost -t 'ips/v1/#' -v` in another terminal shows live poses, and http://localhost:8080/
-    the live dashboard (off with --no-dashboard). A configured camera that is missing is an error (exit code 2)
-    that suggests --source sim.
+    With no configuration file and no --source it runs the live twin (sim:twin: a simulated lab whose rovers run
+    their real firmware and obey the dashboard) and the embedded MQTT broker, so `mosquitto_sub -h localhost -t
+    'ips/v1/#' -v` in another terminal shows live poses, and the dashboard's address, printed first with its token,
+    the live page (off with --no-dashboard). A configured camera that is missing is an error (exit code 2) that
+    suggests --source sim.
 
     Example:
 
-        edge-ips start --source sim --broker mqtt://localhost:1883
+        edge-ips start --source sim:twin --broker mqtt://localhost:1883
     """
     from edge import appliance
+    from edge.cli.twin import first_start, restart_argv
 
     loaded = load(
         config_path,
@@ -70,7 +76,8 @@ def start(
         },
     )
     setup_logging(loaded.config.edge.log_level)
-    appliance.start(loaded, source_given=bool(source))
+    loaded = first_start(loaded, after_kill, source_given=bool(source))
+    appliance.start(loaded, source_given=bool(source), restart_argv=restart_argv())
 
 
 @click.command()

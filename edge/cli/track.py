@@ -105,11 +105,14 @@ def track(
 @click.option("--out", "out_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Image.")
 @click.option("--title", default=None, help="Figure title.")
 def plot(poses: Path, out_path: Path, title: str | None) -> None:
-    """Plot pose JSON lines as the paper's Figs. 33-38: X-Y map and X, Y against time per rover.
+    """Plot pose JSON lines, or a recording's poses (its directory), as the paper's Figs. 33-38: X-Y map and X, Y
+    against time per rover.
 
     Example:
 
+    \b
         edge-ips plot poses.jsonl --out plot.png
+        edge-ips plot recordings/ --out run.png
     """
     from edge.plotting import plot_poses
 

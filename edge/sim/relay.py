@@ -203,6 +203,11 @@ class LinkRelay:
         self._thread.start()
         return self
 
+    @property
+    def thread(self) -> threading.Thread:
+        """The relay's own thread (what it costs: its CPU time)."""
+        return self._thread
+
     # -- the loop's side -----------------------------------------------------------------------------------------
     def wait_for(self, payloads: Mapping[str, bytes], timeout_s: float) -> bool:
         """Wait until the broker has sent this rover the newest of ``payloads`` (topic -> payload) on every topic;
@@ -411,7 +416,7 @@ def _wait_sent(sock: socket.socket, timeout_s: float = 0.5) -> None:
     while time.monotonic() < deadline:
         try:
             fcntl.ioctl(sock.fileno(), _SIOCOUTQNSD, unsent, True)
-        except OSError:
+        except (OSError, ValueError):  # closed meanwhile by the relay's thread (fileno -1): nothing left to wait for
             return
         if unsent[0] == 0:
             return
