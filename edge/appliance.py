@@ -33,6 +33,7 @@ from edge.broker.clients import SelectedBroker, select_broker
 from edge.config import BrokerTarget, EdgeConfig, broker_target
 from edge.config_load import LoadedConfig
 from edge.errors import CalibrationError
+from edge.fusion.board import detection_builder_for
 from edge.mqttclient import TlsFiles
 from edge.publisher import MqttPublisher
 from edge.runtime import EdgeRuntime
@@ -78,6 +79,10 @@ def default_sim_factory(config: EdgeConfig) -> SimFactory:
             return twin_source(config)
         from edge.sim.source import SimSource
 
+        if scenario.startswith("wide"):  # one camera of the wide arena (a board of several)
+            from edge.sim.wide_source import WideCameraSource
+
+            return WideCameraSource(scenario, realtime=config.camera.realtime)
         return SimSource(scenario or "lab", seed=0, realtime=config.camera.realtime)
 
     return make
@@ -222,7 +227,8 @@ def start_publisher(
     publisher = MqttPublisher(
         target,
         edge_id=config.edge.id,
-        rovers=[r.id for r in config.rovers],
+        # a board of several calls nobody missing, in its last will too (the fuser knows who nobody sees)
+        rovers=[r.id for r in config.rovers] if config.edge.publish == "poses" else [],
         client_id=config.broker.client_id,
         keepalive_s=config.broker.keepalive_s,
         reconnect_min_s=config.broker.reconnect_min_s,
@@ -351,6 +357,7 @@ def prepare_appliance(
             reopen_min_s=cam.reopen_min_s,
             reopen_max_s=cam.reopen_max_s,
             recorder=recorder,
+            detections=detection_builder_for(config, calibration, info, parse_source(cam.source).kind == "sim"),
         )
         on_connected.runtime = runtime
         dashboard = None

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, Literal
 from urllib.parse import unquote, urlsplit
 
-from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator
+from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator, model_validator
 
 from edge.camera_controls import CameraControls
 from edge.messages import ID_PATTERN
@@ -35,6 +35,11 @@ class EdgeSection(BaseModel):
         default=None,
         description="The appliance's state (the embedded broker's logins). Default: $STATE_DIRECTORY (systemd), "
         "else $XDG_STATE_HOME/edge-ips, else ~/.local/state/edge-ips.",
+    )
+    publish: Literal["poses", "detections"] = Field(
+        default="poses",
+        description="poses: the only camera, publish each rover's pose; detections: one board of several, publish "
+        "what it measured on ips/v1/edge/<id>/detections for edge-ips fuse (which publishes the poses).",
     )
 
 
@@ -169,7 +174,7 @@ class EdgeConfig(BaseModel):
     edge: EdgeSection = Field(default_factory=EdgeSection)
     camera: CameraSection = Field(default_factory=CameraSection)
     calibration: CalibrationSection = Field(default_factory=CalibrationSection)
-    rovers: list[RoverConfig] = Field(default_factory=lambda: list(DEFAULT_ROVERS), min_length=1, max_length=32)
+    rovers: list[RoverConfig] = Field(default_factory=lambda: list(DEFAULT_ROVERS), min_length=1, max_length=64)
     tracker: TrackerSettings = Field(default_factory=TrackerSettings, description="Tracking pipeline settings.")
     broker: BrokerSection = Field(default_factory=BrokerSection)
     recording: RecordingSection = Field(default_factory=RecordingSection)
@@ -187,6 +192,16 @@ class EdgeConfig(BaseModel):
     @classmethod
     def _unique_ids(cls, rovers: list[RoverConfig]) -> list[RoverConfig]:
         return require_unique_ids(rovers)
+
+    @model_validator(mode="after")
+    def _one_board_tracks_at_most_32(self) -> EdgeConfig:
+        # a board publishing poses lists every rover in its status (32 at most); more rovers take several boards
+        if self.edge.publish == "poses" and len(self.rovers) > 32:
+            raise ValueError(
+                f"{len(self.rovers)} rovers: one board publishing poses tracks at most 32 (with more, "
+                'set edge.publish = "detections" on each board and run edge-ips fuse)'
+            )
+        return self
 
 
 # -- broker URLs -------------------------------------------------------------------------------------------------

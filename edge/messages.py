@@ -1,7 +1,8 @@
 """The versioned message contract between the edge and the rovers (``shared/schema/``).
 
-The pydantic models here are the single source of truth: ``shared/schema/*.schema.json`` are generated from them
-(``edge-ips schema --out shared/schema``) and a test fails when the committed files drift. The hot path does not
+The pydantic models here (and those of several boards in :mod:`edge.board_messages`) are the single source of
+truth: ``shared/schema/*.schema.json`` are generated from them (:mod:`edge.contract`, ``edge-ips schema --out
+shared/schema``) and a test fails when the committed files drift. The hot path does not
 build models: :func:`encode_pose` formats the canonical bytes directly, and tests pin that those bytes are exactly
 what the model validates and re-serialises.
 
@@ -13,7 +14,6 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
@@ -191,15 +191,6 @@ class RoverStatusV2(BaseModel):
     )
 
 
-MODELS: dict[str, type[BaseModel]] = {
-    "pose": PoseV1,
-    "formation": FormationV1,
-    "status": StatusV1,
-    "rover_status": RoverStatusV2,
-}
-MODEL_VERSIONS: dict[str, int] = {"pose": 1, "formation": 1, "status": 1, "rover_status": ROVER_STATUS_VERSION}
-
-
 # -- encoding ----------------------------------------------------------------------------------------------------
 def _num(value: float, ndigits: int) -> str:
     r = round(value, ndigits) + 0.0  # + 0.0 turns -0.0 into 0.0
@@ -295,46 +286,3 @@ def parse_status(payload: bytes) -> StatusV1:
 
 def parse_rover_status(payload: bytes) -> RoverStatusV2:
     return _loads(RoverStatusV2, payload, ROVER_STATUS_MAX_BYTES)
-
-
-PARSERS = {
-    "pose": parse_pose,
-    "formation": parse_formation,
-    "status": parse_status,
-    "rover_status": parse_rover_status,
-}
-
-
-# -- JSON Schema -------------------------------------------------------------------------------------------------
-def schema_file(kind: str) -> str:
-    """The committed schema's file name of a message kind: ``pose.v1.schema.json``, ``rover_status.v2...``."""
-    return f"{kind}.v{MODEL_VERSIONS[kind]}.schema.json"
-
-
-def schema_documents() -> dict[str, dict[str, Any]]:
-    """``{file name: JSON Schema}`` for every message and version, as committed under ``shared/schema/``."""
-    docs: dict[str, dict[str, Any]] = {}
-    for name, model in MODELS.items():
-        schema = model.model_json_schema(mode="validation")
-        schema = {
-            "$schema": "https://json-schema.org/draft/2020-12/schema",
-            "$id": f"https://edge-ips.invalid/schema/{schema_file(name)}",
-            **schema,
-        }
-        docs[schema_file(name)] = schema
-    return docs
-
-
-def render_schema(doc: dict[str, Any]) -> str:
-    return json.dumps(doc, indent=2, sort_keys=False) + "\n"
-
-
-def write_schemas(directory: Path) -> list[Path]:
-    """Write every schema document into ``directory``; returns the paths written."""
-    directory.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, doc in schema_documents().items():
-        path = directory / name
-        path.write_text(render_schema(doc))
-        written.append(path)
-    return written

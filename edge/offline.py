@@ -1,6 +1,7 @@
 """Offline tracking: a video file in, pose v1 JSON lines out (``edge-ips track``).
 
-Every line is exactly the bytes the runtime would publish for that rover and frame (``edge.messages.encode_pose``).
+Every line is exactly the bytes the runtime would publish for that rover and frame (``edge.messages.encode_pose``);
+with ``--detections``, one detections v1 line per frame instead (what a board of several publishes for the fusion).
 Frames carry the video's own clock: ``t`` is the frame's position in the video in seconds (a file has no wall-clock
 capture time), so poses from one video are comparable across runs.
 """
@@ -20,6 +21,8 @@ from numpy.typing import NDArray
 
 from edge.calibration import load_calibration
 from edge.errors import CalibrationError, ConfigError, SourceError
+from edge.fusion.detections import encode_detections
+from edge.fusion.uncertainty import DetectionBuilder, calibration_error_model
 from edge.messages import encode_pose
 from edge.tracker_config import TrackerConfig
 from edge.trackers.base import CameraPlaneMapping, PlaneMapping
@@ -149,9 +152,16 @@ class TrackJob:
     frames: VideoFrames
     tracker: Tracker
     rovers: tuple[str, ...]
+    mapping: PlaneMapping
 
-    def run(self, out: Path, on_frame: Callable[[FrameResult], None] | None = None) -> TrackSummary:
-        """Track every frame; write one pose v1 line per rover per frame where it was seen to ``out``."""
+    def run(
+        self,
+        out: Path,
+        on_frame: Callable[[FrameResult], None] | None = None,
+        detections: DetectionBuilder | None = None,
+    ) -> TrackSummary:
+        """Track every frame; write one pose v1 line per rover per frame where it was seen to ``out``, or with
+        ``detections`` one detections v1 line per frame (the board's measurements, for ``edge-ips fuse``)."""
         summary = TrackSummary(rovers=self.rovers, per_rover=dict.fromkeys(self.rovers, 0))
         seq = dict.fromkeys(self.rovers, 0)
         stages: dict[str, list[float]] = {}
@@ -169,7 +179,15 @@ class TrackJob:
                     summary.frames += 1
                     for name, ms in result.stage_ms.items():
                         stages.setdefault(name, []).append(ms)
+                    if detections is not None:
+                        # offline, the message leaves when the frame is captured: the video's clock has no other
+                        board = detections.build(result, frame.image, t_sent_s=frame.t_capture_s)
+                        handle.write(encode_detections(board) + b"\n")
                     for e in result.estimates:
+                        summary.per_rover[e.rover_id] += 1
+                        summary.poses += 1
+                        if detections is not None:
+                            continue
                         line = encode_pose(
                             e.rover_id,
                             seq[e.rover_id],
@@ -184,8 +202,6 @@ class TrackJob:
                         )
                         handle.write(line + b"\n")
                         seq[e.rover_id] += 1
-                        summary.per_rover[e.rover_id] += 1
-                        summary.poses += 1
                     if on_frame is not None:
                         on_frame(result)
         finally:
@@ -205,7 +221,7 @@ def open_track_job(video: Path, calibration: Path, config: TrackerConfig, backgr
     except BaseException:
         frames.close()
         raise
-    return TrackJob(frames, tracker, tuple(r.id for r in config.rovers))
+    return TrackJob(frames, tracker, tuple(r.id for r in config.rovers), mapping)
 
 
 def track_video(
@@ -218,3 +234,25 @@ def track_video(
 ) -> TrackSummary:
     """Track every frame of ``video`` into pose JSON lines in ``out`` (:func:`open_track_job` then run it)."""
     return open_track_job(video, calibration, config, background).run(out, on_frame)
+
+
+def detection_builder(job: TrackJob, calibration: Path, edge_id: str) -> DetectionBuilder:
+    """The builder of ``job``'s detections messages as board ``edge_id``, with the error model of ``calibration``."""
+    from edge.calibration.files import Calibration
+
+    area = job.mapping.area_cm if isinstance(job.mapping, Calibration) else None
+    return DetectionBuilder(edge_id, job.mapping, calibration_error_model(calibration), job.frames.size, area)
+
+
+def board_id_for(video: Path, edge_id: str | None) -> str:
+    """``edge_id`` when given (checked), else the video's directory name when it is a valid id, else ``edge-1``."""
+    import re
+
+    from edge.messages import ID_PATTERN
+
+    if edge_id is not None:
+        if not re.match(ID_PATTERN, edge_id):
+            raise ConfigError(f"--edge-id {edge_id!r}: use 1-16 characters of a-z, 0-9, _ and -")
+        return edge_id
+    parent = video.resolve().parent.name
+    return parent if re.match(ID_PATTERN, parent) else "edge-1"

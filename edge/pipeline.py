@@ -481,6 +481,8 @@ class Pipeline:
                     round(self._quality(tr, m), 2),
                     m.uv_px,
                     tr.box,
+                    m.xy_cm,
+                    (float(obs.r_cm2[0, 0]), float(obs.r_cm2[0, 1]), float(obs.r_cm2[1, 1])),
                 )
             )
         clock.add("filter", time.perf_counter() - t0)

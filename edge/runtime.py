@@ -22,14 +22,19 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from edge.board_messages import detections_topic
 from edge.capture import CaptureThread, FrameSlot
 from edge.clock import SYSTEM_CLOCK, Clock
+from edge.errors import MessageError
+from edge.fusion.board import listed_rovers
+from edge.fusion.detections import encode_detections
+from edge.fusion.uncertainty import DetectionBuilder
 from edge.messages import StatusV1
 from edge.metrics import Latency, LatencyWindow, RateMeter, RoverSnapshot, Snapshot
 from edge.poses import publish_poses
 from edge.publisher import Publisher, offline_status
 from edge.sources import FrameSource, SourceInfo
-from edge.tracking import Frame, FrameResult, Tracker
+from edge.tracking import Frame, FrameResult, RoverEstimate, Tracker
 
 log = logging.getLogger("edge.runtime")
 
@@ -54,6 +59,12 @@ class _RoverStats:
         self.last_seen_mono: float | None = None
         self.last: _Pose | None = None
         self.rate = RateMeter()
+
+    def saw(self, est: RoverEstimate, t_mono_s: float) -> None:
+        self.detections += 1
+        self.last_seen_mono = t_mono_s
+        self.last = _Pose(est.x_cm, est.y_cm, est.theta_rad, est.quality)
+        self.rate.tick(t_mono_s)
 
 
 class EdgeRuntime:
@@ -80,8 +91,10 @@ class EdgeRuntime:
         reopen_max_s: float = 8.0,
         recorder: Any = None,
         clock: Clock = SYSTEM_CLOCK,
+        detections: DetectionBuilder | None = None,
     ) -> None:
         self.edge_id = edge_id
+        self.detections = detections  # a board of several: publish detections, not poses
         self.clock = clock
         self.info = info
         self.tracker = tracker
@@ -133,11 +146,28 @@ class EdgeRuntime:
             if est.rover_id in invalid:
                 continue
             seen.add(est.rover_id)
-            stats = self._rovers[est.rover_id]
-            stats.detections += 1
-            stats.last_seen_mono = result.t_mono_s
-            stats.last = _Pose(est.x_cm, est.y_cm, est.theta_rad, est.quality)
-            stats.rate.tick(result.t_mono_s)
+            self._rovers[est.rover_id].saw(est, result.t_mono_s)
+        self._count_missed(seen)
+
+    def _publish_detections(self, result: FrameResult, frame: Frame, builder: DetectionBuilder) -> None:
+        """A board of several: this frame's detections for the fuser instead of poses."""
+        try:
+            payload = encode_detections(builder.build(result, frame.image, t_sent_s=self.clock.wall()))
+        except MessageError as exc:
+            self.poses_invalid += 1
+            if self.poses_invalid in (1, 10, 100, 1000) or self.poses_invalid % 10000 == 0:
+                log.warning("detections not publishable (%d so far): %s", self.poses_invalid, exc)
+            return
+        self.publisher.publish(detections_topic(self.edge_id), payload)
+        seen = set()
+        for est in result.estimates:
+            stats = self._rovers.get(est.rover_id)
+            if stats is not None:
+                seen.add(est.rover_id)
+                stats.saw(est, result.t_mono_s)
+        self._count_missed(seen)
+
+    def _count_missed(self, seen: set[str]) -> None:
         for rover_id, stats in self._rovers.items():
             if rover_id not in seen:
                 stats.missed += 1
@@ -152,7 +182,10 @@ class EdgeRuntime:
             t0 = self.clock.monotonic()
             result = self.tracker.process(frame)
             t1 = self.clock.monotonic()
-            self._publish_result(result, frame.index, frame.t_capture_s)
+            if self.detections is not None:
+                self._publish_detections(result, frame, self.detections)
+            else:
+                self._publish_result(result, frame.index, frame.t_capture_s)
             t2 = self.clock.monotonic()
             self.processing.add(t1 - t0)
             self.end_to_end.add(t2 - frame.t_mono_s)
@@ -229,6 +262,8 @@ class EdgeRuntime:
         now = self.clock.monotonic()
         camera = self.camera_state()
         seen, missing = self._seen_recently(now)
+        if self.detections is not None:  # a board of several: the others' rovers are not missing here
+            seen, missing = listed_rovers(seen), []
         state, reason = self._state(camera, missing)
         if (state, reason) != self._last_state:
             level = logging.INFO if state == "online" else logging.WARNING
@@ -294,7 +329,8 @@ class EdgeRuntime:
         for thread in self._threads:
             thread.join(timeout=timeout_s)
         self.capture.join(timeout=timeout_s)
-        self.publisher.stop(offline_status(self.edge_id, self.rover_ids), timeout_s=timeout_s)
+        missing = self.rover_ids if self.detections is None else ()  # a board of several calls nobody missing
+        self.publisher.stop(offline_status(self.edge_id, missing), timeout_s=timeout_s)
         if self.recorder is not None:
             self.recorder.close()
         log.info("stopped after %d frames; offline status published", self.frames_processed)
@@ -304,6 +340,7 @@ class EdgeRuntime:
         now = self.clock.monotonic()
         camera = self.camera_state() if not self._stopped else "stopped"
         _, missing = self._seen_recently(now)
+        missing = missing if self.detections is None else []
         state, reason = self._state(camera, missing) if not self._stopped else ("offline", "stopped")
         rovers = tuple(
             RoverSnapshot(

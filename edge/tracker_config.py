@@ -126,7 +126,7 @@ class TrackerSettings(BaseModel):
 class TrackerConfig(TrackerSettings):
     """The settings and the rovers they track: what a tracker is built from (``edge.trackers.build_tracker``)."""
 
-    rovers: tuple[RoverConfig, ...] = Field(default=DEFAULT_ROVERS, min_length=1, max_length=32)
+    rovers: tuple[RoverConfig, ...] = Field(default=DEFAULT_ROVERS, min_length=1, max_length=64)
 
     @field_validator("rovers")
     @classmethod

@@ -42,6 +42,10 @@ class RoverEstimate:
     quality: float
     uv_px: tuple[float, float]
     box_px: tuple[int, int, int, int] | None = None  # the search window (x0, y0, x1, y1), for overlays
+    # This frame's own measurement before the filter, and its covariance on the plane (xx, xy, yy cm^2): what a
+    # fusion of several cameras needs (it filters the cameras' measurements once, not their filters' outputs).
+    measured_xy_cm: tuple[float, float] | None = None
+    measured_cov_cm2: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)

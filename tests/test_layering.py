@@ -24,6 +24,8 @@ CORE = (
     "edge.calibration",
     "edge.camera",
     "edge.messages",
+    "edge.board_messages",
+    "edge.contract",
     "edge.tracking",
     "edge.tracker_config",
     "edge.pipeline",

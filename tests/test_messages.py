@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from edge import messages
+from edge import contract, messages
 from edge.errors import MessageError
 from tests.conftest import EXAMPLES, SCHEMA_DIR
 
@@ -24,34 +24,34 @@ def _kind(path: Path) -> str:
 
 
 def _validator(kind: str) -> jsonschema.Draft202012Validator:
-    doc = json.loads((SCHEMA_DIR / messages.schema_file(kind)).read_text())
+    doc = json.loads((SCHEMA_DIR / contract.schema_file(kind)).read_text())
     return jsonschema.Draft202012Validator(doc)
 
 
 def test_committed_schemas_match_the_models() -> None:
-    generated = messages.schema_documents()
+    generated = contract.schema_documents()
     committed = {p.name for p in SCHEMA_DIR.glob("*.schema.json")}
     assert committed == set(generated), "schema files differ from the models: run `edge-ips schema`"
     for name, doc in generated.items():
-        assert (SCHEMA_DIR / name).read_text() == messages.render_schema(doc), (
-            f"{name} drifted from edge/messages.py: run `edge-ips schema --out shared/schema`"
+        assert (SCHEMA_DIR / name).read_text() == contract.render_schema(doc), (
+            f"{name} drifted from edge/messages.py or edge/board_messages.py: run `edge-ips schema --out shared/schema`"
         )
 
 
 def test_schemas_are_valid_json_schema() -> None:
-    for name in messages.schema_documents():
+    for name in contract.schema_documents():
         jsonschema.Draft202012Validator.check_schema(json.loads((SCHEMA_DIR / name).read_text()))
 
 
 def test_examples_cover_every_message_kind() -> None:
-    assert {_kind(p) for p in VALID} == set(messages.MODELS)
-    assert {_kind(p) for p in INVALID} == set(messages.MODELS)
+    assert {_kind(p) for p in VALID} == set(contract.MODELS)
+    assert {_kind(p) for p in INVALID} == set(contract.MODELS)
 
 
 @pytest.mark.parametrize("path", VALID, ids=lambda p: p.name)
 def test_valid_example_parses_to_the_values_in_the_file(path: Path) -> None:
     payload = path.read_bytes()
-    model = messages.PARSERS[_kind(path)](payload)
+    model = contract.PARSERS[_kind(path)](payload)
     expected = json.loads(payload)
     assert model.model_dump() == expected
     _validator(_kind(path)).validate(expected)
@@ -60,7 +60,7 @@ def test_valid_example_parses_to_the_values_in_the_file(path: Path) -> None:
 @pytest.mark.parametrize("path", INVALID, ids=lambda p: p.name)
 def test_invalid_example_is_rejected(path: Path) -> None:
     with pytest.raises(MessageError):
-        messages.PARSERS[_kind(path)](path.read_bytes())
+        contract.PARSERS[_kind(path)](path.read_bytes())
 
 
 class _FloatLiteral(float):
@@ -86,7 +86,7 @@ def test_invalid_example_is_rejected_by_the_json_schema_or_the_byte_rules(path: 
     """What the schema language cannot say (size, encoding, NaN, ``1.0`` for an int) the README's rules say."""
     payload = path.read_bytes()
     kind = _kind(path)
-    schema = messages.schema_documents()[messages.schema_file(kind)]
+    schema = contract.schema_documents()[contract.schema_file(kind)]
     if len(payload) > schema["x-max-bytes"]:
         return
     try:
@@ -101,7 +101,27 @@ def test_invalid_example_is_rejected_by_the_json_schema_or_the_byte_rules(path: 
         return
     if _int_fields_written_as_floats(doc, schema):
         return
+    if _breaks_a_rule_beyond_the_schema(kind, doc):
+        return
     assert not _validator(kind).is_valid(doc)
+
+
+def _breaks_a_rule_beyond_the_schema(kind: str, doc: object) -> bool:
+    """The README's rules for detections that JSON Schema cannot state: each covariance positive definite, each
+    rover id once per message."""
+    if kind != "detections" or not isinstance(doc, dict) or not isinstance(doc.get("rovers"), list):
+        return False
+    rovers = [r for r in doc["rovers"] if isinstance(r, dict)]
+    ids = [r.get("id") for r in rovers]
+    if len(set(ids)) != len(ids):
+        return True
+    for r in rovers:
+        cov = r.get("cov")
+        if isinstance(cov, list) and len(cov) == 3 and all(isinstance(c, int | float) for c in cov):
+            xx, xy, yy = cov
+            if not (xx > 0 and yy > 0 and xx * yy > xy * xy):
+                return True
+    return False
 
 
 NON_CANONICAL = {"pose-integers.json", "pose-reordered-spaced.json"}  # valid, but not what the edge writes
@@ -110,7 +130,7 @@ NON_CANONICAL = {"pose-integers.json", "pose-reordered-spaced.json"}  # valid, b
 @pytest.mark.parametrize("path", [p for p in VALID if p.name not in NON_CANONICAL], ids=lambda p: p.name)
 def test_canonical_example_is_the_byte_exact_encoding_of_its_values(path: Path) -> None:
     payload = path.read_bytes()
-    assert messages.dumps(messages.PARSERS[_kind(path)](payload)) == payload
+    assert messages.dumps(contract.PARSERS[_kind(path)](payload)) == payload
 
 
 def test_longest_pose_fits_the_byte_budget() -> None:

@@ -105,11 +105,26 @@ def test_bad_requests_fail_with_one_line_and_exit_code_2(tmp_path, args, message
     assert len(result.output.strip().splitlines()) == 1
 
 
-@pytest.mark.parametrize("args", [["--frames", "0"], ["--rovers", "0"], ["--rovers", "49"], ["--seed", "x"]])
+@pytest.mark.parametrize("args", [["--frames", "0"], ["--rovers", "0"], ["--rovers", "65"], ["--seed", "x"]])
 def test_bad_option_values_are_usage_errors(tmp_path, args):
     result = run("sim", "render", "lab", "--out", str(tmp_path / "x"), *args)
     assert result.exit_code == 2
     assert "Invalid value" in result.output
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["lab", "--rovers", "49"], "--rovers 49: at most 48 in scenario lab (64 in wide)"),
+        (["lab", "--cameras", "2"], "--cameras is for the wide scenario, not lab"),
+        (["wide", "--rovers", "65"], "Invalid value"),
+    ],
+)
+def test_rover_and_camera_counts_are_checked_per_scenario(tmp_path, args, message):
+    result = run("sim", "render", args[0], "--out", str(tmp_path / "x"), *args[1:])
+    assert result.exit_code == 2
+    assert message in result.output
+    assert not (tmp_path / "x").exists()  # checked before anything is written
 
 
 @pytest.mark.slow

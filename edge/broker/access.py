@@ -145,18 +145,23 @@ class Policy:
 
     def acl_text(self) -> str:
         """The same rights as a Mosquitto ``acl_file``."""
-        lines = [
-            "# edge-ips ACL, written by `edge-ips broker-config`.",
-            "# Anonymous access is off; a user not listed here can do nothing.",
-            "",
-        ]
-        for user, rights in self.rights().items():
-            lines.append(f"user {user}")
-            for topic in rights.publish:
-                lines.append(f"topic {'readwrite' if topic in rights.read else 'write'} {topic}")
-            lines += [f"topic read {topic}" for topic in rights.read if topic not in rights.publish]
-            lines.append("")
-        return "\n".join(lines)
+        return rights_acl_text(self.rights())
+
+
+def rights_acl_text(table: Mapping[str, Rights]) -> str:
+    """A Mosquitto ``acl_file`` giving each user (name -> :class:`Rights`) exactly its rights."""
+    lines = [
+        "# edge-ips ACL, written by `edge-ips broker-config`.",
+        "# Anonymous access is off; a user not listed here can do nothing.",
+        "",
+    ]
+    for user, rights in table.items():
+        lines.append(f"user {user}")
+        for topic in rights.publish:
+            lines.append(f"topic {'readwrite' if topic in rights.read else 'write'} {topic}")
+        lines += [f"topic read {topic}" for topic in rights.read if topic not in rights.publish]
+        lines.append("")
+    return "\n".join(lines)
 
 
 def acl_text(edge_user: str, edge_id: str, rovers: Sequence[str], viewer: bool = False) -> str:

@@ -4,7 +4,7 @@ Every user mistake the library detects arrives here as an :class:`edge.errors.Ed
 one-line message with exit code 2 (:class:`edge.cli.common.UserError`); nothing else in the package talks to the
 terminal's exit code. The commands:
 
-- :mod:`edge.cli.start`: ``start`` (the appliance), ``doctor``;
+- :mod:`edge.cli.start`: ``start`` (the appliance), ``doctor``; :mod:`edge.cli.fuse`: ``fuse`` (several boards);
 - :mod:`edge.cli.settings`: ``config show``, ``config init``, ``schema``;
 - :mod:`edge.cli.formation`: ``formation``; :mod:`edge.cli.broker`: ``broker-config``;
 - :mod:`edge.cli.calibrate`: ``calibrate points|intrinsics|aruco|check``; :mod:`edge.cli.rovers`: ``rovers enroll``;
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import click
 
-from edge.cli import broker, calibrate, flash, formation, rovers, settings, sim, start, track, twin
+from edge.cli import broker, calibrate, flash, formation, fuse, rovers, settings, sim, start, track, twin
 from edge.cli.common import EdgeGroup, UserError
 
 __all__ = ["UserError", "main"]
@@ -36,6 +36,7 @@ for command in (
     settings.config,
     start.start,
     start.doctor,
+    fuse.fuse,
     formation.formation,
     broker.broker_config,
     track.track,

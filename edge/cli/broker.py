@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from edge.cli.common import config_option, id_list, load
+from edge.cli.common import UserError, config_option, id_list, load
 
 
 @click.command("broker-config")
@@ -42,6 +42,16 @@ from edge.cli.common import config_option, id_list, load
     help="Where the files will live on the broker machine (default: --out).",
 )
 @click.option("--force", is_flag=True, help="Overwrite existing files.")
+@click.option(
+    "--bridge",
+    is_flag=True,
+    help="Several boards: a central broker (OUT/central) and one bridged broker per board (OUT/<board>).",
+)
+@click.option("--boards", default=None, help="--bridge: comma-separated board ids (each board's edge.id).")
+@click.option("--central-host", default=None, help="--bridge: the name or address the boards reach the central by.")
+@click.option(
+    "--fusers", default="fuser-a,fuser-b", show_default=True, help="--bridge: the fusers' logins at the central."
+)
 @config_option
 def broker_config(
     out_dir: Path,
@@ -54,6 +64,10 @@ def broker_config(
     tls_names: tuple[str, ...],
     install_dir: Path | None,
     force: bool,
+    bridge: bool,
+    boards: str | None,
+    central_host: str | None,
+    fusers: str,
     config_path: Path | None,
 ) -> None:
     """Write a Mosquitto configuration with users, ACLs and (--tls) a TLS listener for this deployment.
@@ -63,9 +77,15 @@ def broker_config(
     id is its user name, so no login can take another client's session. Random passwords go to
     credentials.toml; passwords and private keys are written with mode 600.
 
+    With --bridge (several boards), OUT/central is the central broker (the fusers and the rovers connect there)
+    and OUT/<board> each board's own Mosquitto, bridged to the central one: detections and statuses out, poses in,
+    the formation both ways, over TLS with --tls (the link that leaves the board).
+
     Example:
 
+    \b
         edge-ips broker-config --out /etc/mosquitto/edge-ips --rovers red,green,blue --tls --tls-name pi.lab
+        edge-ips broker-config --bridge --boards cam1,cam2 --central-host central.lab --tls --out brokers
     """
     import socket
 
@@ -73,6 +93,29 @@ def broker_config(
 
     config = load(config_path).config
     ids = id_list(rovers)
+    if bridge:
+        from edge.broker.bridge import write_bridge_configs
+
+        board_ids = id_list(boards)
+        if board_ids is None or central_host is None:
+            raise UserError("--bridge needs --boards (the boards' ids) and --central-host (how they reach it)")
+        written = write_bridge_configs(
+            out_dir,
+            boards=board_ids,
+            rovers=ids if ids is not None else [r.id for r in config.rovers],
+            central_host=central_host,
+            fusers=id_list(fusers) or [],
+            port=port,
+            local_port=local_port,
+            tls_port=tls_port if tls else None,
+            tls_names=list(tls_names) or [central_host],
+            install_dir=install_dir,
+            force=force,
+        )
+        for path in written.all():
+            click.echo(f"wrote {path}")
+        click.echo(f"central broker: {written.central}; one bridged broker per board: {', '.join(board_ids)}")
+        return
     files = write_mosquitto_config(
         out_dir,
         rovers=ids if ids is not None else [r.id for r in config.rovers],

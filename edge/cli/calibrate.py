@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from edge.cli.common import UserError, quiet
+
+if TYPE_CHECKING:
+    from edge.calibration.check import CheckResult
 
 
 def parse_size(text: str | None, option: str) -> tuple[float, float] | None:
@@ -225,27 +229,73 @@ def calibrate_aruco_cmd(
 
 
 @calibrate.command("check")
-@click.argument("calibration_json", type=click.Path(path_type=Path))
-@click.argument("check_csv", type=click.Path(path_type=Path))
+@click.argument("pairs", nargs=-1, required=True, metavar="CALIBRATION CHECK_CSV [CALIBRATION CHECK_CSV ...]")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object (mean_cm, max_cm, n, points...).")
-def calibrate_check_cmd(calibration_json: Path, check_csv: Path, as_json: bool) -> None:
+def calibrate_check_cmd(pairs: tuple[str, ...], as_json: bool) -> None:
     """Check a calibration against points measured but not used in the fit (CSV u,v,x,y).
 
-    Maps each point's u,v and reports its distance to the surveyed x,y, and the mean and max.
+    Maps each point's u,v and reports its distance to the surveyed x,y, and the mean and max. Given several boards
+    (a calibration and its check points each, all in one floor frame), also reports the seam error of every pair:
+    where the two boards put the check points both see (the same x,y), and how far apart.
 
     Example:
 
+    \b
         edge-ips calibrate check calibration.json check.csv --json
+        edge-ips calibrate check cam1/calibration.json cam1/check.csv cam2/calibration.json cam2/check.csv
     """
     import json
 
     from edge.calibration.check import check_summary
-    from edge.calibration.workflow import check_calibration_files
+    from edge.calibration.files import load_calibration
+    from edge.calibration.points import read_points_csv
+    from edge.fusion.seams import check_boards, seams
 
-    result = check_calibration_files(calibration_json, check_csv)
-    if as_json:
-        click.echo(json.dumps(check_summary(result, calibration_json, check_csv)))
+    if len(pairs) % 2:
+        raise UserError("give a calibration file and its check points CSV for every board (pairs of arguments)")
+    paths = [Path(p) for p in pairs]
+    boards = [(paths[i], load_calibration(paths[i]), read_points_csv(paths[i + 1])) for i in range(0, len(paths), 2)]
+    checks = check_boards(boards)
+    names = [c.name for c in checks]
+    if len(set(names)) != len(names):
+        raise UserError(f"two calibrations have the same board name ({', '.join(names)}): name them apart")
+    if len(checks) == 1:
+        if as_json:
+            click.echo(json.dumps(check_summary(checks[0].check, paths[0], paths[1])))
+        else:
+            _print_check(checks[0].check, paths[0], paths[1])
         return
+    found = seams(checks)
+    if as_json:
+        doc = {
+            "boards": [
+                check_summary(c.check, c.calibration_path, paths[2 * k + 1]) | {"board": c.name}
+                for k, c in enumerate(checks)
+            ],
+            "seams": [
+                {"a": s.a, "b": s.b, "n": s.n}
+                | {k: round(v, 4) for k, v in (("mean_cm", s.mean_cm), ("max_cm", s.max_cm), ("rms_cm", s.rms_cm))}
+                for s in found
+            ],
+        }
+        click.echo(json.dumps(doc))
+        return
+    for k, c in enumerate(checks):
+        r = c.check
+        click.echo(
+            f"{c.name}: {r.n} check points from {paths[2 * k + 1]}: mean {r.mean_cm:.3f} cm, max {r.max_cm:.3f} cm, "
+            f"rms {r.rms_cm:.3f} cm"
+        )
+    if not found:
+        click.echo("no check point is seen by two boards: survey some in the overlaps to measure the seams")
+    for s in found:
+        click.echo(
+            f"seam {s.a}/{s.b}: {s.n} shared points, the boards disagree by mean {s.mean_cm:.3f} cm, "
+            f"max {s.max_cm:.3f} cm, rms {s.rms_cm:.3f} cm"
+        )
+
+
+def _print_check(result: CheckResult, calibration_json: Path, check_csv: Path) -> None:
     t = result.table
     click.echo(f"{'row':>4} {'u':>9} {'v':>9} {'x':>8} {'y':>8} {'mapped x':>9} {'mapped y':>9} {'error cm':>8}")
     for i in range(result.n):

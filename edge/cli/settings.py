@@ -19,13 +19,14 @@ from edge.cli.common import EdgeGroup, config_option, load
     help="Directory to write the JSON Schema files into.",
 )
 def schema(out_dir: Path) -> None:
-    """Write the JSON Schemas of the message contract (pose, formation and status v1, rover status v2).
+    """Write the JSON Schemas of the message contract (pose, formation, status, detections, fuser status v1, rover
+    status v2).
 
     Example:
 
         edge-ips schema --out shared/schema
     """
-    from edge.messages import write_schemas
+    from edge.contract import write_schemas
 
     for path in write_schemas(out_dir):
         click.echo(f"wrote {path}")

@@ -9,6 +9,8 @@ from typing import Any, cast
 
 import click
 
+from edge.cli.common import UserError
+
 
 @click.group()
 def sim() -> None:
@@ -31,7 +33,12 @@ def sim() -> None:
 )
 @click.option("--frames", type=click.IntRange(min=1), default=None, help="Frames to render [scenario's default].")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed: trajectories, lighting phases, noise.")
-@click.option("--rovers", type=click.IntRange(min=1, max=48), default=None, help="Number of rovers [scenario's].")
+@click.option(
+    "--rovers",
+    type=click.IntRange(min=1, max=64),
+    default=None,
+    help="Number of rovers (48 at most, wide 64) [scenario's].",
+)
 @click.option(
     "--heading",
     type=click.Choice(["plain", "two_tone", "aruco"]),
@@ -44,20 +51,45 @@ def sim() -> None:
     is_flag=True,
     help="Also write check.csv, floor.png + markers.csv (ArUco) and, for a distorting lens, checkerboard boards/.",
 )
+@click.option(
+    "--cameras",
+    type=click.IntRange(min=2, max=4),
+    default=None,
+    help="wide: the number of camera boards (2, 3 or 4)  [default: 4].",
+)
 def sim_render(
-    scenario: str, out_dir: Path, frames: int | None, seed: int, rovers: int | None, heading: str, kit: bool
+    scenario: str,
+    out_dir: Path,
+    frames: int | None,
+    seed: int,
+    rovers: int | None,
+    heading: str,
+    kit: bool,
+    cameras: int | None,
 ) -> None:
     """Render SCENARIO to a 30 fps video with per-frame ground truth.
 
     truth.csv has one row per rover per frame: frame,id,x,y,theta,vx,vy (marker centre in world cm at marker
     height, heading in radians, velocity in cm/s).
 
+    SCENARIO wide is an 8 x 5.5 m arena seen by --cameras boards with overlapping views: truth.csv for the whole
+    arena and one directory per camera (cam1 ... camN) with its video, survey points in the shared floor frame,
+    check points, background, camera and rovers.toml.
+
     Example:
 
     \b
         edge-ips sim render lab --out runs/lab --frames 300 --seed 1
         edge-ips sim render lens --out runs/lens --kit   # + a calibration session
+        edge-ips sim render wide --cameras 4 --rovers 20 --out runs/wide
     """
+    if scenario == "wide":
+        _render_wide(out_dir, cameras or 4, frames, seed, rovers)
+        return
+    if cameras is not None:
+        raise UserError(f"--cameras is for the wide scenario, not {scenario}")
+    if rovers is not None and rovers > 48:
+        raise UserError(f"--rovers {rovers}: at most 48 in scenario {scenario} (64 in wide)")
     from edge.sim.export import ensure_directory, render_to_directory
     from edge.sim.scenarios import build
     from edge.sim.scene import Heading
@@ -79,6 +111,22 @@ def sim_render(
     click.echo(f"wrote {summary.frames} frames of {scenario} (seed {seed}) to {summary.out_dir}")
     click.echo(f"  files: {', '.join(summary.written)}")
     click.echo(f"  rendering: {summary.render_ms_mean:.1f} ms per frame")
+
+
+def _render_wide(out_dir: Path, cameras: int, frames: int | None, seed: int, rovers: int | None) -> None:
+    from edge.sim.export import ensure_directory
+    from edge.sim.wide import build_wide
+    from edge.sim.wide_export import render_wide_to_directory
+
+    total = build_wide(cameras, seed=seed, rovers=rovers, frames=frames).frames  # check before starting
+    ensure_directory(out_dir)
+    with click.progressbar(length=total, label=f"rendering wide, {cameras} cameras") as bar:
+        summary = render_wide_to_directory(
+            out_dir, cameras=cameras, frames=frames, seed=seed, rovers=rovers, progress=lambda n: bar.update(n)
+        )
+    click.echo(f"wrote {summary.frames} frames of the wide arena (seed {seed}) to {summary.out_dir}")
+    click.echo(f"  cameras: {', '.join(summary.cameras)}; truth.csv, wide.json")
+    click.echo(f"  rendering: {summary.render_ms_mean:.1f} ms per camera frame")
 
 
 @sim.command("scenarios")

@@ -84,21 +84,43 @@ def start(
 @config_option
 @click.option("--source", default=None, metavar="SPEC", help="Check this source instead of camera.source.")
 @broker_option
+@click.option(
+    "--fusion",
+    is_flag=True,
+    help="Several boards: check the fusers, every board (status, bridge, clock offset) and the rovers nobody sees.",
+)
 @click.pass_context
-def doctor(ctx: click.Context, config_path: Path | None, source: str | None, broker_url: str | None) -> None:
+def doctor(
+    ctx: click.Context, config_path: Path | None, source: str | None, broker_url: str | None, fusion: bool
+) -> None:
     """Check camera, calibration, broker and clock; one line per check with a fix hint. Exit code 1 on failure.
+
+    With --fusion (on the central broker of several boards), check instead that one fuser publishes and one
+    stands by, every board's detections arrive (its bridge, its clock offset as the fuser estimates it) and which
+    rovers nobody sees.
 
     Example:
 
+    \b
         edge-ips doctor --config /etc/edge-ips/config.toml
+        edge-ips doctor --fusion --broker mqtt://edge:PASSWORD@localhost:1884
     """
+    from collections.abc import Iterable
+
     from edge.appliance import default_sim_factory
-    from edge.doctor import run_checks
+    from edge.doctor import Check, run_checks
 
     loaded = load(config_path, **{"camera.source": source, "broker.url": broker_url})
     cfg = loaded.config
+    checks: Iterable[Check]
+    if fusion:
+        from edge.fusion.doctor import central_checks
+
+        checks = central_checks(cfg)
+    else:
+        checks = run_checks(cfg, where=loaded.where, env_keys=loaded.env_keys, sim_factory=default_sim_factory(cfg))
     failed = False
-    for check in run_checks(cfg, where=loaded.where, env_keys=loaded.env_keys, sim_factory=default_sim_factory(cfg)):
+    for check in checks:
         click.echo(check.line())
         failed = failed or check.level == "fail"
     if failed:

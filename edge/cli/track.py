@@ -40,6 +40,17 @@ from edge.cli.common import quiet
     help="TOML with the rovers ([[rovers]] id, color_bgr) and tracker settings (or a [tracker] table).",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON object.")
+@click.option(
+    "--detections",
+    is_flag=True,
+    help="Write one detections v1 line per frame (this board's measurements with their uncertainty, for "
+    "edge-ips fuse) instead of poses.",
+)
+@click.option(
+    "--edge-id",
+    default=None,
+    help="Board id in the detections (default: the video's directory name when it is a valid id, else edge-1).",
+)
 def track(
     video: Path,
     calibration_path: Path,
@@ -48,28 +59,35 @@ def track(
     method: str | None,
     config_path: Path | None,
     as_json: bool,
+    detections: bool,
+    edge_id: str | None,
 ) -> None:
     """Track the rovers in a video file and write one pose v1 JSON line per rover per frame.
 
     Each line is byte for byte the message the edge would publish. At the end prints the processing frame rate,
-    the detection rate and how many poses each rover got.
+    the detection rate and how many poses each rover got. With --detections each line is instead one frame's
+    detections v1 message (what a board of several publishes for edge-ips fuse).
 
     Example:
 
+    \b
         edge-ips track run/video.mp4 --calibration run/camera.json --background run/background.png --out poses.jsonl
+        edge-ips track wide/cam2/video.mp4 --calibration wide/cam2/calibration.json --config wide/rovers.toml \\
+            --background wide/cam2/background.png --detections --out cam2.jsonl
     """
     import json
 
-    from edge.offline import open_track_job
+    from edge.offline import board_id_for, detection_builder, open_track_job
     from edge.tracker_config import TrackerConfig, load_tracker_config
 
     config = load_tracker_config(config_path) if config_path is not None else TrackerConfig()
     if method is not None:
         config = config.model_copy(update={"method": method})
     job = open_track_job(video, calibration_path, config, background_path)
+    builder = detection_builder(job, calibration_path, board_id_for(video, edge_id)) if detections else None
     total = max(job.frames.frame_count, 1)
     with click.progressbar(length=total, label="tracking", file=quiet() if as_json else None) as bar:
-        summary = job.run(out_path, on_frame=lambda _r: bar.update(1))
+        summary = job.run(out_path, on_frame=lambda _r: bar.update(1), detections=builder)
     if as_json:
         click.echo(json.dumps(summary.as_dict()))
         return

@@ -18,7 +18,7 @@ from typing import Any
 
 import jsonschema
 
-from edge import messages
+from edge import contract, messages
 from edge.errors import MessageError
 from tests.conftest import EXAMPLES, SCHEMA_DIR
 
@@ -31,7 +31,7 @@ T_WRAP = 1 << 26  # the firmware keeps a pose's t as whole ms modulo this (msg.T
 
 @cache
 def validator(kind: str) -> jsonschema.Draft202012Validator:
-    doc = json.loads((SCHEMA_DIR / messages.schema_file(kind)).read_text())
+    doc = json.loads((SCHEMA_DIR / contract.schema_file(kind)).read_text())
     return jsonschema.Draft202012Validator(doc)
 
 
@@ -57,7 +57,7 @@ def oracle(kind: str, payload: bytes) -> dict[str, Any] | None:
     if any(type(doc.get(k)) is float for k in INT_FIELDS):
         return None
     try:
-        messages.PARSERS[kind](payload)
+        contract.PARSERS[kind](payload)
     except MessageError:
         return None
     if kind == "pose":

@@ -1,0 +1,605 @@
+#!/usr/bin/env python3
+"""Several cameras, one map: the fusion measured on the simulated wide arena.
+
+    .venv/bin/python benchmarks/bench_fusion.py accuracy --work runs/fusion      # 4 cameras, 50 rovers, 300 frames
+    .venv/bin/python benchmarks/bench_fusion.py live --work runs/fusion          # bridged brokers, real processes
+
+``accuracy``: ``sim render wide`` (4 cameras, 50 rovers with one hue each: the simulator's palette spreads 50 hues
+7.2 deg apart), every board calibrated from its own survey points (34, 0.5 px click noise), every video tracked
+into detections (the real pipeline, ``track --detections``), fused offline (``edge-ips fuse``), compared with the
+world's truth: accuracy overall, where two or more boards saw the rover and where one did; the jump at every
+handover (the frame-to-frame change of the error when the set of boards that saw the rover changes) against the
+same measure at other frames; swaps (a pose nearer another rover's truth than its own); the boards' clock
+estimates against their true exposure offsets; the seams between the boards' calibrations; the fuser's CPU.
+
+``live``: the same detections replayed in real time by four board processes, each with its own Mosquitto bridged to
+a central one as ``edge-ips broker-config --bridge`` writes them (the boards wait, before publishing each frame,
+the time the tracker took for it in the accuracy run: so grab-to-pose covers tracking, the board's broker, the
+bridge, the fuser and the central broker); two fusers (``edge-ips fuse --broker``); a subscriber on the central
+broker and one on a board's broker. Measured: grab-to-fused-pose latency p50/p99 (receive time minus the frame's
+grab time, one clock), the active fuser's CPU, the takeover time when the active fuser is killed (and when it is
+paused), what happens when one board dies.
+
+Timing figures (latency, CPU) measured on a loaded machine are not valid: re-run on a quiet one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import itertools
+import json
+import math
+import os
+import platform
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+PY = sys.executable
+
+
+# -- accuracy --------------------------------------------------------------------------------------------------------
+def render_and_track(work: Path, cameras: int, rovers: int, frames: int, seed: int) -> dict[str, Any]:
+    """Render, calibrate and track every camera into ``work/camK/det.jsonl`` (and per-frame tracking times)."""
+    from edge.offline import detection_builder, open_track_job
+    from edge.sim.wide_export import render_wide_to_directory
+    from edge.tracker_config import load_tracker_config
+
+    out: dict[str, Any] = {}
+    if not (work / "wide.json").is_file():
+        t0 = time.perf_counter()
+        summary = render_wide_to_directory(work, cameras=cameras, frames=frames, seed=seed, rovers=rovers)
+        out["render_s"] = time.perf_counter() - t0
+        out["render_ms_per_camera_frame"] = summary.render_ms_mean
+        print(f"rendered {frames} frames x {cameras} cameras in {out['render_s']:.0f} s", flush=True)
+    layout = json.loads((work / "wide.json").read_text())
+    for cam in layout["cameras"]:
+        where = work / cam["name"]
+        cal = where / "calibration.json"
+        if not cal.is_file():
+            subprocess.run(
+                [
+                    PY,
+                    "-m",
+                    "edge.cli",
+                    "calibrate",
+                    "points",
+                    str(where / "points.csv"),
+                    "--out",
+                    str(cal),
+                    "--image",
+                    str(where / "background.png"),
+                ],
+                check=True,
+                capture_output=True,
+                cwd=REPO,
+            )
+        det = where / "det.jsonl"
+        if det.is_file():
+            continue
+        job = open_track_job(
+            where / "video.mp4", cal, load_tracker_config(where / "rovers.toml"), where / "background.png"
+        )
+        times: list[float] = []
+        t0 = time.perf_counter()
+        job.run(
+            det,
+            on_frame=lambda r, times=times: times.append(r.stage_ms.get("total", 0.0)),  # type: ignore[misc]
+            detections=detection_builder(job, cal, cam["name"]),
+        )
+        (where / "track_ms.json").write_text(json.dumps(times))
+        print(f"tracked {cam['name']}: {len(times)} frames in {time.perf_counter() - t0:.0f} s", flush=True)
+    return out
+
+
+def _truth(work: Path) -> dict[tuple[int, str], tuple[float, float]]:
+    with (work / "truth.csv").open() as f:
+        return {(int(r["frame"]), r["id"]): (float(r["x"]), float(r["y"])) for r in csv.DictReader(f)}
+
+
+def _visible(work: Path, names: list[str]) -> set[tuple[int, str]]:
+    """Rover-frames some camera saw whole (a fused pose is due there)."""
+    seen: set[tuple[int, str]] = set()
+    for name in names:
+        with (work / name / "visibility.csv").open() as f:
+            for r in csv.DictReader(f):
+                if float(r["visible"]) >= 0.999:
+                    seen.add((int(r["frame"]), r["id"]))
+    return seen
+
+
+def _stats(values: list[float]) -> dict[str, float]:
+    a = np.asarray(values, dtype=np.float64)
+    if a.size == 0:
+        return {"n": 0}
+    return {"n": int(a.size), "mean": float(a.mean()), "p95": float(np.percentile(a, 95)), "max": float(a.max())}
+
+
+def apparent_lags(work: Path, layout: dict[str, Any]) -> dict[str, float]:
+    """Each camera's detections against the world at its own exposure instants: the error along the motion over
+    the speed (s). The tracker's centroid trails a moving marker slightly; boards that differ in it look to the
+    fuser like boards whose clocks differ by as much, and correcting for it is what aligns their measurements."""
+    from edge.board_messages import parse_detections
+    from edge.sim.wide import build_wide
+
+    world = build_wide(len(layout["cameras"]), seed=layout["seed"], rovers=len(layout["rovers"])).world()
+    out = {}
+    for cam in layout["cameras"]:
+        ve = vv = 0.0
+        for line in (work / cam["name"] / "det.jsonl").read_bytes().splitlines():
+            d = parse_detections(line)
+            state = world.state_at(d.frame / layout["fps"] + cam["phase_s"]).by_id()
+            for r in d.rovers:
+                t = state[r.id]
+                if math.hypot(r.x - t.x_cm, r.y - t.y_cm) > 5.0:
+                    continue  # the board took another rover for this one: no timing in that
+                ve += t.vx_cm_s * (r.x - t.x_cm) + t.vy_cm_s * (r.y - t.y_cm)
+                vv += t.vx_cm_s**2 + t.vy_cm_s**2
+        out[cam["name"]] = -ve / vv if vv else 0.0
+    return out
+
+
+def seam_figures(work: Path, layout: dict[str, Any]) -> dict[str, Any]:
+    """``calibrate check`` across boards (check points clicked in both views), and the calibrations' own seam (the
+    exact pixels of the same points mapped by both, no click noise)."""
+    from edge.calibration.files import load_calibration
+    from edge.calibration.points import read_points_csv
+    from edge.camera import load_camera
+    from edge.fusion.seams import check_boards, seams
+
+    names = [c["name"] for c in layout["cameras"]]
+    cals = {n: load_calibration(work / n / "calibration.json") for n in names}
+    boards = [(work / n / "calibration.json", cals[n], read_points_csv(work / n / "check.csv")) for n in names]
+    clicked = seams(check_boards(boards))
+    exact = []
+    for s in clicked:
+        pts = np.column_stack([s.xy_world_cm, np.full(len(s.xy_world_cm), 13.0)])
+        a = cals[s.a].pixel_to_world(load_camera(work / s.a / "camera.json").project(pts))
+        b = cals[s.b].pixel_to_world(load_camera(work / s.b / "camera.json").project(pts))
+        exact += list(np.linalg.norm(a - b, axis=1))
+    return {
+        "clicked": {f"{s.a}/{s.b}": {"n": s.n, "mean_cm": s.mean_cm, "max_cm": s.max_cm} for s in clicked},
+        "calibrations": _stats(exact),
+    }
+
+
+def evaluate(work: Path) -> dict[str, Any]:
+    from edge.fusion.offline import fuse_files
+
+    layout = json.loads((work / "layout.json" if (work / "layout.json").exists() else work / "wide.json").read_text())
+    names = [c["name"] for c in layout["cameras"]]
+    truth = _truth(work)
+    poses: list[Any] = []
+    c0 = time.process_time()
+    summary = fuse_files([work / n / "det.jsonl" for n in names], work / "fused.jsonl", on_pose=poses.append)
+    cpu_s = time.process_time() - c0
+    detections = sum(len(json.loads(line)["rovers"]) for n in names for line in (work / n / "det.jsonl").open())
+    by_rover: dict[str, dict[int, tuple[float, float]]] = defaultdict(dict)
+    for (frame, rid), xy in truth.items():
+        by_rover[rid][frame] = xy
+    errors, overlap, single, swaps = [], [], [], 0
+    prev: dict[str, tuple[int, np.ndarray, tuple[str, ...]]] = {}
+    handover, other = [], []
+    for p in poses:
+        t = truth.get((p.tick, p.rover_id))
+        if t is None:
+            continue
+        e = np.array([p.x_cm - t[0], p.y_cm - t[1]])
+        err = float(np.hypot(*e))
+        errors.append(err)
+        (overlap if len(p.boards) >= 2 else single).append(err)
+        nearest = min(by_rover, key=lambda r: math.dist(by_rover[r].get(p.tick, (1e9, 1e9)), (p.x_cm, p.y_cm)))
+        swaps += nearest != p.rover_id
+        last = prev.get(p.rover_id)
+        if last is not None and last[0] == p.tick - 1 and p.t_s > 1.0:
+            jump = float(np.hypot(*(e - last[1])))
+            (handover if set(last[2]) != set(p.boards) else other).append(jump)
+        prev[p.rover_id] = (p.tick, e, p.boards)
+    due = _visible(work, names)
+    got = {(p.tick, p.rover_id) for p in poses}
+    lags = apparent_lags(work, layout)
+    offsets = {}
+    for cam in layout["cameras"]:
+        est = summary.offsets[cam["name"]]
+        expected = -cam["phase_s"] + (lags[cam["name"]] - lags[names[0]])
+        offsets[cam["name"]] = {
+            "estimated_ms": 1e3 * est.offset_s,
+            "sigma_ms": 1e3 * est.sigma_s,
+            "exposure_offset_ms": -1e3 * cam["phase_s"],
+            "apparent_lag_ms": 1e3 * lags[cam["name"]],
+            "expected_ms": 1e3 * expected,
+            "error_ms": 1e3 * (est.offset_s - expected),
+        }
+    return {
+        "cameras": len(names),
+        "rovers": len(layout["rovers"]),
+        "frames": layout["frames"],
+        "seed": layout["seed"],
+        "poses": len(poses),
+        "coverage": len(due & got) / max(len(due), 1),
+        "accuracy_cm": _stats(errors),
+        "two_or_more_boards_cm": _stats(overlap),
+        "one_board_cm": _stats(single),
+        "handover_jump_cm": _stats(handover) | {"p99": float(np.percentile(handover, 99)) if handover else 0.0},
+        "other_frames_jump_cm": _stats(other) | {"p99": float(np.percentile(other, 99)) if other else 0.0},
+        "swaps": swaps,
+        "offsets": offsets,
+        "seams": seam_figures(work, layout),
+        "refused": {b: v["refused"] for b, v in summary.as_dict()["boards"].items()},
+        "fuser_cpu": {
+            "seconds": cpu_s,
+            "per_message_ms": 1e3 * cpu_s / summary.frames,
+            "per_detection_us": 1e6 * cpu_s / max(detections, 1),
+            "messages": summary.frames,
+            "detections": detections,
+        },
+    }
+
+
+# -- live ------------------------------------------------------------------------------------------------------------
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def start_mosquitto(conf: Path, workdir: Path, ports: dict[int, int]) -> subprocess.Popen[bytes]:
+    """A Mosquitto from a ``broker-config`` file, every listener moved to the free port given for it."""
+    lines = ["log_dest stderr"] + (["user root"] if os.geteuid() == 0 else [])
+    for line in conf.read_text().splitlines():
+        if line.startswith("listener "):
+            parts = line.split()
+            line = f"listener {ports[int(parts[1])]} 127.0.0.1"
+        lines.append(line)
+    workdir.mkdir(parents=True, exist_ok=True)
+    (workdir / "mosquitto.conf").write_text("\n".join(lines) + "\n")
+    with (workdir / "log").open("wb") as log:  # the child keeps its own descriptor
+        proc = subprocess.Popen(
+            ["/usr/sbin/mosquitto", "-c", str(workdir / "mosquitto.conf")], stdout=subprocess.DEVNULL, stderr=log
+        )
+    port = next(iter(ports.values()))
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+            return proc
+        except OSError:
+            time.sleep(0.05)
+    raise RuntimeError(f"mosquitto did not start: {(workdir / 'log').read_text()}")
+
+
+def replay_board(url: str, edge_id: str, det_path: Path, times_path: Path) -> None:
+    """A board: its recorded detections in real time, each frame grabbed at ``k / 30`` of the wall clock (phase 0,
+    a correct clock: the pose's ``t`` is then the grab time of the frame that made it), published after the
+    tracking time that frame took in the accuracy run."""
+    from urllib.parse import urlsplit
+
+    import paho.mqtt.client as mqtt
+
+    from edge.board_messages import detections_topic, parse_detections
+    from edge.fusion.detections import encode_detections, from_message
+    from edge.messages import StatusV1, dumps, edge_status_topic
+
+    frames = [from_message(parse_detections(line)) for line in det_path.read_bytes().splitlines()]
+    track_ms = json.loads(times_path.read_text()) if times_path.name != "none" else [0.0] * len(frames)
+    target = urlsplit(url)
+    client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"edge-ips-{edge_id}")
+    client.username_pw_set(target.username, target.password)
+    offline = StatusV1(v=1, edge=edge_id, state="offline", camera="stopped", fps=0.0, rovers=[], missing=[], t=0.0)
+    client.will_set(edge_status_topic(edge_id), dumps(offline), qos=1, retain=True)
+    client.on_socket_open = lambda c, u, s: s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    client.connect(target.hostname or "127.0.0.1", target.port or 1883)
+    client.loop_start()
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda s, f: stop.set())
+    k = math.ceil(time.time() * 30.0)
+    n = 0
+    while not stop.is_set():
+        grab = k / 30.0
+        i = n % len(frames)
+        due = grab + track_ms[i] / 1e3
+        wait = due - time.time()
+        if wait > 0:
+            stop.wait(wait)
+        d = frames[i]
+        moved = type(d)(edge_id, n, k, grab, time.time(), d.image_quality, d.view_cm, d.rovers)
+        client.publish(detections_topic(edge_id), encode_detections(moved), qos=0)
+        if n % 30 == 0:
+            online = StatusV1(
+                v=1, edge=edge_id, state="online", camera="ok", fps=30.0, rovers=[], missing=[], t=round(time.time(), 3)
+            )
+            client.publish(edge_status_topic(edge_id), dumps(online), qos=1, retain=True)
+        n += 1
+        k = max(k + 1, math.floor(time.time() * 30.0))
+    client.disconnect()
+    client.loop_stop()
+
+
+class Subscriber:
+    """Receive times of everything on a broker."""
+
+    def __init__(self, port: int, user: str, password: str) -> None:
+        import paho.mqtt.client as mqtt
+
+        self.messages: list[tuple[float, str, bytes]] = []
+        self.lock = threading.Lock()
+        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"edge-ips-bench-{port}")
+        self.client.username_pw_set(user, password)
+        self.client.on_connect = lambda c, u, f, rc, p: c.subscribe("ips/v1/#", qos=0)
+        self.client.on_message = self._on_message
+        self.client.on_socket_open = lambda c, u, s: s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.client.connect("127.0.0.1", port)
+        self.client.loop_start()
+
+    def _on_message(self, c: Any, u: Any, m: Any) -> None:
+        now = time.time()
+        with self.lock:
+            self.messages.append((now, m.topic, bytes(m.payload)))
+
+    def since(self, t: float) -> list[tuple[float, str, bytes]]:
+        with self.lock:
+            return [m for m in self.messages if m[0] >= t]
+
+    def stop(self) -> None:
+        self.client.disconnect()
+        self.client.loop_stop()
+
+
+def _poses(messages: list[tuple[float, str, bytes]]) -> list[tuple[float, Any]]:
+    from edge.messages import parse_pose
+
+    return [(t, parse_pose(p)) for t, topic, p in messages if topic.endswith("/pose")]
+
+
+def _fuser_state(messages: list[tuple[float, str, bytes]]) -> dict[str, str]:
+    from edge.board_messages import parse_fuser_status
+
+    out = {}
+    for _, topic, p in messages:
+        if topic.startswith("ips/v1/fuser/") and topic.endswith("/status"):
+            s = parse_fuser_status(p)
+            out[s.fuser] = s.state
+    return out
+
+
+def _wait(predicate: Any, timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) -> dict[str, Any]:
+    import psutil
+
+    from edge.broker.bridge import write_bridge_configs
+
+    layout = json.loads((work / "wide.json").read_text())
+    names = [c["name"] for c in layout["cameras"]]
+    brokers = work / "brokers"
+    if brokers.exists():
+        import shutil
+
+        shutil.rmtree(brokers)
+    write_bridge_configs(brokers, boards=names, rovers=[], central_host="127.0.0.1", fusers=["fuser-a", "fuser-b"])
+
+    def logins(where: Path) -> dict[str, dict[str, str]]:
+        import tomllib
+
+        data = tomllib.loads((where / "credentials.toml").read_text())
+        return {t: {u: v["password"] for u, v in users.items()} for t, users in data.items()}
+
+    central_logins = logins(brokers / "central")
+    central_ports = {1884: free_port(), 1883: free_port()}
+    procs: list[subprocess.Popen[Any]] = [
+        start_mosquitto(brokers / "central" / "mosquitto.conf", work / "run" / "central", central_ports)
+    ]
+    board_ports = {}
+    for name in names:
+        conf = brokers / name / "mosquitto.conf"
+        conf.write_text(conf.read_text().replace("address 127.0.0.1:1883", f"address 127.0.0.1:{central_ports[1883]}"))
+        board_ports[name] = {1884: free_port(), 1883: free_port()}
+        procs.append(start_mosquitto(conf, work / "run" / name, board_ports[name]))
+    results: dict[str, Any] = {}
+    try:
+        at_central = Subscriber(central_ports[1884], "edge", central_logins["edge"]["edge"])
+        board1 = logins(brokers / names[0])
+        at_board = Subscriber(board_ports[names[0]][1884], "edge", board1["edge"]["edge"])
+        boards = {}
+        for name in names:
+            url = f"mqtt://edge:{logins(brokers / name)['edge']['edge']}@127.0.0.1:{board_ports[name][1884]}"
+            boards[name] = subprocess.Popen(
+                [
+                    PY,
+                    __file__,
+                    "_board",
+                    url,
+                    name,
+                    str(work / name / "det.jsonl"),
+                    str(work / name / "track_ms.json") if tracking_delay else "none",
+                ],
+                cwd=REPO,
+            )
+        fusers = {}
+
+        def start_fuser(fid: str) -> subprocess.Popen[Any]:
+            url = f"mqtt://{fid}:{central_logins['fusers'][fid]}@127.0.0.1:{central_ports[1883]}"
+            return subprocess.Popen(
+                [PY, "-m", "edge.cli", "fuse", "--broker", url, "--id", fid],
+                cwd=REPO,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+
+        for fid in ("fuser-a", "fuser-b"):
+            fusers[fid] = start_fuser(fid)
+        if not _wait(lambda: "active" in _fuser_state(at_central.since(0)).values(), 60):
+            raise RuntimeError("no fuser became active")
+        time.sleep(5.0)  # let the clock estimates settle
+        # -- latency and CPU ------------------------------------------------------------------------------------
+        active = next(f for f, s in _fuser_state(at_central.since(0)).items() if s == "active")
+        proc = psutil.Process(fusers[active].pid)
+        t0 = time.time()
+        cpu0 = proc.cpu_times()
+        time.sleep(seconds)
+        cpu1 = proc.cpu_times()
+        t1 = time.time()
+        cpu = (cpu1.user + cpu1.system - cpu0.user - cpu0.system) / (t1 - t0)
+        lat_c = [1e3 * (t - p.t) for t, p in _poses(at_central.since(t0)) if t <= t1]
+        lat_b = [1e3 * (t - p.t) for t, p in _poses(at_board.since(t0)) if t <= t1]
+        results["latency_central_ms"] = {
+            "n": len(lat_c),
+            "p50": float(np.percentile(lat_c, 50)),
+            "p99": float(np.percentile(lat_c, 99)),
+            "max": float(max(lat_c)),
+        }
+        results["latency_board_ms"] = {
+            "n": len(lat_b),
+            "p50": float(np.percentile(lat_b, 50)),
+            "p99": float(np.percentile(lat_b, 99)),
+            "max": float(max(lat_b)),
+        }
+        results["fuser_cpu_percent"] = 100.0 * cpu
+        results["poses_per_s"] = len(lat_c) / (t1 - t0)
+        # -- takeover -------------------------------------------------------------------------------------------
+        takeovers: dict[str, list[float]] = {"killed": [], "paused": []}
+        for how in ("killed", "paused"):
+            for _ in range(repeats):
+                states = _fuser_state(at_central.since(0))
+                holder = next(f for f, s in states.items() if s == "active")
+                other = "fuser-b" if holder == "fuser-a" else "fuser-a"
+                t_cut = time.time()
+                if how == "killed":
+                    fusers[holder].kill()
+                    fusers[holder].wait()
+                else:
+                    os.kill(fusers[holder].pid, signal.SIGSTOP)
+                ok = _wait(
+                    lambda t_cut=t_cut, other=other: (  # type: ignore[misc]
+                        any(t > t_cut for t, _ in _poses(at_central.since(t_cut)))
+                        and _fuser_state(at_central.since(t_cut)).get(other) == "active"
+                    ),
+                    10,
+                )
+                time.sleep(1.0)
+                # the rovers' view of it: the longest silence in the pose stream around the cut
+                times = sorted(t for t, _ in _poses(at_central.since(t_cut - 0.5)) if t <= t_cut + 2.0)
+                silence = max((b - a for a, b in itertools.pairwise(times)), default=math.nan)
+                takeovers[how].append(silence if ok else math.nan)
+                if how == "killed":
+                    fusers[holder] = start_fuser(holder)
+                else:
+                    os.kill(fusers[holder].pid, signal.SIGCONT)
+                _wait(
+                    lambda: sorted(_fuser_state(at_central.since(time.time() - 3)).values()) == ["active", "standby"],
+                    20,
+                )
+                time.sleep(2.0)
+        results["takeover_s"] = {
+            k: {"runs": v, "max": float(np.nanmax(v)) if v else None} for k, v in takeovers.items()
+        }
+        # -- a board dies ---------------------------------------------------------------------------------------
+        dead = names[-1]
+        t_kill = time.time()
+        boards[dead].kill()
+        from edge.board_messages import parse_fuser_status
+
+        def dead_reported() -> bool:
+            for _, topic, p in reversed(at_central.since(t_kill)):
+                if topic.startswith("ips/v1/fuser/") and topic.endswith("/status"):
+                    s = parse_fuser_status(p)
+                    if s.state == "active":
+                        return any(b.edge == dead and b.state != "ok" for b in s.boards)
+            return False
+
+        _wait(dead_reported, 20)
+        t_reported = time.time()
+        time.sleep(3.0)
+        after = at_central.since(t_reported + 1.0)
+        status = next(
+            parse_fuser_status(p)
+            for _, topic, p in reversed(after)
+            if topic.endswith("/status")
+            and topic.startswith("ips/v1/fuser/")
+            and parse_fuser_status(p).state == "active"
+        )
+        before = {p.id for _, p in _poses(at_central.since(t_kill - 3.0)) if _ <= t_kill}
+        still = {p.id for _, p in _poses(after)}
+        (board,) = [b for b in status.boards if b.edge == dead]
+        results["board_dies"] = {
+            "board": dead,
+            "reported_after_s": t_reported - t_kill,
+            "state": board.state,
+            "view_reported": board.view,
+            "rovers_before": len(before),
+            "rovers_still_posed": len(still),
+            "missing": status.missing,
+        }
+        at_central.stop()
+        at_board.stop()
+        for p in [*boards.values(), *fusers.values()]:
+            if p.poll() is None:
+                p.terminate()
+                p.wait(10)
+    finally:
+        for p in procs:
+            p.terminate()
+            p.wait(10)
+    return results
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
+    sub = parser.add_subparsers(dest="what", required=True)
+    acc = sub.add_parser("accuracy")
+    acc.add_argument("--work", type=Path, required=True)
+    acc.add_argument("--cameras", type=int, default=4)
+    acc.add_argument("--rovers", type=int, default=50)
+    acc.add_argument("--frames", type=int, default=300)
+    acc.add_argument("--seed", type=int, default=1)
+    lv = sub.add_parser("live")
+    lv.add_argument("--work", type=Path, required=True)
+    lv.add_argument("--seconds", type=float, default=30.0)
+    lv.add_argument("--repeats", type=int, default=5)
+    lv.add_argument(
+        "--no-tracking-delay",
+        dest="tracking_delay",
+        action="store_false",
+        help="Publish each frame at its grab time: the latency of the brokers, bridges and fuser alone.",
+    )
+    board = sub.add_parser("_board")
+    board.add_argument("args", nargs=4)
+    a = parser.parse_args()
+    if a.what == "_board":
+        url, edge_id, det, times = a.args
+        replay_board(url, edge_id, Path(det), Path(times))
+        return
+    print(f"# {platform.node()} {platform.machine()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M')}")
+    if a.what == "accuracy":
+        a.work.mkdir(parents=True, exist_ok=True)
+        extra = render_and_track(a.work, a.cameras, a.rovers, a.frames, a.seed)
+        result = evaluate(a.work) | extra
+        (a.work / "accuracy.json").write_text(json.dumps(result, indent=2))
+    else:
+        result = live(a.work, a.seconds, a.repeats, a.tracking_delay) | {"tracking_delay": a.tracking_delay}
+        name = "live.json" if a.tracking_delay else "live-transport.json"
+        (a.work / name).write_text(json.dumps(result, indent=2))
+    print(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,376 @@
+"""The fusion core: every board's detections in, one pose per rover per frame of the shared clock out (pure).
+
+* **Time**: each detection's capture time is moved onto the reference clock with its board's estimated offset
+  (:mod:`edge.fusion.clock`). Live, a detection older than ``max_age_s`` on the fuser's clock when it arrives is
+  dropped (a bridge that comes back with queued messages replays nothing stale).
+* **Association**: by id (each board's tracker knows the rovers by their markers), checked by position: a detection
+  whose normalised innovation against the rover's filter exceeds ``gate_nis`` is refused (a board that mistook one
+  rover for another cannot drag the fused track); if only refused detections arrive for ``reacquire_s`` the rover
+  is re-initialised where they say it is (it really moved: there is no other evidence), unless another rover's
+  live track is there (``claim_radius_cm``): then the board took that rover for this one. Each board's
+  covariances are scaled by the robust level of its innovations (:meth:`BoardState.saw_nis`): a board more wrong
+  than its model says is trusted less, not refused.
+* **One filter per rover** (:class:`edge.fusion.track.CvState`, constant velocity, the detections' covariances as
+  measurement noise) for as long as any board sees it: overlaps are fused by uncertainty, and a
+  rover passing from one view to the next keeps its filter, its id and its estimate. Each board's covariance grows
+  near the edge of its view, so the weight moves from one board to the next over a few centimetres of travel.
+* **Order**: detections are fused in the order of their (corrected) capture times. One that arrives up to
+  ``late_direct_s`` late (another board's frame of the same period) is moved to the filter's time along the
+  estimated velocity, its covariance grown by the velocity's uncertainty over the gap; a later one (a slower board)
+  is put in its place and the last ``replay_s`` are filtered again.
+* **Output**: the first detection of a rover in frame ``k`` of the shared clock (``k = round(t * fps)``) gives that
+  rover's pose for frame ``k``: the filter's state moved to ``k / fps``, except that a correction (a better board
+  joins, a worse one leaves) moves the published pose by at most ``max_correction_cm`` a frame beyond the rover's
+  estimated motion: the rovers' controllers see no step at a handover. A rover not measured for ``timeout_s`` is
+  missing: no pose is published for it (the rovers' own staleness stops them).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from edge.fusion.clock import ClockAligner, ClockSettings, OffsetEstimate
+from edge.fusion.detections import Detection, Detections
+from edge.fusion.track import CvState
+
+FloatArray = NDArray[np.float64]
+
+
+NOISE_WINDOW = 256
+NOISE_MIN_SAMPLES = 64
+CHI2_2_MEDIAN = 1.386
+MAX_NOISE_SCALE = 25.0
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """Tuning of :class:`Fuser` (units in the names)."""
+
+    fps: float = 30.0  # the shared clock's frame rate
+    max_age_s: float = 0.25  # live: a detection older than this when it arrives is stale
+    timeout_s: float = 0.5  # a rover not measured for this long is missing
+    board_timeout_s: float = 1.0  # a board silent this long is missing, its view reported
+    gate_nis: float = 25.0  # chi-square, 2 dof: about 5 sigma
+    reacquire_s: float = 0.3
+    replay_s: float = 0.2
+    accel_sigma_cm_s2: float = 20.0  # smoother than one camera's filter: several boards' seams meet in it
+    # no fading step (the single camera's filter has one for manoeuvres): with several boards an innovation that
+    # large is mostly one board's outlier, and fading would give it the gain; the process noise follows the turns
+    fade_nis: float = math.inf
+    heading_s: float = 0.2  # a board's heading is used this long
+    heading_min_speed_cm_s: float = 5.0
+    clock: ClockSettings = field(default_factory=ClockSettings)
+
+    late_direct_s: float = 0.035  # about one frame
+    claim_radius_cm: float = 20.0  # two markers' centres are never closer: a body is 20 cm wide
+    initial_speed_sigma_cm_s: float = 50.0
+    max_correction_cm: float = 0.3  # per frame beyond the estimated motion: a handover moves a rover smoothly
+
+
+@dataclass(frozen=True)
+class FusedPose:
+    """One rover's fused state for frame ``tick`` of the shared clock (``t_s = tick / fps``, reference clock).
+    ``boards``: the boards whose detections the filter took in this frame's period."""
+
+    rover_id: str
+    tick: int
+    t_s: float
+    x_cm: float
+    y_cm: float
+    theta_rad: float | None
+    vx_cm_s: float | None
+    vy_cm_s: float | None
+    quality: float
+    boards: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class _Measurement:
+    t_s: float  # reference clock
+    x: float
+    y: float
+    rxx: float
+    rxy: float
+    ryy: float
+    board: str
+
+
+@dataclass
+class _Track:
+    """One rover: its filter (at ``t_s``), the last ``replay_s`` of measurements and the state before them."""
+
+    filter: CvState
+    t_s: float
+    checkpoint: CvState
+    checkpoint_t_s: float
+    log: deque[_Measurement] = field(default_factory=deque)
+    last_tick: int = -1
+    shown: tuple[int, float, float] | None = None  # the last published (tick, x, y): corrections are spread from it
+    last_measured_s: float = -math.inf
+    refused_since_s: float | None = None
+    theta_rad: float | None = None
+    theta_t_s: float = -math.inf
+    boards_now: dict[str, float] = field(default_factory=dict)  # board -> last time it measured this rover
+
+
+@dataclass
+class BoardState:
+    """What the fuser knows of one board."""
+
+    edge_id: str
+    frames: int = 0
+    last_arrival_s: float | None = None  # the fuser's clock (live)
+    last_capture_s: float | None = None  # reference clock
+    stale: int = 0
+    refused: int = 0
+    late: int = 0
+    view_cm: tuple[tuple[float, float], ...] = ()
+    online: bool = True  # False once its retained status says offline
+    rovers: set[str] = field(default_factory=set)
+    noise_scale: float = 1.0  # how much larger its errors are than its covariances say (>= 1)
+    _nis: deque[float] = field(default_factory=lambda: deque(maxlen=NOISE_WINDOW))
+    _nis_count: int = 0
+
+    def saw_nis(self, nis: float) -> None:
+        """Track the board's normalised innovations; its covariances are scaled by their robust level.
+
+        The median of a 2-dof chi-square is 1.386: a board whose detections are truly as good as their covariances
+        say keeps the scale at 1; one whose tracker is overconfident (crowded markers, a worse view than its model
+        knows) gets its covariances widened, so it is neither refused nor trusted too much. A median ignores the
+        few detections of the wrong rover."""
+        self._nis.append(min(nis, 1e6))
+        self._nis_count += 1
+        if len(self._nis) >= NOISE_MIN_SAMPLES and self._nis_count % 32 == 0:
+            level = float(np.median(self._nis)) / CHI2_2_MEDIAN
+            self.noise_scale = min(max(level * self.noise_scale, 1.0), MAX_NOISE_SCALE)
+
+
+@dataclass(frozen=True)
+class FusionStatus:
+    """The fuser's view of the system at one instant."""
+
+    boards: tuple[BoardState, ...]
+    offsets: dict[str, OffsetEstimate]
+    rovers: tuple[str, ...]  # measured within timeout_s
+    missing: tuple[str, ...]  # seen before, not within timeout_s
+    missing_boards: tuple[str, ...]  # offline or silent for board_timeout_s
+    missing_views: tuple[tuple[tuple[float, float], ...], ...]  # their views: the areas nobody watches now
+
+
+class Fuser:
+    """Fuses the detections of every board into one pose per rover per shared-clock frame.
+
+    ``reference``: the board whose clock is the reference (offline: the first file); None live (the fuser's own
+    clock, through arrival times). ``aligner``: an already-trained :class:`ClockAligner` (offline, estimated over
+    the whole recording first); by default one of its own, learning as detections arrive.
+    """
+
+    def __init__(
+        self,
+        settings: FusionSettings = FusionSettings(),
+        reference: str | None = None,
+        aligner: ClockAligner | None = None,
+        learn_offsets: bool = True,
+    ) -> None:
+        self.settings = settings
+        self.aligner = aligner if aligner is not None else ClockAligner(settings.clock, reference)
+        self.learn_offsets = learn_offsets
+        self.boards: dict[str, BoardState] = {}
+        self.tracks: dict[str, _Track] = {}
+        self._latest_s = -math.inf
+
+    # -- input ------------------------------------------------------------------------------------------------------
+    def add(self, d: Detections, now_s: float | None = None) -> list[FusedPose]:
+        """Fuse one board's frame; returns the poses due now. ``now_s``: the fuser's clock at arrival (live)."""
+        board = self.boards.get(d.edge_id)
+        if board is None:
+            board = self.boards[d.edge_id] = BoardState(d.edge_id)
+        board.view_cm = d.view_cm
+        if now_s is not None:
+            board.last_arrival_s = now_s
+            board.online = True
+            if self.learn_offsets:
+                self.aligner.observe_arrival(d.edge_id, d.t_sent_s, now_s)
+        offset = self.aligner.offset_s(d.edge_id)
+        t_ref = d.t_capture_s - offset
+        if now_s is not None and now_s - t_ref > self.settings.max_age_s:
+            board.stale += 1
+            return []
+        if self.learn_offsets:
+            self.aligner.observe(d)
+        board.frames += 1
+        board.last_capture_s = t_ref if board.last_capture_s is None else max(board.last_capture_s, t_ref)
+        board.rovers = {r.rover_id for r in d.rovers}
+        self._latest_s = max(self._latest_s, t_ref)
+        out = []
+        for r in d.rovers:
+            pose = self._fuse(r, d.edge_id, t_ref, board)
+            if pose is not None:
+                out.append(pose)
+        return out
+
+    def board_offline(self, edge_id: str) -> None:
+        """The board's retained status says it is offline (its last will): its view is reported missing at once."""
+        board = self.boards.get(edge_id)
+        if board is None:
+            board = self.boards[edge_id] = BoardState(edge_id)
+        board.online = False
+
+    # -- one detection ----------------------------------------------------------------------------------------------
+    def _fuse(self, r: Detection, edge_id: str, t_s: float, board: BoardState) -> FusedPose | None:
+        s = self.settings
+        xx, xy, yy = r.cov_cm2
+        k = board.noise_scale
+        m = _Measurement(t_s, float(r.xy_cm[0]), float(r.xy_cm[1]), k * xx, k * xy, k * yy, edge_id)
+        track = self.tracks.get(r.rover_id)
+        if track is None or t_s - track.last_measured_s > s.timeout_s:
+            if self._claimed(r.rover_id, m):
+                board.refused += 1  # where another rover is: this board took that rover for this one
+                return None
+            track = self._start(r.rover_id, m)
+        elif t_s < track.checkpoint_t_s:
+            board.late += 1  # older than everything kept for replay: its moment has passed
+            return None
+        elif not self._inside_gate(track, m, board):
+            board.refused += 1
+            if track.refused_since_s is None:
+                track.refused_since_s = t_s
+            if t_s - track.refused_since_s < s.reacquire_s or self._claimed(r.rover_id, m):
+                return None
+            track = self._start(r.rover_id, m)  # only refused detections for a while: the rover is there
+        else:
+            track.refused_since_s = None
+            self._apply(track, m)
+        track.last_measured_s = max(track.last_measured_s, t_s)
+        track.boards_now[edge_id] = t_s
+        if r.theta_rad is not None and t_s >= track.theta_t_s:
+            track.theta_rad, track.theta_t_s = r.theta_rad, t_s
+        tick = round(t_s * s.fps)
+        if tick <= track.last_tick:
+            return None  # this frame's pose is out; the detection is in the filter for the next one
+        track.last_tick = tick
+        return self._pose(r.rover_id, track, tick, r.quality)
+
+    def _start(self, rover_id: str, m: _Measurement) -> _Track:
+        f = CvState.start(m.x, m.y, m.rxx, m.rxy, m.ryy, self.settings.initial_speed_sigma_cm_s)
+        track = _Track(filter=f, t_s=m.t_s, checkpoint=f.copy(), checkpoint_t_s=m.t_s)
+        track.log.append(m)
+        old = self.tracks.get(rover_id)
+        if old is not None:
+            track.last_tick = old.last_tick
+        self.tracks[rover_id] = track
+        return track
+
+    def _inside_gate(self, track: _Track, m: _Measurement, board: BoardState) -> bool:
+        f, dt = track.filter, m.t_s - track.t_s
+        # the filter's covariance grows between its time and the measurement's (either way) by the acceleration
+        grow = (self.settings.accel_sigma_cm_s2 * dt * dt / 2.0) ** 2 + (f.puu + f.pvv) / 2.0 * dt * dt
+        nis = f.nis(m.x, m.y, m.rxx + grow, m.rxy, m.ryy + grow, dt if f.updates >= 2 else 0.0)
+        if f.updates >= 3:
+            board.saw_nis(nis)
+        return nis <= self.settings.gate_nis
+
+    def _claimed(self, rover_id: str, m: _Measurement) -> bool:
+        """A live track of another rover is within a marker's reach of ``m``: the detection is that rover's."""
+        reach = self.settings.claim_radius_cm
+        for other_id, other in self.tracks.items():
+            if other_id == rover_id or m.t_s - other.last_measured_s > self.settings.timeout_s:
+                continue
+            f, dt = other.filter, m.t_s - other.t_s
+            if math.hypot(f.x + f.vx * dt - m.x, f.y + f.vy * dt - m.y) < reach:
+                return True
+        return False
+
+    def _apply(self, track: _Track, m: _Measurement) -> None:
+        s = self.settings
+        late = track.t_s - m.t_s
+        if late <= 0.0:
+            self._step(track.filter, track.t_s, m)
+            track.t_s = m.t_s
+            track.log.append(m)
+        elif late <= s.late_direct_s:  # another board's frame of the same period: brought forward, no replay
+            f = track.filter
+            grow = (f.puu + f.pvv) / 2.0 * late * late
+            f.update(m.x + f.vx * late, m.y + f.vy * late, m.rxx + grow, m.rxy, m.ryy + grow, s.fade_nis)
+            track.log.append(m)
+        else:  # late: put it in its place and filter the kept measurements again
+            entries = sorted([*track.log, m], key=lambda e: e.t_s)
+            track.log = deque(entries)
+            f, t = track.checkpoint.copy(), track.checkpoint_t_s
+            for e in entries:
+                self._step(f, t, e)
+                t = max(t, e.t_s)
+            track.filter, track.t_s = f, t
+        horizon = track.t_s - s.replay_s
+        while len(track.log) > 1 and track.log[0].t_s < horizon:
+            e = track.log.popleft()
+            self._step(track.checkpoint, track.checkpoint_t_s, e)
+            track.checkpoint_t_s = max(track.checkpoint_t_s, e.t_s)
+
+    def _step(self, f: CvState, t_s: float, m: _Measurement) -> None:
+        """Predict ``f`` from ``t_s`` to the measurement's time (if later) and fuse it."""
+        if m.t_s > t_s:
+            f.predict(m.t_s - t_s, self.settings.accel_sigma_cm_s2)
+        f.update(m.x, m.y, m.rxx, m.rxy, m.ryy, self.settings.fade_nis)
+
+    def _pose(self, rover_id: str, track: _Track, tick: int, quality: float) -> FusedPose:
+        s = self.settings
+        t_tick = tick / s.fps
+        f = track.filter
+        vel = f.velocity
+        x, y = f.x, f.y
+        if vel is not None:
+            x += vel[0] * (t_tick - track.t_s)
+            y += vel[1] * (t_tick - track.t_s)
+        if track.shown is not None and vel is not None and 0 < tick - track.shown[0] <= 3:
+            # a correction (a better board joins, a worse one leaves) is spread over frames, not jumped
+            k, sx, sy = track.shown
+            px, py = sx + vel[0] * (tick - k) / s.fps, sy + vel[1] * (tick - k) / s.fps
+            dx, dy = x - px, y - py
+            step = math.hypot(dx, dy)
+            limit = s.max_correction_cm * (tick - k)
+            if step > limit:
+                x, y = px + dx * limit / step, py + dy * limit / step
+        track.shown = (tick, x, y)
+        theta = track.theta_rad if track.t_s - track.theta_t_s <= s.heading_s else None
+        if theta is None and vel is not None and math.hypot(*vel) >= s.heading_min_speed_cm_s:
+            theta = math.atan2(vel[1], vel[0])
+        recent = tuple(sorted(b for b, t in track.boards_now.items() if track.t_s - t <= 1.5 / s.fps))
+        return FusedPose(
+            rover_id,
+            tick,
+            t_tick,
+            x,
+            y,
+            theta,
+            None if vel is None else vel[0],
+            None if vel is None else vel[1],
+            quality,
+            recent,
+        )
+
+    # -- state ------------------------------------------------------------------------------------------------------
+    def status(self, now_s: float | None = None) -> FusionStatus:
+        """Boards, offsets, rovers and what is missing at ``now_s`` (the fuser's clock; offline: the newest data)."""
+        s = self.settings
+        now = self._latest_s if now_s is None else now_s
+        seen = tuple(sorted(r for r, t in self.tracks.items() if now - t.last_measured_s <= s.timeout_s))
+        missing = tuple(sorted(r for r in self.tracks if r not in seen))
+        silent = []
+        for b in self.boards.values():
+            last = b.last_arrival_s if now_s is not None else b.last_capture_s
+            if not b.online or last is None or now - last > s.board_timeout_s:
+                silent.append(b)
+        return FusionStatus(
+            boards=tuple(self.boards.values()),
+            offsets=self.aligner.estimates(),
+            rovers=seen,
+            missing=missing,
+            missing_boards=tuple(b.edge_id for b in silent),
+            missing_views=tuple(b.view_cm for b in silent if b.view_cm),
+        )

@@ -1,0 +1,199 @@
+"""Three real Mosquitto processes bridged on loopback as `edge-ips broker-config --bridge` writes them: two boards'
+brokers and the central one with the fuser. A bridge that drops: no stale poses, nothing stale replayed."""
+
+from __future__ import annotations
+
+import re
+import time
+import tomllib
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from edge.board_messages import parse_detections, parse_fuser_status
+from edge.cli import main
+from tests.support.mosquitto import Mosquitto
+from tests.support.proxy import Proxy
+from tests.support.runtime import MqttRecorder, Received
+from tests.test_fusion_live import BOARDS, PY, fuser_states, pose_list, poses_after, process
+
+pytestmark = pytest.mark.slow  # real processes and Mosquittos, seconds each
+
+MAX_AGE_S = 1.0  # the fuser's age limit here (a busy machine); the outage below is three times as long
+
+
+@dataclass
+class Deployment:
+    central: Mosquitto
+    boards: dict[str, Mosquitto]
+    proxy: Proxy  # between cam1's bridge and the central broker
+    logins: dict[str, dict[str, dict[str, str]]]
+
+    def central_url(self, table: str, user: str) -> str:
+        password = self.logins["central"][table][user]
+        return f"mqtt://{user}:{password}@127.0.0.1:{self.central_network_port}"
+
+    @property
+    def central_network_port(self) -> int:
+        return self.central.ports[1883]
+
+    def board_url(self, board: str) -> str:
+        return f"mqtt://edge:{self.logins[board]['edge']['edge']}@127.0.0.1:{self.boards[board].port}"
+
+
+def _logins(path: Path) -> dict[str, dict[str, str]]:
+    data = tomllib.loads(path.read_text())
+    return {table: {u: v["password"] for u, v in users.items()} for table, users in data.items()}
+
+
+@pytest.fixture
+def deployment(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[Deployment]:
+    out = tmp_path / "brokers"
+    result = CliRunner().invoke(
+        main,
+        [
+            "broker-config",
+            "--bridge",
+            "--boards",
+            "cam1,cam2",
+            "--central-host",
+            "127.0.0.1",
+            "--rovers",
+            "r1,r2,r3",
+            "--out",
+            str(out),
+        ],
+        catch_exceptions=False,
+    )
+    assert result.exit_code == 0, result.output
+    logins = {name: _logins(out / name / "credentials.toml") for name in ("central", "cam1", "cam2")}
+    with Mosquitto(tmp_path / "run-central", conf_path=out / "central" / "mosquitto.conf") as central:
+        proxy = Proxy(central.ports[1883]).start()
+        boards = {}
+        try:
+            for board in ("cam1", "cam2"):
+                # the bridge's address: the central broker's network listener (cam1's through the cuttable link)
+                port = proxy.port if board == "cam1" else central.ports[1883]
+                conf = out / board / "mosquitto.conf"
+                text = re.sub(r"^address .*$", f"address 127.0.0.1:{port}", conf.read_text(), flags=re.M)
+                if getattr(request, "param", None) == "queueing":  # a bridge set up to keep what it could not send
+                    text = text.replace("cleansession true", "cleansession false")
+                conf.write_text(text)
+                boards[board] = Mosquitto(tmp_path / f"run-{board}", conf_path=conf).start()
+            yield Deployment(central, boards, proxy, logins)
+        finally:
+            for broker in boards.values():
+                broker.stop()
+            proxy.stop()
+
+
+def recorder(url_user: tuple[int, str, str]) -> MqttRecorder:
+    port, user, password = url_user
+    return MqttRecorder("127.0.0.1", port, username=user, password=password)
+
+
+def board_args(d: Deployment, board: str, qos: int = 0) -> list[str]:
+    view, offset = BOARDS["a" if board == "cam1" else "b"]
+    return [PY, "-m", "tests.support.synthetic_board", d.board_url(board), board, view, offset, str(qos)]
+
+
+def bridge_states(messages: list[Received]) -> dict[str, bytes]:
+    return {m.topic.split("/")[3]: m.payload for m in messages if m.topic.endswith("/bridge")}
+
+
+@pytest.mark.parametrize(
+    ("deployment", "qos"),
+    [("as written", 0), ("queueing", 1)],  # as written: QoS 0 detections, nothing queued; else QoS 1, queued
+    indirect=["deployment"],
+)
+def test_through_bridges_a_dropped_link_gives_no_stale_pose_and_replays_nothing_stale(
+    deployment: Deployment, tmp_path: Path, qos: int
+) -> None:
+    d = deployment
+    central_edge = (d.central.port, "edge", d.logins["central"]["edge"]["edge"])  # the loopback listener
+    board_edge = (d.boards["cam1"].port, "edge", d.logins["cam1"]["edge"]["edge"])
+    fuser_cmd = [
+        PY,
+        "-m",
+        "edge.cli",
+        "fuse",
+        "--broker",
+        d.central_url("fusers", "fuser-a"),
+        "--id",
+        "fuser-a",
+        "--max-age",
+        str(MAX_AGE_S),
+    ]
+    with (
+        recorder(central_edge) as at_central,
+        recorder(board_edge) as at_board,
+        process(board_args(d, "cam1", qos), tmp_path),
+        process(board_args(d, "cam2", qos), tmp_path),
+        process(fuser_cmd, tmp_path),
+    ):
+        assert at_central.wait_for(lambda msgs: fuser_states(msgs).get("fuser-a") == "active", 60.0)
+        assert at_central.wait_for(lambda msgs: bridge_states(msgs) == {"cam1": b"1", "cam2": b"1"}, 30.0)
+        assert poses_after(at_central, 0.0, 90)
+        # the canonical poses come back into each board's broker, for rovers and dashboards there
+        assert at_board.wait_for(lambda msgs: len(pose_list(msgs)) >= 30, 30.0)
+
+        t_down = time.time()
+        d.proxy.down()
+        assert at_central.wait_for(lambda msgs: bridge_states(msgs).get("cam1") == b"0", 30.0)  # its last will
+        # r2 circles in cam1's half only: without cam1 nobody sees it, and it gets no pose (no stale one either)
+        assert at_central.wait_for(
+            lambda msgs: "r2" in _latest_fuser_status(msgs).missing and _board(msgs, "cam1").state == "silent", 30.0
+        )
+        assert poses_after(at_central, at_central.messages[-1].t_recv, 200)  # r1, r3 go on through cam2 (3 s+)
+        t_up = time.time()
+        d.proxy.up()
+        assert at_central.wait_for(lambda msgs: bridge_states(msgs).get("cam1") == b"1", 60.0)
+        assert at_central.wait_for(lambda msgs: "r2" in {p.id for _, p in pose_list(msgs, t_up)}, 30.0)  # type: ignore[attr-defined]
+        assert poses_after(at_central, t_up, 60)
+        # What cam1's broker queued for the bridge during the cut (QoS 1 and a bridge that keeps its session:
+        # Mosquitto replays the queue on most reconnects) reached the central broker at least MAX_AGE_S late.
+        replayed = [
+            m
+            for m in at_central.messages
+            if m.topic == "ips/v1/edge/cam1/detections"
+            and t_down + 0.3 < parse_detections(m.payload).t < t_up - MAX_AGE_S - 0.3
+        ]
+        last = max((m.t_recv for m in replayed), default=t_up)
+        assert at_central.wait_for(lambda msgs: _latest_fuser_status(msgs).t > last + 0.1, 30.0)
+        stale = _board(at_central.messages, "cam1").stale
+    assert t_up - t_down > 3 * MAX_AGE_S
+    # the fuser dropped every replayed detection, fused none
+    assert stale >= len(replayed)
+    if qos == 0:
+        assert not replayed
+    # no pose made from the cut-off board's data: r2 had none while cam1 was cut off (but for frames captured within
+    # MAX_AGE_S before the link returned: delivered as it comes back, they are young, not stale), and no rover's
+    # poses ever went back in time (a replay would)
+    r2 = [p.t for _, p in pose_list(at_central.messages) if p.id == "r2"]  # type: ignore[attr-defined]
+    assert not [t for t in r2 if t_down + 0.3 < t < t_up - MAX_AGE_S]
+    frames: dict[str, int] = {}
+    for _, pose in pose_list(at_central.messages):
+        assert pose.frame > frames.get(pose.id, -1), pose  # type: ignore[attr-defined]
+        frames[pose.id] = pose.frame  # type: ignore[attr-defined]
+
+
+def _latest_fuser_status(messages: list[Received]):  # type: ignore[no-untyped-def]
+    statuses = [parse_fuser_status(m.payload) for m in messages if m.topic == "ips/v1/fuser/fuser-a/status"]
+    return statuses[-1]
+
+
+def _board(messages: list[Received], edge: str):  # type: ignore[no-untyped-def]
+    return next(b for b in _latest_fuser_status(messages).boards if b.edge == edge)
+
+
+def test_broker_config_bridge_refuses_what_it_cannot_write(tmp_path: Path) -> None:
+    runner = CliRunner()
+    no_boards = runner.invoke(main, ["broker-config", "--bridge", "--out", str(tmp_path / "a")])
+    assert no_boards.exit_code == 2 and "--boards" in no_boards.output
+    bad = runner.invoke(
+        main, ["broker-config", "--bridge", "--boards", "Cam 1", "--central-host", "c", "--out", str(tmp_path / "b")]
+    )
+    assert bad.exit_code == 2 and "Cam 1" in bad.output
