@@ -232,6 +232,7 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--publish", default=None, help="topic: publish --payload (retained, QoS 1) once connected")
     parser.add_argument("--payload", default="")
     parser.add_argument("--payload-bytes", type=int, default=0, help="instead of --payload: this many bytes")
+    parser.add_argument("--timeout-s", type=float, default=30.0, help="the most to wait for CONNACK (a failure guard)")
     args = parser.parse_args(argv)
     probe = Probe(
         args.host,
@@ -240,6 +241,7 @@ def main(argv: list[str]) -> None:
         user=args.user,
         password=os.environ.get(PASSWORD_ENV),
         bind_address=args.bind,
+        timeout_s=args.timeout_s,
     )
     report: dict[str, Any] = {"accepted": probe.accepted, "connack": probe.connack_code, "error": probe.error}
     if probe.accepted and args.publish:
