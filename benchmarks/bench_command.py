@@ -126,7 +126,10 @@ def _wait_online(http_port: int, edge: subprocess.Popen[bytes]) -> None:
         try:
             with urllib.request.urlopen(f"http://127.0.0.1:{http_port}/healthz", timeout=2):
                 pass
-            with urllib.request.urlopen(f"http://127.0.0.1:{http_port}/api/state", timeout=2) as state:
+            state_request = urllib.request.Request(
+                f"http://127.0.0.1:{http_port}/api/state", headers={"Authorization": f"Bearer {TOKEN}"}
+            )  # the page's state is behind the token when one is set
+            with urllib.request.urlopen(state_request, timeout=2) as state:
                 if json.loads(state.read())["edge_id"] == EDGE_ID and edge.poll() is None:
                     return
         except OSError:
@@ -157,18 +160,32 @@ def run(kind: str, stops: int, workdir: Path) -> list[float]:
     log = (workdir / f"{kind}.log").open("wb")
     try:
         if kind == "mosquitto":
+            local_port = free_port()  # the edge's own clients share its login: they connect to the loopback listener
             files = write_mosquitto_config(
-                workdir / "broker", rovers=list(ROVERS), edge_id=EDGE_ID, port=port, bind="127.0.0.1"
+                workdir / "broker",
+                rovers=list(ROVERS),
+                edge_id=EDGE_ID,
+                port=port,
+                bind="127.0.0.1",
+                local_port=local_port,
             )
             with files.conf.open("a") as conf:  # run as root, Mosquitto would drop to a user that cannot read tmp
                 conf.write("log_dest stderr\n" + ("user root\n" if os.geteuid() == 0 else ""))
             procs.append(subprocess.Popen(["/usr/sbin/mosquitto", "-c", str(files.conf)], stdout=log, stderr=log))
             creds = tomllib.loads(files.credentials.read_text())
             user, password = creds["edge"]["username"], creds["edge"]["password"]
-            edge_args = ["--broker", f"mqtt://{user}:{password}@127.0.0.1:{port}"]
+            edge_args = ["--broker", f"mqtt://{user}:{password}@127.0.0.1:{local_port}"]
             rover_args += ["--credentials", str(files.credentials)]
         else:
+            from edge.broker.credentials import credentials_path, ensure_credentials
+
+            # The logins `edge-ips start` makes in its state directory on the first run, made here first so the
+            # rovers can be given theirs (as `edge-ips flash` provisions them from there).
+            state = workdir / "state"
+            ensure_credentials(state, list(ROVERS))
             env["EDGE_IPS_BROKER__EMBEDDED_PORT"] = str(port)
+            env["EDGE_IPS_EDGE__STATE_DIR"] = str(state)
+            rover_args += ["--credentials", str(credentials_path(state))]
             edge_args = []
         start = [*EDGE_IPS, "start", "--source", "sim", "--edge-id", EDGE_ID, "--http-port", str(http_port), *edge_args]
         edge = subprocess.Popen(start, cwd=workdir, env=env, stdout=log, stderr=log)
@@ -192,6 +209,10 @@ def run(kind: str, stops: int, workdir: Path) -> list[float]:
             listener.close()
         _stop(rovers, signal.SIGINT)
         return latencies
+    except RuntimeError as exc:
+        log.flush()
+        tail = (workdir / f"{kind}.log").read_text(errors="replace").splitlines()[-15:]
+        raise RuntimeError(f"{exc}; the processes' last lines:\n" + "\n".join(tail)) from exc
     finally:
         for proc in reversed(procs):
             _stop(proc)
