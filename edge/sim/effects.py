@@ -99,11 +99,27 @@ class Flicker:
     phase: float = 0.0
 
 
+CHROMA_SAMPLING = {
+    "4:4:4": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444,
+    "4:2:2": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422,
+    "4:2:0": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420,
+}
+
+
 @dataclass(frozen=True)
 class Compression:
-    """JPEG compression as an MJPG webcam delivers it, at ``quality`` (0-100)."""
+    """JPEG compression as an MJPG webcam delivers it, at ``quality`` (0-100), with its chroma sampled at
+    ``chroma`` (``4:2:2``: half the horizontal resolution, as webcams that encode their YUYV stream send it;
+    ``4:2:0``: half in both directions, libjpeg's default; ``4:4:4``: full)."""
 
     quality: int = 85
+    chroma: str = "4:2:0"
+
+    def __post_init__(self) -> None:
+        if self.chroma not in CHROMA_SAMPLING:
+            raise SimulationError(f"compression: chroma must be one of {', '.join(CHROMA_SAMPLING)}")
+        if not 1 <= self.quality <= 100:
+            raise SimulationError("compression: quality must be 1-100")
 
 
 # -- scene effects ----------------------------------------------------------------------------------------------
@@ -360,8 +376,10 @@ def motion_kernel(displacement_px: FloatArray) -> NDArray[np.float32] | None:
     return (kernel / kernel.sum()).astype(np.float32)
 
 
-def jpeg_roundtrip(image: NDArray[np.uint8], quality: int) -> NDArray[np.uint8]:
-    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+def jpeg_roundtrip(image: NDArray[np.uint8], quality: int, chroma: str = "4:2:0") -> NDArray[np.uint8]:
+    """``image`` through a JPEG encoder and decoder (libjpeg's, as a webcam's MJPG stream is decoded)."""
+    params = [cv2.IMWRITE_JPEG_QUALITY, int(quality), cv2.IMWRITE_JPEG_SAMPLING_FACTOR, CHROMA_SAMPLING[chroma]]
+    ok, buf = cv2.imencode(".jpg", image, params)
     if not ok:
         raise SimulationError("JPEG encoding failed")
     return np.asarray(cv2.imdecode(buf, cv2.IMREAD_COLOR), dtype=np.uint8)

@@ -258,7 +258,7 @@ class Renderer:
             work[sl] = self._bg[sl]
         self._dirty = []
         if self.effects.compression is not None:
-            frame = jpeg_roundtrip(frame, self.effects.compression.quality)
+            frame = jpeg_roundtrip(frame, self.effects.compression.quality, self.effects.compression.chroma)
         return frame
 
     def _encode_fast(self, lin: F32) -> NDArray[np.uint16]:
