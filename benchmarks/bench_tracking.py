@@ -46,9 +46,10 @@ import numpy as np  # noqa: E402
 if importlib.util.find_spec("edge") is None:  # run from a checkout without the package installed
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from edge.pipeline import TrackerConfig, build_tracker  # noqa: E402
-from edge.sources import Frame  # noqa: E402
+from edge.tracker_config import TrackerConfig  # noqa: E402
 from edge.trackers.base import CameraPlaneMapping  # noqa: E402
+from edge.trackers.factory import build_tracker  # noqa: E402
+from edge.tracking import Frame  # noqa: E402
 
 SCENARIOS = ("lab", "drift", "sun", "cross", "occlusion", "lens", "crowd")
 METHODS = ("centroid", "particles", "meanshift", "paper")

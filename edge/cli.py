@@ -446,7 +446,7 @@ def track(
     import json
 
     from edge.offline import open_track_job
-    from edge.pipeline import TrackerConfig, load_tracker_config
+    from edge.tracker_config import TrackerConfig, load_tracker_config
 
     config = load_tracker_config(config_path) if config_path is not None else TrackerConfig()
     if method is not None:

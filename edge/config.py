@@ -24,7 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, SecretStr, ValidationError, f
 
 from edge.errors import ConfigError
 from edge.messages import ID_PATTERN
-from edge.pipeline import DEFAULT_ROVERS, RoverConfig
+from edge.tracker_config import DEFAULT_ROVERS, RoverConfig, TrackerSettings, require_unique_ids
 
 ENV_PREFIX = "EDGE_IPS_"
 ENV_CONFIG_PATH = "EDGE_IPS_CONFIG"
@@ -142,36 +142,23 @@ class EdgeConfig(BaseModel):
     camera: CameraSection = Field(default_factory=CameraSection)
     calibration: CalibrationSection = Field(default_factory=CalibrationSection)
     rovers: list[RoverConfig] = Field(default_factory=lambda: list(DEFAULT_ROVERS), min_length=1, max_length=32)
-    tracker: dict[str, Any] = Field(default_factory=dict, description="Tracking pipeline settings (issue 5).")
+    tracker: TrackerSettings = Field(default_factory=TrackerSettings, description="Tracking pipeline settings.")
     broker: BrokerSection = Field(default_factory=BrokerSection)
     recording: RecordingSection = Field(default_factory=RecordingSection)
     http: HttpSection = Field(default_factory=HttpSection)
     dashboard: DashboardSection = Field(default_factory=DashboardSection)
 
-    @field_validator("tracker")
+    @field_validator("tracker", mode="before")
     @classmethod
-    def _tracker_settings(cls, value: dict[str, Any]) -> dict[str, Any]:
-        from edge.pipeline import TrackerConfig
-
-        if "rovers" in value:
+    def _no_rovers_in_tracker(cls, value: Any) -> Any:
+        if isinstance(value, Mapping) and "rovers" in value:
             raise ValueError("the rovers are configured in [[rovers]] tables, not in [tracker]")
-        try:
-            TrackerConfig.model_validate(value)
-        except ValidationError as exc:
-            first = exc.errors()[0]
-            key = ".".join(str(p) for p in first["loc"])
-            message = "unknown key" if first["type"] == "extra_forbidden" else first["msg"]
-            raise ValueError(f"{key}: {message}") from None
         return value
 
     @field_validator("rovers")
     @classmethod
     def _unique_ids(cls, rovers: list[RoverConfig]) -> list[RoverConfig]:
-        ids = [r.id for r in rovers]
-        dupes = sorted({i for i in ids if ids.count(i) > 1})
-        if dupes:
-            raise ValueError(f"rover ids must be unique, repeated: {', '.join(dupes)}")
-        return rovers
+        return require_unique_ids(rovers)
 
 
 @dataclass(frozen=True)

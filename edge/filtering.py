@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -123,6 +124,22 @@ class ConstantVelocityFilter:
         self.p[2, 2] = self.p[3, 3] = self.settings.initial_speed_sigma_cm_s**2
         self.updates = 2 if span > 0 else 1
         self._pending.clear()
+
+
+class FilterFactory(Protocol):
+    """Makes each rover's filter at its first measurement (the pipeline holds one, chosen at build time)."""
+
+    def create_filter(self, xy_cm: tuple[float, float], r_cm2: FloatArray) -> ConstantVelocityFilter: ...
+
+
+@dataclass(frozen=True)
+class ConstantVelocityFilterFactory:
+    """A :class:`FilterFactory` of :class:`ConstantVelocityFilter` with one set of ``settings``."""
+
+    settings: FilterSettings = FilterSettings()
+
+    def create_filter(self, xy_cm: tuple[float, float], r_cm2: FloatArray) -> ConstantVelocityFilter:
+        return ConstantVelocityFilter(self.settings, xy_cm, r_cm2)
 
 
 _TRANSITIONS: dict[float, tuple[FloatArray, FloatArray]] = {}

@@ -20,9 +20,10 @@ from numpy.typing import NDArray
 
 from edge.errors import CalibrationError, ConfigError, SourceError
 from edge.messages import encode_pose
-from edge.pipeline import FrameResult, Tracker, TrackerConfig, build_tracker
-from edge.sources import Frame
+from edge.tracker_config import TrackerConfig
 from edge.trackers.base import CameraPlaneMapping, PlaneMapping
+from edge.trackers.factory import build_tracker
+from edge.tracking import Frame, FrameResult, Tracker
 
 
 @dataclass

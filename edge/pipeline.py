@@ -1,9 +1,4 @@
-"""The tracking pipeline's interface and its implementation: frames in, rover poses out.
-
-The runtime (``edge-ips start``), the offline tracker (``edge-ips track``) and the closed-loop simulator all drive a
-:class:`Tracker` frame by frame and turn each :class:`RoverEstimate` into a pose v1 message.
-
-:class:`Pipeline` is the concrete tracker (see ``docs/tracking.md``):
+"""The tracking pipeline: the windowed :class:`edge.tracking.Tracker` ``edge-ips start`` runs (``docs/tracking.md``).
 
 1. **Acquisition** (first frame, and whenever a rover is lost): one cheap pass over a 1/4-resolution copy of the
    frame classifies pixels by hue and finds each lost rover's marker as a particle of plausible size.
@@ -21,30 +16,27 @@ The runtime (``edge-ips start``), the offline tracker (``edge-ips track``) and t
    while moving faster than ``heading_min_speed_cm_s``, else null.
 
 No full-frame work is done per frame while all rovers are tracked, except refreshing one band of rows of the
-background reference. Build one with :func:`build_tracker` (``method="paper"`` gives the full-frame baseline).
+background reference. Build one with :func:`edge.trackers.build_tracker` (``method="paper"`` gives the full-frame
+baseline, ``edge.trackers.paper``).
 """
 
 from __future__ import annotations
 
 import math
 import time
-import tomllib
 from collections import deque
 from dataclasses import dataclass, field, replace
-from pathlib import Path
-from typing import Literal, Protocol
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
 from edge.errors import ConfigError, SourceError
-from edge.filtering import ConstantVelocityFilter, FilterSettings
-from edge.messages import ID_PATTERN
+from edge.filtering import ConstantVelocityFilter, FilterFactory
 from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr, opponent_planes
-from edge.sources import Frame
+from edge.tracker_config import RoverConfig, TrackerConfig
+from edge.trackers import make_filters, make_tracker
 from edge.trackers.base import (
     Measurement,
     PlaneGrid,
@@ -55,191 +47,10 @@ from edge.trackers.base import (
     WindowTracker,
     world_blob,
 )
+from edge.tracking import Frame, FrameResult, RoverEstimate, StageTimes
 from edge.two_tone import TwoToneGeometry, TwoToneHeading, inner_edge_weights, view_marker
 
 FloatArray = NDArray[np.float64]
-
-
-class RoverConfig(BaseModel):
-    """One rover to track: its id (the topic name) and its marker colour."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    id: str = Field(pattern=ID_PATTERN, description="Rover id, also the MQTT topic segment.")
-    color_bgr: tuple[int, int, int] = Field(description="Nominal marker colour as seen by the camera, B, G, R 0-255.")
-    front_color_bgr: tuple[int, int, int] | None = Field(
-        default=None,
-        description="Two-tone marker: colour of its light (white) front part as the camera sees it (the rest has "
-        "color_bgr); it gives the heading even when the rover stands still. None: a one-colour marker.",
-    )
-    front_fraction: float = Field(default=0.3, gt=0.0, lt=1.0, description="Share of the marker's length in front.")
-
-
-DEFAULT_ROVERS = (
-    RoverConfig(id="red", color_bgr=(40, 40, 200)),
-    RoverConfig(id="green", color_bgr=(60, 170, 40)),
-    RoverConfig(id="blue", color_bgr=(190, 90, 30)),
-)
-
-
-@dataclass(frozen=True)
-class RoverEstimate:
-    """One rover measured in one frame: world pose (cm, rad, cm/s), image position, quality 0..1."""
-
-    rover_id: str
-    x_cm: float
-    y_cm: float
-    theta_rad: float | None
-    vx_cm_s: float | None
-    vy_cm_s: float | None
-    quality: float
-    uv_px: tuple[float, float]
-    box_px: tuple[int, int, int, int] | None = None  # the search window (x0, y0, x1, y1), for overlays
-
-
-@dataclass(frozen=True)
-class FrameResult:
-    """What the tracker made of one frame: estimates of the rovers it saw, ids of those it did not."""
-
-    frame_index: int
-    t_capture_s: float
-    t_mono_s: float
-    estimates: tuple[RoverEstimate, ...]
-    missing: tuple[str, ...]
-    stage_ms: dict[str, float] = field(default_factory=dict)
-
-
-class Tracker(Protocol):
-    """Frame in, rover estimates out. Keeps its own state (background model, filters, identities)."""
-
-    def process(self, frame: Frame) -> FrameResult: ...
-
-
-Method = Literal["centroid", "particles", "meanshift", "paper"]
-
-
-class TrackerConfig(BaseModel):
-    """Everything the tracking pipeline can be tuned with (the ``[tracker]`` section of a configuration file)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    rovers: tuple[RoverConfig, ...] = Field(default=DEFAULT_ROVERS, min_length=1, max_length=32)
-    method: Method = Field(
-        default="particles",
-        description="centroid, particles or meanshift (the paper's three trackers, windowed); paper: the "
-        "straightforward full-frame version of the paper's pipeline, for comparison.",
-    )
-    marker_length_cm: float = Field(
-        default=21.5, gt=0.0, le=200.0, description="Marker side along the rover (21.5 x 16.8 cm: Table II, 361 cm^2)."
-    )
-    marker_width_cm: float = Field(default=16.8, gt=0.0, le=200.0, description="Marker side across the rover.")
-    hue_tolerance_deg: float = Field(default=30.0, gt=0.0, le=90.0, description="Largest hue error of a marker.")
-    min_saturation_fraction: float = Field(
-        default=0.35, gt=0.0, le=1.0, description="Least relative saturation, as a share of the markers' own."
-    )
-    threshold_fraction: float = Field(
-        default=0.5, gt=0.0, lt=1.0, description="k_min / k_max of the automatic threshold interval."
-    )
-    erosion_iterations: int = Field(default=1, ge=0, le=3, description="3x3 erosions before reconstruction.")
-    background_threshold: float = Field(
-        default=0.2, gt=0.0, description="eq. 2 threshold, in normalised chroma (lighting-invariant)."
-    )
-    background_refresh_s: float = Field(default=4.0, gt=0.0, description="Time to refresh the whole reference.")
-    window_margin_cm: float = Field(
-        default=3.0, ge=0.0, description="Search window margin around the marker (plus 6 pixels for its edge band)."
-    )
-    lost_after_frames: int = Field(
-        default=3, ge=1, description="Frames unseen in its window before a rover is searched for everywhere."
-    )
-    acquire_scale: int = Field(
-        default=4,
-        ge=1,
-        le=8,
-        description="Largest downscale factor of the acquisition pass (smaller when the far side's markers are "
-        "too few pixels to survive it).",
-    )
-    min_area_fraction: float = Field(
-        default=0.9,
-        gt=0.0,
-        le=1.0,
-        description="A marker showing less of its usual area is partly hidden or cut off: no pose (its centre would "
-        "be biased).",
-    )
-    max_area_fraction: float = Field(default=1.3, ge=1.0, description="A larger blob is not one marker: no pose.")
-    acquire_area_range: tuple[float, float] = Field(
-        default=(0.5, 2.0),
-        description="Blob area, as a share of the nominal marker area, accepted before the "
-        "rover's own marker area has been learned.",
-    )
-    level_range: tuple[float, float] = Field(
-        default=(0.4, 2.5),
-        description="A marker's colour strength (chroma along its hue) as a share of the configured colour's: the "
-        "light may change it this much; dark clothes of the same hue are far below.",
-    )
-    max_elongation_factor: float = Field(
-        default=1.5, ge=1.0, description="A blob more elongated than the marker's own aspect times this is not it."
-    )
-    heading_min_speed_cm_s: float = Field(default=3.0, ge=0.0, description="Slowest motion that gives a heading.")
-    accel_sigma_cm_s2: float = Field(default=40.0, gt=0.0, description="Filter process noise (acceleration).")
-    measurement_sigma_px: float = Field(default=0.15, gt=0.0, description="Marker centre noise in pixels.")
-    fps: float = Field(default=30.0, gt=0.0, description="Frame rate assumed when frames carry no usable time.")
-
-    @field_validator("rovers")
-    @classmethod
-    def _unique_ids(cls, rovers: tuple[RoverConfig, ...]) -> tuple[RoverConfig, ...]:
-        ids = [r.id for r in rovers]
-        dup = sorted({i for i in ids if ids.count(i) > 1})
-        if dup:
-            raise ValueError(f"rover ids must be unique, repeated: {', '.join(dup)}")
-        return rovers
-
-    @property
-    def marker_area_cm2(self) -> float:
-        return self.marker_length_cm * self.marker_width_cm
-
-    @property
-    def marker_radius_cm(self) -> float:
-        return 0.5 * math.hypot(self.marker_length_cm, self.marker_width_cm)
-
-
-def load_tracker_config(path: Path) -> TrackerConfig:
-    """Read a TOML file: either a ``[tracker]`` table or the tracker keys at top level; ``[[rovers]]`` anywhere.
-
-    Example::
-
-        method = "particles"
-        [[rovers]]
-        id = "red"
-        color_bgr = [40, 40, 200]
-    """
-    try:
-        data = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from exc
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from exc
-    section = data.get("tracker", data)
-    if "tracker" in data and "rovers" in data and "rovers" not in section:
-        section = {**section, "rovers": data["rovers"]}
-    try:
-        return TrackerConfig.model_validate(section)
-    except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-        raise ConfigError(f"{path}: {where}: {first['msg']}") from exc
-
-
-class StageTimes:
-    """Accumulated wall time per named stage within one frame (the rows of the paper's Table IV)."""
-
-    def __init__(self) -> None:
-        self.seconds: dict[str, float] = {}
-
-    def add(self, stage: str, seconds: float) -> None:
-        self.seconds[stage] = self.seconds.get(stage, 0.0) + seconds
-
-    def as_ms(self) -> dict[str, float]:
-        return {k: v * 1e3 for k, v in self.seconds.items()}
 
 
 _WINDOW_PAD_PX = 6  # room for the marker's edge band (2 px ring + 3 px outer band) where a centimetre is few pixels
@@ -278,6 +89,9 @@ class Pipeline:
 
     ``calibration``: the pixel <-> plane mapping (``edge.calibration.Calibration`` or any :class:`PlaneMapping`).
     ``background``: an empty-scene frame (the paper's reference), or None to learn the reference from the video.
+    ``tracker``, ``acquirer``, ``filters``: the window tracker, the one that finds lost rovers and the filters'
+    factory; by default those ``config`` names, with its settings (``edge.trackers.make_tracker``,
+    ``make_filters``).
     """
 
     def __init__(
@@ -286,28 +100,38 @@ class Pipeline:
         calibration: PlaneMapping,
         background: NDArray[np.uint8] | None = None,
         tracker: WindowTracker | None = None,
+        *,
+        acquirer: WindowTracker | None = None,
+        filters: FilterFactory | None = None,
     ) -> None:
-        from edge.trackers import make_tracker
-
         if config.method == "paper":
             raise ConfigError("method 'paper' is the full-frame baseline: build it with build_tracker()")
         self.config = config
         self.calibration = calibration
-        self.maps: PlaneGrid | None = None
-        self.tracker = tracker if tracker is not None else make_tracker(config.method)
+        self.tracker = tracker if tracker is not None else make_tracker(config.method, config)
         # Acquisition always chooses among particles (by area, shape and hue), whatever tracks the rover after.
-        self.acquirer = self.tracker if config.method == "particles" else make_tracker("particles")
+        if acquirer is None:
+            acquirer = self.tracker if config.method == "particles" else make_tracker("particles", config)
+        self.acquirer = acquirer
+        self.filters = filters if filters is not None else make_filters(config)
         colors = [r.color_bgr for r in config.rovers]
         try:
             self.colors = ColorModel.from_colors(colors, config.hue_tolerance_deg, config.min_saturation_fraction)
         except ValueError as exc:
             raise ConfigError(f"rovers: {exc}") from exc
         self._nominal_levels = [math.hypot(*chroma_of_bgr(c)[:2]) for c in colors]
-        self.filter_settings = FilterSettings(accel_sigma_cm_s2=config.accel_sigma_cm_s2)
-        self.tracks = [_RoverTrack(r, i) for i, r in enumerate(config.rovers)]
         self._empty_scene = background
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every rover and the background: the next frame starts tracking afresh, at its own size."""
+        self.maps: PlaneGrid | None = None
+        self.tracks = [_RoverTrack(r, i) for i, r in enumerate(self.config.rovers)]
+        for tr in self.tracks:
+            self.tracker.reset(tr.index)
+            self.acquirer.reset(tr.index)
         self.background: BackgroundModel | None = None
-        self.acquire_scale = config.acquire_scale
+        self.acquire_scale = self.config.acquire_scale
         self._last_t: float | None = None
         self._frames = 0
 
@@ -597,9 +421,7 @@ class Pipeline:
                 box, _ = self._window_box((float(xy[0]), float(xy[1])), radius, image.shape, (u, v))
                 if box is None:
                     continue
-                reset = getattr(self.tracker, "reset", None)
-                if reset is not None:
-                    reset(tr.index)
+                self.tracker.reset(tr.index)
                 m = self._measure(image, tr, box, (u, v), clock, self.acquirer)
                 if m is None:
                     continue
@@ -615,9 +437,7 @@ class Pipeline:
         tr.uv = None
         tr.theta_rad = None
         tr.two_tone.reset()
-        reset = getattr(self.tracker, "reset", None)
-        if reset is not None:
-            reset(tr.index)
+        self.tracker.reset(tr.index)
 
     # -- filtering, identity, heading ---------------------------------------------------------------------------
     def _estimates(
@@ -630,7 +450,7 @@ class Pipeline:
             if tr.index in acquired:
                 obs = acquired[tr.index]
                 m = obs.measurement
-                tr.filter = ConstantVelocityFilter(self.filter_settings, m.xy_cm, obs.r_cm2)
+                tr.filter = self.filters.create_filter(m.xy_cm, obs.r_cm2)
             elif tr.index in measured and tr.filter is not None:
                 obs = measured[tr.index]
                 m = obs.measurement
@@ -724,14 +544,3 @@ def prepare_window(
     return Window(
         box, crop, c1, c2, lum, classes, plane, reference, valid, maps, local, predicted_uv, size, background_threshold
     )
-
-
-def build_tracker(
-    config: TrackerConfig, calibration: PlaneMapping, background: NDArray[np.uint8] | None = None
-) -> Tracker:
-    """The tracker ``config.method`` names: a :class:`Pipeline`, or the paper's full-frame baseline."""
-    if config.method == "paper":
-        from edge.trackers.paper import PaperPipeline
-
-        return PaperPipeline(config, calibration, background)
-    return Pipeline(config, calibration, background)

@@ -30,9 +30,9 @@ from edge.config import BrokerTarget, EdgeConfig, broker_target
 from edge.errors import CalibrationError, MessageError
 from edge.messages import StatusV1, encode_pose
 from edge.metrics import Latency, LatencyWindow, RateMeter, RoverSnapshot, Snapshot
-from edge.pipeline import FrameResult, Tracker
 from edge.publisher import MqttPublisher, Publisher, TlsFiles, offline_status
-from edge.sources import CaptureThread, Frame, FrameSlot, FrameSource, SourceInfo, make_source, parse_source
+from edge.sources import CaptureThread, FrameSlot, FrameSource, SourceInfo, make_source, parse_source
+from edge.tracking import Frame, FrameResult, Tracker
 
 if TYPE_CHECKING:
     from edge.calibration import Calibration
@@ -358,15 +358,15 @@ def default_sim_factory(config: EdgeConfig) -> SimFactory:
 
 def default_tracker_factory(inputs: TrackerInputs) -> Tracker:
     """The tracking pipeline (issue 5) built from the rovers, the ``[tracker]`` settings and the calibration."""
-    from edge.pipeline import TrackerConfig, build_tracker
+    from edge.tracker_config import TrackerConfig
+    from edge.trackers.factory import build_tracker
 
-    settings = TrackerConfig(rovers=tuple(inputs.config.rovers), **inputs.config.tracker)  # validated at load
-    return build_tracker(settings, inputs.calibration)
+    return build_tracker(TrackerConfig.of(inputs.config.tracker, inputs.config.rovers), inputs.calibration)
 
 
 def _with_sim_rovers(config: EdgeConfig, source: FrameSource) -> EdgeConfig:
     """With the simulated camera and no rovers configured, track the simulator's rovers in its colours."""
-    from edge.pipeline import DEFAULT_ROVERS
+    from edge.tracker_config import DEFAULT_ROVERS
 
     own = getattr(source, "rover_configs", None)
     if parse_source(config.camera.source).kind != "sim" or not callable(own) or config.rovers != list(DEFAULT_ROVERS):

@@ -25,22 +25,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.errors import SourceError
+from edge.tracking import Frame
 
 log = logging.getLogger("edge.sources")
-
-
-@dataclass(frozen=True)
-class Frame:
-    """One captured frame.
-
-    ``image``: (H, W, 3) uint8, BGR (OpenCV order). ``index``: frame number from the source (0-based).
-    ``t_capture_s``: wall-clock Unix seconds at grab. ``t_mono_s``: ``time.monotonic()`` at grab.
-    """
-
-    image: NDArray[np.uint8]
-    index: int
-    t_capture_s: float
-    t_mono_s: float
 
 
 @dataclass(frozen=True)

@@ -28,9 +28,8 @@ from edge.dashboard.server import hex_color, static_files
 from edge.errors import MessageError
 from edge.messages import parse_formation
 from edge.metrics import Latency, RoverSnapshot, Snapshot
-from edge.pipeline import FrameResult, RoverEstimate
 from edge.runtime import exact_calibration
-from edge.sources import Frame
+from edge.tracking import Frame, FrameResult, RoverEstimate
 from tests.support.appliance import edge_config, running
 from tests.support.dashboard import FormationSubscriber, call, read_events
 from tests.support.mosquitto import Mosquitto

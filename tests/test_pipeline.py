@@ -12,16 +12,11 @@ import pytest
 from pydantic import ValidationError
 
 from edge.errors import ConfigError
-from edge.pipeline import (
-    DEFAULT_ROVERS,
-    FrameResult,
-    Pipeline,
-    RoverConfig,
-    TrackerConfig,
-    build_tracker,
-    load_tracker_config,
-)
+from edge.pipeline import Pipeline
+from edge.tracker_config import DEFAULT_ROVERS, RoverConfig, TrackerConfig, load_tracker_config
 from edge.trackers import METHODS
+from edge.trackers.factory import build_tracker
+from edge.tracking import FrameResult
 from tests.support.track import COLORS, SynthRover, frame, hue_colors, shared_scene
 
 FPS = 30.0

@@ -89,8 +89,8 @@ def test_rovers_from_environment_as_json() -> None:
             "rovers: rover ids must be unique, repeated: a",
         ),
         ("[edge]\nid = 'x y'\n", {}, r"edge-ips.toml: edge.id"),
-        ("[tracker]\nmethod = 'magic'\n", {}, r"edge-ips.toml: tracker: method: Input should be 'centroid'"),
-        ("[tracker]\nmethd = 'centroid'\n", {}, r"edge-ips.toml: tracker: methd: unknown key"),
+        ("[tracker]\nmethod = 'magic'\n", {}, r"edge-ips.toml: tracker.method: Input should be 'centroid'"),
+        ("[tracker]\nmethd = 'centroid'\n", {}, r"edge-ips.toml: tracker.methd: unknown key"),
         ("[tracker]\nrovers = []\n", {}, r"edge-ips.toml: tracker: the rovers are configured in \[\[rovers\]\]"),
         ("[camera\nsource = 1\n", {}, r"edge-ips.toml: invalid TOML: .*line 1"),
         ("", {"EDGE_IPS_CAMERA__FPS": "fast"}, r"^environment variable EDGE_IPS_CAMERA__FPS: camera.fps"),
@@ -163,10 +163,10 @@ def test_command_line_overrides_are_validated() -> None:
 
 
 def test_tracker_settings_pass_through_to_the_pipeline(tmp_path: Path) -> None:
-    from edge.pipeline import TrackerConfig
+    from edge.tracker_config import TrackerConfig
 
     config = load_config(_write(tmp_path, "[tracker]\nmethod = 'meanshift'\nlost_after_frames = 5\n"), {}).config
-    settings = TrackerConfig(rovers=tuple(config.rovers), **config.tracker)
+    settings = TrackerConfig.of(config.tracker, config.rovers)
     assert (settings.method, settings.lost_after_frames, len(settings.rovers)) == ("meanshift", 5, 3)
 
 

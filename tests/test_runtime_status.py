@@ -9,10 +9,10 @@ import time
 from typing import Any
 
 from edge.messages import edge_status_topic, encode_pose, parse_pose, parse_status, pose_topic
-from edge.pipeline import FrameResult, RoverEstimate
 from edge.publisher import MemoryPublisher
 from edge.runtime import EdgeRuntime
-from edge.sources import Frame, MemorySource, SourceInfo
+from edge.sources import MemorySource, SourceInfo
+from edge.tracking import Frame, FrameResult, RoverEstimate
 from tests.support.runtime import scene
 
 ROVERS = ("red", "green", "blue")

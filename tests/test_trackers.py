@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 
 from edge.camera import MARKER_HEIGHT_CM
-from edge.pipeline import StageTimes, TrackerConfig, prepare_window
+from edge.pipeline import prepare_window
 from edge.segmentation import BackgroundModel, ColorModel
+from edge.tracker_config import TrackerConfig
 from edge.trackers import METHODS, make_tracker
 from edge.trackers.base import NullClock, PlaneGrid, RoverModel, world_blob
+from edge.tracking import StageTimes
 from tests.support.track import COLORS, SynthRover, shared_scene
 
 MARKER_AREA = 22.0 * 17.0

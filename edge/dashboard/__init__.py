@@ -40,12 +40,10 @@ def start_dashboard(
     from edge.dashboard.events import EventHub, Overlay, pose_event, status_event
     from edge.dashboard.formation import FormationDesk, with_targets
     from edge.dashboard.frames import FrameEncoder
-    from edge.pipeline import TrackerConfig
     from edge.sources import parse_source
 
     settings = config.dashboard
-    tracker = TrackerConfig(rovers=tuple(config.rovers), **config.tracker)
-    overlay = Overlay(calibration, tracker.marker_length_cm, tracker.marker_width_cm)
+    overlay = Overlay(calibration, config.tracker.marker_length_cm, config.tracker.marker_width_cm)
     rover_ids = [r.id for r in config.rovers]
     area_cm = calibration.area_cm if calibration is not None else (0.0, 0.0, AREA_WIDTH_CM, AREA_LENGTH_CM)
 

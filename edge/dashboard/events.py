@@ -26,7 +26,7 @@ from edge.dashboard.threads import background_priority
 if TYPE_CHECKING:
     from edge.calibration import Calibration
     from edge.metrics import Snapshot
-    from edge.pipeline import FrameResult
+    from edge.tracking import FrameResult
 
 FloatArray = NDArray[np.float64]
 

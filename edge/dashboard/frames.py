@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from edge.dashboard.threads import background_priority
 from edge.metrics import LatencyWindow
-from edge.sources import Frame
+from edge.tracking import Frame
 
 POLL_S = 0.005  # without ``wait_next``: how often the encoder looks for a newer frame
 

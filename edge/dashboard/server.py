@@ -34,8 +34,8 @@ if TYPE_CHECKING:
     from edge.dashboard.events import EventHub, Overlay
     from edge.dashboard.formation import FormationDesk
     from edge.dashboard.frames import FrameEncoder
-    from edge.pipeline import RoverConfig
     from edge.runtime import EdgeRuntime
+    from edge.tracker_config import RoverConfig
 
 log = logging.getLogger("edge.dashboard")
 

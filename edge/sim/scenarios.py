@@ -34,7 +34,6 @@ from edge.camera import (
     paper_camera,
 )
 from edge.errors import SimulationError
-from edge.pipeline import RoverConfig
 from edge.sim.effects import (
     AutoExposure,
     Compression,
@@ -60,6 +59,7 @@ from edge.sim.trajectories import (
     transfer,
 )
 from edge.sim.world import DriveModel, Plan, Pose, Segment, Straight, Wait, World
+from edge.tracker_config import RoverConfig
 
 FPS = 30.0
 AREA = (0.0, 0.0, AREA_WIDTH_CM, AREA_LENGTH_CM)

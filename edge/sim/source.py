@@ -18,12 +18,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.errors import SimulationError, SourceError
-from edge.pipeline import RoverConfig
 from edge.sim.render import Renderer
 from edge.sim.scenarios import SimSetup, build
 from edge.sim.scene import Heading
 from edge.sim.world import World, WorldState
-from edge.sources import Frame, SourceInfo
+from edge.sources import SourceInfo
+from edge.tracker_config import RoverConfig
+from edge.tracking import Frame
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,7 @@ class PlaneMapping(Protocol):
 
 
 class StageClock(Protocol):
-    """Accumulates the time of named stages (Table IV rows). ``edge.pipeline.StageTimes`` implements it."""
+    """Accumulates the time of named stages (Table IV rows). ``edge.tracking.StageTimes`` implements it."""
 
     def add(self, stage: str, seconds: float) -> None: ...
 
@@ -437,11 +437,16 @@ def measure_core(
 
 
 class WindowTracker(Protocol):
-    """Measures one rover inside its prepared window. Stateless between frames (state lives in the pipeline)."""
+    """Measures one rover inside its prepared window. What it keeps between frames about a rover (mean shift's
+    target model) it forgets on ``reset``; the rest of the state lives in the pipeline."""
 
     name: str
 
     def measure(self, window: Window, rover: RoverModel, clock: StageClock) -> Measurement | None: ...
+
+    def reset(self, index: int) -> None:
+        """Forget rover ``index`` (it was lost, or the pipeline starts afresh)."""
+        ...
 
 
 def area_quality(area_cm2: float, expected_cm2: float) -> float:

@@ -24,6 +24,9 @@ class CentroidTracker:
         self.erosion_iterations = erosion_iterations
         self.ring_px = ring_px
 
+    def reset(self, index: int) -> None:
+        """Nothing to forget: every measurement starts from the window alone."""
+
     def measure(self, window: Window, rover: RoverModel, clock: StageClock) -> Measurement | None:
         found = threshold_marker(window, rover, self.threshold_fraction, clock)
         if found is None:

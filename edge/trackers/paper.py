@@ -20,17 +20,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.errors import ConfigError
-from edge.pipeline import FrameResult, RoverEstimate, StageTimes, TrackerConfig
 from edge.segmentation import ColorModel, erode, fill_holes, opponent_planes
-from edge.sources import Frame
+from edge.tracker_config import TrackerConfig
 from edge.trackers.base import PlaneMapping
+from edge.tracking import Frame, FrameResult, RoverEstimate, StageTimes
 
 PAPER_THRESHOLD_SPAN = 50.0  # the constant subtracted from the maximum (8-bit plane units)
 PAPER_MIN_PEAK = 25.0  # a subtracted plane whose maximum is below this shows no marker
 
 
 class PaperPipeline:
-    """The straightforward full-frame version of the paper's pipeline (a :class:`edge.pipeline.Tracker`)."""
+    """The straightforward full-frame version of the paper's pipeline (a :class:`edge.tracking.Tracker`)."""
 
     def __init__(
         self, config: TrackerConfig, calibration: PlaneMapping, background: NDArray[np.uint8] | None = None
@@ -44,8 +44,12 @@ class PaperPipeline:
         except ValueError as exc:
             raise ConfigError(f"rovers: {exc}") from exc
         self._empty_scene = background
-        self._reference: NDArray[np.float32] | None = None  # (N, H, W) reference planes
         self._period = max(1, round(config.background_refresh_s * config.fps))
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the reference: the next frame (or the empty scene) becomes it again."""
+        self._reference: NDArray[np.float32] | None = None  # (N, H, W) reference planes
         self._frames = 0
 
     def _planes(self, image: NDArray[np.uint8]) -> NDArray[np.float32]:

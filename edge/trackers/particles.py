@@ -37,6 +37,9 @@ class ParticleTracker:
         self.min_area_fraction = min_area_fraction
         self.max_area_fraction = max_area_fraction
 
+    def reset(self, index: int) -> None:
+        """Nothing to forget: every measurement starts from the window alone."""
+
     def measure(self, window: Window, rover: RoverModel, clock: StageClock) -> Measurement | None:
         found = threshold_marker(window, rover, self.threshold_fraction, clock)
         if found is None:

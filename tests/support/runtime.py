@@ -21,8 +21,8 @@ import numpy as np
 import paho.mqtt.client as mqtt
 from numpy.typing import NDArray
 
-from edge.pipeline import DEFAULT_ROVERS, FrameResult, RoverConfig, RoverEstimate
-from edge.sources import Frame
+from edge.tracker_config import DEFAULT_ROVERS, RoverConfig
+from edge.tracking import Frame, FrameResult, RoverEstimate
 
 CM_PER_PX = 1.0  # the fake tracker's whole calibration: one pixel is one centimetre
 

@@ -15,9 +15,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.camera import MARKER_HEIGHT_CM, PinholeCamera, paper_camera
-from edge.pipeline import RoverConfig
-from edge.sources import Frame
+from edge.tracker_config import RoverConfig
 from edge.trackers.base import CameraPlaneMapping
+from edge.tracking import Frame
 
 U8 = NDArray[np.uint8]
 

@@ -10,12 +10,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
-from edge.pipeline import Pipeline, RoverConfig, TrackerConfig
+from edge.pipeline import Pipeline
 from edge.runtime import exact_calibration
 from edge.sim.loop import marker_colors
 from edge.sim.scenarios import SimSetup
 from edge.sim.world import RoverState, WorldState
-from edge.sources import Frame
+from edge.tracker_config import RoverConfig, TrackerConfig
+from edge.tracking import Frame
 
 FPS = 30.0
 Pose = tuple[float, float, float]  # x cm, y cm, theta rad

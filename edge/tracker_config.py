@@ -1,0 +1,173 @@
+"""The tracker's configuration: the rovers to track and every setting of the tracking pipeline, validated once.
+
+:class:`TrackerSettings` is the ``[tracker]`` section of the appliance's configuration file (``edge.config``);
+:class:`TrackerConfig` adds the rovers, which the appliance configures in ``[[rovers]]`` tables. Every setting
+reaches the code that uses it: ``edge.trackers.build_tracker`` hands them to the window trackers, the filter and
+the pipeline (``edge.pipeline``).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Literal, TypeVar
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from edge.errors import ConfigError
+from edge.messages import ID_PATTERN
+
+RoversT = TypeVar("RoversT", bound=Sequence["RoverConfig"])
+
+
+class RoverConfig(BaseModel):
+    """One rover to track: its id (the topic name) and its marker colour."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    id: str = Field(pattern=ID_PATTERN, description="Rover id, also the MQTT topic segment.")
+    color_bgr: tuple[int, int, int] = Field(description="Nominal marker colour as seen by the camera, B, G, R 0-255.")
+    front_color_bgr: tuple[int, int, int] | None = Field(
+        default=None,
+        description="Two-tone marker: colour of its light (white) front part as the camera sees it (the rest has "
+        "color_bgr); it gives the heading even when the rover stands still. None: a one-colour marker.",
+    )
+    front_fraction: float = Field(default=0.3, gt=0.0, lt=1.0, description="Share of the marker's length in front.")
+
+
+DEFAULT_ROVERS = (
+    RoverConfig(id="red", color_bgr=(40, 40, 200)),
+    RoverConfig(id="green", color_bgr=(60, 170, 40)),
+    RoverConfig(id="blue", color_bgr=(190, 90, 30)),
+)
+
+
+Method = Literal["centroid", "particles", "meanshift", "paper"]
+
+
+class TrackerSettings(BaseModel):
+    """Everything the tracking pipeline can be tuned with (the ``[tracker]`` section of a configuration file)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    method: Method = Field(
+        default="particles",
+        description="centroid, particles or meanshift (the paper's three trackers, windowed); paper: the "
+        "straightforward full-frame version of the paper's pipeline, for comparison.",
+    )
+    marker_length_cm: float = Field(
+        default=21.5, gt=0.0, le=200.0, description="Marker side along the rover (21.5 x 16.8 cm: Table II, 361 cm^2)."
+    )
+    marker_width_cm: float = Field(default=16.8, gt=0.0, le=200.0, description="Marker side across the rover.")
+    hue_tolerance_deg: float = Field(default=30.0, gt=0.0, le=90.0, description="Largest hue error of a marker.")
+    min_saturation_fraction: float = Field(
+        default=0.35, gt=0.0, le=1.0, description="Least relative saturation, as a share of the markers' own."
+    )
+    threshold_fraction: float = Field(
+        default=0.5, gt=0.0, lt=1.0, description="k_min / k_max of the automatic threshold interval."
+    )
+    erosion_iterations: int = Field(default=1, ge=0, le=3, description="3x3 erosions before reconstruction.")
+    background_threshold: float = Field(
+        default=0.2, gt=0.0, description="eq. 2 threshold, in normalised chroma (lighting-invariant)."
+    )
+    background_refresh_s: float = Field(default=4.0, gt=0.0, description="Time to refresh the whole reference.")
+    window_margin_cm: float = Field(
+        default=3.0, ge=0.0, description="Search window margin around the marker (plus 6 pixels for its edge band)."
+    )
+    lost_after_frames: int = Field(
+        default=3, ge=1, description="Frames unseen in its window before a rover is searched for everywhere."
+    )
+    acquire_scale: int = Field(
+        default=4,
+        ge=1,
+        le=8,
+        description="Largest downscale factor of the acquisition pass (smaller when the far side's markers are "
+        "too few pixels to survive it).",
+    )
+    min_area_fraction: float = Field(
+        default=0.9,
+        gt=0.0,
+        le=1.0,
+        description="A marker showing less of its usual area is partly hidden or cut off: no pose (its centre would "
+        "be biased).",
+    )
+    max_area_fraction: float = Field(default=1.3, ge=1.0, description="A larger blob is not one marker: no pose.")
+    acquire_area_range: tuple[float, float] = Field(
+        default=(0.5, 2.0),
+        description="Blob area, as a share of the nominal marker area, accepted before the "
+        "rover's own marker area has been learned.",
+    )
+    level_range: tuple[float, float] = Field(
+        default=(0.4, 2.5),
+        description="A marker's colour strength (chroma along its hue) as a share of the configured colour's: the "
+        "light may change it this much; dark clothes of the same hue are far below.",
+    )
+    max_elongation_factor: float = Field(
+        default=1.5, ge=1.0, description="A blob more elongated than the marker's own aspect times this is not it."
+    )
+    heading_min_speed_cm_s: float = Field(default=3.0, ge=0.0, description="Slowest motion that gives a heading.")
+    accel_sigma_cm_s2: float = Field(default=40.0, gt=0.0, description="Filter process noise (acceleration).")
+    measurement_sigma_px: float = Field(default=0.15, gt=0.0, description="Marker centre noise in pixels.")
+    fps: float = Field(default=30.0, gt=0.0, description="Frame rate assumed when frames carry no usable time.")
+
+    @property
+    def marker_area_cm2(self) -> float:
+        return self.marker_length_cm * self.marker_width_cm
+
+    @property
+    def marker_radius_cm(self) -> float:
+        return 0.5 * math.hypot(self.marker_length_cm, self.marker_width_cm)
+
+
+class TrackerConfig(TrackerSettings):
+    """The settings and the rovers they track: what a tracker is built from (``edge.trackers.build_tracker``)."""
+
+    rovers: tuple[RoverConfig, ...] = Field(default=DEFAULT_ROVERS, min_length=1, max_length=32)
+
+    @field_validator("rovers")
+    @classmethod
+    def _unique_ids(cls, rovers: tuple[RoverConfig, ...]) -> tuple[RoverConfig, ...]:
+        return require_unique_ids(rovers)
+
+    @classmethod
+    def of(cls, settings: TrackerSettings, rovers: Sequence[RoverConfig]) -> TrackerConfig:
+        """``settings`` with ``rovers`` (the appliance's ``[tracker]`` section and ``[[rovers]]`` tables)."""
+        return cls(rovers=tuple(rovers), **dict(settings))
+
+
+def require_unique_ids(rovers: RoversT) -> RoversT:
+    """``rovers`` unchanged when no two share an id (a validator's body: raises ValueError naming the repeats)."""
+    ids = [r.id for r in rovers]
+    repeated = sorted({i for i in ids if ids.count(i) > 1})
+    if repeated:
+        raise ValueError(f"rover ids must be unique, repeated: {', '.join(repeated)}")
+    return rovers
+
+
+def load_tracker_config(path: Path) -> TrackerConfig:
+    """Read a TOML file: either a ``[tracker]`` table or the tracker keys at top level; ``[[rovers]]`` anywhere.
+
+    Example::
+
+        method = "particles"
+        [[rovers]]
+        id = "red"
+        color_bgr = [40, 40, 200]
+    """
+    try:
+        data = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from exc
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from exc
+    section = data.get("tracker", data)
+    if "tracker" in data and "rovers" in data and "rovers" not in section:
+        section = {**section, "rovers": data["rovers"]}
+    try:
+        return TrackerConfig.model_validate(section)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
+        raise ConfigError(f"{path}: {where}: {first['msg']}") from exc

@@ -1,0 +1,165 @@
+"""The package's import graph, read from the source: no cycles, and the vision core stays free of I/O.
+
+Every ``import`` statement counts, including those inside functions (a lazy import is still a dependency);
+imports under ``if TYPE_CHECKING:`` are left out of the cycle check, since they never run.
+"""
+
+from __future__ import annotations
+
+import ast
+from functools import cache
+from pathlib import Path
+
+import pytest
+
+EDGE = Path(__file__).resolve().parent.parent / "edge"
+
+# The vision core: pure functions and small types over numpy arrays, the tracker's interface and configuration.
+CORE = (
+    "edge.segmentation",
+    "edge.filtering",
+    "edge.two_tone",
+    "edge.trackers",
+    "edge.calibration",
+    "edge.camera",
+    "edge.messages",
+    "edge.tracking",
+    "edge.tracker_config",
+    "edge.pipeline",
+)
+# What the core must not reach, even indirectly: frame sources, the appliance, networking, the simulator, the UI.
+NOT_IN_CORE = (
+    "edge.sources",
+    "edge.runtime",
+    "edge.publisher",
+    "edge.broker",
+    "edge.sim",
+    "edge.dashboard",
+    "edge.cli",
+    "paho",
+    "click",
+)
+
+
+def _within(name: str, prefixes: tuple[str, ...]) -> bool:
+    return any(name == p or name.startswith(p + ".") for p in prefixes)
+
+
+@cache
+def modules() -> dict[str, Path]:
+    found: dict[str, Path] = {}
+    for path in sorted(EDGE.rglob("*.py")):
+        parts = list(path.relative_to(EDGE.parent).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts.pop()
+        found[".".join(parts)] = path
+    return found
+
+
+def _is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+    )
+
+
+@cache
+def imports(module: str, type_checking: bool) -> frozenset[str]:
+    """Names ``module`` imports: an edge module where the import names one, else the top-level package."""
+    path = modules()[module]
+    package = module.split(".") if path.name == "__init__.py" else module.split(".")[:-1]
+    found: set[str] = set()
+
+    def target(name: str) -> str:
+        return name if name in modules() or not name.startswith("edge.") else name.rsplit(".", 1)[0]
+
+    def visit(node: ast.AST) -> None:
+        if isinstance(node, ast.If) and _is_type_checking(node.test) and not type_checking:
+            for child in node.orelse:
+                visit(child)
+            return
+        if isinstance(node, ast.Import):
+            found.update(target(alias.name) for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package[: len(package) - node.level + 1]
+                base = ".".join([*anchor, *([node.module] if node.module else [])])
+            for alias in node.names:
+                full = f"{base}.{alias.name}"
+                found.add(full if full in modules() else target(base))
+        for child in ast.iter_child_nodes(node):
+            visit(child)
+
+    visit(ast.parse(path.read_text(encoding="utf-8")))
+    found.discard(module)
+    return frozenset(found)
+
+
+def reachable(module: str, type_checking: bool = True) -> set[str]:
+    """Everything ``module`` imports, directly or through other edge modules."""
+    seen: set[str] = set()
+    todo = [module]
+    while todo:
+        for name in imports(todo.pop(), type_checking):
+            if name not in seen:
+                seen.add(name)
+                if name in modules():
+                    todo.append(name)
+    return seen
+
+
+def cycles(type_checking: bool) -> list[list[str]]:
+    """The import graph's cycles: its strongly connected components of more than one module (Tarjan)."""
+    graph = {m: sorted(i for i in imports(m, type_checking) if i in modules()) for m in modules()}
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def strong(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in graph[v]:
+            if w not in index:
+                strong(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in graph:
+        if v not in index:
+            strong(v)
+    return found
+
+
+def test_the_reader_sees_every_module_and_its_imports() -> None:
+    assert {"edge.pipeline", "edge.trackers", "edge.trackers.paper", "edge.sim.loop"} <= set(modules())
+    assert "edge.trackers.base" in imports("edge.pipeline", False)
+    assert "edge.dashboard" in imports("edge.runtime", False)  # a lazy import inside a function counts
+    assert "edge.runtime" in imports("edge.dashboard.server", True)  # under TYPE_CHECKING
+    assert "edge.runtime" not in imports("edge.dashboard.server", False)
+
+
+def test_no_module_imports_itself_back_through_others() -> None:
+    assert cycles(type_checking=False) == []
+
+
+@pytest.mark.parametrize("module", [m for m in sorted(modules()) if _within(m, CORE)])
+def test_the_vision_core_does_no_io_and_knows_no_appliance(module: str) -> None:
+    reached = reachable(module)
+    assert sorted(n for n in reached if _within(n, NOT_IN_CORE)) == []
+
+
+@pytest.mark.parametrize("module", ["edge.config", "edge.tracker_config", "edge.tracking"])
+def test_configuration_and_interface_do_not_depend_on_the_tracker_implementation(module: str) -> None:
+    reached = reachable(module)
+    assert sorted(n for n in reached if _within(n, ("edge.pipeline", "edge.trackers", "cv2"))) == []

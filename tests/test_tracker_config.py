@@ -1,0 +1,165 @@
+"""Every tracker setting reaches the code that uses it: changing one changes what the tracker reports."""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from edge.camera import MARKER_HEIGHT_CM
+from edge.config import load_config
+from edge.errors import SourceError
+from edge.pipeline import Pipeline
+from edge.runtime import TrackerInputs, default_tracker_factory
+from edge.sources import MemorySource
+from edge.tracker_config import RoverConfig, TrackerConfig, TrackerSettings
+from edge.trackers import CentroidTracker
+from edge.trackers.factory import build_tracker
+from edge.tracking import Frame
+from tests.support.track import COLORS, SynthRover, frame, shared_scene
+
+FPS = 30.0
+FRAMES = 30
+HIDDEN = range(10, 18)  # blue is out of sight for these frames: lost after lost_after_frames, then found again
+
+
+def _rovers(i: int) -> list[SynthRover]:
+    t = i / FPS
+    return [
+        SynthRover("red", 100.0 + 25.0 * t, 250.0, 0.0, COLORS["red"]),
+        SynthRover(
+            "green",
+            250.0 + 60.0 * math.cos(0.4 * t),
+            350.0 + 60.0 * math.sin(0.4 * t),
+            0.4 * t + math.pi / 2,
+            COLORS["green"],
+        ),
+        SynthRover("blue", 80.0 + 15.0 * t, 100.0 + 15.0 * t, math.pi / 4, COLORS["blue"], visible=i not in HIDDEN),
+    ]
+
+
+@cache
+def clip() -> tuple[np.ndarray, ...]:
+    rng = np.random.default_rng(3)
+    return tuple(shared_scene().render(_rovers(i), noise_sigma=2.0, rng=rng) for i in range(FRAMES))
+
+
+def track(untimed: bool = False, **settings: Any) -> list[tuple[object, ...]]:
+    """Everything the tracker reports for the clip (frames stamped at one instant when ``untimed``)."""
+    rovers = tuple(RoverConfig(id=r.id, color_bgr=r.color_bgr) for r in _rovers(0))
+    tracker = build_tracker(TrackerConfig(rovers=rovers, **settings), shared_scene().mapping)
+    out = []
+    for i, image in enumerate(clip()):
+        f = Frame(image, i, 0.0, 0.0) if untimed else frame(image, i, FPS)
+        result = tracker.process(f)
+        out.append((*result.estimates, *result.missing))
+    return out
+
+
+# (setting changed, the settings both runs share): the change must show in what the tracker reports.
+CASES: list[tuple[dict[str, Any], dict[str, Any]]] = [
+    ({"method": "centroid"}, {}),
+    ({"marker_length_cm": 30.0}, {}),
+    ({"marker_width_cm": 12.0}, {}),
+    ({"hue_tolerance_deg": 8.0}, {}),
+    ({"min_saturation_fraction": 0.9}, {}),
+    ({"threshold_fraction": 0.9}, {}),
+    ({"threshold_fraction": 0.9}, {"method": "centroid"}),
+    ({"erosion_iterations": 3}, {"method": "centroid"}),
+    ({"erosion_iterations": 3}, {"method": "paper"}),
+    ({"window_margin_cm": 20.0}, {}),
+    ({"lost_after_frames": 20}, {}),
+    ({"acquire_scale": 1}, {}),
+    ({"min_area_fraction": 1.0}, {}),
+    ({"max_area_fraction": 1.0}, {}),
+    ({"acquire_area_range": (1.5, 2.0)}, {}),
+    ({"level_range": (1.5, 2.5)}, {}),
+    ({"max_elongation_factor": 1.0}, {}),
+    ({"heading_min_speed_cm_s": 100.0}, {}),
+    ({"accel_sigma_cm_s2": 400.0}, {}),
+    ({"measurement_sigma_px": 2.0}, {}),
+    ({"fps": 10.0}, {"untimed": True}),  # the frame rate assumed when frames carry no usable time
+    ({"fps": 10.0}, {"method": "paper", "background_refresh_s": 0.5}),  # and the reference's refresh period
+    ({"background_refresh_s": 0.2}, {"method": "paper"}),
+]
+
+
+def test_the_table_names_every_setting() -> None:
+    named = {key for changes, _ in CASES for key in changes} | {"background_threshold"}  # its own test below
+    assert named == set(TrackerSettings.model_fields)
+
+
+@pytest.mark.parametrize(
+    ("changes", "base"), CASES, ids=[f"{next(iter(c))}-{b.get('method', 'particles')}" for c, b in CASES]
+)
+def test_each_setting_changes_what_the_tracker_reports(changes: dict[str, Any], base: dict[str, Any]) -> None:
+    before = track(**base)
+    assert sum(len(f) for f in before) == 3 * FRAMES  # every rover reported each frame, as seen or missing
+    after = track(**base, **changes)
+    assert after != before
+
+
+def test_the_background_threshold_tells_the_rover_from_a_poster_of_its_colour() -> None:
+    # A printed poster of the rover's colour, bigger than a marker, lies beside it on the floor of the empty scene.
+    # While the window holds both, what differs from the empty scene (eq. 2, ``background_threshold``) is the
+    # rover; a threshold so high that nothing differs leaves only the blobs' shapes and places to choose by.
+    scene = shared_scene()
+    u, v = scene.camera.project(np.array([[150.0, 250.0, MARKER_HEIGHT_CM]]))[0]
+    across = np.array([-v, u]) / math.hypot(u, v)  # an image direction, so that neither blob is favoured
+    px, py = scene.mapping.pixel_to_world(np.array([[u - 25.0 * across[0], v - 25.0 * across[1]]]))[0]
+    poster = SynthRover("poster", float(px), float(py), 0.0, COLORS["red"], marker_cm=(32.6, 25.2), body_cm=(34, 27))
+    rover = SynthRover("red", 150.0, 250.0, 0.0, COLORS["red"])
+    rng = np.random.default_rng(3)
+    images = [scene.render([poster, rover], noise_sigma=2.0, rng=rng) for _ in range(16)]
+    empty = scene.render([poster])
+
+    def positions(**settings: Any) -> list[list[tuple[float, float]]]:
+        config = TrackerConfig(rovers=(rover.config(),), window_margin_cm=40.0, **settings)
+        tracker = build_tracker(config, scene.mapping, empty)
+        results = [tracker.process(frame(image, i, FPS)) for i, image in enumerate(images)]
+        return [[(round(e.x_cm), round(e.y_cm)) for e in r.estimates] for r in results]
+
+    assert positions() == [[(150, 250)]] * len(images)
+    assert positions(background_threshold=5.0) != positions()
+
+
+def test_the_window_trackers_get_the_configured_threshold_and_erosion() -> None:
+    config = TrackerConfig(method="centroid", threshold_fraction=0.7, erosion_iterations=2)
+    tracker = Pipeline(config, shared_scene().mapping)
+    assert isinstance(tracker.tracker, CentroidTracker)
+    assert (tracker.tracker.threshold_fraction, tracker.tracker.erosion_iterations) == (0.7, 2)
+    acquirer = tracker.acquirer  # acquisition chooses among particles, with the same settings
+    assert (acquirer.name, acquirer.threshold_fraction, acquirer.erosion_iterations) == ("particles", 0.7, 2)  # type: ignore[attr-defined]
+
+
+def test_the_configuration_files_tracker_section_reaches_the_appliances_tracker(tmp_path: Path) -> None:
+    path = tmp_path / "edge-ips.toml"
+    path.write_text("[tracker]\nmethod = 'centroid'\nthreshold_fraction = 0.7\nerosion_iterations = 2\n")
+    config = load_config(path, {}).config
+    assert isinstance(config.tracker, TrackerSettings)
+    source = MemorySource([clip()[0]])
+    inputs = TrackerInputs(config, source, source.open(), shared_scene().mapping)
+    tracker = default_tracker_factory(inputs)
+    assert isinstance(tracker, Pipeline)
+    assert tracker.config.rovers == tuple(config.rovers)
+    assert isinstance(tracker.tracker, CentroidTracker)
+    assert (tracker.tracker.threshold_fraction, tracker.tracker.erosion_iterations) == (0.7, 2)
+
+
+@pytest.mark.parametrize("method", ["particles", "meanshift", "paper"])
+def test_reset_starts_over_as_on_the_first_frame_at_any_size(method: str) -> None:
+    rovers = tuple(RoverConfig(id=r.id, color_bgr=r.color_bgr) for r in _rovers(0))
+    tracker = build_tracker(TrackerConfig(rovers=rovers, method=method), shared_scene().mapping)
+    first = [tracker.process(frame(image, i, FPS)).estimates for i, image in enumerate(clip()[:6])]
+    tracker.reset()
+    again = [tracker.process(frame(image, i, FPS)).estimates for i, image in enumerate(clip()[:6])]
+    assert again == first
+    if method != "paper":  # the full-frame baseline has no state tied to the image size
+        with pytest.raises(SourceError, match="the stream started at 1280x720"):
+            tracker.process(frame(clip()[0][:360, :640], 6, FPS))
+    tracker.reset()
+    tracker.process(frame(clip()[0][:360, :640], 0, FPS))
