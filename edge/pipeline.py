@@ -47,6 +47,7 @@ from edge.trackers.base import (
     WindowTracker,
     world_blob,
 )
+from edge.trackers.refine import refine_outline
 from edge.tracking import Frame, FrameResult, RoverEstimate, StageTimes
 from edge.two_tone import TwoToneGeometry, TwoToneHeading, inner_edge_weights, view_marker
 
@@ -296,7 +297,12 @@ class Pipeline:
         m = (tracker or self.tracker).measure(window, model, clock)
         if m is None or not self._plausible(m, model.marker_area_cm2, learned, tr):
             return None
-        if tr.config.front_color_bgr is not None:
+        if tr.config.front_color_bgr is None:
+            t0 = time.perf_counter()
+            size = (self.config.marker_length_cm, self.config.marker_width_cm)
+            m = refine_outline(window, m, size, tr.index)
+            clock.add("outline", time.perf_counter() - t0)
+        else:
             two_tone = self._two_tone(window, m, tr)
             if two_tone is None:
                 return None  # without a heading the centre of a two-tone marker is not known

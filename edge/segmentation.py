@@ -40,6 +40,22 @@ HUE_BINS = 720  # 0.5 degree resolution of the hue look-up table
 NO_ROVER = -1
 
 
+# -- linear light ------------------------------------------------------------------------------------------------
+def _srgb_to_linear() -> NDArray[np.float32]:
+    v = np.arange(256, dtype=np.float64) / 255.0
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+# 8-bit value -> linear light (0..1): webcams encode with the sRGB tone curve (or BT.709, or a power law near 2.2,
+# all within a few per cent of it); light mixes linearly, 8-bit values do not.
+LINEAR = _srgb_to_linear()
+
+
+def linear_bgr(bgr: U8) -> F32:
+    """(h, w, 3) uint8 BGR -> (h, w, 3) float32 linear light through :data:`LINEAR`."""
+    return np.asarray(cv2.LUT(bgr, LINEAR), dtype=np.float32)
+
+
 # -- colour planes -----------------------------------------------------------------------------------------------
 def chroma_of_bgr(color_bgr: Sequence[float]) -> tuple[float, float, float]:
     """``(c1, c2, luminance)`` of one BGR colour (0-255): the opponent chroma and the mean of the channels."""

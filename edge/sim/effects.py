@@ -5,14 +5,16 @@ image; the renderer (:mod:`edge.sim.render`) applies them. Light is handled in l
 the nominal exposure); the camera's tone curve (a power law, gamma 2.2) turns it into 8-bit values.
 
 Camera effects
-    exposure and tone curve, auto-exposure with lag, sensor read and shot noise (spatially correlated by
-    demosaicing), vignetting, motion blur over the exposure time, rolling flicker from mains lighting (each row is
-    exposed at a different moment of the lamps' 100/120 Hz ripple), JPEG compression. Lens distortion is part of the
-    camera model (:class:`edge.camera.PinholeCamera`).
+    exposure and tone curve, auto-exposure with lag, colour crosstalk and white balance, fixed or automatic with a
+    lag (:mod:`edge.sim.colour`), sensor read and shot noise (spatially correlated by demosaicing), vignetting,
+    motion blur over the exposure time, rolling flicker from mains lighting (each row is exposed at a different
+    moment of the lamps' 100/120 Hz ripple), JPEG compression with subsampled chroma. Lens distortion is part of the
+    camera model (:class:`edge.camera.PinholeCamera`). :mod:`edge.sim.cameras` draws whole cameras from a family.
 Scene effects
     global illumination drift and lamps switching, a sunlit window patch that changes strength and colour
     temperature as clouds pass, a specular glare of the sun on the glossy floor, a person walking in and standing in
-    the view for a while. Rovers leaving and re-entering the view are trajectories (:mod:`edge.sim.world`).
+    the view for a while, boxes left standing in the area. Rovers leaving and re-entering the view are trajectories
+    (:mod:`edge.sim.world`).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.errors import SimulationError
+from edge.sim.colour import AutoWhiteBalance, ColourResponse
 
 FloatArray = NDArray[np.float64]
 Bgr = tuple[float, float, float]
@@ -235,11 +238,27 @@ class Occluder:
 
 
 @dataclass(frozen=True)
+class Prop:
+    """A box put down in the area (a grey or white carton, a red crate) at ``appears_s`` and left there:
+    ``size_cm`` (length along ``heading_rad``, width, height) at ``(x_cm, y_cm)``, diffuse ``albedo_bgr``. It hides
+    what is behind it; it is part of the empty scene only from ``appears_s`` on."""
+
+    x_cm: float
+    y_cm: float
+    size_cm: tuple[float, float, float] = (40.0, 30.0, 30.0)
+    heading_rad: float = 0.0
+    albedo_bgr: Bgr = (0.55, 0.55, 0.55)
+    appears_s: float = 0.0
+
+
+@dataclass(frozen=True)
 class Effects:
     """Every effect of a scenario. ``None`` switches an effect off."""
 
     exposure: Exposure = Exposure()
     auto_exposure: AutoExposure | None = AutoExposure()
+    colour: ColourResponse = field(default_factory=ColourResponse)
+    auto_white_balance: AutoWhiteBalance | None = None
     noise: SensorNoise | None = SensorNoise()
     vignetting: Vignetting | None = Vignetting()
     optics: Optics | None = Optics()
@@ -250,11 +269,13 @@ class Effects:
     sun: SunPatch | None = None
     glare: Glare | None = None
     occluders: tuple[Occluder, ...] = field(default_factory=tuple)
+    props: tuple[Prop, ...] = field(default_factory=tuple)
 
     def describe(self) -> list[str]:
         """One line per active effect with its parameters (for ``scenario.json`` and the docs)."""
         lines = []
-        for name in ("exposure", "auto_exposure", "noise", "optics", "vignetting", "flicker", "compression", "drift"):
+        names = ("exposure", "auto_exposure", "colour", "auto_white_balance", "noise", "optics", "vignetting")
+        for name in (*names, "flicker", "compression", "drift"):
             value = getattr(self, name)
             if value is not None:
                 lines.append(f"{name}: {value}")
@@ -265,6 +286,7 @@ class Effects:
             if value is not None:
                 lines.append(f"{name}: {value}")
         lines.extend(f"occluder: {o}" for o in self.occluders)
+        lines.extend(f"prop: {p}" for p in self.props)
         return lines
 
 

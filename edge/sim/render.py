@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any, cast
 
 import cv2
 import numpy as np
@@ -28,10 +29,12 @@ from numpy.typing import NDArray
 from edge.camera import PinholeCamera
 from edge.errors import SimulationError
 from edge.sim.backdrop import Backdrop, encode_linear, prerender
+from edge.sim.colour import awb_gains, tone_encode, tone_table
 from edge.sim.effects import (
     Effects,
     NoiseBank,
     Occluder,
+    Prop,
     auto_exposure_gains,
     blur_kernel,
     drift_factor,
@@ -122,7 +125,13 @@ class Renderer:
         self._looks = {look.rover_id: look for look in scene.rovers}
         self._gamma = effects.exposure.gamma
         self._backdrop: Backdrop = prerender(camera, scene, effects, supersample)
-        self._bg = encode_linear(self._backdrop.room, self._gamma, HEADROOM)
+        # The camera's fixed colour response (crosstalk, white balance) acts on linear light: the static room once,
+        # everything drawn per frame in its window. Automatic white balance and the tone curve come last.
+        colour = effects.colour
+        self._colour = None if colour.is_identity else colour.matrix.astype(np.float32)
+        self._room = self._to_camera(self._backdrop.room)
+        self._tone = tone_table(colour.tone, self._gamma, self._gamma)
+        self._bg = encode_linear(self._room, self._gamma, HEADROOM)
         self._work = self._bg.copy()
         self._decode = ((np.arange(65536, dtype=np.float64) / 65535.0) ** self._gamma * HEADROOM).astype(np.float32)
         self._encode = encode_linear(np.linspace(0.0, HEADROOM, 65536, dtype=np.float32), self._gamma, HEADROOM)
@@ -136,6 +145,13 @@ class Renderer:
         self._sigma_luts: dict[int, NDArray[np.uint8]] = {}
         self._flicker_rows, self._flicker_period = self._flicker_table()
         self._ae_gains = np.ones(0)
+        self._awb_gains = np.ones((0, 3))
+        self._room_mean = self._room.reshape(-1, 3).mean(axis=0).astype(np.float64)
+        self._sun_mean = (
+            self._backdrop.sun.reshape(-1, 3).mean(axis=0).astype(np.float64)
+            if self._backdrop.sun is not None
+            else np.zeros(3)
+        )
         self._aruco = {look.rover_id: aruco_cells(look) for look in scene.rovers if look.heading == "aruco"}
         self._subdivide = 6 if camera.has_distortion else 1
         self.visibility: dict[str, float] = {}
@@ -151,7 +167,8 @@ class Renderer:
         return self._camera(frame, frame_index, t_s)
 
     def background(self, frame_index: int = 0) -> Image:
-        """The empty scene (no rovers, no people) as the camera captures it at ``frame_index``."""
+        """The empty scene (no rovers, no people; the props already put down) as the camera captures it at
+        ``frame_index``."""
         t_s = frame_index / self.fps
         frame = self._compose((), t_s, people=False)
         return self._camera(frame, frame_index, t_s, noise_stream=1)  # a capture of its own, not frame i's noise
@@ -165,11 +182,17 @@ class Renderer:
     def nominal_marker_bgr(self, rover_id: str) -> tuple[int, int, int]:
         """The marker's colour as the camera sees it in the middle of the working area under the nominal light."""
         look = self._look(rover_id)
-        centre = self.camera.project(np.array([[195.75, 274.75, look.body_height_cm]]))[0]
+        return self.nominal_bgr(look.marker_bgr, look.body_height_cm)
+
+    def nominal_bgr(self, albedo_bgr: tuple[float, float, float], z_cm: float) -> tuple[int, int, int]:
+        """A horizontal surface of ``albedo_bgr`` at height ``z_cm`` in the middle of the working area as the camera
+        sees it under the nominal light (its colour response and first frame's white balance included)."""
+        centre = self.camera.project(np.array([[195.75, 274.75, z_cm]]))[0]
         u = int(np.clip(round(centre[0]), 0, self.width_px - 1))
         v = int(np.clip(round(centre[1]), 0, self.height_px - 1))
-        lin = np.asarray(look.marker_bgr) * float(self._backdrop.illumination[v, u])
-        enc = np.clip(lin, 0.0, 1.0) ** (1.0 / self._gamma) * 255.0
+        lin = np.asarray(albedo_bgr, dtype=np.float32) * float(self._backdrop.illumination[v, u])
+        lin = self._to_camera(lin.reshape(1, 1, 3)).reshape(3) * self._white_balance(0)
+        enc = tone_encode(lin, self.effects.colour.tone, self._gamma) * 255.0
         b, g, r = (round(float(c)) for c in enc)
         return b, g, r
 
@@ -184,11 +207,11 @@ class Renderer:
         if self._sun_window is not None and sun_rel > 0:
             win = self._sun_window
             sl = win.slices
-            lin = self._backdrop.room[sl] + self._sun_floor(sl, sun_rgb, sun_rel)
+            lin = self._room[sl] + self._sun_floor(sl, sun_rgb, sun_rel)
             work[sl] = self._encode_fast(lin)
             dirty.append(win)
         # Far to near, so nearer objects cover farther ones.
-        items: list[tuple[float, RoverState | Occluder]] = []
+        items: list[tuple[float, RoverState | Occluder | Prop]] = []
         cam = self.camera.position_cm
         for r in rovers:
             items.append((math.hypot(r.x_cm - cam[0], r.y_cm - cam[1]), r))
@@ -197,12 +220,17 @@ class Renderer:
                 pose = person.pose(t_s)
                 if pose is not None:
                     items.append((math.hypot(pose[0] - cam[0], pose[1] - cam[1]), person))
+        for prop in self.effects.props:
+            if prop.appears_s <= t_s:
+                items.append((math.hypot(prop.x_cm - cam[0], prop.y_cm - cam[1]), prop))
         items.sort(key=lambda item: -item[0])
         drawn: list[_Drawn] = []
         self.visibility = {r.rover_id: 0.0 for r in rovers}
         for _, item in items:
             if isinstance(item, RoverState):
                 result = self._draw_rover(work, item, sun_rgb, sun_rel)
+            elif isinstance(item, Prop):
+                result = self._draw_boxes(work, [_prop_box(item)])
             else:
                 result = self._draw_person(work, item, t_s)
             if result is None:
@@ -222,14 +250,18 @@ class Renderer:
         return work
 
     def _camera(self, work: NDArray[np.uint16], frame_index: int, t_s: float, noise_stream: int = 0) -> Image:
-        """Exposure, tone, flicker, noise, compression: the camera's own processing of the composed light.
+        """Exposure, white balance, flicker, noise, tone curve, compression: the camera's own processing of the
+        composed light.
 
         Done in bands of rows so each band's data stays in cache through all the steps (twice as fast as whole-frame
-        passes on this machine).
+        passes on this machine). Noise is added in the renderer's working power-law code, before the camera's own
+        tone curve (a 256-entry table when it is another curve), as a sensor's noise precedes its tone curve.
         """
         drift = drift_factor(self.effects.drift, t_s)
         gain = float(self._auto_exposure(frame_index))
         enc_gain = (drift * gain * HEADROOM) ** (1.0 / self._gamma) * 255.0 / 65535.0
+        wb = self._white_balance(frame_index) if self.effects.auto_white_balance is not None else None
+        channel_gains = None if wb is None else tuple(float(enc_gain * g ** (1.0 / self._gamma)) for g in wb)
         band = None
         if self._flicker_rows is not None and self.effects.flicker is not None:
             offset = int(flicker_phase_rows(self.effects.flicker, t_s)) % self._flicker_period
@@ -248,11 +280,17 @@ class Renderer:
         for r0 in range(0, self.height_px, ROW_BAND):
             r1 = min(r0 + ROW_BAND, self.height_px)
             rows = frame[r0:r1]
-            cv2.convertScaleAbs(work[r0:r1], dst=rows, alpha=enc_gain)
+            if channel_gains is None:
+                cv2.convertScaleAbs(work[r0:r1], dst=rows, alpha=enc_gain)
+            else:
+                scalar = cast(Any, (*channel_gains, 0.0))  # one gain per channel (an OpenCV scalar)
+                cv2.multiply(work[r0:r1], scalar, dst=rows, dtype=cv2.CV_8U)
             if band is not None:
                 cv2.multiply(rows, band[r0:r1], dst=rows, scale=1.0 / 128.0)
             if noise is not None and lut is not None:
                 noise.add(rows, r0, lut, draw)
+            if self._tone is not None:
+                cv2.LUT(rows, self._tone, dst=rows)
         for win in self._dirty:
             sl = win.slices
             work[sl] = self._bg[sl]
@@ -260,6 +298,12 @@ class Renderer:
         if self.effects.compression is not None:
             frame = jpeg_roundtrip(frame, self.effects.compression.quality, self.effects.compression.chroma)
         return frame
+
+    def _to_camera(self, lin: F32) -> F32:
+        """(h, w, 3) linear light on the sensor -> linear camera values through the fixed colour response."""
+        if self._colour is None:
+            return lin
+        return np.asarray(cv2.transform(np.ascontiguousarray(lin, dtype=np.float32), self._colour), dtype=np.float32)
 
     def _encode_fast(self, lin: F32) -> NDArray[np.uint16]:
         """Linear light to the 16-bit working code through a 65536-entry table (np.power is slow per pixel)."""
@@ -353,6 +397,8 @@ class Renderer:
             vig = self._backdrop.vignetting[sl] * np.float32(self.effects.exposure.scale)
             light = np.asarray(light + (lit * vig)[..., None] * sun_rgb, dtype=np.float32)
         layer[..., :3] *= light
+        if self._colour is not None:
+            layer[..., :3] = self._to_camera(layer[..., :3])
         layer[..., 5] = self._fill(shadow_px, window) * np.float32(SHADOW_STRENGTH)
         layer[..., 5] = cv2.GaussianBlur(layer[..., 5], (0, 0), sigma_px)
         if sun is not None:
@@ -477,16 +523,25 @@ class Renderer:
         if b.glare is not None and self.effects.glare is not None:
             strength = sun_rel / max(self.effects.sun.strength if self.effects.sun else 1.0, 1e-9)
             add += b.glare[sl][..., None] * np.asarray(self.effects.glare.bgr, dtype=np.float32) * strength
-        return add
+        return self._to_camera(add)
 
-    # -- people ---------------------------------------------------------------------------------------------------
+    # -- people and props -------------------------------------------------------------------------------------------
     def _draw_person(
         self, work: NDArray[np.uint16], person: Occluder, t_s: float
     ) -> tuple[Window, FloatArray, None, float] | None:
         pose = person.pose(t_s)
         if pose is None:
             return None
-        boxes = _person_boxes(person, *pose)
+        # A person walking is not in perfect focus, and moves: a little more blur than the lens's.
+        return self._draw_boxes(work, _person_boxes(person, *pose), extra_blur_px=0.3)
+
+    def _draw_boxes(
+        self,
+        work: NDArray[np.uint16],
+        boxes: list[tuple[FloatArray, FloatArray, float, FloatArray]],
+        extra_blur_px: float = 0.0,
+    ) -> tuple[Window, FloatArray, None, float] | None:
+        """Draw boxes (centre, size (l, w, h), heading, albedo) with their camera-facing faces lit."""
         cam = self.camera.position_cm
         faces: list[tuple[float, FloatArray, FloatArray]] = []  # (depth, world quad, colour factor)
         for centre, size, heading, albedo in boxes:
@@ -510,14 +565,15 @@ class Renderer:
         palette = np.vstack([np.zeros(3), np.array([f[2] for f in faces])])
         colour = palette[label]
         alpha = (label > 0).astype(np.float64)
-        # The lens's point spread (a little more: a person walking is not in perfect focus, and moves).
-        sigma = 0.3 + (self.effects.optics.blur_sigma_px if self.effects.optics is not None else 0.0)
-        colour = np.asarray(cv2.GaussianBlur(colour * alpha[..., None], (0, 0), sigma), dtype=np.float64)
-        alpha = np.asarray(cv2.GaussianBlur(alpha, (0, 0), sigma), dtype=np.float64)
+        sigma = extra_blur_px + (self.effects.optics.blur_sigma_px if self.effects.optics is not None else 0.0)
+        if sigma > 0.05:
+            colour = np.asarray(cv2.GaussianBlur(colour * alpha[..., None], (0, 0), sigma), dtype=np.float64)
+            alpha = np.asarray(cv2.GaussianBlur(alpha, (0, 0), sigma), dtype=np.float64)
         sl = window.slices
-        illum = self._backdrop.illumination[sl].astype(np.float64)
+        illum = self._backdrop.illumination[sl].astype(np.float32)
+        lit = self._to_camera((colour * illum[..., None]).astype(np.float32))
         floor = self._decode[work[sl]].astype(np.float64)
-        out = floor * (1.0 - alpha)[..., None] + colour * illum[..., None]
+        out = floor * (1.0 - alpha)[..., None] + lit
         work[sl] = self._encode_fast(out.astype(np.float32))
         return window, alpha, None, 0.0
 
@@ -528,6 +584,22 @@ class Renderer:
             levels = np.array([self._scene_level(i / self.fps) for i in range(n)])
             self._ae_gains = auto_exposure_gains(levels, self.effects.auto_exposure)
         return float(self._ae_gains[frame_index])
+
+    def _white_balance(self, frame_index: int) -> FloatArray:
+        """(3,) the automatic white balance's (B, G, R) gains at ``frame_index`` (ones without one)."""
+        if self.effects.auto_white_balance is None:
+            return np.ones(3)
+        if len(self._awb_gains) <= frame_index:
+            n = max(frame_index + 1, 2 * len(self._awb_gains), 64)
+            means = np.array([self._scene_colour(i / self.fps) for i in range(n)])
+            self._awb_gains = awb_gains(means, self.effects.auto_white_balance)
+        return np.asarray(self._awb_gains[frame_index])
+
+    def _scene_colour(self, t_s: float) -> FloatArray:
+        """(3,) mean colour of the scene in linear camera values (what a grey-world white balance meters)."""
+        strength, colour = sun_state(self.effects.sun, t_s)
+        sun = self._to_camera((self._sun_mean * colour * strength).astype(np.float32).reshape(1, 1, 3)).reshape(3)
+        return np.asarray(drift_factor(self.effects.drift, t_s) * self._room_mean + sun)
 
     def _scene_level(self, t_s: float) -> float:
         """Mean scene brightness relative to nominal (what the auto-exposure meters)."""
@@ -589,6 +661,12 @@ def _box_faces(centre: FloatArray, size: FloatArray, heading: float) -> list[tup
             quad = np.array([f - u - v, f + u - v, f + u + v, f - u + v])
             faces.append((quad, sign * axis / np.linalg.norm(axis)))
     return faces
+
+
+def _prop_box(prop: Prop) -> tuple[FloatArray, FloatArray, float, FloatArray]:
+    """A prop as one box (centre, size, heading, albedo) standing on the floor."""
+    size = np.asarray(prop.size_cm, dtype=np.float64)
+    return np.array([prop.x_cm, prop.y_cm, 0.5 * size[2]]), size, prop.heading_rad, np.asarray(prop.albedo_bgr)
 
 
 def _person_boxes(

@@ -13,7 +13,14 @@ and noise, so figures can be checked on unseen seeds.
 | cross     | rovers passing head-on and crossing paths with 1 cm between bodies, near and far |
 | occlusion | a person walks in and stands in front of a rover; a rover leaves the view and comes back |
 | lens      | a distorting lens (barrel, tangential, off-centre principal point) and MJPG compression |
-| crowd     | twelve rovers (or ``--rovers N``) with distinct hues circling at once |
+| crowd     | twelve rovers (or ``--rovers N``; eight: the eight-hue palette) with distinct hues circling at once |
+| daylight  | rovers crossing a strong warm sunlit patch and its glare, lamps switched off, automatic white balance, a
+              grey and a white box put down in the area |
+
+Every scenario can be seen through the nominal camera (``camera="nominal"``, the C920-like camera of the docs) or
+through a camera of the family drawn from the seed (``camera="family"``, :mod:`edge.sim.cameras`: chroma sampling,
+JPEG quality, blur, tone curve, crosstalk, white balance, noise, vignetting, and the rovers' body colours, height
+and margins).
 """
 
 from __future__ import annotations
@@ -21,12 +28,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Literal
 
 import numpy as np
 
 from edge.camera import (
     AREA_LENGTH_CM,
     AREA_WIDTH_CM,
+    MARKER_HEIGHT_CM,
     PAPER_CAMERA_AIM_Y_CM,
     PAPER_CAMERA_HEIGHT_CM,
     PAPER_CAMERA_SETBACK_CM,
@@ -34,6 +43,8 @@ from edge.camera import (
     paper_camera,
 )
 from edge.errors import SimulationError
+from edge.sim.cameras import draw_bodies, draw_camera
+from edge.sim.colour import AutoWhiteBalance
 from edge.sim.effects import (
     AutoExposure,
     Compression,
@@ -43,6 +54,7 @@ from edge.sim.effects import (
     Glare,
     IlluminationDrift,
     Occluder,
+    Prop,
     SunPatch,
     sun_mirror_point,
 )
@@ -82,10 +94,16 @@ class SimSetup:
     frames: int
     fps: float = FPS
     drive: DriveModel = field(default_factory=DriveModel)
+    camera_name: str = "nominal"
 
     @property
     def rover_ids(self) -> tuple[str, ...]:
         return tuple(look.rover_id for look in self.scene.rovers)
+
+    @property
+    def marker_height_cm(self) -> float:
+        """Height of the markers' plane (the rovers' bodies are all this tall): where a calibration belongs."""
+        return self.scene.rovers[0].body_height_cm if self.scene.rovers else MARKER_HEIGHT_CM
 
     def world(self) -> World:
         """A fresh world with every rover on its scripted plan."""
@@ -103,6 +121,8 @@ class SimSetup:
 
 
 Builder = Callable[[int, int, int], SimSetup]
+CameraChoice = Literal["nominal", "family"]
+CAMERAS: tuple[CameraChoice, ...] = ("nominal", "family")
 
 
 @dataclass(frozen=True)
@@ -114,21 +134,34 @@ class Scenario:
     builder: Builder
 
     def build(
-        self, seed: int = 0, rovers: int | None = None, frames: int | None = None, heading: Heading = "plain"
+        self,
+        seed: int = 0,
+        rovers: int | None = None,
+        frames: int | None = None,
+        heading: Heading = "plain",
+        camera: CameraChoice = "nominal",
     ) -> SimSetup:
-        """The run for ``seed``; ``heading`` puts heading markers (two-tone or ArUco) on every rover."""
+        """The run for ``seed``; ``heading`` puts heading markers (two-tone or ArUco) on every rover; ``camera``:
+        the nominal camera, or one of the family drawn from the seed (with bodies drawn from the family too)."""
         n = self.default_rovers if rovers is None else rovers
         f = self.default_frames if frames is None else frames
         if n < 1:
             raise SimulationError(f"scenario {self.name}: --rovers must be at least 1, got {n}")
         if f < 1:
             raise SimulationError(f"scenario {self.name}: --frames must be at least 1, got {f}")
-        setup = self.builder(seed, n, f)
-        if heading == "plain":
-            return setup
+        if camera not in CAMERAS:
+            raise SimulationError(f"scenario {self.name}: --camera must be one of {', '.join(CAMERAS)}")
         if heading not in HEADINGS:
             raise SimulationError(f"scenario {self.name}: --heading must be one of {', '.join(HEADINGS)}")
-        looks = tuple(replace(look, heading=heading, aruco_id=k) for k, look in enumerate(setup.scene.rovers))
+        setup = self.builder(seed, n, f)
+        looks = setup.scene.rovers
+        if heading != "plain":
+            looks = tuple(replace(look, heading=heading, aruco_id=k) for k, look in enumerate(looks))
+        if camera == "family":
+            rng = _rng(f"{self.name}/camera", seed)
+            drawn = draw_camera(rng)
+            looks = draw_bodies(looks, rng)
+            setup = replace(setup, effects=drawn.apply(setup.effects), camera_name=drawn.name)
         return replace(setup, scene=replace(setup.scene, rovers=looks))
 
 
@@ -402,6 +435,60 @@ def build_lens(seed: int, n: int, frames: int) -> SimSetup:
     return _setup("lens", seed, frames, looks, plans, effects, camera=lens_camera())
 
 
+def build_daylight(seed: int, n: int, frames: int) -> SimSetup:
+    """Colour under local light: blue drives back and forth through a strong warm sunlit patch, red circles inside
+    it by the sun's glare, green stops and goes in and out of it. Half the lamps go off
+    for 4 s (the sunlit patch then outshines the lamps' light 2.5 times), the auto-exposure lags and the automatic white
+    balance drifts with the sun and the clouds. A grey and a white box are put down in the area (one in the sun):
+    neither may ever be taken for a marker."""
+    rng = _rng("daylight", seed)
+    looks = fleet_looks(n)
+    camera = paper_camera()
+    sun = SunPatch(
+        strength=1.4,
+        clear_bgr=(0.62, 0.85, 1.0),
+        cloud_phase=float(rng.uniform(0, 1)),
+        cloud_depth=0.6,
+    )
+    gx, gy = sun_mirror_point(camera.position_cm, sun)
+    designed = [
+        circle(
+            (160.0 + _jitter(rng, 5), 290.0 + _jitter(rng, 5)),
+            30.0,
+            laps=3.0,
+            speed_cm_s=16.0,
+            start_angle_rad=float(rng.uniform(0, 2 * math.pi)),
+            ccw=bool(rng.random() < 0.5),
+        ),
+        stop_and_go(
+            Pose(300.0, 440.0 + _jitter(rng, 10), -math.pi / 2),
+            [(265.0, 320.0 + _jitter(rng, 10)), (320.0, 300.0), (300.0, 440.0)],
+            speed_cm_s=20.0,
+        ),
+        diagonal(
+            (40.0 + _jitter(rng, 10), 212.0 + _jitter(rng, 3)),
+            (360.0 + _jitter(rng, 10), 212.0 + _jitter(rng, 3)),
+            speed_cm_s=24.0,
+            come_back=True,
+        ),
+    ]
+    t_off = float(rng.uniform(4.0, 6.0))
+    effects = Effects(
+        exposure=Exposure(exposure_s=1.0 / 60.0),
+        auto_exposure=AutoExposure(),
+        auto_white_balance=AutoWhiteBalance(),
+        sun=sun,
+        glare=Glare(x_cm=gx, y_cm=gy),
+        drift=IlluminationDrift(amplitude=0.0, switches=((t_off, t_off + 4.0, 0.55),)),
+        props=(
+            Prop(70.0 + _jitter(rng, 10), 330.0 + _jitter(rng, 10), albedo_bgr=(0.52, 0.52, 0.52), appears_s=2.0),
+            Prop(205.0, 350.0 + _jitter(rng, 5), (30.0, 25.0, 20.0), 0.4, (0.86, 0.86, 0.85), appears_s=3.0),
+        ),
+    )
+    plans = _with_extras(designed, n, (0.0, 440.0, AREA_WIDTH_CM, AREA_LENGTH_CM), rng)
+    return _setup("daylight", seed, frames, looks, plans, effects, camera=camera)
+
+
 def build_crowd(seed: int, n: int, frames: int) -> SimSetup:
     rng = _rng("crowd", seed)
     looks = fleet_looks(n)
@@ -448,6 +535,13 @@ SCENARIOS: dict[str, Scenario] = {
         Scenario(
             "crowd", "twelve rovers with distinct hues circling at once (--rovers up to 48)", 12, 300, build_crowd
         ),
+        Scenario(
+            "daylight",
+            "strong warm sunlit patch and glare, lamps off, auto white balance, a grey and a white box put down",
+            3,
+            450,
+            build_daylight,
+        ),
     )
 }
 
@@ -460,8 +554,13 @@ def get_scenario(name: str) -> Scenario:
 
 
 def build(
-    name: str, seed: int = 0, rovers: int | None = None, frames: int | None = None, heading: Heading = "plain"
+    name: str,
+    seed: int = 0,
+    rovers: int | None = None,
+    frames: int | None = None,
+    heading: Heading = "plain",
+    camera: CameraChoice = "nominal",
 ) -> SimSetup:
     """The :class:`SimSetup` of scenario ``name`` for ``seed`` (``rovers``/``frames`` default to the scenario's;
-    ``heading``: ``plain``, ``two_tone`` or ``aruco`` markers)."""
-    return get_scenario(name).build(seed, rovers, frames, heading)
+    ``heading``: ``plain``, ``two_tone`` or ``aruco`` markers; ``camera``: ``nominal`` or ``family``)."""
+    return get_scenario(name).build(seed, rovers, frames, heading, camera)

@@ -1,0 +1,75 @@
+"""The last step of every window tracker: the marker's centre and axis from its outline (``edge.outline``).
+
+A tracker's area centroid (coverage-weighted pixels on the plane) finds the marker to within a pixel or so and
+measures its area; this step moves the centre to the middle of the marker's fitted edges, which does not depend on
+the camera's tone curve, blur or what surrounds the marker, and gives the marker's long axis from its edges (the
+direction of a one-colour marker, modulo 180 degrees). Where the outline cannot be fitted (the marker glared out,
+half in shadow, an edge shared with something of the same colour), the area centroid stands.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from edge.outline import fit_outline, marker_signal
+from edge.segmentation import BoolArray, dilate, erode, linear_bgr
+from edge.trackers.base import Measurement, Window
+from edge.two_tone import edge_axis, footprint_cm
+
+MAX_SHIFT_PX = 2.0  # the outline may move the area centroid by this much, else it fitted something else
+
+
+def refine_outline(
+    window: Window,
+    m: Measurement,
+    size_cm: tuple[float, float],
+    rover_index: int,
+    exclude: BoolArray | None = None,
+) -> Measurement:
+    """``m`` with its centre (``xy_cm``) and axis (``axis_rad``) from the marker's fitted outline, or ``m`` itself
+    when the outline does not fit. ``size_cm``: the marker's (length, width); ``exclude``: pixels of other things
+    (other rovers) in the window."""
+    if m.weights is None:
+        return m
+    sample = erode(m.weights >= 1.0, 1)
+    if not sample.any():
+        return m
+    signal = marker_signal(linear_bgr(window.bgr), sample)
+    if signal is None:
+        return m
+    usable = ~((window.classes >= 0) & (window.classes != rover_index))
+    if exclude is not None:
+        usable &= ~exclude
+    x0, y0, x1, y1 = window.box
+    x_cm = window.grid.x_cm[y0:y1, x0:x1]
+    y_cm = window.grid.y_cm[y0:y1, x0:x1]
+    jacobian = window.local.jacobian(*m.uv_px)
+    axis = marker_axis(signal, m, jacobian, usable, size_cm)
+    cm_per_px = footprint_cm(jacobian, axis)
+    fit = fit_outline(signal, x_cm, y_cm, m.xy_cm, axis, size_cm, cm_per_px, usable)
+    if fit is None:
+        return replace(m, axis_rad=axis)
+    shift = math.hypot(fit.xy_cm[0] - m.xy_cm[0], fit.xy_cm[1] - m.xy_cm[1])
+    if shift > MAX_SHIFT_PX * max(cm_per_px):
+        return replace(m, axis_rad=axis)
+    return replace(m, xy_cm=fit.xy_cm, axis_rad=axis)
+
+
+def marker_axis(
+    signal: np.ndarray, m: Measurement, jacobian: np.ndarray, usable: BoolArray, size_cm: tuple[float, float]
+) -> float:
+    """The marker's long axis (modulo pi) on the plane: its edges' directions (modulo pi/2, sharp) resolved by the
+    blob's elongation (which of the two is the long one). Where the marker is square, the blob axis alone."""
+    if m.weights is None or abs(size_cm[0] - size_cm[1]) < 0.05 * max(size_cm):
+        return m.axis_rad
+    edges = dilate(np.asarray(m.weights > 0.02), 2) & usable  # the edges' gradients reach past the blob
+    axis4, strength = edge_axis(signal, edges, jacobian)
+    if strength < 0.3:
+        return m.axis_rad
+    candidates = (axis4, axis4 + 0.5 * math.pi)
+    long_axis = m.axis_rad if size_cm[0] >= size_cm[1] else m.axis_rad + 0.5 * math.pi
+    best = min(candidates, key=lambda a: abs(math.remainder(a - long_axis, math.pi)))
+    return math.remainder(best, math.pi)
