@@ -18,10 +18,11 @@ The fit uses what does not depend on the camera:
 2. **Model**, edge by edge, across the edge (``d``: signed distance on the marker plane, outwards): the marker's
    level ``C_M`` inside, then a margin of the body's top (neutral: 0) of width ``m``, then whatever lies beyond at
    level ``C_S`` (the floor, slightly tinted), both steps blurred by one width ``w``:
-   ``C(d) = C_M Phi((e - d) / w) + C_S Phi((d - e - m) / w)``. ``C_M`` is the marker's own level measured in its
-   interior; ``e``, ``m``, ``w`` and ``C_S`` are fitted (Levenberg-Marquardt, the four edges at once). A step's
-   *position* is where its symmetric blur is centred, so a blur of any width leaves it in place, and chroma spilled
-   outwards in a compressed stream widens the step more than it moves its middle.
+   ``C(d) = C_M Phi((e - d) / w) + C_S Phi((d - e - m) / w)``. ``e``, ``w``, ``C_M`` and ``C_S`` are fitted by
+   Levenberg-Marquardt, the four edges at once (``C_M`` too, per edge: light may fall unevenly across a marker, at
+   a sunlit patch's edge); ``m`` is searched on a grid. A step's *position* is where its symmetric blur is
+   centred, so a blur of any width leaves it in place, and chroma spilled outwards in a compressed stream widens
+   the step more than it moves its middle.
 3. **Centre**: the middle of each pair of opposite edges, on the world plane; the pairs' spans are the marker's
    measured length and width (a check that the fit found the marker). Only pixels from the middle of each edge
    count (not the corners), and for a small far-side marker the opposite edge's blur reaches into each edge's
@@ -167,26 +168,32 @@ def fit_edges(
     margins = np.asarray(MARGINS_PX)[None, :, None] * px[:, None, None]  # (edges, grid, 1)
     grid = margins.shape[1]
     outer = np.array([float(vk[dk > dk.max() - 1.5 * p].mean()) for dk, vk, p in samples])
-    # parameters per edge and margin: position e, width w, outer level (the margin's level is the body's: 0)
+    # parameters per edge and margin: position e, width w, outer level, marker level (the margin's level is the
+    # body's: 0). The marker's level is each edge's own: light falls unevenly (a sunlit patch's edge, a lamp).
     q = np.stack(
-        [np.zeros((n_edges, grid)), np.repeat((1.2 * px)[:, None], grid, 1), np.repeat(outer[:, None], grid, 1)],
+        [
+            np.zeros((n_edges, grid)),
+            np.repeat((1.2 * px)[:, None], grid, 1),
+            np.repeat(outer[:, None], grid, 1),
+            np.full((n_edges, grid), level),
+        ],
         axis=2,
     )
     d3, v3, w3 = d[:, None, :], v[:, None, :], weight[:, None, :]
     lo, hi = (MIN_BLUR_PX * px)[:, None], (MAX_BLUR_PX * px)[:, None]
-    resid, parts = _edge_model(d3, v3, q, margins, level)
+    resid, parts = _edge_model(d3, v3, q, margins)
     cost = (w3 * resid * resid).sum(axis=2)
     lam = np.full((n_edges, grid), 1e-3)
-    eye = np.eye(3)
+    eye = np.eye(4)
     for _ in range(ITERATIONS):
-        jac = _edge_jacobian(parts, q, level) * w3[:, :, None, :]  # (edges, grid, 3, samples)
+        jac = _edge_jacobian(parts, q) * w3[:, :, None, :]  # (edges, grid, 4, samples)
         a = np.einsum("kgin,kgjn->kgij", jac, jac / np.maximum(w3[:, :, None, :], 1e-12))
         g = np.einsum("kgin,kgn->kgi", jac, resid)
         damped = a + lam[..., None, None] * (a * eye + 1e-12 * eye)
         step = np.linalg.solve(damped, g[..., None])[..., 0]
         trial = q + step
         trial[..., 1] = np.clip(trial[..., 1], lo, hi)
-        new_resid, new_parts = _edge_model(d3, v3, trial, margins, level)
+        new_resid, new_parts = _edge_model(d3, v3, trial, margins)
         new_cost = (w3 * new_resid * new_resid).sum(axis=2)
         better = new_cost <= cost
         q = np.where(better[..., None], trial, q)
@@ -223,27 +230,28 @@ def _phi(z: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 
 def _edge_model(
-    d: FloatArray, v: FloatArray, q: FloatArray, margin: FloatArray, level: float
+    d: FloatArray, v: FloatArray, q: FloatArray, margin: FloatArray
 ) -> tuple[FloatArray, tuple[FloatArray, ...]]:
-    """Residual ``v - C(d)`` for parameters ``q`` (..., 3: position, width, outer level) and margins ``margin``,
-    and the pieces the Jacobian needs."""
-    e, w, outer = q[..., 0:1], q[..., 1:2], q[..., 2:3]
+    """Residual ``v - C(d)`` for parameters ``q`` (..., 4: position, width, outer level, marker level) and margins
+    ``margin``, and the pieces the Jacobian needs."""
+    e, w, outer, level = q[..., 0:1], q[..., 1:2], q[..., 2:3], q[..., 3:4]
     z_in = (e - d) / w  # the marker's step (marker inside, d < e)
     z_out = (d - e - margin) / w  # the outer step, beyond the margin
     inside, pdf_in = _phi(z_in)
     beyond, pdf_out = _phi(z_out)
-    return v - (level * inside + outer * beyond), (z_in, z_out, pdf_in, pdf_out, beyond)
+    return v - (level * inside + outer * beyond), (z_in, z_out, pdf_in, pdf_out, beyond, inside)
 
 
-def _edge_jacobian(parts: tuple[FloatArray, ...], q: FloatArray, level: float) -> FloatArray:
-    """(..., 3, samples) derivative of the model with respect to (position, width, outer level)."""
-    z_in, z_out, pdf_in, pdf_out, beyond = parts
-    w, outer = q[..., 1:2], q[..., 2:3]
+def _edge_jacobian(parts: tuple[FloatArray, ...], q: FloatArray) -> FloatArray:
+    """(..., 4, samples) derivative of the model with respect to (position, width, outer level, marker level)."""
+    z_in, z_out, pdf_in, pdf_out, beyond, inside = parts
+    w, outer, level = q[..., 1:2], q[..., 2:3], q[..., 3:4]
     return np.stack(
         [
             (level * pdf_in - outer * pdf_out) / w,
             -(level * pdf_in * z_in + outer * pdf_out * z_out) / w,
             beyond,
+            inside,
         ],
         axis=-2,
     )
