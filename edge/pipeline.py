@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
 from edge.errors import ConfigError, SourceError
-from edge.filtering import ConstantVelocityFilter, FilterFactory
+from edge.filtering import ConstantVelocityFilter, FilterFactory, axis_heading
 from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr, opponent_planes
 from edge.tracker_config import RoverConfig, TrackerConfig
 from edge.trackers import make_filters, make_tracker
@@ -228,6 +228,14 @@ class Pipeline:
             return min(max(learned, 0.5 * nominal), 2.0 * nominal)
         return self.config.marker_area_cm2
 
+    def _area_band(self, tr: _RoverTrack, expected_cm2: float) -> tuple[float, float]:
+        """The accepted blob area, as a share of the learned one: ``min_area_fraction``..``max_area_fraction``,
+        widened to three robust standard deviations of this rover's own recent areas (a compressed stream's far-side
+        areas scatter by 10 %; a marker a leg hides loses far more), never below 0.75."""
+        spread = 1.4826 * float(np.median(np.abs(np.asarray(tr.areas) - expected_cm2))) / expected_cm2
+        low = max(min(self.config.min_area_fraction, 1.0 - 3.0 * spread), 0.75)
+        return low, max(self.config.max_area_fraction, 1.0 + 3.0 * spread)
+
     def _track(self, image: NDArray[np.uint8], tr: _RoverTrack, clock: StageTimes) -> _Observation | None:
         assert tr.filter is not None
         x, y = tr.filter.position
@@ -295,14 +303,14 @@ class Pipeline:
         learned = len(tr.areas) >= 10
         model = RoverModel(tr.index, self._expected_area(tr), tr.level)
         m = (tracker or self.tracker).measure(window, model, clock)
-        if m is None or not self._plausible(m, model.marker_area_cm2, learned, tr):
-            return None
-        if tr.config.front_color_bgr is None:
+        if m is not None and tr.config.front_color_bgr is None:
             t0 = time.perf_counter()
             size = (self.config.marker_length_cm, self.config.marker_width_cm)
             m = refine_outline(window, m, size, tr.index)
             clock.add("outline", time.perf_counter() - t0)
-        else:
+        if m is None or not self._plausible(m, model.marker_area_cm2, learned, tr):
+            return None
+        if tr.config.front_color_bgr is not None:
             two_tone = self._two_tone(window, m, tr)
             if two_tone is None:
                 return None  # without a heading the centre of a two-tone marker is not known
@@ -367,8 +375,10 @@ class Pipeline:
 
         A partly hidden or cut-off marker would give a biased centre, and a blob of the right hue but the wrong
         size, shape or colour strength (dark clothes, a poster, a reflection) is not a marker: both are reported
-        as missing instead. The colour strength (the marker's level in its plane) may follow the light within
-        ``level_range`` of the configured colour, and from frame to frame within a factor of two.
+        as missing instead. A marker whose outline was fitted (``Measurement.outlined``) has shown its size and shape
+        edge by edge; the blob's area, noisier in a compressed stream, is then not needed. The colour strength (the
+        marker's level in its plane) may follow the light within ``level_range`` of the configured colour, and from
+        frame to frame within a factor of two.
         """
         if m.at_image_edge:
             return False
@@ -378,12 +388,10 @@ class Pipeline:
             return False
         if tr.level > 0 and not 0.5 <= m.level / tr.level <= 2.0:
             return False
+        if m.outlined:
+            return True  # its four edges were found where a whole marker of its size has them
         ratio = m.area_cm2 / expected_area_cm2
-        low, high = (
-            (self.config.min_area_fraction, self.config.max_area_fraction)
-            if learned
-            else self.config.acquire_area_range
-        )
+        low, high = self._area_band(tr, expected_area_cm2) if learned else self.config.acquire_area_range
         if not low <= ratio <= high:
             return False
         aspect = max(self.config.marker_length_cm, self.config.marker_width_cm) / min(
@@ -474,7 +482,7 @@ class Pipeline:
             if m.quality > 0.8:
                 tr.areas.append(m.area_cm2)
             vel = tr.filter.velocity
-            theta = self._heading(tr, vel)
+            theta = self._heading(tr, vel, m)
             x, y = tr.filter.position
             out.append(
                 RoverEstimate(
@@ -500,18 +508,17 @@ class Pipeline:
             return m.quality
         return m.quality * (0.5 + 0.5 * min(1.0, max(0.0, tr.two_tone.evidence)))
 
-    def _heading(self, tr: _RoverTrack, vel: tuple[float, float] | None) -> float | None:
+    def _heading(self, tr: _RoverTrack, vel: tuple[float, float] | None, m: Measurement) -> float | None:
         """A two-tone marker's own heading while the evidence for its front end is strong (else None: the
         direction of motion would be the opposite of the body's whenever the rover backs up); for a one-colour
-        marker the direction of motion while moving, else None."""
+        marker its long axis pointed the way it drives, or kept from the last heading while it stands or turns on
+        the spot (``edge.filtering.axis_heading``)."""
         if tr.config.front_color_bgr is not None:
             return tr.two_tone.heading_rad if tr.two_tone.confident else None
-        if vel is None:
-            return None
-        speed = math.hypot(*vel)
-        if speed < self.config.heading_min_speed_cm_s:
-            return None
-        return math.atan2(vel[1], vel[0])
+        square = abs(self.config.marker_length_cm - self.config.marker_width_cm) < 0.05 * self.config.marker_length_cm
+        axis = None if square else m.axis_rad
+        tr.theta_rad = axis_heading(axis, vel, tr.theta_rad, self.config.heading_min_speed_cm_s)
+        return tr.theta_rad
 
     def _exclusion_box(self, box: tuple[int, int, int, int], shape: tuple[int, ...]) -> tuple[int, int, int, int]:
         """The search window grown to cover the rover's body below and around the marker."""

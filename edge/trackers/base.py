@@ -355,7 +355,9 @@ class Measurement:
     blob's principal standard deviations on the plane (1.28 for a 21.5 x 16.8 cm rectangle);
     ``at_image_edge``: the blob touches the border of the image (the marker may be cut off); ``weights``: the
     (h, w) float32 coverage of each window pixel by the marker that the centre was taken from (None if the tracker
-    has none), so a later step can re-weigh an edge it knows more about (a two-tone marker's inner edge).
+    has none), so a later step can re-weigh an edge it knows more about (a two-tone marker's inner edge);
+    ``outlined``: the centre and axis come from the marker's fitted outline, whose size matched the marker's
+    (``edge.trackers.refine``).
     """
 
     xy_cm: tuple[float, float]
@@ -367,6 +369,7 @@ class Measurement:
     elongation: float
     at_image_edge: bool
     weights: F32 | None = field(default=None, compare=False, repr=False)
+    outlined: bool = False
 
 
 def make_measurement(

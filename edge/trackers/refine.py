@@ -19,7 +19,9 @@ from edge.segmentation import BoolArray, dilate, erode, linear_bgr
 from edge.trackers.base import Measurement, Window
 from edge.two_tone import edge_axis, footprint_cm
 
-MAX_SHIFT_PX = 2.0  # the outline may move the area centroid by this much, else it fitted something else
+MAX_SHIFT_PX = 1.0  # the outline may move the area centroid by this much, else it fitted something else
+MAX_SIZE_ERROR = 0.08  # the fitted length and width must be the marker's within this share
+MAX_RESIDUAL = 0.3  # the fit's RMS residual over the marker's level: above, the edges are not a clean rectangle
 
 
 def refine_outline(
@@ -29,9 +31,10 @@ def refine_outline(
     rover_index: int,
     exclude: BoolArray | None = None,
 ) -> Measurement:
-    """``m`` with its centre (``xy_cm``) and axis (``axis_rad``) from the marker's fitted outline, or ``m`` itself
-    when the outline does not fit. ``size_cm``: the marker's (length, width); ``exclude``: pixels of other things
-    (other rovers) in the window."""
+    """``m`` with its centre (``xy_cm``) and axis (``axis_rad``) from the marker's fitted outline (``outlined``),
+    or ``m`` with only the axis refined when the outline does not fit (not a clean rectangle of the marker's size
+    within a pixel of the area centroid). ``size_cm``: the marker's (length, width); ``exclude``: pixels of other
+    things (other rovers) in the window."""
     if m.weights is None:
         return m
     sample = erode(m.weights >= 1.0, 1)
@@ -50,12 +53,13 @@ def refine_outline(
     axis = marker_axis(signal, m, jacobian, usable, size_cm)
     cm_per_px = footprint_cm(jacobian, axis)
     fit = fit_outline(signal, x_cm, y_cm, m.xy_cm, axis, size_cm, cm_per_px, usable)
-    if fit is None:
+    if fit is None or fit.residual > MAX_RESIDUAL:
         return replace(m, axis_rad=axis)
     shift = math.hypot(fit.xy_cm[0] - m.xy_cm[0], fit.xy_cm[1] - m.xy_cm[1])
-    if shift > MAX_SHIFT_PX * max(cm_per_px):
+    size_error = max(abs(fit.size_cm[0] / size_cm[0] - 1.0), abs(fit.size_cm[1] / size_cm[1] - 1.0))
+    if shift > MAX_SHIFT_PX * max(cm_per_px) or size_error > MAX_SIZE_ERROR:
         return replace(m, axis_rad=axis)
-    return replace(m, xy_cm=fit.xy_cm, axis_rad=axis)
+    return replace(m, xy_cm=fit.xy_cm, axis_rad=axis, outlined=True)
 
 
 def marker_axis(
