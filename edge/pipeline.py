@@ -50,10 +50,12 @@ from edge.trackers.base import (
 from edge.trackers.refine import refine_outline
 from edge.tracking import Frame, FrameResult, RoverEstimate, StageTimes
 from edge.two_tone import TwoToneGeometry, TwoToneHeading, inner_edge_weights, view_marker
+from edge.white import LocalWhite
 
 FloatArray = NDArray[np.float64]
 
 
+WHITE_REFRESH_FRAMES = 15  # the light's map follows the background reference this often
 _WINDOW_PAD_PX = 6  # room for the marker's edge band (2 px ring + 3 px outer band) where a centimetre is few pixels
 
 
@@ -132,6 +134,7 @@ class Pipeline:
             self.tracker.reset(tr.index)
             self.acquirer.reset(tr.index)
         self.background: BackgroundModel | None = None
+        self.white: LocalWhite | None = None
         self.acquire_scale = self.config.acquire_scale
         self._last_t: float | None = None
         self._frames = 0
@@ -179,6 +182,10 @@ class Pipeline:
         t0 = time.perf_counter()
         exclude = [self._exclusion_box(tr.box, image.shape) for tr in self.tracks if tr.box is not None]
         self.background.refresh(image, exclude)
+        if self.white is None:
+            self.white = LocalWhite(self.background.reference, self.background.valid)
+        elif self._frames % WHITE_REFRESH_FRAMES == 0:
+            self.white.update(self.background.reference, self.background.valid)
         clock.add("reference", time.perf_counter() - t0)
 
         self._frames += 1
@@ -196,6 +203,7 @@ class Pipeline:
         self.maps = PlaneGrid(self.calibration, (w, h))
         period = max(1, round(self.config.background_refresh_s * self.config.fps))
         self.background = BackgroundModel((h, w), period, self._empty_scene)
+        self.white = LocalWhite(self._empty_scene, np.ones((h, w), bool)) if self._empty_scene is not None else None
         self.acquire_scale = self._acquisition_scale()
 
     def _acquisition_scale(self) -> int:
@@ -296,7 +304,16 @@ class Pipeline:
     ) -> _Observation | None:
         assert self.background is not None and self.maps is not None
         window = prepare_window(
-            image, box, tr.index, uv, self.colors, self.maps, self.background, self.config.background_threshold, clock
+            image,
+            box,
+            tr.index,
+            uv,
+            self.colors,
+            self.maps,
+            self.background,
+            self.config.background_threshold,
+            clock,
+            self.white,
         )
         if window is None:
             return None
@@ -408,6 +425,8 @@ class Pipeline:
         small = (
             np.asarray(cv2.resize(image, (w // s, h // s), interpolation=cv2.INTER_AREA), np.uint8) if s > 1 else image
         )
+        if self.white is not None:
+            small = self.white.correct(small, self.white.frame_gains(small.shape[:2]))
         c1, c2, lum = opponent_planes(small)
         classes = self.colors.classify(c1, c2, lum)
         clock.add("acquire", time.perf_counter() - t0)
@@ -537,23 +556,40 @@ def prepare_window(
     background: BackgroundModel,
     background_threshold: float,
     clock: StageClock,
+    white: LocalWhite | None = None,
 ) -> Window | None:
-    """The per-window stages before a tracker runs: colour planes, hue classes, background subtraction (eq. 2)."""
+    """The per-window stages before a tracker runs: the window seen under the configured white (``edge.white``),
+    colour planes, hue classes, background subtraction (eq. 2)."""
     x0, y0, x1, y1 = box
     t0 = time.perf_counter()
-    crop = image[y0:y1, x0:x1]
+    raw = image[y0:y1, x0:x1]
+    valid = background.valid[y0:y1, x0:x1]
+    reference = background.reference[y0:y1, x0:x1] if valid.any() else None
+    crop = raw if white is None else white.correct(raw, white.gains(box, raw, reference, valid))
     c1, c2, lum = opponent_planes(crop)  # RGB colour planes extraction, generalised to N colours
     classes = colors.classify(c1, c2, lum)
     plane = colors.plane(rover_index, c1, c2)
     t1 = time.perf_counter()
     clock.add("planes", t1 - t0)
-    valid = background.valid[y0:y1, x0:x1]
-    reference = background.reference[y0:y1, x0:x1] if valid.any() else None
     local = maps.at(0.5 * (x0 + x1), 0.5 * (y0 + y1))
     clock.add("calibration", time.perf_counter() - t1)
     if local is None:
         return None
     size = (image.shape[1], image.shape[0])
     return Window(
-        box, crop, c1, c2, lum, classes, plane, reference, valid, maps, local, predicted_uv, size, background_threshold
+        box,
+        crop,
+        c1,
+        c2,
+        lum,
+        classes,
+        plane,
+        reference,
+        valid,
+        maps,
+        local,
+        predicted_uv,
+        size,
+        background_threshold,
+        raw,
     )

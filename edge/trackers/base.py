@@ -297,7 +297,8 @@ class Window:
     :meth:`foreground_fraction` (eq. 2) only when a choice needs it. ``reference_valid``: where the background
     reference is trustworthy. ``grid``: the pixel-to-plane mapping;
     ``local``: its homography at the window's centre (for point queries). ``image_size``: (w, h) of the frame.
-    ``predicted_uv``: where the filter expects the marker centre, in image pixels.
+    ``predicted_uv``: where the filter expects the marker centre, in image pixels. ``raw``: the crop as the camera
+    gave it (``bgr`` is seen under the configured white, ``edge.white``; the reference is compared with ``raw``).
     """
 
     box: tuple[int, int, int, int]
@@ -314,6 +315,7 @@ class Window:
     predicted_uv: tuple[float, float]
     image_size: tuple[int, int]
     background_threshold: float = 0.2
+    raw: U8 | None = None
 
     @property
     def offset(self) -> tuple[int, int]:
@@ -328,7 +330,8 @@ class Window:
         n = int(sel.sum())
         if n == 0:
             return 1.0
-        fg = subtract_background(self.bgr[sel][None], self.reference[sel][None], self.background_threshold)
+        seen = self.bgr if self.raw is None else self.raw
+        fg = subtract_background(seen[sel][None], self.reference[sel][None], self.background_threshold)
         return float(fg.sum()) / n
 
 
