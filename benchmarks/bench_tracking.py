@@ -48,6 +48,7 @@ import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
+from types import SimpleNamespace  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -218,11 +219,31 @@ def bars_hold(r: dict[str, float], per_colour: list[dict[str, float]]) -> list[s
     return missed
 
 
-def bench_family(scenarios: list[str], seeds: list[int], frames: int | None, calibration: str, detail: bool) -> None:
-    print(f"## Accuracy over the camera family ({machine()})")
+def bench_family(
+    scenarios: list[str], seeds: list[int], frames: int | None, calibrations: list[str], detail: bool
+) -> None:
+    """Render each scenario and seed once through the family's camera, track it with each calibration, print a
+    table per calibration."""
+    runs: dict[str, list[tuple[object, Score]]] = {c: [] for c in calibrations}
+    for name in scenarios:
+        for seed in seeds:
+            clip = family_clip(name, seed, frames)
+            about = SimpleNamespace(name=name, seed=seed, camera_name=clip.camera_name, bodies=clip.bodies)  # type: ignore[attr-defined]
+            for c in calibrations:
+                runs[c].append((about, run_clip(clip, "particles", calibration=c)))  # type: ignore[arg-type]
+            print(f"{name} seed {seed}: {clip.camera_name}", file=sys.stderr, flush=True)  # type: ignore[attr-defined]
+    for c in calibrations:
+        family_table(runs[c], seeds, frames, c, detail)
+        print()
+
+
+def family_table(
+    runs: list[tuple[object, Score]], seeds: list[int], frames: int | None, calibration: str, detail: bool
+) -> None:
+    print(f"## Accuracy over the camera family, calibration: {calibration} ({machine()})")
     print(
-        f"seeds {','.join(map(str, seeds))}; {'all' if frames is None else frames} frames per run; calibration: "
-        f"{calibration}; tracker: particles (default); one camera of the family per scenario and seed\n"
+        f"seeds {','.join(map(str, seeds))}; {'all' if frames is None else frames} frames per run; tracker: particles "
+        "(default); one camera of the family per scenario and seed\n"
     )
     print(
         "| scenario | seed | camera | bodies | mean cm | p95 cm | max cm | worst colour bias cm | detection | swaps | "
@@ -233,32 +254,29 @@ def bench_family(scenarios: list[str], seeds: list[int], frames: int | None, cal
     details: list[str] = []
     total = Score()
     missed_runs = 0
-    for name in scenarios:
-        for seed in seeds:
-            clip = family_clip(name, seed, frames)
-            score = run_clip(clip, "particles", calibration=calibration)  # type: ignore[arg-type]
-            total.add(score)
-            r = score.row()
-            per = {rid: summary(s) for rid, s in score.rovers.items()}
-            worst = max(per, key=lambda k: per[k]["bias"] if per[k]["bias"] == per[k]["bias"] else -1.0)
-            missed = bars_hold(r, list(per.values()))
-            missed_runs += bool(missed)
-            print(
-                f"| {name} | {seed} | {clip.camera_name} | {clip.bodies} | {r['mean']:.3f} | {r['p95']:.3f} | "  # type: ignore[attr-defined]
-                f"{r['max']:.2f} | {per[worst]['bias']:.3f} ({worst}) | {100 * r['det']:.2f}% | {int(r['swaps'])} | "
-                f"{int(r['ghosts'])} | {r['head']:.2f} / {r['head_p95']:.2f} | "
-                f"{'ok' if not missed else 'missed: ' + ', '.join(missed)} |",
-                flush=True,
+    for clip, score in runs:
+        name, seed = clip.name, clip.seed  # type: ignore[attr-defined]
+        total.add(score)
+        r = score.row()
+        per = {rid: summary(s) for rid, s in score.rovers.items()}
+        worst = max(per, key=lambda k: per[k]["bias"] if per[k]["bias"] == per[k]["bias"] else -1.0)
+        missed = bars_hold(r, list(per.values()))
+        missed_runs += bool(missed)
+        print(
+            f"| {name} | {seed} | {clip.camera_name} | {clip.bodies} | {r['mean']:.3f} | {r['p95']:.3f} | "  # type: ignore[attr-defined]
+            f"{r['max']:.2f} | {per[worst]['bias']:.3f} ({worst}) | {100 * r['det']:.2f}% | {int(r['swaps'])} | "
+            f"{int(r['ghosts'])} | {r['head']:.2f} / {r['head_p95']:.2f} | "
+            f"{'ok' if not missed else 'missed: ' + ', '.join(missed)} |"
+        )
+        for rid, s in score.rovers.items():
+            colours.setdefault(rid, Score()).rover(rid).add(s)
+            c = per[rid]
+            details.append(
+                f"| {name} | {seed} | {rid} | {c['mean']:.3f} | {c['p95']:.3f} | {c['max']:.2f} | "
+                f"{c['bias_x']:+.3f}, {c['bias_y']:+.3f} | {100 * c['det']:.2f}% | {int(c['swaps'])} | "
+                f"{int(c['ghosts'])} | {c['head']:.2f} / {c['head_p95']:.2f} |"
             )
-            for rid, s in score.rovers.items():
-                colours.setdefault(rid, Score()).rover(rid).add(s)
-                c = per[rid]
-                details.append(
-                    f"| {name} | {seed} | {rid} | {c['mean']:.3f} | {c['p95']:.3f} | {c['max']:.2f} | "
-                    f"{c['bias_x']:+.3f}, {c['bias_y']:+.3f} | {100 * c['det']:.2f}% | {int(c['swaps'])} | "
-                    f"{int(c['ghosts'])} | {c['head']:.2f} / {c['head_p95']:.2f} |"
-                )
-    print(f"\nRuns missing a bar: {missed_runs} of {len(scenarios) * len(seeds)}\n")
+    print(f"\nRuns missing a bar: {missed_runs} of {len(runs)}\n")
     print("Per marker colour, all scenarios and cameras together:\n")
     print(
         "| colour | mean cm | p95 cm | max cm | bias x, y cm | detection | swaps | ghosts | heading median / p95 deg |"
@@ -296,7 +314,7 @@ def main() -> None:
     parser.add_argument("--counts", default="1,3,8,16,32")
     parser.add_argument("--scenarios", default=",".join(SCENARIOS))
     parser.add_argument("--methods", default=",".join(METHODS))
-    parser.add_argument("--calibration", choices=("camera", "points"), default="camera")
+    parser.add_argument("--calibration", choices=("camera", "points", "both"), default="camera")
     parser.add_argument("--heading", choices=("plain", "two_tone"), default="plain", help="Markers on the rovers.")
     parser.add_argument("--detail", action="store_true", help="family: a row per scenario, camera and colour")
     args = parser.parse_args()
@@ -308,6 +326,8 @@ def main() -> None:
         bench_scale(args.frames or 120, [int(c) for c in args.counts.split(",")], args.seed)
         print()
     if args.what in ("accuracy", "all"):
+        if args.calibration == "both":
+            parser.error("--calibration both is for the family table")
         seeds = [int(s) for s in args.seeds.split(",")]
         bench_accuracy(
             args.scenarios.split(","), args.methods.split(","), seeds, args.frames, args.calibration, args.heading
@@ -315,7 +335,8 @@ def main() -> None:
     if args.what == "family":
         seeds = [int(s) for s in args.seeds.split(",")]
         scenarios = args.scenarios.split(",") if args.scenarios != ",".join(SCENARIOS) else list(FAMILY_SCENARIOS)
-        bench_family(scenarios, seeds, args.frames, args.calibration, args.detail)
+        calibrations = ["camera", "points"] if args.calibration == "both" else [args.calibration]
+        bench_family(scenarios, seeds, args.frames, calibrations, args.detail)
 
 
 if __name__ == "__main__":

@@ -153,9 +153,9 @@ def fit_edges(
 
     The samples are averaged in bins a quarter of a pixel wide across the edge (a near-side edge has thousands of
     pixels; its profile is what matters). The margin ``m`` is not well determined when the floor's tint is faint,
-    and a local search then wanders; it is searched on a grid instead (:data:`MARGINS_PX`, in pixels), and for each
-    margin the position, width and outer level by Levenberg-Marquardt, all edges and margins batched; each edge
-    keeps its best margin."""
+    and a local search from one start wanders; each edge is fitted from every margin of a grid (:data:`MARGINS_PX`,
+    in pixels) with the margin held, then from the best of them with the margin free (Levenberg-Marquardt, all
+    edges and starts batched)."""
     n_edges = len(samples)
     px = np.array([p for _, _, p in samples])
     binned = [_bins(d, v, 0.25 * p) for d, v, p in samples]
@@ -165,48 +165,66 @@ def fit_edges(
     weight = np.zeros((n_edges, size))  # counts; padding counts for nothing
     for k, (dk, vk, nk) in enumerate(binned):
         d[k, : len(dk)], v[k, : len(dk)], weight[k, : len(dk)] = dk, vk, nk
-    margins = np.asarray(MARGINS_PX)[None, :, None] * px[:, None, None]  # (edges, grid, 1)
+    margins = np.asarray(MARGINS_PX)[None, :] * px[:, None]  # (edges, grid)
     grid = margins.shape[1]
     outer = np.array([float(vk[dk > dk.max() - 1.5 * p].mean()) for dk, vk, p in samples])
-    # parameters per edge and margin: position e, width w, outer level, marker level (the margin's level is the
-    # body's: 0). The marker's level is each edge's own: light falls unevenly (a sunlit patch's edge, a lamp).
+    # parameters per edge and margin: position e, width w, outer level, marker level, margin m (the margin's level
+    # is the body's: 0). The marker's level is each edge's own: light falls unevenly (a sunlit patch's edge).
     q = np.stack(
         [
             np.zeros((n_edges, grid)),
             np.repeat((1.2 * px)[:, None], grid, 1),
             np.repeat(outer[:, None], grid, 1),
             np.full((n_edges, grid), level),
+            margins,
         ],
         axis=2,
     )
-    d3, v3, w3 = d[:, None, :], v[:, None, :], weight[:, None, :]
-    lo, hi = (MIN_BLUR_PX * px)[:, None], (MAX_BLUR_PX * px)[:, None]
-    resid, parts = _edge_model(d3, v3, q, margins)
-    cost = (w3 * resid * resid).sum(axis=2)
-    lam = np.full((n_edges, grid), 1e-3)
-    eye = np.eye(4)
+    data = (d[:, None, :], v[:, None, :], weight[:, None, :])
+    limits = ((MIN_BLUR_PX * px)[:, None], (MAX_BLUR_PX * px)[:, None])
+    q, cost = _levenberg_marquardt(data, q, limits, free_margin=False)  # each margin of the grid
+    best = np.argmin(cost, axis=1)
+    q = q[np.arange(n_edges), best][:, None, :]
+    q, cost = _levenberg_marquardt(data, q, limits, free_margin=True)  # then the margin too, from the best
+    chosen = q[:, 0]
+    if not np.all(np.isfinite(chosen)):
+        return None
+    rms = math.sqrt(float(cost.sum()) / max(float(weight.sum()), 1.0))
+    return chosen[:, 0], chosen[:, 1], rms
+
+
+def _levenberg_marquardt(
+    data: tuple[FloatArray, FloatArray, FloatArray],
+    q: FloatArray,
+    limits: tuple[FloatArray, FloatArray],
+    free_margin: bool,
+) -> tuple[FloatArray, FloatArray]:
+    """:data:`ITERATIONS` damped Gauss-Newton steps on every (edge, start) problem at once: ``q`` (edges, starts,
+    5); returns the parameters and each problem's cost. ``data``: binned distances, values and counts, (edges, 1,
+    bins) each; ``limits``: the width's bounds per edge."""
+    d, v, w = data
+    free = np.array([1.0, 1.0, 1.0, 1.0, 1.0 if free_margin else 0.0])
+    eye = np.eye(5)
+    resid, parts = _edge_model(d, v, q)
+    cost = (w * resid * resid).sum(axis=2)
+    lam = np.full(cost.shape, 1e-3)
     for _ in range(ITERATIONS):
-        jac = _edge_jacobian(parts, q) * w3[:, :, None, :]  # (edges, grid, 4, samples)
-        a = np.einsum("kgin,kgjn->kgij", jac, jac / np.maximum(w3[:, :, None, :], 1e-12))
-        g = np.einsum("kgin,kgn->kgi", jac, resid)
-        damped = a + lam[..., None, None] * (a * eye + 1e-12 * eye)
+        jac = _edge_jacobian(parts, q) * free[:, None]  # (edges, starts, 5, bins)
+        a = np.einsum("kgin,kgjn->kgij", jac * w[:, :, None, :], jac)
+        g = np.einsum("kgin,kgn->kgi", jac, resid * w)
+        damped = a + lam[..., None, None] * (a * eye + 1e-12 * eye) + 1e-12 * eye
         step = np.linalg.solve(damped, g[..., None])[..., 0]
         trial = q + step
-        trial[..., 1] = np.clip(trial[..., 1], lo, hi)
-        new_resid, new_parts = _edge_model(d3, v3, trial, margins)
-        new_cost = (w3 * new_resid * new_resid).sum(axis=2)
+        trial[..., 1] = np.clip(trial[..., 1], limits[0], limits[1])
+        new_resid, new_parts = _edge_model(d, v, trial)
+        new_cost = (w * new_resid * new_resid).sum(axis=2)
         better = new_cost <= cost
         q = np.where(better[..., None], trial, q)
         resid = np.where(better[..., None], new_resid, resid)
         parts = tuple(np.where(better[..., None], n, o) for n, o in zip(new_parts, parts, strict=True))
         cost = np.where(better, new_cost, cost)
         lam = np.where(better, np.maximum(lam * 0.3, 1e-7), lam * 10.0)
-    best = np.argmin(cost, axis=1)
-    chosen = q[np.arange(n_edges), best]
-    if not np.all(np.isfinite(chosen)):
-        return None
-    rms = math.sqrt(float(cost[np.arange(n_edges), best].sum()) / max(float(weight.sum()), 1.0))
-    return chosen[:, 0], chosen[:, 1], rms
+    return q, cost
 
 
 def _bins(d_cm: FloatArray, value: FloatArray, width_cm: float) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -229,29 +247,29 @@ def _phi(z: FloatArray) -> tuple[FloatArray, FloatArray]:
     return 0.5 + 0.5 * np.copysign(1.0 - poly * density, z), density * _INV_SQRT2PI
 
 
-def _edge_model(
-    d: FloatArray, v: FloatArray, q: FloatArray, margin: FloatArray
-) -> tuple[FloatArray, tuple[FloatArray, ...]]:
-    """Residual ``v - C(d)`` for parameters ``q`` (..., 4: position, width, outer level, marker level) and margins
-    ``margin``, and the pieces the Jacobian needs."""
-    e, w, outer, level = q[..., 0:1], q[..., 1:2], q[..., 2:3], q[..., 3:4]
+def _edge_model(d: FloatArray, v: FloatArray, q: FloatArray) -> tuple[FloatArray, tuple[FloatArray, ...]]:
+    """Residual ``v - C(d)`` for parameters ``q`` (..., 5: position, width, outer level, marker level, margin) and
+    the pieces the Jacobian needs. The margin enters as ``|m|``: a search passes through 0 instead of sticking."""
+    e, w, outer, level, m = q[..., 0:1], q[..., 1:2], q[..., 2:3], q[..., 3:4], q[..., 4:5]
     z_in = (e - d) / w  # the marker's step (marker inside, d < e)
-    z_out = (d - e - margin) / w  # the outer step, beyond the margin
+    z_out = (d - e - np.abs(m)) / w  # the outer step, beyond the margin
     inside, pdf_in = _phi(z_in)
     beyond, pdf_out = _phi(z_out)
     return v - (level * inside + outer * beyond), (z_in, z_out, pdf_in, pdf_out, beyond, inside)
 
 
 def _edge_jacobian(parts: tuple[FloatArray, ...], q: FloatArray) -> FloatArray:
-    """(..., 4, samples) derivative of the model with respect to (position, width, outer level, marker level)."""
+    """(..., 5, samples) derivative of the model with respect to (position, width, outer level, marker level,
+    margin)."""
     z_in, z_out, pdf_in, pdf_out, beyond, inside = parts
-    w, outer, level = q[..., 1:2], q[..., 2:3], q[..., 3:4]
+    w, outer, level, m = q[..., 1:2], q[..., 2:3], q[..., 3:4], q[..., 4:5]
     return np.stack(
         [
             (level * pdf_in - outer * pdf_out) / w,
             -(level * pdf_in * z_in + outer * pdf_out * z_out) / w,
             beyond,
             inside,
+            -outer * pdf_out / w * np.where(m < 0, -1.0, 1.0),
         ],
         axis=-2,
     )

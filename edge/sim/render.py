@@ -230,9 +230,9 @@ class Renderer:
             if isinstance(item, RoverState):
                 result = self._draw_rover(work, item, sun_rgb, sun_rel)
             elif isinstance(item, Prop):
-                result = self._draw_boxes(work, [_prop_box(item)])
+                result = self._draw_boxes(work, [_prop_box(item)], sun_rgb=sun_rgb if sun_rel > 0 else None)
             else:
-                result = self._draw_person(work, item, t_s)
+                result = self._draw_person(work, item, t_s, sun_rgb if sun_rel > 0 else None)
             if result is None:
                 continue
             window, alpha, marker, marker_area = result
@@ -527,21 +527,23 @@ class Renderer:
 
     # -- people and props -------------------------------------------------------------------------------------------
     def _draw_person(
-        self, work: NDArray[np.uint16], person: Occluder, t_s: float
+        self, work: NDArray[np.uint16], person: Occluder, t_s: float, sun_rgb: F32 | None = None
     ) -> tuple[Window, FloatArray, None, float] | None:
         pose = person.pose(t_s)
         if pose is None:
             return None
         # A person walking is not in perfect focus, and moves: a little more blur than the lens's.
-        return self._draw_boxes(work, _person_boxes(person, *pose), extra_blur_px=0.3)
+        return self._draw_boxes(work, _person_boxes(person, *pose), extra_blur_px=0.3, sun_rgb=sun_rgb)
 
     def _draw_boxes(
         self,
         work: NDArray[np.uint16],
         boxes: list[tuple[FloatArray, FloatArray, float, FloatArray]],
         extra_blur_px: float = 0.0,
+        sun_rgb: F32 | None = None,
     ) -> tuple[Window, FloatArray, None, float] | None:
-        """Draw boxes (centre, size (l, w, h), heading, albedo) with their camera-facing faces lit."""
+        """Draw boxes (centre, size (l, w, h), heading, albedo) with their camera-facing faces lit by the lamps, and
+        a top face in the sunlit patch by the sun too."""
         cam = self.camera.position_cm
         faces: list[tuple[float, FloatArray, FloatArray]] = []  # (depth, world quad, colour factor)
         for centre, size, heading, albedo in boxes:
@@ -549,7 +551,9 @@ class Renderer:
                 mid = quad.mean(axis=0)
                 if np.dot(normal, cam - mid) <= 0:
                     continue
-                light = 1.0 if normal[2] > 0.5 else SIDE_LIGHT
+                light = np.full(3, 1.0 if normal[2] > 0.5 else SIDE_LIGHT)
+                if normal[2] > 0.5 and sun_rgb is not None:
+                    light = light * self._sun_boost(mid, sun_rgb)
                 faces.append((float(np.linalg.norm(cam - mid)), quad, albedo * light))
         if not faces:
             return None
@@ -576,6 +580,24 @@ class Renderer:
         out = floor * (1.0 - alpha)[..., None] + lit
         work[sl] = self._encode_fast(out.astype(np.float32))
         return window, alpha, None, 0.0
+
+    def _sun_boost(self, point_cm: FloatArray, sun_rgb: F32) -> FloatArray:
+        """(3,) how much brighter than under the lamps alone a horizontal surface at ``point_cm`` (world, z its
+        height) is when it lies in the sunlit patch; ones outside it."""
+        sun = self.effects.sun
+        if sun is None:
+            return np.ones(3)
+        patch = sun.patch_cm(float(point_cm[2])).astype(np.float32)
+        if cv2.pointPolygonTest(patch.reshape(-1, 1, 2), (float(point_cm[0]), float(point_cm[1])), False) < 0:
+            return np.ones(3)
+        uv = self.camera.project(point_cm.reshape(1, 3))[0]
+        u = int(np.clip(round(uv[0]), 0, self.width_px - 1))
+        v = int(np.clip(round(uv[1]), 0, self.height_px - 1))
+        lamps = float(self._backdrop.illumination[v, u])
+        sun_light = (
+            np.asarray(sun_rgb, np.float64) * float(self._backdrop.vignetting[v, u]) * self.effects.exposure.scale
+        )
+        return np.asarray(1.0 + sun_light / max(lamps, 1e-6))
 
     # -- time-dependent camera state ---------------------------------------------------------------------------------
     def _auto_exposure(self, frame_index: int) -> float:

@@ -50,7 +50,7 @@ def refine_outline(
     x_cm = window.grid.x_cm[y0:y1, x0:x1]
     y_cm = window.grid.y_cm[y0:y1, x0:x1]
     jacobian = window.local.jacobian(*m.uv_px)
-    axis = marker_axis(signal, m, jacobian, usable, size_cm)
+    axis = marker_axis(signal, window.lum, m, jacobian, usable, size_cm)
     cm_per_px = footprint_cm(jacobian, axis)
     fit = fit_outline(signal, x_cm, y_cm, m.xy_cm, axis, size_cm, cm_per_px, usable)
     if fit is None or fit.residual > MAX_RESIDUAL:
@@ -63,14 +63,23 @@ def refine_outline(
 
 
 def marker_axis(
-    signal: np.ndarray, m: Measurement, jacobian: np.ndarray, usable: BoolArray, size_cm: tuple[float, float]
+    signal: np.ndarray,
+    lum: np.ndarray,
+    m: Measurement,
+    jacobian: np.ndarray,
+    usable: BoolArray,
+    size_cm: tuple[float, float],
 ) -> float:
     """The marker's long axis (modulo pi) on the plane: its edges' directions (modulo pi/2, sharp) resolved by the
-    blob's elongation (which of the two is the long one). Where the marker is square, the blob axis alone."""
+    blob's elongation (which of the two is the long one). The edges are those of the marker's chroma, or of the
+    luminance when they show a rectangle more coherently (a compressed stream's chroma is coarse; the body's own
+    outline, parallel to the marker's, helps there). Where the marker is square, the blob axis alone."""
     if m.weights is None or abs(size_cm[0] - size_cm[1]) < 0.05 * max(size_cm):
         return m.axis_rad
     edges = dilate(np.asarray(m.weights > 0.02), 2) & usable  # the edges' gradients reach past the blob
-    axis4, strength = edge_axis(signal, edges, jacobian)
+    axis4, strength = max(
+        edge_axis(signal, edges, jacobian), edge_axis(lum, edges, jacobian), key=lambda found: found[1]
+    )
     if strength < 0.3:
         return m.axis_rad
     candidates = (axis4, axis4 + 0.5 * math.pi)
