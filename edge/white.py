@@ -55,7 +55,8 @@ class LocalWhite:
         """Recompute the coarse map from the current reference (where it is valid; elsewhere the global white)."""
         h, w = reference.shape[:2]
         size = (max(1, w // BLOCK_PX), max(1, h // BLOCK_PX))
-        lin = cv2.resize(linear_bgr(reference), size, interpolation=cv2.INTER_AREA)
+        # averaged in 8-bit values, then linearised: a block's colour is what matters, and this is 20 times cheaper
+        lin = linear_bgr(np.asarray(cv2.resize(reference, size, interpolation=cv2.INTER_AREA), np.uint8))
         share = cv2.resize(valid.astype(np.float32), size, interpolation=cv2.INTER_AREA)
         chroma = lin / np.maximum(lin.sum(axis=2, keepdims=True), 1e-6)
         chroma[share < 0.95] = self.white  # a block with a rover (or its unrefreshed ghost) in it says nothing
