@@ -45,12 +45,13 @@ BoolArray = NDArray[np.bool_]
 
 ITERATIONS = 6
 REFINE_ITERATIONS = 4
+BIN_PX = 0.25  # samples are averaged in bins this wide across an edge (in pixels)
 REACH_CM = 4.0  # samples reach this far from an edge on the plane, or REACH_PX pixels where pixels are larger
 REACH_PX = 5.0
 CORNER_CM = 2.0  # samples this close to a corner (along the edge) are left out
 MIN_SAMPLES = 8
 MIN_BLUR_PX, MAX_BLUR_PX = 0.15, 4.0  # a step's width stays within these (pixel footprint and optics together)
-MARGINS_PX = (0.0, 0.5, 1.2, 2.5, 5.0)  # the body's top showing round the marker
+MARGINS_PX = (0.0, 0.5, 1.2, 2.5, 5.0)  # the body's top showing round the marker (refined freely from the best)
 SIZE_TOLERANCE = 0.25  # the fitted length and width may differ from the marker's by this share, else no fit
 _Z = np.linspace(-8.0, 8.0, 3201)
 _PDF = np.exp(-0.5 * _Z * _Z) / math.sqrt(2.0 * math.pi)
@@ -161,7 +162,7 @@ def fit_edges(
     edges and starts batched)."""
     n_edges = len(samples)
     px = np.array([p for _, _, p in samples])
-    binned = [_bins(d, v, 0.25 * p) for d, v, p in samples]
+    binned = [_bins(d, v, BIN_PX * p) for d, v, p in samples]
     size = max(len(b[0]) for b in binned)
     d = np.zeros((n_edges, size))
     v = np.zeros((n_edges, size))
