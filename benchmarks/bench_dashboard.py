@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Dashboard benchmark (issue 9): does watching the page slow the tracker? Tracker processing p99 with and without
+"""Dashboard benchmark: does watching the page slow the tracker? Tracker processing p99 with and without
 viewers connected (bar: no more than 10 % worse), and what the viewers get.
 
     .venv/bin/python benchmarks/bench_dashboard.py                     # 3 rounds x 4 conditions x 40 s, ~9 min
@@ -7,7 +7,7 @@ viewers connected (bar: no more than 10 % worse), and what the viewers get.
 
 What runs, as on the camera board: the simulator's ``lab`` scenario (3 rovers, seed 0) pre-rendered to a 1280x720
 MJPG clip, looped and paced at 30 fps (as ``bench_runtime.py``: rendering is not the edge's work, decoding is),
-through the appliance exactly as ``edge-ips start`` assembles it (:func:`edge.runtime.prepare_appliance`: real
+through the appliance exactly as ``edge-ips start`` assembles it (:func:`edge.appliance.prepare_appliance`: real
 tracking pipeline with ``[tracker]`` defaults, the clip's exact calibration, a private Mosquitto, the HTTP server
 with the dashboard at its defaults: 10 fps JPEG at 960 px, quality 70, 15 Hz poses). The appliance runs in this
 process; the benchmark's own thread only sleeps. The tracker's time per frame is taken around
@@ -51,7 +51,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
-from tests.support.dashboard import CHROMIUM, CHROMIUM_ARGS  # noqa: E402  (after the sys.path lines above)
+from _common import CHROMIUM, CHROMIUM_ARGS, MOSQUITTO_BENCH, private_mosquitto  # noqa: E402  (after sys.path)
 
 
 # -- viewer processes ----------------------------------------------------------------------------------------------
@@ -205,9 +205,9 @@ def main() -> None:
     import psutil
     from bench_runtime import render_clip
 
-    from edge.config import EdgeConfig, with_overrides
-    from edge.runtime import default_tracker_factory, prepare_appliance
-    from tests.support.mosquitto import Mosquitto
+    from edge.appliance import default_tracker_factory, prepare_appliance
+    from edge.config import EdgeConfig
+    from edge.config_load import with_overrides
 
     logging.basicConfig(level=logging.WARNING)
     conditions = [c.strip() for c in args.viewers.split(",") if c.strip()]
@@ -215,9 +215,7 @@ def main() -> None:
         workdir = Path(tmp)
         clip, calibration, what = render_clip(workdir, 1280, 720, 30.0, seconds=10.0)
         print(f"clip: 1280x720 @ 30 fps, 3 rovers, {what}; looped", flush=True)
-        conf = workdir / "mosquitto-bench.conf"
-        conf.write_text("allow_anonymous true\nset_tcp_nodelay true\npersistence false\n")
-        with Mosquitto(workdir / "mosquitto", conf_path=conf) as mosquitto:
+        with private_mosquitto(workdir / "mosquitto", MOSQUITTO_BENCH) as mosquitto:
             config = with_overrides(
                 EdgeConfig(),
                 **{

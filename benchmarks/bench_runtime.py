@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Runtime benchmark (issue 6): end-to-end latency, CPU and memory of ``edge-ips start``.
+"""Runtime benchmark: end-to-end latency, CPU and memory of ``edge-ips start``.
 
     .venv/bin/python benchmarks/bench_runtime.py                       # 10 min with Mosquitto, 10 min embedded
     .venv/bin/python benchmarks/bench_runtime.py --duration 60 --brokers mosquitto
@@ -22,6 +22,7 @@ the edge runs its real tracking pipeline (``[tracker]`` defaults).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import itertools
 import json
 import os
@@ -81,7 +82,7 @@ def render_clip(directory: Path, width: int, height: int, fps: float, seconds: f
     frames = int(seconds * fps)
     writer = cv2.VideoWriter(str(clip), cv2.VideoWriter.fourcc(*"MJPG"), fps, (width, height))
     from edge.calibration import save_calibration
-    from edge.runtime import exact_calibration
+    from edge.calibration.exact import exact_calibration
     from edge.sim.source import SimSource
 
     sim = SimSource("lab", seed=0, realtime=False, frames=frames)
@@ -156,9 +157,9 @@ def run_once(
     broker_kind: str, clip: Path, calibration: Path, duration_s: float, warmup_s: float, workdir: Path
 ) -> RunResult:
     import psutil
+    from _common import MOSQUITTO_BENCH, private_mosquitto
 
-    from edge.config import to_toml
-    from tests.support.mosquitto import Mosquitto
+    from edge.config_text import to_toml
 
     http_port = free_port()
     settings: dict[str, dict[str, Any]] = {
@@ -168,11 +169,9 @@ def run_once(
         "broker": {"reconnect_max_s": 2.0},
     }
     settings["calibration"] = {"path": str(calibration)}
-    mosquitto = None
+    brokers = contextlib.ExitStack()
     if broker_kind == "mosquitto":
-        conf = workdir / "mosquitto-bench.conf"  # what `edge-ips broker-config` writes, minus users and ACLs
-        conf.write_text("allow_anonymous true\nset_tcp_nodelay true\npersistence false\n")
-        mosquitto = Mosquitto(workdir / "mosquitto", conf_path=conf).start()
+        mosquitto = brokers.enter_context(private_mosquitto(workdir / "mosquitto", MOSQUITTO_BENCH))
         settings["broker"]["url"] = mosquitto.url
         broker_port = mosquitto.port
     else:
@@ -219,8 +218,7 @@ def run_once(
         except subprocess.TimeoutExpired:
             edge.kill()
         edge_log.close()
-        if mosquitto is not None:
-            mosquitto.stop()
+        brokers.close()
 
     raw = json.loads(samples_path.read_text())
     data = np.array([(lat, t) for lat, t, _ in raw if t_start <= t <= t_end], dtype=np.float64).reshape(-1, 2)

@@ -1,4 +1,4 @@
-"""Calibration (issue 3) measured on the simulator's scenes (issue 4): files written by ``edge-ips sim render``, fitted
+"""Calibration measured on the simulator's scenes: files written by ``edge-ips sim render``, fitted
 by ``edge-ips calibrate`` exactly as a person would, true error over the whole working area against the camera model
 that rendered the scene.
 

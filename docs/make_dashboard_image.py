@@ -22,8 +22,9 @@ REPO = Path(__file__).resolve().parent.parent
 OUT = REPO / "docs" / "img" / "dashboard.png"
 TOKEN = "docs-screenshot-token"
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
 
-from tests.support.dashboard import CHROMIUM, CHROMIUM_ARGS  # noqa: E402  (after the sys.path line above)
+from _common import CHROMIUM, CHROMIUM_ARGS  # noqa: E402  (after the sys.path lines above)
 
 
 def free_port() -> int:
@@ -57,9 +58,8 @@ def main() -> None:
             with sync_playwright() as pw:
                 browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
                 page = browser.new_page(viewport={"width": 1280, "height": 900})
-                page.goto(url)
+                page.goto(f"{url}?token={TOKEN}")  # the page keeps it for the session (and the buttons send it)
                 page.wait_for_function("() => state.rovers.size === 3", timeout=60_000)
-                page.fill("#token", TOKEN)
                 page.fill("#side", "120")
                 page.click("button[data-kind=triangle]")
                 page.wait_for_function("() => (state.formation || {}).kind === 'triangle'", timeout=60_000)

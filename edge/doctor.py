@@ -1,7 +1,8 @@
 """``edge-ips doctor``: is this board ready to run ``edge-ips start``? One line per check, with a fix hint.
 
-Checks the configuration, the camera (opens, resolution, fps), the calibration (loads, matches the resolution),
-the broker (connects, may publish) and the clock (synchronised: poses carry the board's wall-clock time).
+Checks the configuration, the camera (opens, resolution, fps), its controls (granted as configured; autofocus and
+auto white balance off under a calibration), the calibration (loads, matches the resolution), the broker (connects,
+may publish) and the clock (synchronised: poses carry the board's wall-clock time).
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 from edge.config import BrokerTarget, EdgeConfig, broker_target
@@ -41,21 +42,11 @@ def check_config(where: str, env_keys: tuple[str, ...]) -> Check:
 
 def check_camera(config: EdgeConfig, sim_factory: Callable[[str], Any] | None = None) -> tuple[Check, Any, Any]:
     """Open the source and read one frame. Returns the check, the (closed) source and what it granted."""
-    from edge.sources import make_source, parse_source
+    from edge.sources import camera_source, parse_source
 
     cam = config.camera
     try:
-        source = make_source(
-            cam.source,
-            width=cam.width,
-            height=cam.height,
-            fps=cam.fps,
-            fourcc=cam.fourcc,
-            loop=cam.loop,
-            realtime=False,
-            stall_timeout_s=cam.stall_timeout_s,
-            sim_factory=sim_factory,
-        )
+        source = camera_source(cam, sim_factory, realtime=False)
         info = source.open()
     except EdgeIpsError as exc:
         hint = "plug the camera in and check `ls /dev/video*`, or try --source sim"
@@ -80,8 +71,34 @@ def check_camera(config: EdgeConfig, sim_factory: Callable[[str], Any] | None = 
     return check, source, info
 
 
+def check_controls(config: EdgeConfig, source: Any) -> Check | None:
+    """A V4L2 camera's controls: what was not granted, and automatic modes that move a calibration or the hues."""
+    from edge.sources import CameraSource
+
+    if not isinstance(source, CameraSource):
+        return None
+    report = source.controls_report
+    try:
+        modes = source.automatic_modes()
+    except EdgeIpsError as exc:
+        return Check("controls", "warn", f"cannot read the camera's controls: {exc}", "check the camera's driver")
+    if modes and config.calibration.path is not None:
+        on = " and ".join(modes)
+        return Check(
+            "controls",
+            "warn",
+            f"{on} on: {'they move' if len(modes) > 1 else 'it moves'} the focal length or the marker colours "
+            "under a calibration",
+            "set [camera.controls] autofocus = false, focus = N, auto_white_balance = false, white_balance_k = K "
+            "(docs/deploy.md gives the C920's)",
+        )
+    if not report.ok:
+        return Check("controls", "warn", f"not all granted: {report.line()}", "see docs/deploy.md, camera controls")
+    return Check("controls", "ok", report.line() if report.granted else "the camera's own settings")
+
+
 def check_calibration(config: EdgeConfig, source: Any, info: Any, where: str) -> Check:
-    from edge.runtime import load_calibration_for
+    from edge.appliance import load_calibration_for
 
     if source is None:
         return Check("calibration", "warn", "not checked: no camera", "fix the camera first")
@@ -115,15 +132,18 @@ def _probe_broker(target: BrokerTarget, config: EdgeConfig, timeout_s: float) ->
     from paho.mqtt.reasoncodes import ReasonCode
 
     from edge.messages import dumps
-    from edge.publisher import TlsFiles, connect_host, offline_status
+    from edge.mqttclient import TlsFiles, connect_host
+    from edge.publisher import offline_status
 
     client = mqtt.Client(
-        mqtt.CallbackAPIVersion.VERSION2, client_id=f"edge-ips-doctor-{config.edge.id}", protocol=mqtt.MQTTv5
+        mqtt.CallbackAPIVersion.VERSION2,
+        client_id=f"edge-ips-doctor-{config.edge.id}",
+        protocol=mqtt.MQTTv311 if target.embedded else mqtt.MQTTv5,  # amqtt speaks MQTT 3.1.1 only
     )
     if target.username is not None:
         client.username_pw_set(target.username, target.password)
     if target.tls:
-        files = TlsFiles(config.broker.ca_file, config.broker.cert_file, config.broker.key_file)
+        files = TlsFiles.of(config.broker)
         files.check()
         client.tls_set(
             ca_certs=str(files.ca_file) if files.ca_file else None,
@@ -184,20 +204,46 @@ def _probe_broker(target: BrokerTarget, config: EdgeConfig, timeout_s: float) ->
         client.loop_stop()
 
 
+def _embedded_logins(config: EdgeConfig) -> tuple[str, BrokerTarget | None, str]:
+    """How the embedded broker's logins look (for the line), the edge's target with its login if readable, and a
+    problem with the file ("" if none)."""
+    import stat
+
+    from edge.broker.clients import embedded_credentials, select_broker
+
+    path = embedded_credentials(config)
+    if not path.exists():
+        return f"logins generated on the first start in {path}", None, ""
+    mode = stat.S_IMODE(path.stat().st_mode)
+    try:
+        target = select_broker(config).target
+    except EdgeIpsError as exc:
+        return f"logins in {path}", None, str(exc)
+    if mode & 0o077:
+        return f"logins in {path}", target, f"{path} is mode {mode:o}: others may read the passwords (chmod 600)"
+    return f"logins in {path} (mode 600)", target, ""
+
+
 def check_broker(config: EdgeConfig, timeout_s: float = 5.0) -> Check:
     target = broker_target(config.broker)
     if target.embedded:
+        logins, edge, problem = _embedded_logins(config)
+        where = f"embedded: amqtt on {target.host}:{target.port}, {logins}; anonymous: read-only, this machine only"
+        if problem:
+            return Check("broker", "warn" if edge is not None else "fail", f"{where}: {problem}", "fix the file")
         if _port_free(target.host, target.port):
-            return Check("broker", "ok", f"embedded: port {target.port} on {target.host} is free")
+            return Check("broker", "ok", f"{where}; port {target.port} is free")
         try:
-            probe = _probe_broker(BrokerTarget(embedded=True, host=target.host, port=target.port), config, timeout_s)
+            probe = _probe_broker(edge or target, config, timeout_s)
         except Exception as exc:
             probe = Check("broker", "fail", str(exc))
         if probe.level == "ok" and "is running" in probe.detail:
-            return probe
+            return Check("broker", "ok", f"{where}; {probe.detail}")
         hint = "stop the other broker, set broker.embedded_port, or use it: broker.url = mqtt://localhost:PORT"
         return Check("broker", "fail", f"embedded: port {target.port} on {target.host} is in use", hint)
-    return _probe_broker(target, config, timeout_s)
+    probe = _probe_broker(target, config, timeout_s)
+    login = f"login {target.username}" if target.username else "anonymous"
+    return replace(probe, detail=f"{probe.detail} ({'TLS' if target.tls else 'no TLS'}, {login})")
 
 
 def check_clock() -> Check:
@@ -232,6 +278,9 @@ def run_checks(
     yield check_config(where, env_keys)
     camera, source, info = check_camera(config, sim_factory)
     yield camera
+    controls = check_controls(config, source)
+    if controls is not None:
+        yield controls
     yield check_calibration(config, source, info, where)
     try:
         yield check_broker(config)

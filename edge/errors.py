@@ -6,6 +6,8 @@ into a one-line message and exit code 2.
 
 from __future__ import annotations
 
+from pydantic import ValidationError
+
 
 class EdgeIpsError(Exception):
     """Base class of every error a user can cause and fix."""
@@ -37,3 +39,18 @@ class SimulationError(EdgeIpsError):
 
 class FlashError(EdgeIpsError):
     """A rover board that cannot be reached, flashed or provisioned (tools/flash.py)."""
+
+
+class EnrollmentError(EdgeIpsError):
+    """Marker colours that cannot be enrolled from the images given (no marker, a marker in the background...)."""
+
+
+def describe_validation(exc: ValidationError, top_level: str = "(top level)") -> str:
+    """``key.path: what is wrong`` for the first error pydantic found (``top_level`` when it is about the whole
+    input), ``unknown key`` for a key the model does not have, and how many more errors there are."""
+    errors = exc.errors()
+    first = errors[0]
+    where = ".".join(str(p) for p in first["loc"]) or top_level
+    message = "unknown key" if first["type"] == "extra_forbidden" else first["msg"].removeprefix("Value error, ")
+    more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+    return f"{where}: {message}{more}"

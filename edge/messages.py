@@ -18,15 +18,19 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
 
-from edge.errors import MessageError
+from edge.errors import MessageError, describe_validation
 
 VERSION = 1
 TOPIC_PREFIX = "ips/v1"
 POSE_MAX_BYTES = 160
 FORMATION_MAX_BYTES = 512
 STATUS_MAX_BYTES = 512
+ROVER_STATUS_VERSION = 2  # v1 (seq only) could not say which command a rover applies; see shared/schema/README.md
+ROVER_STATUS_PREFIX = f"ips/v{ROVER_STATUS_VERSION}"
+ROVER_STATUS_MAX_BYTES = 160
 
 ID_PATTERN = r"^[a-z0-9_-]{1,16}$"
+FW_PATTERN = r"^[0-9A-Za-z.+-]{1,16}$"
 MAX_INT = 999_999_999  # seq and frame wrap here: below 2**30, so small ints on the ESP8266 (no allocation)
 MAX_ABS_CM = 9_999.99  # 100 m: anything beyond is a bug, not a lab
 MAX_ABS_CM_S = 999.9  # 10 m/s: far beyond any small rover; the filter output is clipped to it
@@ -49,8 +53,8 @@ def pose_topic(rover_id: str) -> str:
 
 
 def rover_status_topic(rover_id: str) -> str:
-    """A rover's own retained status (its last will says ``offline``)."""
-    return f"{TOPIC_PREFIX}/rovers/{rover_id}/status"
+    """A rover's own retained status, rover status v2 (its last will says ``offline``)."""
+    return f"{ROVER_STATUS_PREFIX}/rovers/{rover_id}/status"
 
 
 def edge_status_topic(edge_id: str) -> str:
@@ -60,6 +64,7 @@ def edge_status_topic(edge_id: str) -> str:
 
 FORMATION_TOPIC = f"{TOPIC_PREFIX}/formation"
 POSE_WILDCARD = f"{TOPIC_PREFIX}/rovers/+/pose"
+ROVER_STATUS_WILDCARD = f"{ROVER_STATUS_PREFIX}/rovers/+/status"
 
 
 # -- models ------------------------------------------------------------------------------------------------------
@@ -100,7 +105,10 @@ class FormationV1(BaseModel):
     )
 
     v: Version = Field(description="Message version, always 1.")
-    seq: Counter = Field(description="Increments with every new formation command.")
+    seq: Counter = Field(
+        description="Increments with every new formation command (999999999 is followed by 1); a label for people "
+        "and logs: rovers compare whole commands, not seq."
+    )
     kind: FormationKind = Field(description="Which formation: line, rendezvous, triangle, or stop (all halt).")
     ids: list[RoverId] = Field(max_length=16, description="Ordered ids of the rovers taking part.")
     spacing: float | None = Field(
@@ -142,7 +150,54 @@ class StatusV1(BaseModel):
     t: float = Field(ge=0.0, le=1e10, description="Wall-clock time of the status, Unix seconds.")
 
 
-MODELS: dict[str, type[BaseModel]] = {"pose": PoseV1, "formation": FormationV1, "status": StatusV1}
+HaltReason = Literal["none", "probe", "idle", "stop", "stale", "disconnected", "error", "heading"]
+
+
+class RoverStatusV2(BaseModel):
+    """What a rover applies and why its motors are stopped, retained on ``ips/v2/rovers/<id>/status`` (published by
+    the rover; its last will is ``state: offline``)."""
+
+    model_config = ConfigDict(
+        **_STRICT,
+        title="rover status v2",
+        json_schema_extra={
+            "x-max-bytes": ROVER_STATUS_MAX_BYTES,
+            "x-topic": f"{ROVER_STATUS_PREFIX}/rovers/<id>/status",
+            "x-retained": True,
+        },
+    )
+
+    v: Annotated[
+        int,
+        Field(
+            ge=ROVER_STATUS_VERSION,
+            le=ROVER_STATUS_VERSION,
+            json_schema_extra={"const": ROVER_STATUS_VERSION},
+            description="Message version, always 2.",
+        ),
+    ]
+    id: RoverId = Field(description="The rover's id (the topic's <id>).")
+    state: Literal["online", "offline"] = Field(description="online, or offline (the last will, or a clean stop).")
+    halt: HaltReason = Field(
+        description="Why the motors are stopped: none and probe drive; idle, stop, stale, disconnected, error and "
+        "heading halt (docs/firmware.md, safety behaviour)."
+    )
+    formation: FormationKind | None = Field(
+        description="Kind of the formation command the rover applies, or null: none received since it (re)connected."
+    )
+    seq: Counter | None = Field(description="seq of that formation command, or null.")
+    fw: Annotated[str, StringConstraints(pattern=FW_PATTERN)] | None = Field(
+        description="Firmware version, or null (the last will)."
+    )
+
+
+MODELS: dict[str, type[BaseModel]] = {
+    "pose": PoseV1,
+    "formation": FormationV1,
+    "status": StatusV1,
+    "rover_status": RoverStatusV2,
+}
+MODEL_VERSIONS: dict[str, int] = {"pose": 1, "formation": 1, "status": 1, "rover_status": ROVER_STATUS_VERSION}
 
 
 # -- encoding ----------------------------------------------------------------------------------------------------
@@ -206,6 +261,12 @@ def dumps(message: BaseModel) -> bytes:
     return json.dumps(message.model_dump(mode="json"), separators=(",", ":"), allow_nan=False).encode()
 
 
+def next_seq(seq: int | None) -> int:
+    """The formation seq after ``seq`` (None: nothing retained): +1, and 999999999 is followed by 1, not 0 (0 is
+    never written, so a wrapped seq never looks like a fresh start)."""
+    return 1 if seq is None or seq >= MAX_INT or seq < 0 else seq + 1
+
+
 # -- decoding ----------------------------------------------------------------------------------------------------
 def _loads(model: type[BaseModel], payload: bytes, max_bytes: int) -> Any:
     if len(payload) > max_bytes:
@@ -217,9 +278,7 @@ def _loads(model: type[BaseModel], payload: bytes, max_bytes: int) -> Any:
     try:
         return model.model_validate_json(text)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-        raise MessageError(f"{model.__name__}: {where}: {first['msg']}") from exc
+        raise MessageError(f"{model.__name__}: {describe_validation(exc)}") from exc
 
 
 def parse_pose(payload: bytes) -> PoseV1:
@@ -234,10 +293,24 @@ def parse_status(payload: bytes) -> StatusV1:
     return _loads(StatusV1, payload, STATUS_MAX_BYTES)
 
 
-PARSERS = {"pose": parse_pose, "formation": parse_formation, "status": parse_status}
+def parse_rover_status(payload: bytes) -> RoverStatusV2:
+    return _loads(RoverStatusV2, payload, ROVER_STATUS_MAX_BYTES)
+
+
+PARSERS = {
+    "pose": parse_pose,
+    "formation": parse_formation,
+    "status": parse_status,
+    "rover_status": parse_rover_status,
+}
 
 
 # -- JSON Schema -------------------------------------------------------------------------------------------------
+def schema_file(kind: str) -> str:
+    """The committed schema's file name of a message kind: ``pose.v1.schema.json``, ``rover_status.v2...``."""
+    return f"{kind}.v{MODEL_VERSIONS[kind]}.schema.json"
+
+
 def schema_documents() -> dict[str, dict[str, Any]]:
     """``{file name: JSON Schema}`` for every message and version, as committed under ``shared/schema/``."""
     docs: dict[str, dict[str, Any]] = {}
@@ -245,10 +318,10 @@ def schema_documents() -> dict[str, dict[str, Any]]:
         schema = model.model_json_schema(mode="validation")
         schema = {
             "$schema": "https://json-schema.org/draft/2020-12/schema",
-            "$id": f"https://edge-ips.invalid/schema/{name}.v{VERSION}.schema.json",
+            "$id": f"https://edge-ips.invalid/schema/{schema_file(name)}",
             **schema,
         }
-        docs[f"{name}.v{VERSION}.schema.json"] = schema
+        docs[schema_file(name)] = schema
     return docs
 
 

@@ -1,17 +1,27 @@
-"""What the runtime knows about itself: rolling latency windows, a snapshot of its state, Prometheus text.
+"""What the runtime knows about itself: rolling latency windows, a snapshot of its state, Prometheus metrics.
 
 The runtime fills :class:`LatencyWindow` objects on its hot path (a preallocated ring, no allocation per sample)
 and builds a :class:`Snapshot` on request; ``/healthz``, ``/metrics`` and the dashboard read snapshots only.
+``/metrics`` is ``prometheus_client``'s exposition of a registry whose collectors build their families from a
+snapshot (and the HTTP server's and recorder's counters) when scraped: the tracker's thread does nothing for it.
 """
 
 from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from prometheus_client import CollectorRegistry, ProcessCollector, generate_latest
+from prometheus_client.exposition import CONTENT_TYPE_PLAIN_0_0_4
+from prometheus_client.metrics_core import CounterMetricFamily, GaugeMetricFamily, Metric
+
+if TYPE_CHECKING:
+    from edge.httpserver import HttpServer
+    from edge.recording import Recorder
 
 QUANTILES = (0.5, 0.9, 0.99)
 
@@ -137,83 +147,135 @@ class Snapshot:
         }
 
 
-def _escape(value: str) -> str:
-    return value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
-
-
-def _num(value: float) -> str:
-    if math.isnan(value):
-        return "NaN"
-    if math.isinf(value):
-        return "+Inf" if value > 0 else "-Inf"
-    return repr(float(value)) if not float(value).is_integer() else str(int(value))
-
-
-class _Writer:
-    def __init__(self) -> None:
-        self.lines: list[str] = []
-
-    def metric(self, name: str, kind: str, help_text: str, samples: Iterable[tuple[str, float]]) -> None:
-        self.lines.append(f"# HELP edge_ips_{name} {help_text}")
-        self.lines.append(f"# TYPE edge_ips_{name} {kind}")
-        for labels, value in samples:
-            self.lines.append(f"edge_ips_{name}{labels} {_num(value)}")
-
-    def summary(self, name: str, help_text: str, latency: Latency) -> None:
-        self.lines.append(f"# HELP edge_ips_{name} {help_text}")
-        self.lines.append(f"# TYPE edge_ips_{name} summary")
-        for q, v in zip(QUANTILES, (latency.p50_s, latency.p90_s, latency.p99_s), strict=True):
-            self.lines.append(f'edge_ips_{name}{{quantile="{q}"}} {_num(v)}')
-        self.lines.append(f"edge_ips_{name}_sum {_num(latency.total_s)}")
-        self.lines.append(f"edge_ips_{name}_count {latency.count}")
-
-
 STATES = ("online", "degraded", "offline")
 CAMERA_STATES = ("ok", "starting", "stalled", "missing", "stopped")
+CONTENT_TYPE = CONTENT_TYPE_PLAIN_0_0_4
 
 
-def to_prometheus(s: Snapshot) -> str:
-    """The Prometheus text exposition (format 0.0.4) of a snapshot."""
-    w = _Writer()
-    info = f'{{edge="{_escape(s.edge_id)}",source="{_escape(s.source)}",broker="{_escape(s.broker)}"}}'
-    w.metric("info", "gauge", "Edge id, frame source and broker.", [(info, 1)])
-    w.metric("state", "gauge", "1 for the current edge state.", [(f'{{state="{v}"}}', v == s.state) for v in STATES])
-    w.metric(
-        "camera_state",
-        "gauge",
-        "1 for the current frame source state.",
-        [(f'{{state="{v}"}}', v == s.camera) for v in CAMERA_STATES],
+def _gauge(name: str, help_text: str, value: float) -> GaugeMetricFamily:
+    return GaugeMetricFamily(f"edge_ips_{name}", help_text, value=float(value))
+
+
+def _counter(name: str, help_text: str, value: float) -> CounterMetricFamily:
+    return CounterMetricFamily(f"edge_ips_{name}", help_text, value=float(value))
+
+
+def _summary(name: str, help_text: str, latency: Latency) -> Metric:
+    # prometheus_client's SummaryMetricFamily has no quantiles; the runtime's windows have them.
+    metric = Metric(f"edge_ips_{name}", help_text, "summary")
+    for q, v in zip(QUANTILES, (latency.p50_s, latency.p90_s, latency.p99_s), strict=True):
+        metric.add_sample(f"edge_ips_{name}", {"quantile": str(q)}, v)
+    metric.add_sample(f"edge_ips_{name}_sum", {}, latency.total_s)
+    metric.add_sample(f"edge_ips_{name}_count", {}, latency.count)
+    return metric
+
+
+def _one_of(name: str, help_text: str, values: Sequence[str], current: str) -> GaugeMetricFamily:
+    family = GaugeMetricFamily(f"edge_ips_{name}", help_text, labels=["state"])
+    for value in values:
+        family.add_metric([value], 1.0 if value == current else 0.0)
+    return family
+
+
+def _per_rover(name: str, kind: str, help_text: str, samples: Iterable[tuple[str, float]]) -> Metric:
+    family: GaugeMetricFamily | CounterMetricFamily
+    if kind == "counter":
+        family = CounterMetricFamily(f"edge_ips_{name}", help_text, labels=["rover"])
+    else:
+        family = GaugeMetricFamily(f"edge_ips_{name}", help_text, labels=["rover"])
+    for rover, value in samples:
+        family.add_metric([rover], float(value))
+    return family
+
+
+def snapshot_metrics(s: Snapshot) -> Iterator[Metric]:
+    """The metric families of one snapshot."""
+    info = GaugeMetricFamily("edge_ips_info", "Edge id, frame source and broker.", labels=["edge", "source", "broker"])
+    info.add_metric([s.edge_id, s.source, s.broker], 1.0)
+    yield info
+    yield _one_of("state", "1 for the current edge state.", STATES, s.state)
+    yield _one_of("camera_state", "1 for the current frame source state.", CAMERA_STATES, s.camera)
+    yield _gauge("uptime_seconds", "Seconds since start.", s.uptime_s)
+    yield _gauge("fps", "Frames processed per second over the last status interval.", s.fps)
+    yield _counter("frames_processed", "Frames the tracker processed.", s.frames_processed)
+    yield _counter(
+        "frames_dropped", "Frames overwritten by a newer one before the tracker took them.", s.frames_dropped
     )
-    w.metric("uptime_seconds", "gauge", "Seconds since start.", [("", s.uptime_s)])
-    w.metric("fps", "gauge", "Frames processed per second over the last status interval.", [("", s.fps)])
-    w.metric("frames_processed_total", "counter", "Frames the tracker processed.", [("", s.frames_processed)])
-    w.metric(
-        "frames_dropped_total",
-        "counter",
-        "Frames overwritten by a newer one before the tracker took them.",
-        [("", s.frames_dropped)],
+    yield _summary("processing_seconds", "Tracker time per frame (recent window).", s.processing)
+    yield _summary("end_to_end_seconds", "Frame grab to pose handed to the MQTT client (recent window).", s.end_to_end)
+    yield _per_rover(
+        "detections", "counter", "Frames in which the rover was found.", [(r.id, r.detections) for r in s.rovers]
     )
-    w.summary("processing_seconds", "Tracker time per frame (recent window).", s.processing)
-    w.summary("end_to_end_seconds", "Frame grab to pose handed to the MQTT client (recent window).", s.end_to_end)
-    rovers = [(f'{{rover="{_escape(r.id)}"}}', r) for r in s.rovers]
-    w.metric(
-        "detections_total", "counter", "Frames in which the rover was found.", [(k, r.detections) for k, r in rovers]
-    )
-    w.metric("missed_total", "counter", "Frames the rover was not found in.", [(k, r.missed) for k, r in rovers])
-    w.metric(
+    yield _per_rover("missed", "counter", "Frames the rover was not found in.", [(r.id, r.missed) for r in s.rovers])
+    yield _per_rover(
         "rover_last_seen_seconds",
         "gauge",
         "Seconds since the rover was last found (NaN: never).",
-        [(k, math.nan if r.last_seen_age_s is None else r.last_seen_age_s) for k, r in rovers],
+        [(r.id, math.nan if r.last_seen_age_s is None else r.last_seen_age_s) for r in s.rovers],
     )
-    w.metric("broker_connected", "gauge", "1 while connected to the MQTT broker.", [("", s.broker_connected)])
-    w.metric("broker_connects_total", "counter", "Successful broker connections.", [("", s.broker_connects)])
-    w.metric("broker_disconnects_total", "counter", "Broker connections lost.", [("", s.broker_disconnects)])
-    w.metric("poses_published_total", "counter", "Pose messages published.", [("", s.poses_sent)])
-    w.metric("poses_dropped_total", "counter", "Poses dropped while the broker was away.", [("", s.poses_dropped)])
-    w.metric("poses_invalid_total", "counter", "Estimates the contract cannot carry.", [("", s.poses_invalid)])
-    w.metric("camera_failures_total", "counter", "Times the frame source failed.", [("", s.camera_failures)])
-    w.metric("camera_reopens_total", "counter", "Times the frame source was reopened.", [("", s.camera_reopens)])
-    w.metric("recording_lines_total", "counter", "Lines written to the recording.", [("", s.recording_lines)])
-    w.metric("recording_dropped_total", "counter", "Lines the recording could not keep.", [("", s.recording_dropped)])
-    return "\n".join(w.lines) + "\n"
+    yield _gauge("broker_connected", "1 while connected to the MQTT broker.", s.broker_connected)
+    yield _counter("broker_connects", "Successful broker connections.", s.broker_connects)
+    yield _counter("broker_disconnects", "Broker connections lost.", s.broker_disconnects)
+    yield _counter("poses_published", "Pose messages published.", s.poses_sent)
+    yield _counter("poses_dropped", "Poses dropped while the broker was away.", s.poses_dropped)
+    yield _counter("poses_invalid", "Estimates the contract cannot carry.", s.poses_invalid)
+    yield _counter("camera_failures", "Times the frame source failed.", s.camera_failures)
+    yield _counter("camera_reopens", "Times the frame source was reopened.", s.camera_reopens)
+    yield _counter("recording_lines", "Whole lines written to the recording.", s.recording_lines)
+    yield _counter("recording_dropped", "Lines the recording could not keep.", s.recording_dropped)
+    yield _gauge("threads", "Threads in the process.", threading.active_count())
+
+
+class _Collect:
+    """A prometheus_client collector calling ``make()`` at each scrape (nothing runs between scrapes)."""
+
+    def __init__(self, make: Callable[[], Iterable[Metric]]) -> None:
+        self._make = make
+
+    def collect(self) -> Iterable[Metric]:
+        return self._make()
+
+
+def http_metrics(server: HttpServer) -> Iterator[Metric]:
+    """The HTTP server's connections, refusals and responses."""
+    st = server.stats
+    yield _gauge("http_connections_open", "Open HTTP connections.", server.open_connections)
+    yield _counter("http_connections", "HTTP connections accepted.", st.connections)
+    yield _counter("http_connections_evicted", "Idle connections closed to make room for a new one.", st.evicted)
+    yield _counter("http_connections_refused", "New connections closed because every one was busy.", st.refused)
+    yield _counter("http_request_timeouts", "Connections closed for not sending a request in time.", st.timed_out)
+    yield _gauge("http_streams_open", "Open event streams.", st.streams_open)
+    yield _counter("http_host_refused", "Requests refused for a Host that is not the board's.", st.host_refused)
+    limiter = server.guard.limiter
+    yield _counter("http_auth_failures", "Requests with a wrong token.", limiter.failures)
+    yield _counter("http_auth_lockouts", "Addresses locked out after repeated wrong tokens.", limiter.lockouts)
+    yield _counter("http_auth_refused", "Requests refused from a locked-out address.", limiter.refused)
+    responses = CounterMetricFamily("edge_ips_http_responses", "HTTP responses by status code.", labels=["code"])
+    for code, count in sorted(dict(st.responses).items()):
+        responses.add_metric([str(code)], float(count))
+    yield responses
+
+
+def recording_metrics(recorder: Recorder) -> Iterator[Metric]:
+    yield _gauge("recording_paused", "1 while the recording is paused (disk full or not writable).", recorder.paused)
+    yield _gauge("recording_files", "Recording files kept in the directory.", len(recorder.files))
+
+
+def metrics_registry(
+    snapshot: Callable[[], Snapshot], *, http: HttpServer | None = None, recorder: Recorder | None = None
+) -> CollectorRegistry:
+    """A registry that builds everything at scrape time: the snapshot, the HTTP server's and the recorder's
+    counters, and the process (CPU seconds, memory, open files)."""
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(_Collect(lambda: snapshot_metrics(snapshot())))
+    if http is not None:
+        registry.register(_Collect(lambda: http_metrics(http)))
+    if recorder is not None:
+        registry.register(_Collect(lambda: recording_metrics(recorder)))
+    ProcessCollector(registry=registry)
+    return registry
+
+
+def exposition(registry: CollectorRegistry) -> tuple[bytes, str]:
+    """The Prometheus text exposition (format 0.0.4) of ``registry`` and its content type."""
+    return generate_latest(registry), CONTENT_TYPE

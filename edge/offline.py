@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from edge.calibration import load_calibration
 from edge.errors import CalibrationError, ConfigError, SourceError
 from edge.messages import encode_pose
 from edge.tracker_config import TrackerConfig
@@ -88,10 +89,6 @@ def load_plane_mapping(path: Path, expected_size: tuple[int, int]) -> PlaneMappi
                 f"the video is {expected_size[0]}x{expected_size[1]}"
             )
         return CameraPlaneMapping(camera, MARKER_HEIGHT_CM)
-    try:
-        from edge.calibration import load_calibration
-    except ImportError as exc:  # pragma: no cover - calibration lands separately
-        raise CalibrationError(f"{path}: calibration files need edge.calibration ({exc})") from exc
     return load_calibration(path, expected_size=expected_size)
 
 

@@ -16,8 +16,8 @@
    while moving faster than ``heading_min_speed_cm_s``, else null.
 
 No full-frame work is done per frame while all rovers are tracked, except refreshing one band of rows of the
-background reference. Build one with :func:`edge.trackers.build_tracker` (``method="paper"`` gives the full-frame
-baseline, ``edge.trackers.paper``).
+background reference. Build one with :func:`edge.trackers.factory.build_tracker` (``method="paper"`` gives the
+full-frame baseline, ``edge.trackers.paper``).
 """
 
 from __future__ import annotations

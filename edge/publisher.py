@@ -4,35 +4,26 @@ Nothing stale is ever sent. Poses are published only while connected: while disc
 counted, never queued (paho queues nothing for QoS 0 without a socket, and its outgoing packet buffer is cleared
 on reconnect). Status is kept as "the latest" and re-published on every (re)connect. Reconnects run with
 exponential backoff on paho's network thread, so the tracker never waits for the network.
+
+The formation command lives in :mod:`edge.commands`, the client set-up in :mod:`edge.mqttclient`; their names
+below are kept importable from here.
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import socket
-import ssl
 import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Protocol
 
 import paho.mqtt.client as mqtt
 
 from edge.config import BrokerTarget
-from edge.errors import BrokerError, ConfigError
-from edge.messages import (
-    FORMATION_TOPIC,
-    FormationKind,
-    FormationV1,
-    StatusV1,
-    dumps,
-    edge_status_topic,
-    parse_formation,
-    pose_topic,
-)
+from edge.errors import BrokerError
+from edge.messages import StatusV1, dumps, edge_status_topic, pose_topic
+from edge.mqttclient import TlsFiles, connect_host, make_client
 
 log = logging.getLogger("edge.publisher")
 
@@ -40,7 +31,6 @@ Tap = Callable[[str, bytes, bool], None]
 """Called with (topic, payload, retain) for every message handed to the broker connection (the recording)."""
 
 STATUS_QOS = 1
-FORMATION_QOS = 1
 
 
 @dataclass
@@ -90,58 +80,6 @@ def offline_status(edge_id: str, rovers: Sequence[str], t: float | None = None) 
     )
 
 
-@dataclass(frozen=True)
-class TlsFiles:
-    ca_file: Path | None = None
-    cert_file: Path | None = None
-    key_file: Path | None = None
-
-    def check(self) -> None:
-        for key, path in (("ca_file", self.ca_file), ("cert_file", self.cert_file), ("key_file", self.key_file)):
-            if path is not None and not path.is_file():
-                raise ConfigError(f"broker.{key}: {path} not found")
-        if (self.cert_file is None) != (self.key_file is None):
-            raise ConfigError("broker.cert_file and broker.key_file go together: give both or neither")
-
-
-def make_client(
-    target: BrokerTarget,
-    client_id: str,
-    *,
-    tls: TlsFiles | None = None,
-    reconnect_min_s: float = 0.25,
-    reconnect_max_s: float = 2.0,
-) -> mqtt.Client:
-    """A paho v2 client (MQTT 3.1.1, clean session) set up for ``target``, not yet connected."""
-    client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, clean_session=True)
-    if target.username is not None:
-        client.username_pw_set(target.username, target.password)
-    if target.tls:
-        files = tls or TlsFiles()
-        files.check()
-        client.tls_set(
-            ca_certs=str(files.ca_file) if files.ca_file else None,
-            certfile=str(files.cert_file) if files.cert_file else None,
-            keyfile=str(files.key_file) if files.key_file else None,
-            cert_reqs=ssl.CERT_REQUIRED,
-        )
-    client.reconnect_delay_set(min_delay=reconnect_min_s, max_delay=reconnect_max_s)  # type: ignore[arg-type]
-    client.on_socket_open = _no_delay
-    return client
-
-
-def _no_delay(client: mqtt.Client, userdata: Any, sock: Any) -> None:
-    # paho leaves Nagle's algorithm on: the 2nd and 3rd pose of a frame would wait for the broker's delayed ACK
-    # (up to 40 ms on Linux). Poses are small and latency-bound, so send each segment at once.
-    with contextlib.suppress(OSError, AttributeError):
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-
-
-def connect_host(target: BrokerTarget) -> str:
-    # The embedded broker listens on every interface; this process reaches it over loopback.
-    return "127.0.0.1" if target.embedded and target.host in ("0.0.0.0", "::", "") else target.host
-
-
 class MqttPublisher:
     """paho-mqtt v2 publisher with last will, status refresh on reconnect and drop-not-queue for poses."""
 
@@ -170,6 +108,7 @@ class MqttPublisher:
         self._pose_topics = {r: pose_topic(r) for r in self.rovers}
         self._latest_status: StatusV1 | None = None
         self._connected = threading.Event()
+        self._disconnected = threading.Event()  # the complement of _connected, to wait on
         self._first_connack = threading.Event()
         self._first_refusal: str | None = None
         self._last_logged_error = ""
@@ -204,6 +143,7 @@ class MqttPublisher:
         self.stats.connects += 1
         self.stats.connected_since_mono = time.monotonic()
         self._last_logged_error = ""
+        self._disconnected.clear()
         self._connected.set()
         self._first_connack.set()
         log.info("connected to broker %s", self.target.display())
@@ -216,6 +156,7 @@ class MqttPublisher:
     def _on_disconnect(self, client: mqtt.Client, userdata: Any, flags: Any, reason_code: Any, props: Any) -> None:
         was_connected = self._connected.is_set()
         self._connected.clear()
+        self._disconnected.set()
         self.stats.connected_since_mono = None
         if was_connected and not self._stopping:
             self.stats.disconnects += 1
@@ -227,6 +168,10 @@ class MqttPublisher:
     @property
     def connected(self) -> bool:
         return self._connected.is_set()
+
+    def wait_disconnected(self, timeout_s: float) -> bool:
+        """Wait until the connection is known to be lost (paho saw it go); False on timeout."""
+        return self._disconnected.wait(timeout_s)
 
     def start(self) -> None:
         """Begin connecting in the background (paho's network thread retries with backoff)."""
@@ -304,14 +249,15 @@ class Published:
 
 
 class MemoryPublisher:
-    """Keeps every message in :attr:`messages`; ``connected`` can be switched off to test dropping."""
+    """Keeps every message in :attr:`messages`; ``connected`` can be switched off to test dropping.
+    :meth:`wait_until` waits for what has been published (or dropped) to satisfy a condition."""
 
     def __init__(self, *, tap: Tap | None = None) -> None:
         self.stats = PublisherStats()
         self.messages: list[Published] = []
         self.tap = tap
         self.is_connected = True
-        self._lock = threading.Lock()
+        self._lock = threading.Condition(threading.RLock())
         self.edge_status_topic: str | None = None
 
     @property
@@ -326,6 +272,7 @@ class MemoryPublisher:
             return False
         with self._lock:
             self.messages.append(Published(topic, payload, qos, retain, time.monotonic()))
+            self._lock.notify_all()
         if self.tap is not None:
             self.tap(topic, payload, retain)
         return True
@@ -334,8 +281,10 @@ class MemoryPublisher:
         if self.publish(pose_topic(rover_id), payload):
             self.stats.poses_sent += 1
             return True
-        self.stats.poses_dropped += 1
-        self.stats.dropped_by_rover[rover_id] = self.stats.dropped_by_rover.get(rover_id, 0) + 1
+        with self._lock:
+            self.stats.poses_dropped += 1
+            self.stats.dropped_by_rover[rover_id] = self.stats.dropped_by_rover.get(rover_id, 0) + 1
+            self._lock.notify_all()
         return False
 
     def publish_status(self, status: StatusV1) -> bool:
@@ -352,111 +301,8 @@ class MemoryPublisher:
         with self._lock:
             return [m.payload for m in self.messages if m.topic == topic]
 
-
-# -- one-shot publishing: the formation command ------------------------------------------------------------------
-def _connect_blocking(client: mqtt.Client, target: BrokerTarget, timeout_s: float) -> None:
-    done = threading.Event()
-    result: list[str] = []
-
-    def on_connect(c: mqtt.Client, u: Any, flags: Any, reason_code: Any, props: Any) -> None:
-        result.append("" if not reason_code.is_failure else str(reason_code))
-        done.set()
-
-    client.on_connect = on_connect
-    try:
-        client.connect(connect_host(target), target.port, keepalive=10)
-    except (OSError, ssl.SSLError) as exc:
-        raise BrokerError(f"cannot reach broker {target.display()}: {exc}") from exc
-    client.loop_start()
-    if not done.wait(timeout_s):
-        client.loop_stop()
-        raise BrokerError(f"broker {target.display()} did not answer within {timeout_s:g} s")
-    if result[0]:
-        client.loop_stop()
-        raise BrokerError(f"broker {target.display()} refused the connection: {result[0]}")
-
-
-def build_formation(
-    kind: FormationKind,
-    ids: Sequence[str],
-    *,
-    seq: int,
-    spacing_cm: float | None = None,
-    side_cm: float | None = None,
-    x_cm: float | None = None,
-    y_cm: float | None = None,
-    theta_rad: float | None = None,
-) -> FormationV1:
-    """A validated formation message (raises :class:`MessageError` naming the bad field).
-
-    Beyond the contract: every rover is named once, a formation other than ``stop`` names at least one rover, and a
-    triangle at least three (the firmware would make a 2-gon of two)."""
-    from pydantic import ValidationError
-
-    from edge.errors import MessageError
-
-    twice = sorted({i for i in ids if list(ids).count(i) > 1})
-    if twice:
-        raise MessageError(f"formation: ids: {', '.join(twice)} named more than once")
-    if kind != "stop" and not ids:
-        raise MessageError(f"formation: ids: a {kind} needs at least one rover")
-    if kind == "triangle" and len(ids) < 3:
-        raise MessageError(f"formation: ids: a triangle needs at least three rovers, got {len(ids)}")
-    try:
-        return FormationV1(
-            v=1,
-            seq=seq,
-            kind=kind,
-            ids=list(ids),
-            spacing=spacing_cm,
-            side=side_cm,
-            x=x_cm,
-            y=y_cm,
-            theta=theta_rad,
-        )
-    except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"])
-        raise MessageError(f"formation: {where}: {first['msg']}") from exc
-
-
-def send_formation(
-    target: BrokerTarget,
-    make: Callable[[int], FormationV1],
-    *,
-    client_id: str = "",
-    tls: TlsFiles | None = None,
-    timeout_s: float = 5.0,
-    retained_wait_s: float = 0.5,
-) -> FormationV1:
-    """Publish a retained formation whose ``seq`` follows the one currently retained (1 if none).
-
-    ``make(seq)`` builds the message. Returns what was published once the broker acknowledged it.
-    """
-    client = make_client(target, client_id, tls=tls)
-    current: list[FormationV1] = []
-    got = threading.Event()
-
-    def on_message(c: mqtt.Client, u: Any, message: mqtt.MQTTMessage) -> None:
-        try:
-            current.append(parse_formation(bytes(message.payload)))
-        except Exception as exc:  # a foreign retained payload: start a new sequence, but say so
-            log.warning("ignoring the retained formation on the broker: %s", exc)
-        got.set()
-
-    client.on_message = on_message
-    _connect_blocking(client, target, timeout_s)
-    try:
-        client.subscribe(FORMATION_TOPIC, qos=FORMATION_QOS)
-        got.wait(retained_wait_s)  # a retained message arrives right after the subscription, if there is one
-        client.unsubscribe(FORMATION_TOPIC)
-        seq = (current[-1].seq + 1) if current else 1
-        message = make(seq)
-        info = client.publish(FORMATION_TOPIC, dumps(message), qos=FORMATION_QOS, retain=True)
-        info.wait_for_publish(timeout_s)
-        if not info.is_published():
-            raise BrokerError(f"broker {target.display()} did not acknowledge the formation within {timeout_s:g} s")
-        return message
-    finally:
-        client.disconnect()
-        client.loop_stop()
+    def wait_until(self, condition: Callable[[], bool], timeout_s: float) -> bool:
+        """Block until ``condition()`` holds (checked after each message published or pose dropped; it may call
+        :meth:`on`); False when ``timeout_s`` passed first."""
+        with self._lock:
+            return self._lock.wait_for(condition, timeout_s)

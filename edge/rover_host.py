@@ -2,9 +2,10 @@
 
 The real modules of ``firmware/esp8266/`` run unchanged; only hardware is stood in for (``firmware/host/``:
 ``machine``, ``network``, MicroPython's ``time.ticks_*``, and a MicroPython-style socket under the vendored
-``umqtt.simple``). Each :class:`HostRover` owns its own motors, MQTT client and state, so a simulation can run a
-whole fleet in one process, faster than real time: the firmware's clock is whatever ``now_ms`` the caller passes
-to :meth:`HostRover.step`.
+``umqtt.simple``). They are imported by one module finder that knows exactly these files (``sys.path`` is left
+alone), under the names the firmware imports them by (``import msg``), as on the board. Each :class:`HostRover`
+owns its own motors, MQTT client and state, so a simulation can run a whole fleet in one process, faster than real
+time: the firmware's clock is whatever ``now_ms`` the caller passes to :meth:`HostRover.step`.
 
 Wheel commands come back as PWM duties (what the board would write) and as the wheel speeds those duties stand
 for, through the invertible model of ``motors.py`` (:func:`duty_to_wheel_rad_s`).
@@ -21,47 +22,81 @@ from __future__ import annotations
 
 import copy
 import importlib
+import importlib.abc
+import importlib.machinery
+import importlib.util
 import sys
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from edge.errors import ConfigError
+from edge.errors import BrokerError, ConfigError
 
 FIRMWARE_DIR = Path(__file__).resolve().parent.parent / "firmware" / "esp8266"
 HOST_DIR = FIRMWARE_DIR.parent / "host"
 CONFIG_DIR = FIRMWARE_DIR / "configs"
 
+FIRMWARE_NAMES = ("msg", "formation", "config", "motors", "link", "rover", "app", "main")
+HOST_NAMES = ("micropython", "machine", "network", "mptime", "mpsocket", "umqtt", "umqtt.simple")
+
 _lock = threading.Lock()
 _modules: dict[str, ModuleType] = {}
 
 
+class FirmwareFinder(importlib.abc.MetaPathFinder):
+    """Finds exactly the firmware's modules and the host stand-ins, by the names the firmware imports them by.
+
+    Nothing else is served, so no other import in the process can land in ``firmware/``; and a module of one of
+    these names found anywhere else (an installed ``machine`` package, say) cannot shadow them, since this finder is
+    asked first.
+    """
+
+    def __init__(self, files: Mapping[str, Path]) -> None:
+        self.files = dict(files)
+
+    @classmethod
+    def for_firmware(cls) -> FirmwareFinder:
+        files = {name: FIRMWARE_DIR / f"{name}.py" for name in FIRMWARE_NAMES}
+        for name in HOST_NAMES:
+            parts = name.split(".")
+            package = HOST_DIR.joinpath(*parts) / "__init__.py"
+            files[name] = package if package.is_file() else HOST_DIR.joinpath(*parts[:-1], parts[-1] + ".py")
+        return cls(files)
+
+    def find_spec(
+        self, fullname: str, path: Sequence[str] | None = None, target: ModuleType | None = None
+    ) -> importlib.machinery.ModuleSpec | None:
+        file = self.files.get(fullname)
+        if file is None:
+            return None
+        package = [str(file.parent)] if file.name == "__init__.py" else None
+        return importlib.util.spec_from_file_location(fullname, file, submodule_search_locations=package)
+
+
 def firmware_modules() -> dict[str, ModuleType]:
-    """Import the firmware's modules with the host stand-ins on ``sys.path`` (once per process).
+    """Import the firmware's modules with the host stand-ins, through :class:`FirmwareFinder` (once per process).
 
     Returns ``{"msg": ..., "formation": ..., "config": ..., "motors": ..., "link": ..., "rover": ..., "main": ...}``.
     """
     with _lock:
         if _modules:
             return _modules
-        for path in (str(HOST_DIR), str(FIRMWARE_DIR)):
-            if path not in sys.path:
-                sys.path.insert(0, path)
-        mptime = importlib.import_module("mptime")
-        mptime.install()
-        simple = importlib.import_module("umqtt.simple")
-        if not str(getattr(simple, "__file__", "")).startswith(str(HOST_DIR)):
-            raise ImportError(f"umqtt.simple resolved to {simple.__file__}, not the host copy in {HOST_DIR}")
-        simple.socket = importlib.import_module("mpsocket")  # type: ignore[attr-defined]
-        for name in ("msg", "formation", "config", "motors", "link", "rover", "main"):
+        finder = FirmwareFinder.for_firmware()
+        if not any(isinstance(f, FirmwareFinder) for f in sys.meta_path):
+            sys.meta_path.insert(0, finder)
+        for name, file in finder.files.items():
             module = importlib.import_module(name)
-            if not str(getattr(module, "__file__", "")).startswith(str(FIRMWARE_DIR)):
-                raise ImportError(f"firmware module {name} resolved to {module.__file__}, not {FIRMWARE_DIR}")
-            _modules[name] = module
+            if Path(getattr(module, "__file__", "") or "").resolve() != file.resolve():
+                raise ImportError(f"module {name} was already imported from {module.__file__}, not {file}")
+            if name in FIRMWARE_NAMES:
+                _modules[name] = module
+        sys.modules["mptime"].install()
+        simple: Any = sys.modules["umqtt.simple"]
+        simple.socket = sys.modules["mpsocket"]  # MicroPython-style sockets (read/write) under the vendored client
         return _modules
 
 
@@ -117,7 +152,8 @@ class HostRover:
     ``broker_host``/``broker_port``: the MQTT broker; ``None`` runs without a link (feed messages with
     :meth:`deliver`). ``link_clock``: milliseconds for the link's keepalive and reconnect timing; defaults to the
     host's monotonic clock, so a simulation running faster or slower than real time does not upset the broker's
-    keepalive. The control clock is the ``now_ms`` passed to :meth:`step`.
+    keepalive. The control clock is the ``now_ms`` passed to :meth:`step`. ``on_status(payload)``: every rover
+    status the firmware hands to the broker (rover status v2 bytes).
     """
 
     def __init__(
@@ -128,6 +164,7 @@ class HostRover:
         *,
         link_clock: Callable[[], int] | None = None,
         log: Callable[..., None] | None = None,
+        on_status: Callable[[bytes], None] | None = None,
     ) -> None:
         fw = firmware_modules()
         cfg = copy.deepcopy(dict(config))
@@ -145,8 +182,10 @@ class HostRover:
         self.link = None
         self._link_clock = link_clock or _monotonic_ms
         if broker_host is not None:
-            self.link = fw["link"].Link(self.config, self.rover.on_message, log=self._log)
-            self.rover.link = _ClockedLink(self.link, self._link_clock)
+            self.link = fw["link"].Link(
+                self.config, self.rover.on_message, self.rover.on_connect, log=self._log, safe=self.motors.stop
+            )
+            self.rover.link = _ClockedLink(self.link, self._link_clock, on_status)
 
     def _remember(self, *args: object) -> None:
         self.log_lines.append(" ".join(str(a) for a in args))
@@ -222,6 +261,28 @@ class HostRover:
     def connected(self) -> bool:
         return bool(self.link is not None and self.link.up)
 
+    def check_broker(self) -> None:
+        """Connect once with the firmware's own MQTT client, credentials and timeout, then disconnect cleanly:
+        :class:`BrokerError` when the broker cannot be reached or refuses this rover (the firmware itself would
+        retry for ever, as a rover must)."""
+        if self.link is None:
+            return
+        b = self.config["broker"]
+        where = f"mqtt://{b['host']}:{b['port']}"
+        client = self.link.client
+        try:
+            client.connect(True, b["timeout_s"])
+        except OSError as exc:
+            raise BrokerError(f"cannot reach broker {where}: {exc.strerror or exc}") from None
+        except sys.modules["umqtt.simple"].MQTTException as exc:
+            code = exc.args[0]
+            reason = CONNACK_REFUSALS.get(code, f"no valid CONNACK ({code})")
+            hint = " (check the rover's user and password)" if code in (4, 5) else ""
+            raise BrokerError(
+                f"broker {where} refused rover {self.id!r} (user {b['user']!r}): {reason}{hint}"
+            ) from None
+        client.disconnect()
+
     # -- teardown ------------------------------------------------------------------------------------------------
     def close(self) -> None:
         """Clean disconnect: publishes the offline status (a clean DISCONNECT fires no last will)."""
@@ -237,16 +298,27 @@ class HostRover:
             self.link.up = False
 
 
+CONNACK_REFUSALS = {
+    1: "unacceptable protocol version",
+    2: "client id rejected",
+    3: "server unavailable",
+    4: "bad user name or password",
+    5: "not authorised",
+}
+
+
 def _monotonic_ms() -> int:
     return int(time.monotonic() * 1000) & ((1 << 30) - 1)
 
 
 class _ClockedLink:
-    """The firmware's Link, timed by the host's clock instead of the simulation's (keepalive, backoff)."""
+    """The firmware's Link, timed by the host's clock instead of the simulation's (keepalive, backoff); statuses
+    handed to the broker are shown to ``on_status`` too."""
 
-    def __init__(self, link: Any, clock: Callable[[], int]) -> None:
+    def __init__(self, link: Any, clock: Callable[[], int], on_status: Callable[[bytes], None] | None) -> None:
         self._link = link
         self._clock = clock
+        self._on_status = on_status
 
     def poll(self, now_ms: int) -> bool:
         return bool(self._link.poll(self._clock()))
@@ -257,3 +329,5 @@ class _ClockedLink:
 
     def publish_status(self, payload: bytes) -> None:
         self._link.publish_status(payload)
+        if self._on_status is not None and self._link.up:
+            self._on_status(payload)

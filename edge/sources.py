@@ -4,28 +4,38 @@ Every source yields :class:`Frame` objects through the small :class:`FrameSource
 is taken at grab (``time.time()`` for the wire, ``time.monotonic()`` for latency) and travels with the frame into
 the pose message's ``t``.
 
-Live capture runs on a :class:`CaptureThread` that writes into a :class:`FrameSlot` holding only the newest frame:
-the tracker always takes the newest frame, an older one it did not get to is overwritten (and counted), so no
-queue can grow and latency cannot creep up. When a camera vanishes or a stream stalls, the capture thread closes
-the source and reopens it with exponential backoff.
+Live capture (the newest-frame slot and the thread that reopens a vanished source) is in :mod:`edge.capture`.
 """
 
 from __future__ import annotations
 
 import logging
 import re
-import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
+from edge.camera_controls import (
+    CameraControls,
+    ControlDevice,
+    ControlError,
+    ControlsReport,
+    apply_controls,
+    automatic_modes_on,
+)
+from edge.clock import SYSTEM_CLOCK, Clock
 from edge.errors import SourceError
 from edge.tracking import Frame
+
+if TYPE_CHECKING:
+    from edge.calibration import Calibration
+    from edge.config import CameraSection
+    from edge.tracker_config import RoverConfig
 
 log = logging.getLogger("edge.sources")
 
@@ -49,6 +59,16 @@ class FrameSource(Protocol):
     def read(self) -> Frame | None: ...
 
     def close(self) -> None: ...
+
+
+@runtime_checkable
+class SimulatedScene(Protocol):
+    """What a simulated camera knows that a real one does not, for the appliance (optional: check with
+    ``isinstance``): its exact calibration, and its rovers' ids and marker colours as it renders them."""
+
+    def exact_calibration(self) -> Calibration: ...
+
+    def rover_configs(self) -> tuple[RoverConfig, ...]: ...
 
 
 # -- OpenCV-backed sources ---------------------------------------------------------------------------------------
@@ -98,19 +118,49 @@ def _fourcc_text(code: float) -> str:
     return text if text.isprintable() and text.strip() else f"0x{value:08x}"
 
 
+def _v4l2_capture(path: str) -> Any:
+    import cv2
+
+    return cv2.VideoCapture(path, cv2.CAP_V4L2)
+
+
+def _v4l2_controls(path: str) -> ControlDevice:
+    from edge.v4l2 import V4l2Controls
+
+    return V4l2Controls(path)
+
+
 class CameraSource(_OpenCvSource):
     """A V4L2 camera by index (``0``) or device path (``/dev/video0``).
 
     Asks for ``width`` x ``height`` at ``fps`` in ``fourcc`` (MJPG: a USB 2.0 webcam such as the paper's C920
-    only reaches 1280x720 at 30 fps compressed) and reports what the driver granted.
+    only reaches 1280x720 at 30 fps compressed) and reports what the driver granted. With ``controls`` (focus,
+    white balance, exposure...) it sets them at every open, so a camera that was unplugged (and lost them) gets
+    them back on the reopen, and logs what the camera granted. They are set once the stream runs (after the first
+    frame): some UVC cameras reset focus and exposure when streaming starts.
+
+    ``open_capture`` and ``open_controls`` build the OpenCV capture and the control device from the path (tests
+    give stand-ins; a real camera needs neither).
     """
 
     def __init__(
-        self, device: int | str, *, width: int = 1280, height: int = 720, fps: float = 30.0, fourcc: str = "MJPG"
+        self,
+        device: int | str,
+        *,
+        width: int = 1280,
+        height: int = 720,
+        fps: float = 30.0,
+        fourcc: str = "MJPG",
+        controls: CameraControls | None = None,
+        open_capture: Callable[[str], Any] = _v4l2_capture,
+        open_controls: Callable[[str], ControlDevice] = _v4l2_controls,
     ) -> None:
         super().__init__()
         self.device = device
         self.width, self.height, self.fps, self.fourcc = width, height, fps, fourcc
+        self.controls = controls or CameraControls()
+        self.controls_report = ControlsReport()
+        self._open_capture, self._open_controls = open_capture, open_controls
 
     @property
     def path(self) -> str:
@@ -121,7 +171,7 @@ class CameraSource(_OpenCvSource):
 
         if not Path(self.path).exists():
             raise SourceError(f"no camera at {self.path} (is it plugged in? without a camera use --source sim)")
-        cap = cv2.VideoCapture(self.path, cv2.CAP_V4L2)
+        cap = self._open_capture(self.path)
         if not cap.isOpened():
             cap.release()
             raise SourceError(f"camera {self.path} exists but cannot be opened (in use, or no permission: video group)")
@@ -138,7 +188,37 @@ class CameraSource(_OpenCvSource):
         asked = f"{self.width}x{self.height}@{self.fps:g} {self.fourcc}"
         granted = f"{granted_w}x{granted_h}@{granted_fps:g} {granted_fourcc}"
         note = "" if asked == granted else f" (asked {asked})"
+        if self.controls.wanted():
+            self._apply_controls()
         return SourceInfo(granted_w, granted_h, granted_fps, f"camera {self.path}: {granted}{note}")
+
+    def _apply_controls(self) -> None:
+        if not self._cap.grab():  # starts the stream: controls set before it may be reset by it
+            self.close()
+            raise SourceError(f"camera {self.path} opened but delivers no frame")
+        try:
+            device = self._open_controls(self.path)
+        except ControlError as exc:
+            self.controls_report = ControlsReport()
+            log.warning("camera %s: controls not set: %s", self.path, exc)
+            return
+        try:
+            self.controls_report = apply_controls(device, self.controls)
+        except ControlError as exc:  # the camera went away while being set up
+            self.close()
+            raise SourceError(f"camera {self.path}: {exc}") from exc
+        finally:
+            device.close()
+        level = logging.INFO if self.controls_report.ok else logging.WARNING
+        log.log(level, "camera %s controls granted: %s", self.path, self.controls_report.line())
+
+    def automatic_modes(self) -> list[str]:
+        """The automatic modes that move a calibration or the colours (autofocus, auto white balance) on now."""
+        device = self._open_controls(self.path)
+        try:
+            return automatic_modes_on(device)
+        finally:
+            device.close()
 
     def read(self) -> Frame | None:
         return self._grab_live(f"camera {self.path}")
@@ -230,15 +310,23 @@ class StreamSource(_OpenCvSource):
 
 
 class MemorySource:
-    """Frames from memory, in order, optionally paced at ``fps``: for tests and pre-rendered clips."""
+    """Frames from memory, in order, optionally paced at ``fps`` (in real time): for tests and pre-rendered clips.
+    Frames are stamped by ``clock``."""
 
     def __init__(
-        self, images: Sequence[NDArray[np.uint8]], *, fps: float = 30.0, loop: bool = False, realtime: bool = False
+        self,
+        images: Sequence[NDArray[np.uint8]],
+        *,
+        fps: float = 30.0,
+        loop: bool = False,
+        realtime: bool = False,
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
         if not images:
             raise SourceError("memory source: no frames")
         self.images = images
         self.fps, self.loop, self.realtime = fps, loop, realtime
+        self.clock = clock
         self._index = 0
         self._next_due = 0.0
 
@@ -256,7 +344,7 @@ class MemorySource:
                 time.sleep(self._next_due - now)
             self._next_due = max(self._next_due, now - 1.0 / self.fps) + 1.0 / self.fps
         image = self.images[self._index % len(self.images)]
-        frame = Frame(image=image, index=self._index, t_capture_s=time.time(), t_mono_s=time.monotonic())
+        frame = Frame(image=image, index=self._index, t_capture_s=self.clock.wall(), t_mono_s=self.clock.monotonic())
         self._index += 1
         return frame
 
@@ -294,6 +382,7 @@ def make_source(
     height: int = 720,
     fps: float = 30.0,
     fourcc: str = "MJPG",
+    controls: CameraControls | None = None,
     loop: bool = False,
     realtime: bool = True,
     stall_timeout_s: float = 2.0,
@@ -302,7 +391,7 @@ def make_source(
     """Build (not open) the source named by ``text``; ``sim_factory(scenario)`` builds the simulator's."""
     spec = parse_source(text)
     if spec.kind == "camera":
-        return CameraSource(spec.target, width=width, height=height, fps=fps, fourcc=fourcc)
+        return CameraSource(spec.target, width=width, height=height, fps=fps, fourcc=fourcc, controls=controls)
     if spec.kind == "stream":
         return StreamSource(spec.target, open_timeout_s=max(2.0, 2 * stall_timeout_s), read_timeout_s=stall_timeout_s)
     if spec.kind == "sim":
@@ -312,132 +401,38 @@ def make_source(
     return VideoFileSource(Path(spec.target), loop=loop, realtime=realtime)
 
 
-# -- the newest-frame slot and the capture thread ----------------------------------------------------------------
-class FrameSlot:
-    """Holds only the newest frame. ``put`` overwrites (counting a frame nobody took); ``take`` waits for a new one.
-
-    One writer (the capture thread) and one consumer (the tracker); ``peek`` lets others (a dashboard) look at the
-    newest frame without taking it.
-    """
-
-    def __init__(self) -> None:
-        self._cond = threading.Condition()
-        self._frame: Frame | None = None
-        self._fresh = False
-        self._closed = False
-        self.put_count = 0
-        self.overwritten = 0
-
-    def put(self, frame: Frame) -> None:
-        with self._cond:
-            if self._fresh:
-                self.overwritten += 1
-            self._frame, self._fresh = frame, True
-            self.put_count += 1
-            self._cond.notify_all()
-
-    def take(self, timeout_s: float | None = None) -> Frame | None:
-        """The newest frame not yet taken, waiting up to ``timeout_s``; None on timeout or when closed."""
-        with self._cond:
-            self._cond.wait_for(lambda: self._fresh or self._closed, timeout=timeout_s)
-            if not self._fresh:
-                return None
-            self._fresh = False
-            return self._frame
-
-    def peek(self) -> Frame | None:
-        with self._cond:
-            return self._frame
-
-    def close(self) -> None:
-        """No more frames will come: wake the consumer."""
-        with self._cond:
-            self._closed = True
-            self._cond.notify_all()
-
-    @property
-    def closed(self) -> bool:
-        return self._closed
+def grab_frame(source: FrameSource, settle_frames: int = 10) -> NDArray[np.uint8]:
+    """One frame of a live ``source``: the last of its first ``settle_frames`` (a camera's first frames come before
+    its exposure has settled). Opens and closes the source."""
+    source.open()
+    try:
+        image = None
+        for _ in range(settle_frames):
+            frame = source.read()
+            if frame is None:
+                break
+            image = frame.image
+    finally:
+        source.close()
+    if image is None:
+        raise SourceError("the source delivered no frame")
+    return image
 
 
-class CaptureThread(threading.Thread):
-    """Reads an already opened source into a :class:`FrameSlot`; reopens it with backoff when it fails.
-
-    ``state``: ``ok`` while frames come, ``missing`` while the source cannot be (re)opened or read, ``stopped``
-    after a finite source ended or on stop. A stall (an open source that delivers nothing) is judged by the
-    reader of :attr:`last_frame_mono` against its own timeout: a blocked read cannot report itself.
-    """
-
-    def __init__(
-        self,
-        source: FrameSource,
-        slot: FrameSlot,
-        stop: threading.Event,
-        *,
-        info: SourceInfo,
-        reopen_min_s: float = 0.5,
-        reopen_max_s: float = 8.0,
-    ) -> None:
-        super().__init__(name="capture", daemon=True)
-        self.source, self.slot, self.stop_event = source, slot, stop
-        self.info = info
-        self.reopen_min_s, self.reopen_max_s = reopen_min_s, max(reopen_max_s, reopen_min_s)
-        self.state = "ok"
-        self.frames = 0
-        self.failures = 0
-        self.reopens = 0
-        self.ended = False
-        self.error: BaseException | None = None
-        self.last_frame_mono = time.monotonic()
-        self._last_index = -1
-        self._offset = 0
-
-    def _renumber(self, frame: Frame) -> Frame:
-        # Indices stay strictly increasing across reopens (a reopened camera counts from 0 again).
-        if frame.index + self._offset <= self._last_index:
-            self._offset = self._last_index + 1 - frame.index
-        self._last_index = frame.index + self._offset
-        return frame if self._offset == 0 else replace(frame, index=self._last_index)
-
-    def _reopen(self, reason: str) -> None:
-        self.failures += 1
-        self.state = "missing"
-        log.warning("source lost: %s; reopening with backoff", reason)
-        self.source.close()
-        delay = self.reopen_min_s
-        while not self.stop_event.wait(delay):
-            try:
-                self.info = self.source.open()
-            except SourceError as exc:
-                log.info("reopen failed, next try in %.1f s: %s", min(delay * 2, self.reopen_max_s), exc)
-                delay = min(delay * 2, self.reopen_max_s)
-                continue
-            self.reopens += 1
-            self.last_frame_mono = time.monotonic()
-            self.state = "ok"
-            log.info("source reopened: %s", self.info.description)
-            return
-
-    def run(self) -> None:
-        try:
-            while not self.stop_event.is_set():
-                try:
-                    frame = self.source.read()
-                except SourceError as exc:
-                    self._reopen(str(exc))
-                    continue
-                if frame is None:
-                    log.info("source ended: %s", self.info.description)
-                    self.ended = True
-                    break
-                self.slot.put(self._renumber(frame))
-                self.frames += 1
-                self.last_frame_mono = frame.t_mono_s
-                self.state = "ok"
-        except Exception as exc:  # not a source failure: a bug; the runtime stops and reports it
-            self.error = exc
-            log.error("capture thread failed: %s: %s", type(exc).__name__, exc)
-        finally:
-            self.state = "stopped"
-            self.source.close()
-            self.slot.close()
+def camera_source(
+    camera: CameraSection, sim_factory: Callable[[str], FrameSource] | None = None, *, realtime: bool | None = None
+) -> FrameSource:
+    """The source a configuration's ``[camera]`` section names, built (not opened); ``realtime`` overrides the
+    configured pacing. The one place a section becomes a source (the appliance, ``doctor``, ``rovers enroll``)."""
+    return make_source(
+        camera.source,
+        width=camera.width,
+        height=camera.height,
+        fps=camera.fps,
+        fourcc=camera.fourcc,
+        controls=camera.controls,
+        loop=camera.loop,
+        realtime=camera.realtime if realtime is None else realtime,
+        stall_timeout_s=camera.stall_timeout_s,
+        sim_factory=sim_factory,
+    )

@@ -12,14 +12,16 @@ import math
 import tomllib
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal, TypeVar
+from typing import Annotated, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from edge.errors import ConfigError
+from edge.errors import ConfigError, describe_validation
 from edge.messages import ID_PATTERN
 
 RoversT = TypeVar("RoversT", bound=Sequence["RoverConfig"])
+Channel = Annotated[int, Field(ge=0, le=255)]
+ColorBgr = tuple[Channel, Channel, Channel]
 
 
 class RoverConfig(BaseModel):
@@ -28,8 +30,8 @@ class RoverConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     id: str = Field(pattern=ID_PATTERN, description="Rover id, also the MQTT topic segment.")
-    color_bgr: tuple[int, int, int] = Field(description="Nominal marker colour as seen by the camera, B, G, R 0-255.")
-    front_color_bgr: tuple[int, int, int] | None = Field(
+    color_bgr: ColorBgr = Field(description="Nominal marker colour as seen by the camera, B, G, R 0-255.")
+    front_color_bgr: ColorBgr | None = Field(
         default=None,
         description="Two-tone marker: colour of its light (white) front part as the camera sees it (the rest has "
         "color_bgr); it gives the heading even when the rover stands still. None: a one-colour marker.",
@@ -168,6 +170,4 @@ def load_tracker_config(path: Path) -> TrackerConfig:
     try:
         return TrackerConfig.model_validate(section)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-        raise ConfigError(f"{path}: {where}: {first['msg']}") from exc
+        raise ConfigError(f"{path}: {describe_validation(exc)}") from exc

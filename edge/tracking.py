@@ -2,8 +2,8 @@
 
 The runtime (``edge-ips start``), the offline tracker (``edge-ips track``) and the closed-loop simulator all drive a
 :class:`Tracker` frame by frame and turn each :class:`RoverEstimate` into a pose v1 message. What a tracker is
-built from lives elsewhere: its settings in ``edge.tracker_config``, the trackers themselves and
-``build_tracker`` in ``edge.trackers``.
+built from lives elsewhere: its settings in ``edge.tracker_config``, the trackers themselves in ``edge.trackers``,
+``build_tracker`` in ``edge.trackers.factory``.
 """
 
 from __future__ import annotations

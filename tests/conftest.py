@@ -16,6 +16,16 @@ def repo_root() -> Path:
     return REPO
 
 
+@pytest.fixture(autouse=True)
+def private_state_dir(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """Each test's own state directory (the embedded broker's logins), inherited by the processes it starts: never
+    the user's ~/.local/state, which other runs on this machine share."""
+    state = tmp_path_factory.mktemp("state")
+    monkeypatch.setenv("XDG_STATE_HOME", str(state))
+    monkeypatch.delenv("STATE_DIRECTORY", raising=False)
+    return state / "edge-ips"
+
+
 @pytest.fixture
 def mosquitto(tmp_path: Path):  # type: ignore[no-untyped-def]
     """A private anonymous Mosquitto on a free loopback port, stopped after the test."""

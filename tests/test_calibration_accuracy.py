@@ -1,4 +1,4 @@
-"""The accuracy bar of issue 3, section 3, measured against ground truth over the whole working area.
+"""The calibration's accuracy bar, measured against ground truth over the whole working area.
 
 Synthetic pinhole camera in the paper's geometry (1280x720, 70 deg HFOV, 280 cm high, oblique), 34 survey points
 on a 30 cm grid at 13 cm, 0.5 px RMS radial measuring noise. The true error is the distance between a world point
@@ -22,6 +22,8 @@ from edge.calibration.points import calibrate_points, point_table
 from edge.camera import paper_camera
 from edge.sim.targets import PAPER_AREA, checkerboard_views, survey_points
 from tests.support.calibration import DISTORTION, PAPER_MAX_CM, true_errors_cm
+
+pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
 
 SEEDS = range(20)
 

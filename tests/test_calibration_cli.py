@@ -1,4 +1,4 @@
-"""`edge-ips calibrate points|intrinsics|aruco|check` end to end, and every bad input of issue 3 section 4."""
+"""`edge-ips calibrate points|intrinsics|aruco|check` end to end, and every bad input a user can give it."""
 
 from __future__ import annotations
 
@@ -56,6 +56,7 @@ def test_every_calibrate_command_has_help_with_an_example(command: list[str]) ->
     assert "Example:" in result.output and "edge-ips calibrate" in result.output
 
 
+@pytest.mark.slow
 def test_points_writes_calibration_and_error_map_and_reports_figures(scene: dict[str, Path], tmp_path: Path) -> None:
     out, png = tmp_path / "calibration.json", tmp_path / "map.png"
     result = run(
@@ -79,6 +80,7 @@ def test_points_writes_calibration_and_error_map_and_reports_figures(scene: dict
     assert cv2.imread(str(png)) is not None
 
 
+@pytest.mark.slow
 def test_points_reports_the_rejected_row(scene: dict[str, Path], tmp_path: Path) -> None:
     lines = scene["points"].read_text().splitlines()
     u, v, x, y = (float(f) for f in lines[8].split(","))
@@ -106,6 +108,7 @@ def test_check_reports_each_point_and_json_summary(scene: dict[str, Path], tmp_p
     assert len(summary["points"]) == 20 and summary["points"][0]["row"] == 1
 
 
+@pytest.mark.slow
 def test_intrinsics_then_points_with_lens(tmp_path: Path) -> None:
     camera = paper_camera(DISTORTION)
     paths = checkerboard_views(camera, rng=9).write(tmp_path / "boards")
@@ -205,6 +208,7 @@ def test_bad_size_option(tmp_path: Path, size: str) -> None:
     assert_user_error(run("calibrate", "points", points, "--size", size, "--out", tmp_path / "c.json"), "--size")
 
 
+@pytest.mark.slow
 def test_board_not_found_names_the_image(tmp_path: Path) -> None:
     paths = checkerboard_views(paper_camera(), n_views=5, rng=4).write(tmp_path)
     blank = tmp_path / "blank.png"

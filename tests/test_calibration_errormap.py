@@ -26,6 +26,7 @@ def test_radial_quantile_contains_95_percent_of_gaussian_errors(ratio: float, an
     assert inside == pytest.approx(0.95, abs=0.003)
 
 
+@pytest.mark.slow
 def test_predicted_95_percent_error_covers_95_percent_of_true_errors() -> None:
     """Across independent calibrations, the true error at a fixed spot falls inside the predicted 95% radius
     about 95% of the time: the map is neither optimistic nor padded."""
@@ -72,6 +73,7 @@ def test_four_points_give_no_error_map_and_say_why() -> None:
     assert any("no error map" in n for n in result.stats.notes)
 
 
+@pytest.mark.slow
 def test_error_map_png_is_written_with_the_area_and_points(tmp_path: Path) -> None:
     camera = paper_camera()
     s = survey_points(camera, rng=0)
@@ -85,6 +87,7 @@ def test_error_map_png_is_written_with_the_area_and_points(tmp_path: Path) -> No
     assert len(np.unique(image.reshape(-1, 3), axis=0)) > 100  # a colour scale, not a blank canvas
 
 
+@pytest.mark.slow
 def test_map_is_finer_than_its_grid_step() -> None:
     camera = paper_camera()
     s = survey_points(camera, rng=2)

@@ -32,6 +32,7 @@ cameras = st.builds(
 )
 
 
+@pytest.mark.slow
 @settings(max_examples=25, deadline=None)
 @given(camera=cameras)
 def test_noise_free_points_give_the_exact_mapping_for_any_oblique_camera(camera: PinholeCamera) -> None:
@@ -69,6 +70,7 @@ def test_sigma_estimate_matches_the_measuring_noise() -> None:
     assert np.mean(sigmas) == pytest.approx(0.5 / math.sqrt(2.0), rel=0.1)  # 0.5 px RMS radial = 0.354 per axis
 
 
+@pytest.mark.slow
 def test_leave_one_out_errors_are_honest_predictions() -> None:
     """LOO errors exceed the fit's own residuals (a point cannot pull the fit toward itself) and match the
     distances measured on independent check points of the same quality."""
@@ -114,6 +116,7 @@ def test_a_mis_surveyed_world_position_is_rejected() -> None:
     assert [r.index for r in fit.rejected] == [12]
 
 
+@pytest.mark.slow
 def test_two_bad_points_are_both_found() -> None:
     camera = paper_camera()
     s = survey_points(camera, rng=11)
@@ -124,6 +127,7 @@ def test_two_bad_points_are_both_found() -> None:
     assert sorted(r.index for r in fit.rejected) == [3, 20]
 
 
+@pytest.mark.slow
 def test_rejected_points_do_not_spoil_the_mapping() -> None:
     camera = paper_camera()
     s = survey_points(camera, rng=5)
@@ -138,6 +142,7 @@ def test_rejected_points_do_not_spoil_the_mapping() -> None:
     assert err_robust < 0.6 < err_naive
 
 
+@pytest.mark.slow
 def test_clean_surveys_rarely_lose_a_point() -> None:
     """The test's false-alarm rate is about 1% per calibration by design; over 40 clean surveys at most 4."""
     camera = paper_camera()
@@ -148,6 +153,7 @@ def test_clean_surveys_rarely_lose_a_point() -> None:
     assert flagged <= 4
 
 
+@pytest.mark.slow
 def test_too_many_inconsistent_points_is_an_error_not_a_silent_fit() -> None:
     camera = paper_camera()
     s = survey_points(camera, rng=1)

@@ -35,6 +35,7 @@ def boards(lens_camera: PinholeCamera) -> CheckerboardViews:
     return checkerboard_views(lens_camera, rng=5)
 
 
+@pytest.mark.slow
 def test_rendered_checkerboard_corners_are_found_where_the_geometry_puts_them(
     lens_camera: PinholeCamera, boards: CheckerboardViews
 ) -> None:
@@ -48,6 +49,7 @@ def test_rendered_checkerboard_corners_are_found_where_the_geometry_puts_them(
         assert err < 0.15
 
 
+@pytest.mark.slow
 def test_intrinsics_from_checkerboards_recover_the_lens(lens_camera: PinholeCamera, boards: CheckerboardViews) -> None:
     result = calibrate_intrinsics([(f"b{i}.png", im) for i, im in enumerate(boards.images)], (9, 6), 2.5)
     assert result.rms_px < 0.1
@@ -61,6 +63,7 @@ def test_intrinsics_from_checkerboards_recover_the_lens(lens_camera: PinholeCame
     assert np.max(np.abs(result.intrinsics.undistort_px(uv) - truth)) < 1.5
 
 
+@pytest.mark.slow
 def test_intrinsics_file_round_trip_and_size_check(tmp_path: Path, boards: CheckerboardViews) -> None:
     result = calibrate_intrinsics([(f"b{i}.png", im) for i, im in enumerate(boards.images)], (9, 6), 2.5)
     path = tmp_path / "intrinsics.json"
@@ -71,6 +74,7 @@ def test_intrinsics_file_round_trip_and_size_check(tmp_path: Path, boards: Check
         load_intrinsics(path, expected_size=(640, 480))
 
 
+@pytest.mark.slow
 def test_a_photo_without_the_board_is_named_or_skipped(boards: CheckerboardViews) -> None:
     blank = np.full((720, 1280, 3), 128, np.uint8)
     photos = [(f"b{i}.png", im) for i, im in enumerate(boards.images)] + [("empty.png", blank)]
@@ -81,6 +85,7 @@ def test_a_photo_without_the_board_is_named_or_skipped(boards: CheckerboardViews
     assert "empty.png" not in result.used
 
 
+@pytest.mark.slow
 def test_too_few_views_and_mixed_sizes_are_refused(boards: CheckerboardViews) -> None:
     photos = [(f"b{i}.png", im) for i, im in enumerate(boards.images[:3])]
     with pytest.raises(CalibrationError, match="board found in 3 image"):
@@ -119,6 +124,7 @@ def test_markers_are_detected_with_ids_and_sub_pixel_corners() -> None:
         assert np.abs(found[int(marker_id)] - truth).max() < 2.0
 
 
+@pytest.mark.slow
 def test_floor_markers_calibrate_the_marker_plane_at_13_cm(
     lens_camera: PinholeCamera, boards: CheckerboardViews
 ) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -20,6 +21,7 @@ cells = st.one_of(
 csv_text = st.lists(st.lists(cells, min_size=0, max_size=6).map(",".join), max_size=8).map("\n".join)
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(body=csv_text, header=st.sampled_from(["u,v,x,y", "x,y,u,v", "u,v,x,y,label", "u,v,x", ""]))
 def test_points_reader_returns_a_table_or_a_calibration_error(body: str, header: str) -> None:
@@ -32,6 +34,7 @@ def test_points_reader_returns_a_table_or_a_calibration_error(body: str, header:
     assert np.all(np.isfinite(table.uv_px)) and np.all(np.isfinite(table.xy_world_cm))
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(body=csv_text, header=st.sampled_from(["id,x,y,z,size", "id,x,y,z", "x,y,z"]))
 def test_markers_reader_returns_a_table_or_a_calibration_error(body: str, header: str) -> None:
@@ -44,6 +47,7 @@ def test_markers_reader_returns_a_table_or_a_calibration_error(body: str, header
     assert np.all(table.sizes_cm > 0)
 
 
+@pytest.mark.slow
 @settings(max_examples=50, deadline=None)
 @given(
     pts=st.lists(

@@ -50,6 +50,7 @@ def test_check_points_are_inside_the_area_and_off_the_grid() -> None:
     assert not np.any(np.all(np.mod(s.xy_world_cm, 30.0) == 0.0, axis=1))
 
 
+@pytest.mark.slow
 def test_checkerboard_views_cover_the_image_and_stay_inside_it() -> None:
     views = checkerboard_views(paper_camera(), n_views=12, rng=0)
     assert len(views.images) == 12 and views.images[0].shape == (720, 1280, 3)

@@ -1,5 +1,5 @@
 """The dashboard in a real browser: ``edge-ips start --source sim`` with a real Mosquitto, driven by Debian's
-headless chromium through Playwright (issue 9, "tested in a real browser").
+headless chromium through Playwright.
 
 One appliance and one page serve the module's tests: the page loads, the three rovers appear and move on the map,
 the camera view updates, the formation buttons publish the retained message with the token and are refused without
@@ -20,6 +20,8 @@ from edge.messages import parse_formation
 from tests.support.appliance import edge_config, running
 from tests.support.dashboard import EdgeProcess, FormationSubscriber, chromium, clean_env, edge_start
 from tests.support.mosquitto import Mosquitto
+
+pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
 
 TOKEN = "test-dashboard-token"
 ROVERS = ["red", "green", "blue"]
@@ -56,7 +58,7 @@ def page(edge: EdgeProcess, browser: Any) -> Iterator[Any]:
 
     browser_page.on("response", on_response)
     browser_page.frames_seen = frames
-    browser_page.goto(edge.url)
+    browser_page.goto(f"{edge.url}?token={TOKEN}")  # as `start` prints it: the page keeps the token for the session
     yield browser_page
     browser_page.close()
 
@@ -110,6 +112,28 @@ def test_page_loads_and_the_three_rovers_appear_and_move_on_the_map(page: Any) -
     page.wait_for_function("() => document.querySelector('#fps').textContent !== '–'", timeout=WAIT_MS)
 
 
+def test_the_token_in_the_address_is_kept_for_the_session_and_removed_from_the_address(page: Any) -> None:
+    page.wait_for_function("() => state.info !== null", timeout=WAIT_MS)
+    assert "token" not in page.url
+    assert page.evaluate("() => sessionStorage.getItem('edge-ips-token')") == TOKEN
+
+
+def test_without_the_token_the_page_shows_nothing_until_it_is_given(edge: EdgeProcess, browser: Any) -> None:
+    other = browser.new_page()  # a new tab: a session of its own, no token
+    try:
+        other.goto(edge.url)
+        result = other.locator("#formation-result")
+        other.wait_for_function("() => document.getElementById('formation-result').dataset.status === '401'")
+        assert "enter the dashboard token" in result.text_content()
+        assert other.evaluate("() => state.info") is None and other.evaluate("() => state.rovers.size") == 0
+        other.fill("#token", TOKEN)
+        other.locator("#token").dispatch_event("change")
+        other.wait_for_function(ALL_ROVERS_SEEN, arg=ROVERS, timeout=WAIT_MS)
+        other.wait_for_function("() => document.getElementById('camera').naturalWidth > 0", timeout=WAIT_MS)
+    finally:
+        other.close()
+
+
 def test_camera_view_updates(page: Any) -> None:
     page.wait_for_function(
         "() => document.getElementById('camera').naturalWidth > 0 && document.getElementById('camera').complete",
@@ -132,6 +156,8 @@ def test_formation_button_publishes_with_the_token_and_is_refused_without(
     subscriber = FormationSubscriber("127.0.0.1", broker.port)
     result = page.locator("#formation-result")
     try:
+        start, was_retained = subscriber.next()  # the appliance's own stop at start, retained
+        assert (start["kind"], start["seq"], was_retained) == ("stop", 1, True)
         page.fill("#token", "")
         page.click("button[data-kind=line]")
         page.wait_for_function("() => document.getElementById('formation-result').dataset.status === '401'")
@@ -145,9 +171,9 @@ def test_formation_button_publishes_with_the_token_and_is_refused_without(
         page.wait_for_function("() => document.getElementById('formation-result').dataset.status === '200'")
         message, _ = subscriber.next()
         formation = parse_formation(json.dumps(message).encode())
-        # the first formation the broker ever carried is the accepted one: the refused clicks published nothing
-        assert (formation.seq, formation.kind, formation.ids) == (1, "rendezvous", ["blue", "red", "green"])
-        assert result.text_content() == "published rendezvous (seq 1)"
+        # the next formation the broker carried is the accepted one: the refused clicks published nothing
+        assert (formation.seq, formation.kind, formation.ids) == (2, "rendezvous", ["blue", "red", "green"])
+        assert result.text_content() == "published rendezvous (seq 2)"
         page.wait_for_function(
             "() => document.getElementById('formation-current').textContent.startsWith('rendezvous')",
             timeout=WAIT_MS,
@@ -164,7 +190,7 @@ def test_formation_button_publishes_with_the_token_and_is_refused_without(
     late = FormationSubscriber("127.0.0.1", broker.port)  # a rover that connects later still gets it: retained
     try:
         message, retained = late.next()
-        assert retained and message["kind"] == "rendezvous" and message["seq"] == 1
+        assert retained and message["kind"] == "rendezvous" and message["seq"] == 2
     finally:
         late.close()
     shot = tmp_path / "dashboard.png"

@@ -6,6 +6,7 @@ Mosquitto; the pure parts (token, request parsing, overlays) as tables.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 import threading
@@ -19,16 +20,18 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from edge.calibration import Calibration
+from edge.calibration.exact import exact_calibration
 from edge.camera import MARKER_HEIGHT_CM, paper_camera
-from edge.config import EdgeConfig, masked
+from edge.config import EdgeConfig
+from edge.config_text import masked
 from edge.dashboard.events import EventHub, Overlay, pose_event, sse, status_event
 from edge.dashboard.formation import authorize, formation_targets, parse_request, with_targets
 from edge.dashboard.frames import FrameEncoder, encode_jpeg
 from edge.dashboard.server import hex_color, static_files
+from edge.dashboard.streams import EventFanout
 from edge.errors import MessageError
 from edge.messages import parse_formation
 from edge.metrics import Latency, RoverSnapshot, Snapshot
-from edge.runtime import exact_calibration
 from edge.tracking import Frame, FrameResult, RoverEstimate
 from tests.support.appliance import edge_config, running
 from tests.support.dashboard import FormationSubscriber, call, read_events
@@ -76,7 +79,8 @@ def test_formation_commands_need_the_configured_token(
         (b'{"kind": "line"}', "ids"),
         (b'{"kind": "line", "ids": "red"}', "ids"),
         (b'{"kind": "line", "ids": ["red", "purple"]}', "purple"),
-        (b'{"kind": "line", "ids": ["red", "red"]}', "twice"),
+        (b'{"kind": "line", "ids": ["red", "red"]}', "red named more than once"),
+        (b'{"kind": "triangle", "ids": ["red", "green"]}', "at least three rovers"),
         (b'{"kind": "line", "ids": []}', "at least one rover"),
         (b'{"kind": "line", "ids": ["red", "green"], "spacing": -5}', "spacing"),
         (b'{"kind": "line", "ids": ["red", "green"], "spacing": 5000}', "spacing"),
@@ -107,6 +111,7 @@ REQUESTS = st.fixed_dictionaries(
 BODIES = st.binary(max_size=64) | (JSON | REQUESTS).map(lambda v: json.dumps(v).encode())
 
 
+@pytest.mark.slow
 @given(BODIES)
 def test_any_body_is_accepted_or_refused_with_a_message_error(body: bytes) -> None:
     try:
@@ -246,6 +251,57 @@ def test_event_hub_starts_only_for_a_viewer_and_hands_each_event_to_all() -> Non
     assert list(two) == []  # closing the hub ends the streams
 
 
+def test_pages_share_one_hub_viewer_and_the_hub_sleeps_when_they_leave() -> None:
+    hub = EventHub(
+        latest=lambda: None, make_pose=lambda r: {}, make_status=lambda: {"state": "online"}, status_interval_s=600.0
+    )
+    fanout = EventFanout(hub.stream, queue_size=4)
+
+    async def watch() -> threading.Thread:
+        pages = [fanout.stream(f"hello {k}\n".encode()) for k in range(3)]
+        assert [await page.__anext__() for page in pages] == [b"hello 0\n", b"hello 1\n", b"hello 2\n"]
+        assert fanout.pages == 3 and fanout._thread is not None
+        thread = fanout._thread
+
+        def joined() -> bool:  # the hub notifies its condition when a viewer joins
+            with hub._cond:
+                return hub._cond.wait_for(lambda: bool(hub._viewers), timeout=30)
+
+        assert await asyncio.to_thread(joined)  # the fan-out thread has joined the hub
+        hub.publish("formation", {"kind": "line"})
+        for page in pages:  # every page gets it (after the hub's first status), through one viewer of the hub
+            received = b""
+            while b"event: formation" not in received:
+                received += await asyncio.wait_for(page.__anext__(), 30)
+            assert b'event: formation\ndata: {"kind":"line"}\n\n' in received
+        assert hub.viewers == 1
+        for page in pages:
+            await page.aclose()
+        assert fanout.pages == 0
+        return thread
+
+    thread = asyncio.run(watch())
+    hub.publish("formation", None)  # the next chunk finds no page: the thread leaves and the hub has no viewer
+    thread.join(30)
+    assert not thread.is_alive() and hub.viewers == 0
+    hub.close()
+
+
+def test_closing_the_hub_ends_every_page() -> None:
+    hub = EventHub(latest=lambda: None, make_pose=lambda r: {}, make_status=lambda: {}, status_interval_s=600.0)
+    fanout = EventFanout(hub.stream)
+
+    async def watch() -> list[list[bytes]]:
+        pages = [fanout.stream(b"hello\n") for _ in range(2)]
+        for page in pages:
+            await page.__anext__()
+        await asyncio.get_running_loop().run_in_executor(None, hub.close)
+        return [[chunk async for chunk in page] for page in pages]  # each ends (an endless page would hang here)
+
+    assert all(b"hello" not in b"".join(rest) for rest in asyncio.run(watch()))
+    assert fanout.pages == 0
+
+
 # -- the camera view -----------------------------------------------------------------------------------------------
 def test_jpeg_is_downscaled_to_the_configured_width() -> None:
     image = np.zeros((720, 1280, 3), dtype=np.uint8)
@@ -272,6 +328,7 @@ def test_frames_are_encoded_only_when_asked_and_once_per_new_frame() -> None:
         encoder.close()
 
 
+@pytest.mark.slow
 def test_with_wait_next_the_encoder_works_right_after_each_tracked_frame() -> None:
     # The appliance hands the encoder runtime.last_frame and EdgeRuntime.wait_tracked; here a list and a semaphore.
     tracked: list[Frame] = []
@@ -306,6 +363,7 @@ def _config(broker: Mosquitto, **overrides: object) -> EdgeConfig:
     return edge_config(**{"http.enabled": True, "http.port": 0, "broker.url": broker.url, **overrides})
 
 
+@pytest.mark.slow
 def test_state_events_frames_and_error_map_are_served(mosquitto: Mosquitto) -> None:
     with running(_config(mosquitto)) as app:
         port = app.http.port
@@ -321,7 +379,8 @@ def test_state_events_frames_and_error_map_are_served(mosquitto: Mosquitto) -> N
         assert frames == sorted(frames) and len(set(frames)) == len(frames)  # only new results are sent
         assert {r["id"] for r in events["pose"][-1]["rovers"]} == {"red", "green", "blue"}
         assert events["status"][-1]["broker"] == "connected"
-        assert events["formation"] == [None]  # nothing retained yet
+        # nothing but the appliance's own retained stop (once the page's watcher has it)
+        assert events["formation"] and all(f is None or f["kind"] == "stop" for f in events["formation"])
         jpeg = call(port, "GET", "/api/frame.jpg")
         assert jpeg.status == 200 and jpeg.headers["content-type"] == "image/jpeg"
         assert cv2.imdecode(np.frombuffer(jpeg.body, np.uint8), cv2.IMREAD_COLOR).shape == (240, 320, 3)
@@ -332,6 +391,7 @@ def test_state_events_frames_and_error_map_are_served(mosquitto: Mosquitto) -> N
         assert call(port, "GET", "/healthz").status in (200, 503)
 
 
+@pytest.mark.slow
 def test_formation_controls_are_off_without_a_token(mosquitto: Mosquitto) -> None:
     with running(_config(mosquitto)) as app:
         reply = call(
@@ -344,13 +404,16 @@ def test_formation_controls_are_off_without_a_token(mosquitto: Mosquitto) -> Non
         assert reply.status == 403 and "no dashboard token" in reply.json()["error"]
 
 
+@pytest.mark.slow
 def test_formation_post_publishes_only_with_the_token(mosquitto: Mosquitto) -> None:
     subscriber = FormationSubscriber("127.0.0.1", mosquitto.port)
     line = json.dumps({"kind": "line", "ids": ["red", "green"], "spacing": 50}).encode()
     try:
         with running(_config(mosquitto, **{"dashboard.token": TOKEN})) as app:
             port = app.http.port
-            assert call(port, "GET", "/api/state").json()["formation_enabled"] is True
+            auth = {"Authorization": f"Bearer {TOKEN}"}
+            assert subscriber.next()[0]["kind"] == "stop"  # the appliance's own retained stop at start (seq 1)
+            assert call(port, "GET", "/api/state", headers=auth).json()["formation_enabled"] is True
             refused = [
                 call(port, "POST", "/api/formation", line),
                 call(port, "POST", "/api/formation", line, {"Authorization": "Bearer not-the-token"}),
@@ -362,26 +425,26 @@ def test_formation_post_publishes_only_with_the_token(mosquitto: Mosquitto) -> N
             assert refused[0].headers["www-authenticate"].startswith("Bearer")
             assert "kind" in refused[3].json()["error"]
             ok = call(port, "POST", "/api/formation", line, {"Authorization": f"Bearer {TOKEN}"})
-            assert ok.status == 200 and ok.json()["seq"] == 1
+            assert ok.status == 200 and ok.json()["seq"] == 2
             message, _ = subscriber.next()
-            # the first formation on the broker is the accepted one: the refused requests published nothing
+            # the next formation on the broker is the accepted one: the refused requests published nothing
             assert parse_formation(json.dumps(message).encode()).model_dump(exclude_none=True) == {
                 "v": 1,
-                "seq": 1,
+                "seq": 2,
                 "kind": "line",
                 "ids": ["red", "green"],
                 "spacing": 50.0,
             }
-            auth = {"Authorization": f"Bearer {TOKEN}"}
             stop = call(port, "POST", "/api/formation", b'{"kind":"stop","ids":[]}', auth)
-            assert stop.json()["seq"] == 2 and subscriber.next()[0]["kind"] == "stop"
-            events = read_events(port, {"formation": 1})
+            assert stop.json()["seq"] == 3 and subscriber.next()[0]["kind"] == "stop"
+            events = read_events(port, {"formation": 1}, headers=auth)
             assert events["formation"][0]["kind"] == "stop"  # a new page learns the retained formation at once
-            assert call(port, "GET", "/api/state").json()["formation"]["seq"] == 2
+            assert call(port, "GET", "/api/state", headers=auth).json()["formation"]["seq"] == 3
     finally:
         subscriber.close()
 
 
+@pytest.mark.slow
 def test_no_dashboard_leaves_health_and_metrics(mosquitto: Mosquitto) -> None:
     with running(_config(mosquitto, **{"dashboard.enabled": False})) as app:
         assert app.dashboard is None
@@ -392,19 +455,25 @@ def test_no_dashboard_leaves_health_and_metrics(mosquitto: Mosquitto) -> None:
 
 # -- configuration ---------------------------------------------------------------------------------------------------
 def test_the_token_is_masked_and_settings_are_validated(tmp_path: Path) -> None:
-    from edge.config import load_config
+    from edge.config_load import load_config
     from edge.errors import ConfigError
 
-    config = EdgeConfig.model_validate({"dashboard": {"token": TOKEN, "frame_fps": 5}})
+    config = EdgeConfig.model_validate({"dashboard": {"token": TOKEN, "viewer_token": "viewer-only-1", "frame_fps": 5}})
     shown = masked(config)["dashboard"]
-    assert shown["token"] == "********" and shown["frame_fps"] == 5.0
-    assert TOKEN not in json.dumps(masked(config))
+    assert shown["token"] == shown["viewer_token"] == "********" and shown["frame_fps"] == 5.0
+    assert TOKEN not in json.dumps(masked(config)) and "viewer-only-1" not in json.dumps(masked(config))
     bad = tmp_path / "edge-ips.toml"
     for text, key in [
         ('[dashboard]\ntoken = "short"\n', "dashboard.token"),
         ("[dashboard]\nframe_fps = 0\n", "dashboard.frame_fps"),
         ("[dashboard]\njpeg_quality = 101\n", "dashboard.jpeg_quality"),
         ("[dashboard]\nframes = 3\n", "dashboard.frames: unknown key"),
+        ('[dashboard]\nviewer_token = "short"\n', "dashboard.viewer_token"),
+        ('[http]\nallowed_hosts = ["http://edge.lab/"]\n', "http.allowed_hosts: 'http://edge.lab/' is not a host name"),
+        ('[http]\nallowed_hosts = "edge.lab"\n', "http.allowed_hosts"),
+        ("[http]\nmax_connections = 1\n", "http.max_connections"),
+        ("[http]\nrequest_timeout_s = 0\n", "http.request_timeout_s"),
+        ("[http]\nmax_streams = 0\n", "http.max_streams"),
     ]:
         bad.write_text(text)
         with pytest.raises(ConfigError, match=key):
@@ -413,6 +482,7 @@ def test_the_token_is_masked_and_settings_are_validated(tmp_path: Path) -> None:
     assert env.dashboard.token is not None and env.dashboard.token.get_secret_value() == TOKEN
 
 
+@pytest.mark.slow
 def test_calibration_panel_from_a_point_pair_file(tmp_path: Path) -> None:
     from edge.calibration import save_calibration
     from edge.calibration.points import calibrate_points, point_table
@@ -444,6 +514,7 @@ def test_calibration_panel_from_a_point_pair_file(tmp_path: Path) -> None:
     assert simulated.png().startswith(b"\x89PNG") and CalibrationView(None, simulated=False).summary() is None
 
 
+@pytest.mark.slow
 def test_start_with_no_dashboard_serves_no_page(mosquitto: Mosquitto, tmp_path: Path) -> None:
     from tests.support.dashboard import clean_env, edge_start
 

@@ -19,12 +19,11 @@ from edge.rover_host import firmware_modules
 from tests.support.firmware import (
     Body,
     KinematicFleet,
-    enclosing_diameter,
-    line_errors,
+    assert_formation_bars,
+    formation_run,
     random_starts,
     rover_configs,
     run_micropython,
-    triangle_sides,
 )
 
 fm: Any = firmware_modules()["formation"]
@@ -153,26 +152,10 @@ def test_pose_headings_are_blended_with_odometry_not_copied() -> None:
 
 # -- closed loop: the real firmware, kinematic bodies ---------------------------------------------------------------
 def _converges(kind: str, seed: int, **kw: Any) -> KinematicFleet:
-    fleet = KinematicFleet(
-        rover_configs(IDS),
-        random_starts(3, random.Random(seed)),
-        seed=seed,
-        noise_cm=0.3,
-        latency_ms=50,
-        motor_noise=0.05,
-        **kw,
-    )
-    fields: dict[str, Any] = {"spacing": 60.0, "x": 195.75} if kind == "line" else {}
-    if kind == "triangle":
-        fields["side"] = 100.0
-    fleet.command(
-        {"seq": 1, "kind": kind, "ids": IDS, "spacing": None, "side": None, "x": None, "y": None, "theta": None}
-        | fields
-    )
-    fleet.run(8.0)
-    return fleet
+    return formation_run(kind, seed, 8.0, **kw)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("kind", "seed", "poses"),
     [
@@ -187,19 +170,13 @@ def _converges(kind: str, seed: int, **kw: Any) -> KinematicFleet:
 def test_formations_converge_within_8_s_with_motion_headings_or_outliers(kind: str, seed: int, poses: str) -> None:
     kw = {"motion_theta": True} if poses == "motion" else {"send_theta": True, "theta_outliers": 0.1}
     fleet = _converges(kind, seed, **kw)
-    p = fleet.positions()
-    if kind == "line":
-        off, gap = line_errors(p, 195.75, 60.0)
-        assert off <= 3.0 and gap <= 3.0, (off, gap)
-    elif kind == "rendezvous":
-        assert enclosing_diameter(p) <= 40.0
-    else:
-        assert triangle_sides(p) == pytest.approx([100.0] * 3, abs=3.0)
+    assert_formation_bars(kind, fleet.positions())
     assert fleet.trace.min_distance_cm >= 28.0
     if poses == "outliers":
         assert fleet.outliers_sent > 50  # ten per cent of about 700 headings: the test exercised the gate
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("poses", ["motion", "outliers"])
 def test_micropython_fuses_headings_exactly_as_cpython(poses: str) -> None:
     kw = {"motion_theta": True} if poses == "motion" else {"send_theta": True, "theta_outliers": 0.1}

@@ -27,6 +27,7 @@ from tests.support.mosquitto import Mosquitto
 fw = firmware_modules()
 fm: Any = fw["formation"]
 motors_mod: Any = fw["motors"]
+app: Any = fw["app"]
 
 WORLD = {"red": (120.0, 100.0, 0.3), "green": (250.0, 320.0, 2.0), "blue": (330.0, 90.0, -1.0)}
 FORMATION = {"v": 1, "seq": 1, "kind": "triangle", "ids": ["red", "green", "blue"], "side": 100.0}
@@ -84,16 +85,21 @@ def edge(mosquitto: Mosquitto) -> Iterator[EdgePublisher]:
     pub.close()
 
 
+def loop_once(rover: HostRover) -> int:
+    """One turn of the firmware's own loop (``app.loop``: a step, then the rest of ``period_ms``, as on the chip);
+    returns the firmware time of the step."""
+    app.loop(rover.rover, None, steps=1)
+    return int(rover.rover._last_step)
+
+
 def step_until(rover: HostRover, done: Callable[[], bool], limit_s: float = 10.0) -> int:
-    """Step the firmware every 20 ms of real time until done(); returns the firmware time of that step."""
+    """Run the firmware's loop until done(); returns the firmware time of that step (``limit_s``: a failure guard)."""
     deadline = time.monotonic() + limit_s
     while True:
-        t = now_ms()
-        rover.step(t)
+        t = loop_once(rover)
         if done():
             return t
         assert time.monotonic() < deadline, f"gave up waiting; halt={rover.halt}, log={rover.log_lines[-5:]}"
-        time.sleep(0.02)
 
 
 def expected_command(
@@ -130,6 +136,7 @@ def expected_command(
     return out
 
 
+@pytest.mark.slow
 def test_motor_commands_are_the_ones_the_law_computes(mosquitto: Mosquitto, edge: EdgePublisher) -> None:
     edge.start()
     rover = HostRover(rover_configs(["red"])[0], mosquitto.host, mosquitto.port)
@@ -139,9 +146,9 @@ def test_motor_commands_are_the_ones_the_law_computes(mosquitto: Mosquitto, edge
     # the pose's heading has just pulled to itself (fused with the commanded turn since the last pose).
     step_until(rover, lambda: rover.halt == "none" and all(rover.last_seq(r) is not None for r in WORLD))
     while checked < 10:
-        t = now_ms()
-        rover.step(t)
-        if me() >= 0 and rover.rover._rx[me()] == (t & ((1 << 30) - 1)):
+        seq = rover.rover._seq[me()] if me() >= 0 else None
+        loop_once(rover)
+        if me() >= 0 and rover.rover._seq[me()] != seq:  # its own pose arrived in this step
             heading = rover.rover.heading
             # The pose's heading was fused, not set aside as an outlier; how far odometry carried the estimate
             # since the last pose depends on the wall time between steps (a loaded machine steps less often).
@@ -157,11 +164,11 @@ def test_motor_commands_are_the_ones_the_law_computes(mosquitto: Mosquitto, edge
             assert left.dir.level == (1 if (want[4] >= 0) != m["left"]["invert"] else 0)
             assert right.dir.level == (1 if (want[5] >= 0) != m["right"]["invert"] else 0)
             checked += 1
-        time.sleep(0.02)
     assert rover.rover.rejected == 0
     rover.close()
 
 
+@pytest.mark.slow
 def test_motors_stop_within_half_a_second_of_the_last_pose_when_the_publisher_stops(
     mosquitto: Mosquitto, edge: EdgePublisher
 ) -> None:
@@ -169,12 +176,12 @@ def test_motors_stop_within_half_a_second_of_the_last_pose_when_the_publisher_st
     rover = HostRover(rover_configs(["red"])[0], mosquitto.host, mosquitto.port)
     step_until(rover, lambda: rover.halt == "none")
     edge.stop()
-    times: list[tuple[int, int, bool]] = []  # (firmware time, receive time of own pose, motors running)
+    times: list[tuple[int, int, bool]] = []  # (firmware time, own pose's age stamp, motors running)
 
     def record() -> bool:  # until the stale halt (the fade may bring the duties to 0 a little before it)
         r = rover.rover
         state = rover.motor_state
-        times.append((r._last_step, r._rx[r._me], state.left_duty > 0 or state.right_duty > 0))
+        times.append((r._last_step, r._stamp[r._me], state.left_duty > 0 or state.right_duty > 0))
         return rover.halt == "stale"
 
     t_stop = step_until(rover, record)
@@ -189,6 +196,7 @@ def test_motors_stop_within_half_a_second_of_the_last_pose_when_the_publisher_st
     rover.close()
 
 
+@pytest.mark.slow
 def test_broker_restart_is_survived_with_a_fresh_subscription(mosquitto: Mosquitto, edge: EdgePublisher) -> None:
     edge.start()
     rover = HostRover(rover_configs(["red"])[0], mosquitto.host, mosquitto.port)
@@ -197,65 +205,82 @@ def test_broker_restart_is_survived_with_a_fresh_subscription(mosquitto: Mosquit
     mosquitto.stop()
     step_until(rover, lambda: rover.halt == "disconnected")
     assert rover.motor_state.left_duty == 0 and rover.motor_state.right_duty == 0
-    mosquitto.start()  # same port, no memory of the old session or its subscriptions
+    mosquitto.start()  # same port, no memory of the old session, its subscriptions or the retained formation
     seq_before = rover.last_seq("green")
     step_until(rover, lambda: rover.connected and rover.last_seq("green") != seq_before, limit_s=20)
+    assert rover.halt == "idle" and rover.rover.formation is None  # the broker holds no formation: none applied
+    edge.formation(FORMATION)
     step_until(rover, lambda: rover.halt == "none")  # poses flow again: resubscribed on the new session
     assert rover.link.connects == 2 and rover.link.drops == 1
     rover.close()
 
 
-def _status_listener(broker: Mosquitto, rover_id: str) -> tuple[mqtt.Client, list[dict[str, Any]]]:
-    seen: list[dict[str, Any]] = []
+class Seen(list[dict[str, Any]]):
+    """Statuses as a subscriber receives them (paho's thread appends), and a wait for a condition on them."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._changed = threading.Condition()
+
+    def add(self, status: dict[str, Any]) -> None:
+        with self._changed:
+            self.append(status)
+            self._changed.notify_all()
+
+    def wait_for(self, cond: Callable[[], bool], limit_s: float = 10.0) -> None:
+        """Until ``cond()`` holds after a status arrived (``limit_s``: a failure guard)."""
+        with self._changed:
+            assert self._changed.wait_for(cond, limit_s), f"condition not met; statuses: {self[-3:]}"
+
+
+def _status_listener(broker: Mosquitto, rover_id: str) -> tuple[mqtt.Client, Seen]:
+    seen = Seen()
     client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"watch-{rover_id}")
-    client.on_message = lambda c, u, m: seen.append({**json.loads(m.payload), "_retain": m.retain})
+    client.on_message = lambda c, u, m: seen.add({**json.loads(m.payload), "_retain": m.retain})
     client.connect(broker.host, broker.port)
     client.subscribe(messages.rover_status_topic(rover_id), qos=1)
     client.loop_start()
     return client, seen
 
 
-def wait_for(cond: Callable[[], bool], limit_s: float = 10.0) -> None:
-    deadline = time.monotonic() + limit_s
-    while not cond():
-        assert time.monotonic() < deadline, "condition not met"
-        time.sleep(0.01)
-
-
+@pytest.mark.slow
 def test_status_is_published_and_the_last_will_says_offline(mosquitto: Mosquitto, edge: EdgePublisher) -> None:
     edge.start()
     watch, seen = _status_listener(mosquitto, "red")
     rover = HostRover(rover_configs(["red"])[0], mosquitto.host, mosquitto.port)
     step_until(rover, lambda: any(s["halt"] == "none" for s in seen))
     online = [s for s in seen if s["state"] == "online"]
-    assert online and all(s["id"] == "red" and s["v"] == 1 and s["fw"] == fw["rover"].VERSION for s in online)
-    assert online[-1]["formation"] == 1 and online[-1]["_retain"] is False  # live, so not flagged retained
+    assert online and all(s["id"] == "red" and s["v"] == 2 and s["fw"] == fw["rover"].VERSION for s in online)
+    assert (online[-1]["formation"], online[-1]["seq"]) == ("triangle", 1)
+    assert online[-1]["_retain"] is False  # live, so not flagged retained
     rover.crash()  # TCP gone without DISCONNECT, like a rover losing power
-    wait_for(lambda: seen[-1]["state"] == "offline")
+    seen.wait_for(lambda: seen[-1]["state"] == "offline")
     assert seen[-1] == {
-        "v": 1,
+        "v": 2,
         "id": "red",
         "state": "offline",
         "halt": "disconnected",
         "formation": None,
+        "seq": None,
         "fw": None,
         "_retain": False,
     }
     # A client arriving later gets the retained will.
     late, late_seen = _status_listener(mosquitto, "red")
-    wait_for(lambda: bool(late_seen))
+    late_seen.wait_for(lambda: bool(late_seen))
     assert late_seen[0]["state"] == "offline" and late_seen[0]["_retain"]
     for c in (watch, late):
         c.loop_stop()
         c.disconnect()
 
 
+@pytest.mark.slow
 def test_the_rover_works_under_an_acl_that_lets_it_publish_only_its_status(tmp_path: Path) -> None:
     acl = (
         "user edge\ntopic write ips/v1/rovers/+/pose\ntopic write ips/v1/formation\n\n"
         "user red\ntopic read ips/v1/rovers/+/pose\ntopic read ips/v1/formation\n"
-        "topic write ips/v1/rovers/red/status\n\n"
-        "user watcher\ntopic read ips/v1/#\n"
+        "topic write ips/v2/rovers/red/status\n\n"
+        "user watcher\ntopic read ips/v1/#\ntopic read ips/v2/#\n"
     )
     users = {"edge": "e-pass", "red": "r-pass", "watcher": "w-pass"}
     with Mosquitto(tmp_path / "acl-broker", users=users, acl=acl) as broker:
@@ -266,8 +291,8 @@ def test_the_rover_works_under_an_acl_that_lets_it_publish_only_its_status(tmp_p
         pub.publish(messages.FORMATION_TOPIC, json.dumps(FORMATION), qos=1, retain=True).wait_for_publish()
         watcher = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="watcher")
         watcher.username_pw_set("watcher", "w-pass")
-        seen: list[dict[str, Any]] = []
-        watcher.on_message = lambda c, u, m: seen.append(json.loads(m.payload))
+        seen = Seen()
+        watcher.on_message = lambda c, u, m: seen.add(json.loads(m.payload))
         watcher.connect(broker.host, broker.port)
         watcher.subscribe(messages.rover_status_topic("red"), qos=1)
         watcher.loop_start()
@@ -280,14 +305,15 @@ def test_the_rover_works_under_an_acl_that_lets_it_publish_only_its_status(tmp_p
             nonlocal seq
             for rid, (x, y, theta) in WORLD.items():
                 pub.publish(
-                    messages.pose_topic(rid), messages.encode_pose(rid, seq, seq, 0.0, x, y, theta, None, None, 1.0)
+                    messages.pose_topic(rid),
+                    messages.encode_pose(rid, seq, seq, time.time(), x, y, theta, None, None, 1.0),
                 )
             seq += 1
             return rover.halt == "none" and any(s["halt"] == "none" for s in seen)
 
         step_until(rover, publish_and_check)
         rover.close()
-        wait_for(lambda: seen[-1]["state"] == "offline")  # the clean goodbye, through the same ACL
+        seen.wait_for(lambda: seen[-1]["state"] == "offline")  # the clean goodbye, through the same ACL
         for c in (pub, watcher):
             c.loop_stop()
             c.disconnect()
@@ -308,6 +334,7 @@ def test_losing_wifi_stops_the_motors_and_the_link_comes_back(mosquitto: Mosquit
     rover.close()
 
 
+@pytest.mark.slow
 def test_main_runs_the_board_loop_under_cpython(mosquitto: Mosquitto, edge: EdgePublisher, tmp_path: Path) -> None:
     edge.start()
     cfg = rover_configs(["red"])[0]
@@ -315,11 +342,11 @@ def test_main_runs_the_board_loop_under_cpython(mosquitto: Mosquitto, edge: Edge
     path = tmp_path / "config.json"
     path.write_text(json.dumps(cfg))
     watch, seen = _status_listener(mosquitto, "red")
-    main: Any = fw["main"]
-    r = main.run(str(path), steps=100)  # two seconds of the real loop, watchdog and all
+
+    r = app.run(str(path), steps=100)  # two seconds of the real loop, watchdog and all
     assert r.steps == 100 and r.received > 100
     assert any(s["halt"] == "none" for s in seen)  # it drove
-    wait_for(lambda: seen[-1]["state"] == "offline")  # and said goodbye when the loop ended
+    seen.wait_for(lambda: seen[-1]["state"] == "offline")  # and said goodbye when the loop ended
     assert r.motors.left.duty == 0 and r.motors.right.duty == 0
     watch.loop_stop()
     watch.disconnect()

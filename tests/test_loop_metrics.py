@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
 from edge.errors import ConfigError
-from edge.sim.loop import LoopConfig, random_layout, trajectory_plans
+from edge.sim.loop import LoopConfig
 from edge.sim.metrics import (
     Bar,
     box_corners_cm,
@@ -33,6 +33,7 @@ from edge.sim.rover import (
     rover_config,
     rover_looks,
 )
+from edge.sim.starts import random_layout, trajectory_plans
 
 
 def triangle(side: float, centre: tuple[float, float] = (100.0, 200.0), turn: float = 0.3) -> np.ndarray:
@@ -193,6 +194,7 @@ def test_bad_experiments_are_refused_with_the_reason(kwargs: dict[str, object], 
         LoopConfig(**kwargs)  # type: ignore[arg-type]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["circle", "diagonal"])
 def test_scripted_paths_fit_the_rover_and_the_area(kind: str) -> None:
     drive = drive_model(rover_config("red"))

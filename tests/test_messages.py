@@ -24,7 +24,7 @@ def _kind(path: Path) -> str:
 
 
 def _validator(kind: str) -> jsonschema.Draft202012Validator:
-    doc = json.loads((SCHEMA_DIR / f"{kind}.v1.schema.json").read_text())
+    doc = json.loads((SCHEMA_DIR / messages.schema_file(kind)).read_text())
     return jsonschema.Draft202012Validator(doc)
 
 
@@ -70,8 +70,14 @@ class _FloatLiteral(float):
 def _int_fields_written_as_floats(doc: object, schema: dict[str, object]) -> bool:
     props = schema.get("properties", {})
     assert isinstance(props, dict)
+
+    def integer(prop: dict[str, object]) -> bool:  # "integer", or a nullable one (anyOf integer / null)
+        options = prop.get("anyOf", [prop])
+        assert isinstance(options, list)
+        return any(o.get("type") == "integer" for o in options)
+
     return isinstance(doc, dict) and any(
-        isinstance(doc.get(key), _FloatLiteral) and props[key].get("type") == "integer" for key in doc if key in props
+        isinstance(doc.get(key), _FloatLiteral) and integer(props[key]) for key in doc if key in props
     )
 
 
@@ -80,7 +86,7 @@ def test_invalid_example_is_rejected_by_the_json_schema_or_the_byte_rules(path: 
     """What the schema language cannot say (size, encoding, NaN, ``1.0`` for an int) the README's rules say."""
     payload = path.read_bytes()
     kind = _kind(path)
-    schema = messages.schema_documents()[f"{kind}.v1.schema.json"]
+    schema = messages.schema_documents()[messages.schema_file(kind)]
     if len(payload) > schema["x-max-bytes"]:
         return
     try:
@@ -130,6 +136,7 @@ def test_encoder_refuses_non_finite_values(bad: float) -> None:
 finite = st.floats(allow_nan=False, allow_infinity=False)
 
 
+@pytest.mark.slow
 @given(
     rover_id=st.from_regex(r"\A[a-z0-9_-]{1,16}\Z"),
     seq=st.integers(min_value=0, max_value=2**40),

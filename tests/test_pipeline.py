@@ -86,6 +86,7 @@ THREE = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", METHODS)
 def test_three_moving_rovers_are_tracked_to_a_fraction_of_a_centimetre(method):
     results, truth = run(THREE, 30, method)
@@ -95,6 +96,7 @@ def test_three_moving_rovers_are_tracked_to_a_fraction_of_a_centimetre(method):
     assert np.percentile(err, 95) < 0.5
 
 
+@pytest.mark.slow
 def test_the_paper_baseline_runs_full_frame_and_finds_the_rovers_less_precisely():
     results, truth = run(THREE, 10, "paper", background=True)
     assert all(len(r.estimates) == 3 for r in results)
@@ -102,6 +104,7 @@ def test_the_paper_baseline_runs_full_frame_and_finds_the_rovers_less_precisely(
     assert all(e.theta_rad is None and e.vx_cm_s is None for r in results for e in r.estimates)
 
 
+@pytest.mark.slow
 def test_rovers_keep_their_ids_through_a_crossing_in_near_contact():
     # Green drives over the point red has just left, its front corner grazing red's rear; blue passes red head-on
     # with 1 cm between the bodies (markers 4 cm apart).
@@ -119,6 +122,7 @@ def test_rovers_keep_their_ids_through_a_crossing_in_near_contact():
             assert own < 1.0, (r.frame_index, e.rover_id, own)
 
 
+@pytest.mark.slow
 def test_a_hidden_rover_is_missing_then_reacquired_and_the_others_are_untouched():
     paths = {"red": line(80.0, 150.0, 0.2, 20.0), "green": still(250.0, 300.0), "blue": line(300.0, 80.0, 2.0, 15.0)}
     hidden = range(12, 24)
@@ -133,6 +137,7 @@ def test_a_hidden_rover_is_missing_then_reacquired_and_the_others_are_untouched(
     assert err.max() < 0.5
 
 
+@pytest.mark.slow
 def test_a_rover_that_leaves_the_view_is_missing_and_comes_back():
     # Drives out past the left edge of the image, then back in.
     def out_and_back(t: float) -> tuple[float, float, float]:
@@ -151,6 +156,7 @@ def test_a_rover_that_leaves_the_view_is_missing_and_comes_back():
             assert seen, r.frame_index
 
 
+@pytest.mark.slow
 def test_lighting_drift_flicker_and_a_sunlit_patch_do_not_lose_or_bias_a_rover():
     h = 720
     rows = np.arange(h, dtype=np.float32)
@@ -167,6 +173,7 @@ def test_lighting_drift_flicker_and_a_sunlit_patch_do_not_lose_or_bias_a_rover()
     assert np.percentile(err, 95) < 0.8
 
 
+@pytest.mark.slow
 def test_a_parked_rover_is_not_absorbed_into_the_background():
     config_kw = {"background_refresh_s": 0.3}  # the reference is renewed every 9 frames
     paths = {"red": still(150.0, 150.0), "blue": line(300.0, 100.0, 1.6, 20.0)}
@@ -185,6 +192,7 @@ def _heading_errors(results, truth, rover_id: str, skip: int = 10) -> np.ndarray
     )
 
 
+@pytest.mark.slow
 def test_heading_is_the_markers_axis_pointed_the_way_it_drives_and_null_before_it_moved():
     """On a 1 m circle the direction of motion lags and scatters (the old heading: 12 degrees at the 95th
     percentile in turns); the marker's own edges give the axis to a degree."""
@@ -207,6 +215,7 @@ def stop_and_turn(x0: float, y0: float, speed: float, stop_s: float, turn_rad_s:
     return pose
 
 
+@pytest.mark.slow
 def test_a_rover_that_stops_and_turns_on_the_spot_keeps_its_front():
     paths = {"blue": stop_and_turn(120.0, 200.0, 24.0, 0.6, 1.5)}
     results, truth = run(paths, 60)
@@ -216,6 +225,7 @@ def test_a_rover_that_stops_and_turns_on_the_spot_keeps_its_front():
     assert len(errors_deg) >= 30 and errors_deg.max() < 4.0  # never turned round, through 90 degrees of turn
 
 
+@pytest.mark.slow
 def test_velocity_is_reported_in_cm_per_second():
     results, _ = run({"blue": line(60.0, 90.0, 0.0, 24.0)}, 30)
     e = results[-1].estimates[0]
@@ -223,6 +233,7 @@ def test_velocity_is_reported_in_cm_per_second():
     assert e.vy_cm_s == pytest.approx(0.0, abs=1.0)
 
 
+@pytest.mark.slow
 def test_no_full_frame_pass_runs_while_every_rover_is_tracked():
     results, _ = run(THREE, 6)
     assert "acquire" in results[0].stage_ms
@@ -231,6 +242,7 @@ def test_no_full_frame_pass_runs_while_every_rover_is_tracked():
     assert rows <= set(results[-1].stage_ms)
 
 
+@pytest.mark.slow
 def test_a_crowd_of_twelve_rovers_with_close_hues_keeps_every_id():
     colors = dict(zip([f"r{k}" for k in range(12)], hue_colors(12), strict=True))
     paths = {}
@@ -297,6 +309,7 @@ def test_a_bad_tracker_configuration_names_the_file_and_key(tmp_path: Path, text
     assert str(path) in str(info.value)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("x", "y", "headings"),
     [
@@ -322,6 +335,7 @@ def test_a_two_tone_marker_gives_heading_and_centre_even_standing_still(x, y, he
         assert math.hypot(e.x_cm - x, e.y_cm - y) < 0.5
 
 
+@pytest.mark.slow
 def test_a_smaller_image_is_tracked_with_a_finer_acquisition_pass():
     from edge.camera import PinholeCamera, paper_camera
     from tests.support.track import Scene, three_rovers
@@ -352,6 +366,7 @@ def test_a_frame_of_another_size_mid_stream_is_a_source_error():
         tracker.process(frame(np.zeros((360, 640, 3), np.uint8), 1))
 
 
+@pytest.mark.slow
 def test_a_dark_patch_of_the_markers_hue_is_not_taken_for_the_rover():
     """Navy jeans are blue: right hue, but far too dark to be the blue marker under any plausible light."""
     scene = shared_scene()

@@ -7,7 +7,6 @@ import re
 import signal
 import subprocess
 import sys
-import time
 import urllib.error
 import urllib.request
 from pathlib import Path
@@ -21,7 +20,9 @@ from tests.support.appliance import edge_config, running
 from tests.support.mosquitto import Mosquitto, free_port
 from tests.support.runtime import MqttRecorder, poses, write_clip
 
-PROM_LINE = re.compile(r'^(# (HELP|TYPE) \w+ .+|edge_ips_\w+(\{(\w+="[^"]*",?)+\})? (-?[0-9.e+-]+|NaN|\+Inf))$')
+PROM_LINE = re.compile(
+    r'^(# (HELP|TYPE) \w+ .+|(edge_ips|process)_\w+(\{(\w+="[^"]*",?)+\})? (-?[0-9.e+-]+|NaN|\+Inf))$'
+)
 
 
 def _get(url: str) -> tuple[int, bytes, str]:
@@ -38,6 +39,7 @@ def _metric(text: str, name: str) -> float:
     return float(match.group(1))
 
 
+@pytest.mark.slow
 def test_healthz_and_metrics_describe_the_running_edge(mosquitto: Mosquitto) -> None:
     port = free_port()
     config = edge_config(
@@ -45,7 +47,9 @@ def test_healthz_and_metrics_describe_the_running_edge(mosquitto: Mosquitto) -> 
     )
     with MqttRecorder("127.0.0.1", mosquitto.port) as rec, running(config) as app:
         assert rec.wait_for(lambda m: len(poses(m)) >= 90)
-        time.sleep(1.2)  # past the start-up window in which missing rovers do not count
+        runtime = app.runtime
+        while runtime.tracking_for_s <= runtime.settle_s:  # past the start-up grace for missing rovers
+            runtime.wait_tracked(1.0)
         status, body, ctype = _get(f"http://127.0.0.1:{port}/healthz")
         assert status == 200 and ctype == "application/json"
         health = json.loads(body)
@@ -57,7 +61,7 @@ def test_healthz_and_metrics_describe_the_running_edge(mosquitto: Mosquitto) -> 
         assert status == 200 and ctype.startswith("text/plain; version=0.0.4")
         bad = [ln for ln in text.splitlines() if not PROM_LINE.match(ln)]
         assert not bad, f"not Prometheus text format: {bad[:3]}"
-        assert 15 < _metric(text, "fps") < 60
+        assert _metric(text, "fps") > 0  # frames tracked in the last two seconds (how many depends on the machine)
         assert _metric(text, "broker_connected") == 1
         assert _metric(text, 'state{state="online"}') == 1
         assert _metric(text, 'camera_state{state="ok"}') == 1
@@ -73,6 +77,7 @@ def test_healthz_and_metrics_describe_the_running_edge(mosquitto: Mosquitto) -> 
         assert app.runtime.snapshot().state == "online"
 
 
+@pytest.mark.slow
 def test_recording_keeps_every_published_byte_rotates_and_is_flushed_on_stop(
     mosquitto: Mosquitto, tmp_path: Path
 ) -> None:
@@ -90,7 +95,8 @@ def test_recording_keeps_every_published_byte_rotates_and_is_flushed_on_stop(
     received = {(m.topic, m.payload.decode()) for m in rec.messages}
     assert received <= recorded  # everything a subscriber saw is in the recording, byte for byte
     assert lines[-1]["topic"] == "ips/v1/edge/edge-t/status" and lines[-1]["payload"]["state"] == "offline"
-    assert all(ln["retain"] == ln["topic"].startswith("ips/v1/edge/") for ln in lines)
+    retained = ("ips/v1/edge/", "ips/v1/formation")  # the status, and the appliance's stop at start
+    assert all(ln["retain"] == ln["topic"].startswith(retained) for ln in lines)
 
 
 def test_recording_rotation_deletes_the_oldest_files(tmp_path: Path) -> None:
@@ -122,6 +128,7 @@ def test_a_finite_video_file_ends_the_run_cleanly(mosquitto: Mosquitto, tmp_path
     assert app.runtime.frames_processed <= 20 and app.runtime.capture.frames == 20
 
 
+@pytest.mark.slow
 def test_sigterm_publishes_offline_and_exits_zero(mosquitto: Mosquitto, tmp_path: Path) -> None:
     args = [f"broker.url={mosquitto.url}", f"recording.dir={tmp_path / 'rec'}"]
     with MqttRecorder("127.0.0.1", mosquitto.port) as rec:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from edge.calibration.exact import exact_calibration
 from edge.camera import MARKER_HEIGHT_CM, paper_camera
-from edge.runtime import exact_calibration
 
 
 @pytest.mark.parametrize("distortion", [(0.0, 0.0, 0.0, 0.0, 0.0), (-0.12, 0.04, 0.0008, -0.0005, 0.0)])

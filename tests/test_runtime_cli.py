@@ -89,8 +89,8 @@ def test_start_refuses_bad_setups_before_starting(
 
 def test_start_refuses_a_calibration_made_for_another_resolution(tmp_path: Path, env: dict[str, str]) -> None:
     from edge.calibration import save_calibration
+    from edge.calibration.exact import exact_calibration
     from edge.camera import paper_camera
-    from edge.runtime import exact_calibration
 
     save_calibration(exact_calibration(paper_camera()), tmp_path / "cal.json")  # 1280x720
     (tmp_path / "edge-ips.toml").write_text("[calibration]\npath = 'cal.json'\n")
@@ -99,6 +99,7 @@ def test_start_refuses_a_calibration_made_for_another_resolution(tmp_path: Path,
     _one_line_error(result, r"cal.json: calibration is for 1280x720 images but the camera delivers 320x240")
 
 
+@pytest.mark.slow
 def test_start_says_when_the_http_port_is_taken(env: dict[str, str]) -> None:
     with socket.socket() as holder:
         holder.bind(("0.0.0.0", 0))
@@ -121,6 +122,7 @@ def _real_start(tmp_path: Path, *args: str, **env_vars: str) -> subprocess.Compl
     )
 
 
+@pytest.mark.slow
 def test_start_says_when_the_embedded_broker_port_is_taken_without_a_traceback(tmp_path: Path) -> None:
     with socket.socket() as holder:  # a Mosquitto service on 1883
         holder.bind(("0.0.0.0", 0))
@@ -132,6 +134,7 @@ def test_start_says_when_the_embedded_broker_port_is_taken_without_a_traceback(t
     assert "Traceback" not in result.stderr and "startup failed" not in result.stderr
 
 
+@pytest.mark.slow
 def test_a_missing_camera_is_a_one_line_error_from_the_real_command(tmp_path: Path) -> None:
     result = _real_start(tmp_path, "--source", "/dev/video7", EDGE_IPS_BROKER__EMBEDDED_PORT="0")
     assert result.returncode == 2
@@ -139,6 +142,7 @@ def test_a_missing_camera_is_a_one_line_error_from_the_real_command(tmp_path: Pa
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_a_file_that_is_not_a_video_is_a_one_line_error_without_opencv_noise(tmp_path: Path) -> None:
     (tmp_path / "junk.mp4").write_text("not a video")
     result = _real_start(tmp_path, "--source", str(tmp_path / "junk.mp4"), EDGE_IPS_BROKER__EMBEDDED_PORT="0")
@@ -162,6 +166,7 @@ def test_config_init_writes_a_starting_file_and_show_prints_it_with_secrets_mask
 
 
 # -- broker-config -----------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_broker_config_command_writes_working_files(tmp_path: Path, env: dict[str, str]) -> None:
     result = _run(["broker-config", "--out", str(tmp_path / "mq"), "--rovers", "red,green"], env)
     assert result.exit_code == 0, result.output
@@ -176,6 +181,7 @@ def test_broker_config_command_writes_working_files(tmp_path: Path, env: dict[st
 
 
 # -- formation ---------------------------------------------------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "kind", "spacing", "side", "ids"),
     [
@@ -231,10 +237,12 @@ def test_doctor_reports_one_line_per_check_with_fix_hints(tmp_path: Path, env: d
     assert [ln.split()[1] for ln in lines] == ["config", "camera", "calibration", "broker", "clock"]
     assert lines[0].startswith("OK") and lines[1].startswith("OK") and "320x240" in lines[1]
     assert lines[2].startswith("FAIL") and "-> run `edge-ips calibrate`" in lines[2]
-    assert lines[3].startswith("OK") and "embedded: port" in lines[3]
+    assert lines[3].startswith("OK") and "embedded: amqtt on 0.0.0.0:0, logins generated on the first start" in lines[3]
+    assert "anonymous: read-only, this machine only; port 0 is free" in lines[3]
     assert result.exit_code == 1
 
 
+@pytest.mark.slow
 def test_doctor_checks_that_the_broker_lets_the_edge_publish(tmp_path: Path, env: dict[str, str]) -> None:
     passwords = {"edge": "e", "red": "r"}
     files = write_mosquitto_config(tmp_path / "mq", rovers=["red"], passwords=passwords)

@@ -7,17 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from edge.config import (
-    STARTER,
-    EdgeConfig,
-    find_config,
-    load_config,
-    masked,
-    parse_broker_url,
-    to_toml,
-    with_overrides,
-    write_starter,
-)
+from edge.config import EdgeConfig, parse_broker_url
+from edge.config_load import find_config, load_config, with_overrides
+from edge.config_text import STARTER, masked, to_toml, write_starter
 from edge.errors import ConfigError
 
 

@@ -3,12 +3,55 @@
 from __future__ import annotations
 
 import json
+import logging
+import threading
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+import pytest
 
 from edge.publisher import MqttPublisher
+from edge.runtime import EdgeRuntime
 from tests.support.appliance import edge_config, running
 from tests.support.mosquitto import Mosquitto
 from tests.support.runtime import MjpegServer, MqttRecorder, poses, statuses
+
+pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
+
+
+def _frame_by_frame(runtime: EdgeRuntime, condition: Callable[[], bool], timeout_s: float = 30.0) -> bool:
+    """Wait until ``condition()`` holds, checking it each time the tracker finishes a frame."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        runtime.wait_tracked(1.0)
+    return True
+
+
+@contextmanager
+def _logged(logger: str, text: str, times: int) -> Iterator[threading.Event]:
+    """An event set once ``logger`` has logged a message containing ``text`` ``times`` times."""
+    done = threading.Event()
+    seen = [0]
+
+    class Counter(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            if text in record.getMessage():
+                seen[0] += 1
+                if seen[0] >= times:
+                    done.set()
+
+    target = logging.getLogger(logger)
+    handler, level = Counter(), target.level
+    target.addHandler(handler)
+    target.setLevel(logging.INFO)
+    try:
+        yield done
+    finally:
+        target.removeHandler(handler)
+        target.setLevel(level)
 
 
 def test_broker_restart_mid_run_reconnects_republishes_status_and_sends_no_stale_poses(mosquitto: Mosquitto) -> None:
@@ -21,16 +64,17 @@ def test_broker_restart_mid_run_reconnects_republishes_status_and_sends_no_stale
 
         mosquitto.stop()
         t_down = time.time()
-        time.sleep(1.5)  # frames keep coming while the broker is away
+        # frames keep coming while the broker is away: a second's worth of poses, dropped
+        assert _frame_by_frame(app.runtime, lambda: publisher.stats.poses_dropped >= 90)
         dropped_while_down = publisher.stats.poses_dropped
         mosquitto.start()
         t_back, t_back_mono = time.time(), time.monotonic()
         n_before = len(rec.messages)
 
         assert rec.wait_for(lambda m: len(poses(m[n_before:])) >= 30, 30), "poses did not resume"
-        assert publisher.stats.connects == 2
+        assert publisher.stats.connects == 2 and publisher.stats.disconnects == 1  # one reconnect, to the new broker
+        # (how long a reconnect takes is a figure, not a bar: benchmarks/bench_reconnect.py)
         reconnect_s = publisher.stats.connected_since_mono - t_back_mono  # type: ignore[operator]
-        assert reconnect_s <= 5.0, f"reconnected {reconnect_s:.1f} s after the broker came back"
         assert dropped_while_down > 0
         assert not app.runtime.finished and app.runtime.error is None
 
@@ -83,10 +127,11 @@ def test_stalled_then_vanished_stream_degrades_reopens_with_backoff_and_tracking
 
             # 2. the camera vanishes: connection refused until it comes back on the same address
             port = int(server.url.split(":")[2].split("/")[0])
-            server.stop()
-            n = len(rec.messages)
-            assert _state_seen(rec, n, lambda s: s["state"] == "degraded" and s["camera"] == "missing")
-            time.sleep(1.0)  # several failed reopen attempts
+            with _logged("edge.sources", "reopen failed", times=2) as failed_twice:
+                server.stop()
+                n = len(rec.messages)
+                assert _state_seen(rec, n, lambda s: s["state"] == "degraded" and s["camera"] == "missing")
+                assert failed_twice.wait(30)  # the backoff has tried and failed at least twice
             server = MjpegServer(fps=30, port=port).start()
             t_back = time.time()
             n = len(rec.messages)

@@ -6,7 +6,7 @@ import json
 import signal
 import subprocess
 import sys
-import time
+import threading
 from pathlib import Path
 
 import pytest
@@ -40,7 +40,7 @@ def test_poses_go_out_at_qos0_on_their_own_topic_with_the_exact_bytes(mosquitto:
         pub = _publisher(mosquitto)
         pub.start()
         assert pub.wait_connected(10)
-        time.sleep(0.2)  # the recorder subscribes in its own on_connect
+        assert rec.wait_subscribed(10)
         sent = {r: _pose(r, 0, 7) for r in ROVERS}
         for rover, payload in sent.items():
             assert pub.publish_pose(rover, payload)
@@ -56,15 +56,22 @@ def test_poses_go_out_at_qos0_on_their_own_topic_with_the_exact_bytes(mosquitto:
 
 
 def test_status_is_retained_and_republished_after_a_broker_restart(mosquitto: Mosquitto) -> None:
-    pub = _publisher(mosquitto)
+    reconnected = threading.Event()
+
+    def on_connected() -> None:
+        if pub.stats.connects >= 2:
+            reconnected.set()
+
+    pub = _publisher(mosquitto, on_connected=on_connected)
     pub.start()
     assert pub.wait_connected(10)
     assert pub.publish_status(_status())
     mosquitto.restart()  # persistence off: the retained status is gone with the old broker
-    deadline = time.monotonic() + 15
-    while pub.stats.connects < 2 and time.monotonic() < deadline:
-        time.sleep(0.05)
+    assert reconnected.wait(15)
     assert pub.stats.connects == 2 and pub.stats.disconnects == 1
+    # The republished status may still be on its way: once one subscriber has it, the broker holds it retained.
+    with MqttRecorder("127.0.0.1", mosquitto.port, topics=[edge_status_topic("edge-t")]) as arrived:
+        assert arrived.wait_for(lambda m: len(m) >= 1, 10)
     with MqttRecorder("127.0.0.1", mosquitto.port, topics=[edge_status_topic("edge-t")]) as late:
         assert late.wait_for(lambda m: len(m) >= 1, 10)
     pub.stop()
@@ -77,9 +84,7 @@ def test_poses_are_dropped_while_disconnected_and_never_sent_later(mosquitto: Mo
     pub.start()
     assert pub.wait_connected(10)
     mosquitto.stop()
-    deadline = time.monotonic() + 10
-    while pub.connected and time.monotonic() < deadline:
-        time.sleep(0.01)
+    assert pub.wait_disconnected(10)
     assert not pub.connected
     stale = [_pose("red", i, 1000 + i) for i in range(20)]
     assert not any(pub.publish_pose("red", p) for p in stale)
@@ -87,13 +92,13 @@ def test_poses_are_dropped_while_disconnected_and_never_sent_later(mosquitto: Mo
     mosquitto.start()
     with MqttRecorder("127.0.0.1", mosquitto.port) as rec:
         assert pub.wait_connected(15)
-        time.sleep(0.3)
-        fresh = _pose("red", 20, 5000)
+        assert rec.wait_subscribed(10)
+        fresh, marker = _pose("red", 20, 5000), _pose("red", 21, 5001)
         pub.publish_pose("red", fresh)
-        assert rec.wait_for(lambda m: len(poses(m)) >= 1, 10)
-        time.sleep(0.3)
+        pub.publish_pose("red", marker)  # anything still queued from before would arrive ahead of it
+        assert rec.wait_for(lambda m: any(p.payload == marker for p in poses(m)), 10)
     pub.stop()
-    assert [m.payload for m in poses(rec.messages)] == [fresh]
+    assert [m.payload for m in poses(rec.messages)] == [fresh, marker]
 
 
 def test_wrong_credentials_are_a_clear_error(tmp_path: Path) -> None:
@@ -107,7 +112,7 @@ def test_wrong_credentials_are_a_clear_error(tmp_path: Path) -> None:
 
 
 LAST_WILL_CHILD = """
-import sys, time
+import signal, sys
 from edge.config import parse_broker_url
 from edge.messages import StatusV1
 from edge.publisher import MqttPublisher
@@ -116,10 +121,11 @@ pub.start()
 assert pub.wait_connected(10)
 pub.publish_status(StatusV1(v=1, edge="edge-w", state="online", camera="ok", fps=30.0, rovers=["red"], t=1.0))
 print("online", flush=True)
-time.sleep(600)
+signal.pause()  # until killed
 """
 
 
+@pytest.mark.slow
 def test_the_last_will_says_offline_when_the_edge_dies(mosquitto: Mosquitto) -> None:
     child = subprocess.Popen([sys.executable, "-c", LAST_WILL_CHILD, mosquitto.url], stdout=subprocess.PIPE)
     try:
@@ -155,9 +161,11 @@ def test_publisher_sets_tcp_nodelay(mosquitto: Mosquitto) -> None:
     pub.stop()
 
 
+@pytest.mark.slow
 def test_tls_broker_with_the_right_ca_gets_poses_and_a_wrong_ca_is_refused(tmp_path: Path) -> None:
+    from edge.commands import build_formation, send_formation
     from edge.config import BrokerTarget
-    from edge.publisher import TlsFiles, build_formation, send_formation
+    from edge.mqttclient import TlsFiles
     from tests.support.runtime import make_tls_files
 
     good = make_tls_files(tmp_path / "good")

@@ -9,12 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from edge.capture import CaptureThread, FrameSlot
 from edge.errors import SourceError
 from edge.sources import (
     CameraSource,
-    CaptureThread,
     Frame,
-    FrameSlot,
     MemorySource,
     SourceInfo,
     StreamSource,
@@ -106,6 +105,7 @@ class FlakySource:
         self.closed += 1
 
 
+@pytest.mark.slow
 def test_capture_thread_reopens_with_backoff_and_keeps_indices_increasing() -> None:
     # first open done by the runtime; then the source fails, 3 reopen attempts fail, the 4th works
     source = FlakySource([True, False, False, False, True], frames_per_open=5)
@@ -151,6 +151,7 @@ def test_video_file_plays_to_the_end(tmp_path: Path) -> None:
     assert frames[0].image.shape == (240, 320, 3)
 
 
+@pytest.mark.slow
 def test_video_file_loops_and_paces_in_real_time(tmp_path: Path) -> None:
     clip = write_clip(tmp_path / "clip.avi", frames=10, fps=50.0)
     source = VideoFileSource(clip, loop=True, realtime=True)
@@ -185,6 +186,7 @@ def test_not_a_video_file_is_refused(tmp_path: Path) -> None:
         VideoFileSource(bad).open()
 
 
+@pytest.mark.slow
 def test_stream_reads_then_fails_when_stalled_and_cannot_reopen_a_dead_server() -> None:
     server = MjpegServer(fps=30).start()
     source = StreamSource(server.url, open_timeout_s=2.0, read_timeout_s=0.5)

@@ -15,12 +15,15 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from edge.messages import parse_pose, parse_status
 from edge.sim.source import SimSource
 from tests.conftest import REPO
 from tests.support.mosquitto import Mosquitto, free_port
 from tests.support.runtime import MqttRecorder, poses, stop_process
+
+pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
 
 EDGE_IPS = [sys.executable, "-m", "edge.cli"]  # this checkout's edge-ips
 

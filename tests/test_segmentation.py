@@ -234,6 +234,7 @@ def test_coverage_weights_give_the_sub_pixel_centroid_and_area(rect, jpeg):
 masks = hnp.arrays(np.bool_, hnp.array_shapes(min_dims=2, max_dims=2, min_side=1, max_side=24))
 
 
+@pytest.mark.slow
 @given(masks)
 def test_hole_filling_keeps_the_mask_and_is_idempotent(mask):
     filled = fill_holes(mask)
@@ -246,6 +247,7 @@ def test_hole_filling_keeps_the_mask_and_is_idempotent(mask):
     assert not np.any(filled & ~mask & border)
 
 
+@pytest.mark.slow
 @given(masks)
 def test_reconstruction_of_a_mask_by_itself_is_the_mask(mask):
     assert np.array_equal(reconstruct(mask, mask), mask)

@@ -40,6 +40,7 @@ def test_help_renders_with_an_example(command):
     assert "Example:" in result.output
 
 
+@pytest.mark.slow
 def test_render_writes_video_truth_background_and_camera(tmp_path):
     out = tmp_path / "run"
     result = run("sim", "render", "lab", "--out", str(out), "--frames", "6", "--seed", "2")
@@ -111,6 +112,7 @@ def test_bad_option_values_are_usage_errors(tmp_path, args):
     assert "Invalid value" in result.output
 
 
+@pytest.mark.slow
 def test_background_is_the_empty_scene(tmp_path):
     out = tmp_path / "run"
     run("sim", "render", "lab", "--out", str(out), "--frames", "1")

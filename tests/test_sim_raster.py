@@ -50,6 +50,7 @@ def _convex(points: np.ndarray) -> np.ndarray:
     return points[order]
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None)
 @given(quads)
 def test_coverage_sums_to_the_polygon_area_and_stays_in_0_1(points):

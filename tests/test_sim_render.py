@@ -52,6 +52,7 @@ def black_renderer(request):
     return Renderer(camera, black_scene(fleet_looks(1)), clean_effects(psf_sigma_px=psf))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("pose", POSES)
 def test_marker_is_drawn_where_the_camera_model_projects_it(black_renderer, pose):
     """Intensity-weighted centroid (linear light) of the rendered marker vs the area centroid of its projected
@@ -68,6 +69,7 @@ def test_marker_is_drawn_where_the_camera_model_projects_it(black_renderer, pose
     assert np.hypot(*(measured - expected)) < 0.05
 
 
+@pytest.mark.slow
 def test_far_marker_is_about_20_by_9_px(black_renderer):
     rover = _still(195.75, 549.5, 90.0)
     image = black_renderer.render(WorldState(0.0, (rover,)), 0)
@@ -91,6 +93,7 @@ def test_area_centroid_is_not_the_projected_centre_but_maps_back_to_it(x, y, min
     assert polygon_centroid(on_plane) == pytest.approx([rover.x_cm, rover.y_cm], abs=1e-6)
 
 
+@pytest.mark.slow
 def test_same_seed_same_frames_other_seed_other_noise():
     setup = build("lab", seed=3)
     world = setup.world()
@@ -200,6 +203,7 @@ def test_flicker_band_amplitude_follows_the_exposure_time(exposure_s, expected):
     assert flicker_amplitude(Flicker(modulation=0.2), exposure_s) == pytest.approx(expected, abs=2e-3)
 
 
+@pytest.mark.slow
 def test_rolling_flicker_makes_bands_that_roll():
     camera = paper_camera()
     scene = Scene(fleet_looks(1))
@@ -273,6 +277,7 @@ def test_motion_blur_smears_along_the_motion_and_keeps_the_centroid():
 
 
 # -- scene effects ----------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_glare_clips_to_white_and_sunlight_is_warmer_than_lamplight():
     setup = build("sun", seed=0)
     renderer = setup.renderer()
@@ -297,6 +302,7 @@ def test_glare_clips_to_white_and_sunlight_is_warmer_than_lamplight():
     assert lit[2] / lit[0] > lamp[2] / lamp[0] * 1.05  # more red than blue: a lower colour temperature
 
 
+@pytest.mark.slow
 def test_passing_clouds_change_the_suns_colour_temperature():
     setup = build("sun", seed=0)
     renderer = setup.renderer()

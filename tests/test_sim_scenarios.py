@@ -86,6 +86,7 @@ def test_cross_passes_bodies_a_centimetre_apart_near_and_far():
     assert min_body_gap_cm(setup, step_s=0.01) == pytest.approx(1.0, abs=0.15)
 
 
+@pytest.mark.slow
 def test_occlusion_hides_a_rover_behind_the_person_and_one_leaves_and_returns():
     source = SimSource("occlusion", seed=0, realtime=False, frames=450)
     source.open()

@@ -45,6 +45,7 @@ def test_sim_source_is_a_frame_source_that_reports_what_it_delivers():
     source.close()
 
 
+@pytest.mark.slow
 def test_truth_is_the_world_at_the_frames_time():
     source = _source(scenario="lab", seed=1, realtime=False, frames=40)
     source.open()
@@ -65,6 +66,7 @@ def test_truth_is_the_world_at_the_frames_time():
         assert r.visible == pytest.approx(1.0, abs=1e-6)
 
 
+@pytest.mark.slow
 def test_same_seed_gives_the_same_frames_and_truth():
     a = _source(scenario="drift", seed=5, realtime=False, frames=6)
     b = _source(scenario="drift", seed=5, realtime=False, frames=6)

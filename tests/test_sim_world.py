@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from edge.errors import SimulationError
+from edge.messages import wrap_angle
 from edge.sim.trajectories import circle, crossing_gap_s, diagonal, leave_and_return, time_to_distance
 from edge.sim.world import (
     Arc,
@@ -20,7 +21,6 @@ from edge.sim.world import (
     Wait,
     WheelCommand,
     World,
-    wrap_angle,
 )
 
 START = Pose(100.0, 100.0, 0.0)

@@ -47,6 +47,7 @@ def invoke(*args: str):
     return CliRunner().invoke(main, list(args), catch_exceptions=False)
 
 
+@pytest.mark.slow
 def test_track_writes_one_pose_per_rover_per_frame_exactly_as_published(clip: Path, tmp_path: Path):
     out = tmp_path / "poses.jsonl"
     result = invoke("track", str(clip / "video.mp4"), "--calibration", str(clip / "camera.json"), "--out", str(out))
@@ -66,6 +67,7 @@ def test_track_writes_one_pose_per_rover_per_frame_exactly_as_published(clip: Pa
     assert "blue: 16 poses" in result.output
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["centroid", "meanshift", "paper"])
 def test_track_runs_every_method_and_prints_a_json_summary(clip: Path, tmp_path: Path, method: str):
     out = tmp_path / "poses.jsonl"
@@ -155,6 +157,7 @@ def test_a_bad_config_file_is_a_one_line_error(clip: Path, tmp_path: Path):
     _one_line_error(result, str(config), "rovers.0.color_bgr")
 
 
+@pytest.mark.slow
 def test_plot_draws_the_trajectories(clip: Path, tmp_path: Path):
     poses = tmp_path / "poses.jsonl"
     invoke("track", str(clip / "video.mp4"), "--calibration", str(clip / "camera.json"), "--out", str(poses))

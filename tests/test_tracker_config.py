@@ -10,11 +10,11 @@ from typing import Any
 import numpy as np
 import pytest
 
+from edge.appliance import TrackerInputs, default_tracker_factory
 from edge.camera import MARKER_HEIGHT_CM
-from edge.config import load_config
+from edge.config_load import load_config
 from edge.errors import SourceError
 from edge.pipeline import Pipeline
-from edge.runtime import TrackerInputs, default_tracker_factory
 from edge.sources import MemorySource
 from edge.tracker_config import RoverConfig, TrackerConfig, TrackerSettings
 from edge.trackers import CentroidTracker
@@ -93,6 +93,7 @@ def test_the_table_names_every_setting() -> None:
     assert named == set(TrackerSettings.model_fields)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("changes", "base"), CASES, ids=[f"{next(iter(c))}-{b.get('method', 'particles')}" for c, b in CASES]
 )
@@ -103,6 +104,7 @@ def test_each_setting_changes_what_the_tracker_reports(changes: dict[str, Any], 
     assert after != before
 
 
+@pytest.mark.slow
 def test_the_background_threshold_tells_the_rover_from_a_poster_of_its_colour() -> None:
     # A printed poster of the rover's colour, bigger than a marker, lies beside it on the floor of the empty scene.
     # While the window holds both, what differs from the empty scene (eq. 2, ``background_threshold``) is the
@@ -136,6 +138,7 @@ def test_the_window_trackers_get_the_configured_threshold_and_erosion() -> None:
     assert (acquirer.name, acquirer.threshold_fraction, acquirer.erosion_iterations) == ("particles", 0.7, 2)  # type: ignore[attr-defined]
 
 
+@pytest.mark.slow
 def test_the_configuration_files_tracker_section_reaches_the_appliances_tracker(tmp_path: Path) -> None:
     path = tmp_path / "edge-ips.toml"
     path.write_text("[tracker]\nmethod = 'centroid'\nthreshold_fraction = 0.7\nerosion_iterations = 2\n")
@@ -150,6 +153,7 @@ def test_the_configuration_files_tracker_section_reaches_the_appliances_tracker(
     assert (tracker.tracker.threshold_fraction, tracker.tracker.erosion_iterations) == (0.7, 2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["particles", "meanshift", "paper"])
 def test_reset_starts_over_as_on_the_first_frame_at_any_size(method: str) -> None:
     rovers = tuple(RoverConfig(id=r.id, color_bgr=r.color_bgr) for r in _rovers(0))

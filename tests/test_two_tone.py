@@ -174,6 +174,7 @@ PATHS = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", list(PATHS))
 @pytest.mark.parametrize("spot", list(SPOTS))
 def test_two_tone_heading_and_centre_hold_over_glare_and_sunlight(spot: str, path: str) -> None:

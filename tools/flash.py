@@ -11,7 +11,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from edge.cli import flash
+from edge.cli.flash import flash
 
 if __name__ == "__main__":
     flash.main(sys.argv[1:], prog_name="tools/flash.py")

@@ -7,9 +7,13 @@ The tracker needs only :class:`Calibration` (``pixel_to_world``, ``world_to_pixe
 - ``errormap``: the predicted 95% error of every pixel (paper Fig. 3/4) and its PNG.
 - ``intrinsics``: lens intrinsics from checkerboard photos; ``lens``: undistorting points.
 - ``fiducial``: the camera pose from ArUco markers at known floor positions, for any plane height.
+- ``check``: a calibration against points surveyed but not used in its fit.
+- ``exact``: the exact calibration of a known camera (the simulator's).
+- ``workflow``: whole calibrations from the input files to the written file (the ``calibrate`` commands).
 - ``survey``: where to put the survey points; ``files``: the runtime object and the versioned JSON file.
 """
 
+from edge.calibration.check import CheckResult, check_calibration
 from edge.calibration.files import (
     Calibration,
     CalibrationFile,
@@ -19,11 +23,9 @@ from edge.calibration.files import (
 )
 from edge.calibration.lens import Intrinsics
 from edge.calibration.points import (
-    CheckResult,
     PointsCalibration,
     PointTable,
     calibrate_points,
-    check_calibration,
     fit_points,
     read_points_csv,
     write_points_csv,

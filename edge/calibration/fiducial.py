@@ -22,7 +22,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.calibration.files import Calibration
+from edge.calibration.layout import MarkerCorners, layout_problem
 from edge.calibration.lens import Intrinsics
+from edge.calibration.pose import diagonal_crossing, fit_pose, solve_pose, square_corners
 from edge.calibration.tables import NumericTable, parse_table, read_text
 from edge.camera import MARKER_HEIGHT_CM, PinholeCamera
 from edge.errors import CalibrationError
@@ -47,9 +49,7 @@ class MarkerTable:
     def corners_cm(self, i: int) -> FloatArray:
         """(4, 3) world corners of marker ``i`` in ArUco order: top-left, top-right, bottom-right, bottom-left
         (top = +y side)."""
-        x, y, z = self.centres_cm[i]
-        h = self.sizes_cm[i] / 2.0
-        return np.array([[x - h, y + h, z], [x + h, y + h, z], [x + h, y - h, z], [x - h, y - h, z]])
+        return square_corners(self.centres_cm[i : i + 1], self.sizes_cm[i : i + 1])[0]
 
 
 def read_markers_csv(path: Path, marker_size_cm: float | None = None) -> MarkerTable:
@@ -132,47 +132,6 @@ class FiducialResult:
     notes: tuple[str, ...]
 
 
-def _estimate_focal(obj: FloatArray, img: FloatArray, size: tuple[int, int]) -> FloatArray:
-    """(3, 3) K from one planar view: principal point at the centre, square pixels, no distortion."""
-    w, h = size
-    k0 = np.array([[float(max(w, h)), 0.0, (w - 1) / 2.0], [0.0, float(max(w, h)), (h - 1) / 2.0], [0.0, 0.0, 1.0]])
-    flags = (
-        cv2.CALIB_USE_INTRINSIC_GUESS
-        | cv2.CALIB_FIX_PRINCIPAL_POINT
-        | cv2.CALIB_FIX_ASPECT_RATIO
-        | cv2.CALIB_ZERO_TANGENT_DIST
-        | cv2.CALIB_FIX_K1
-        | cv2.CALIB_FIX_K2
-        | cv2.CALIB_FIX_K3
-    )
-    _, k, _, _, _ = cv2.calibrateCamera(
-        [obj.astype(np.float32)], [img.astype(np.float32).reshape(-1, 1, 2)], size, k0, np.zeros(5), flags=flags
-    )
-    return np.asarray(k, dtype=np.float64)
-
-
-def _diagonal_crossing(corners_px: FloatArray) -> FloatArray:
-    """(2,) where the diagonals of a quadrilateral (4, 2) cross: the image of a square's centre under perspective."""
-    h = np.column_stack([corners_px, np.ones(4)])
-    p = np.cross(np.cross(h[0], h[2]), np.cross(h[1], h[3]))
-    return np.asarray(p[:2] / p[2])
-
-
-def _solve_pose(obj: FloatArray, img: FloatArray, k: FloatArray, dist: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """World -> camera (rvec, tvec) from point correspondences; IPPE when the points are coplanar in z."""
-    z0 = float(obj[:, 2].mean())
-    coplanar = bool(np.all(np.abs(obj[:, 2] - z0) < 1e-6))
-    shifted = obj - np.array([0.0, 0.0, z0]) if coplanar else obj
-    method = cv2.SOLVEPNP_IPPE if coplanar else cv2.SOLVEPNP_SQPNP
-    ok, rvec, tvec = cv2.solvePnP(shifted, img, k, dist, flags=method)
-    if not ok:
-        raise CalibrationError("cannot recover the camera pose from the markers (degenerate layout?)")
-    rvec, tvec = cv2.solvePnPRefineLM(shifted, img, k, dist, rvec, tvec)
-    r = cv2.Rodrigues(rvec)[0]
-    tvec = tvec.reshape(3) - r[:, 2] * z0 if coplanar else tvec.reshape(3)
-    return np.asarray(rvec, dtype=np.float64).reshape(3), np.asarray(tvec, dtype=np.float64)
-
-
 def calibrate_fiducial(
     image: NDArray[np.uint8],
     markers: MarkerTable,
@@ -206,36 +165,43 @@ def calibrate_fiducial(
         )
     obj = np.vstack([markers.corners_cm(known[i]) for i in used])
     img = np.vstack([found[i] for i in used])
+    try:
+        fit = fit_pose(obj, img, intrinsics, (w, h))
+    except CalibrationError as exc:
+        raise CalibrationError(f"{markers.source}: {exc}") from None
+    rows = [known[i] for i in used]
+    problem = layout_problem(
+        MarkerCorners(
+            ids=tuple(used),
+            centres_cm=markers.centres_cm[rows],
+            sizes_cm=markers.sizes_cm[rows],
+            corners_px=np.stack([found[i] for i in used]),
+            rows=tuple(markers.table.where(r) for r in rows),
+        ),
+        intrinsics,
+        (w, h),
+        markers.source,
+    )
+    if problem is not None:
+        raise CalibrationError(f"{source}: {problem}")
+    intrinsics = fit.intrinsics
+    k, dist = intrinsics.camera_matrix, intrinsics.dist_coeffs
     notes: list[str] = []
-    if intrinsics is None:
-        obj_plane = obj - np.array([0.0, 0.0, obj[:, 2].mean()])
-        if np.ptp(obj[:, 2]) > 1e-6:
-            raise CalibrationError(
-                f"{markers.source}: markers at different heights need intrinsics (--intrinsics) to calibrate"
-            )
-        k = _estimate_focal(obj_plane, img, (w, h))
-        intrinsics = Intrinsics(k, np.zeros(5), w, h)
+    if fit.focal_estimated:
         notes.append(
             f"no intrinsics given: focal length estimated from this view ({k[0, 0]:.1f} px, principal point at the "
             "image centre, no lens distortion)"
         )
-        focal_estimated = True
-    else:
-        focal_estimated = False
-    k, dist = intrinsics.camera_matrix, intrinsics.dist_coeffs
-    rvec, tvec = _solve_pose(obj, img, k, dist)
-    proj, _ = cv2.projectPoints(obj, rvec, tvec, k, dist)
-    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img) ** 2, axis=1))))
-    camera = PinholeCamera(k, dist, rvec, tvec, w, h)
+    camera = PinholeCamera(k, dist, fit.rvec, fit.tvec, w, h)
     loo: FloatArray | None = None
     if len(used) >= need + 1:
         errs = []
         for mid in used:
             keep = np.array([m != mid for m in used for _ in range(4)])
-            rv, tv = _solve_pose(obj[keep], img[keep], k, dist)
+            rv, tv = solve_pose(obj[keep], img[keep], k, dist)
             cam_j = PinholeCamera(k, dist, rv, tv, w, h)
             centre = markers.centres_cm[known[mid]]
-            centre_px = intrinsics.distort_px(_diagonal_crossing(intrinsics.undistort_px(found[mid]))[None])
+            centre_px = intrinsics.distort_px(diagonal_crossing(intrinsics.undistort_px(found[mid]))[None])
             seen = cam_j.pixel_to_plane(centre_px, float(centre[2]))[0]
             errs.append(float(np.linalg.norm(seen - centre[:2])))
         loo = np.asarray(errs)
@@ -250,8 +216,8 @@ def calibrate_fiducial(
         ids_used=tuple(used),
         ids_missing=missing,
         ids_unknown=unknown,
-        reprojection_rms_px=rms,
+        reprojection_rms_px=fit.rms_px,
         loo_error_cm=loo,
-        focal_estimated=focal_estimated,
+        focal_estimated=fit.focal_estimated,
         notes=tuple(notes),
     )

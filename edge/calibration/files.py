@@ -19,8 +19,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from edge.calibration.homography import apply_homography, homography_w
 from edge.calibration.lens import Intrinsics
-from edge.camera import PinholeCamera
-from edge.errors import CalibrationError
+from edge.camera import Distortion, ImageSide, Matrix3x3, PinholeCamera, Vector3
+from edge.errors import CalibrationError, describe_validation
 
 FloatArray = NDArray[np.float64]
 
@@ -61,9 +61,15 @@ class Calibration:
     homography_px_to_world: FloatArray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        g = np.asarray(self.homography_world_to_px, dtype=np.float64).reshape(3, 3)
+        g = np.asarray(self.homography_world_to_px, dtype=np.float64)
+        if g.shape != (3, 3):
+            raise CalibrationError(f"the homography must be 3x3, got shape {g.shape}")
         if not np.all(np.isfinite(g)):
             raise CalibrationError("degenerate mapping: the homography has non-finite entries")
+        scale = float(np.max(np.abs(g)))
+        if scale == 0.0:
+            raise CalibrationError("degenerate mapping: the homography is all zeros")
+        g = g / scale  # a homography is defined up to scale: 1e-300 or 1e300 entries must not under- or overflow
         x0, y0, x1, y1 = self.area_cm
         if not (x1 > x0 and y1 > y0):
             raise CalibrationError(f"invalid working area {self.area_cm}: need x0 < x1 and y0 < y1")
@@ -126,14 +132,14 @@ class _Strict(BaseModel):
 
 
 class IntrinsicsRecord(_Strict):
-    camera_matrix: list[list[float]] = Field(min_length=3, max_length=3)
-    dist_coeffs: list[float] = Field(max_length=5)
+    camera_matrix: Matrix3x3
+    dist_coeffs: Distortion
     rms_px: float | None = None
 
 
 class PoseRecord(_Strict):
-    rvec: list[float] = Field(min_length=3, max_length=3)
-    tvec: list[float] = Field(min_length=3, max_length=3)
+    rvec: Vector3
+    tvec: Vector3
 
 
 class FitRecord(_Strict):
@@ -185,11 +191,11 @@ class CalibrationFile(_Strict):
     method: Literal["points", "aruco", "camera"]
     created: str = Field(default_factory=lambda: datetime.now(UTC).isoformat(timespec="seconds"))
     source: str = ""
-    image_width_px: int = Field(gt=0)
-    image_height_px: int = Field(gt=0)
-    plane_height_cm: float
+    image_width_px: ImageSide
+    image_height_px: ImageSide
+    plane_height_cm: float = Field(ge=-1000.0, le=1000.0)
     area_cm: tuple[float, float, float, float]
-    homography_world_to_px: list[list[float]] = Field(min_length=3, max_length=3)
+    homography_world_to_px: Matrix3x3
     intrinsics: IntrinsicsRecord | None = None
     camera_pose: PoseRecord | None = None
     fit: FitRecord | None = None
@@ -199,24 +205,30 @@ class CalibrationFile(_Strict):
     def to_calibration(self) -> Calibration:
         intr = None
         if self.intrinsics is not None:
-            intr = Intrinsics(
-                np.asarray(self.intrinsics.camera_matrix, dtype=np.float64),
-                np.asarray(self.intrinsics.dist_coeffs, dtype=np.float64),
-                self.image_width_px,
-                self.image_height_px,
-            )
+            try:
+                intr = Intrinsics(
+                    np.asarray(self.intrinsics.camera_matrix, dtype=np.float64),
+                    np.asarray(self.intrinsics.dist_coeffs, dtype=np.float64),
+                    self.image_width_px,
+                    self.image_height_px,
+                )
+            except CalibrationError as exc:
+                raise CalibrationError(f"intrinsics: {exc}") from None
         cam = None
         if self.camera_pose is not None:
             if intr is None:
                 raise CalibrationError("a camera pose needs intrinsics in the same file")
-            cam = PinholeCamera(
-                intr.camera_matrix,
-                intr.dist_coeffs,
-                np.asarray(self.camera_pose.rvec),
-                np.asarray(self.camera_pose.tvec),
-                self.image_width_px,
-                self.image_height_px,
-            )
+            try:
+                cam = PinholeCamera(
+                    intr.camera_matrix,
+                    intr.dist_coeffs,
+                    np.asarray(self.camera_pose.rvec),
+                    np.asarray(self.camera_pose.tvec),
+                    self.image_width_px,
+                    self.image_height_px,
+                )
+            except CalibrationError as exc:
+                raise CalibrationError(f"camera_pose: {exc}") from None
         return Calibration(
             np.asarray(self.homography_world_to_px, dtype=np.float64),
             self.image_width_px,
@@ -293,9 +305,7 @@ def read_calibration_file(path: Path) -> CalibrationFile:
     try:
         return CalibrationFile.model_validate(data)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-        raise CalibrationError(f"{path}: invalid calibration file at {where}: {first['msg']}") from None
+        raise CalibrationError(f"{path}: invalid calibration file at {describe_validation(exc)}") from None
 
 
 def load_calibration(path: Path, expected_size: tuple[int, int] | None = None) -> Calibration:

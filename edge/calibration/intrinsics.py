@@ -18,7 +18,8 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from edge.calibration.lens import Intrinsics
-from edge.errors import CalibrationError
+from edge.camera import Distortion, ImageSide, Matrix3x3
+from edge.errors import CalibrationError, describe_validation
 
 FloatArray = NDArray[np.float64]
 
@@ -140,20 +141,18 @@ class IntrinsicsFile(BaseModel):
 
     kind: Literal["edge-ips/intrinsics"] = "edge-ips/intrinsics"
     version: Literal[1] = 1
-    image_width_px: int = Field(gt=0)
-    image_height_px: int = Field(gt=0)
-    camera_matrix: list[list[float]] = Field(min_length=3, max_length=3)
-    dist_coeffs: list[float] = Field(max_length=5)
+    image_width_px: ImageSide
+    image_height_px: ImageSide
+    camera_matrix: Matrix3x3
+    dist_coeffs: Distortion
     rms_px: float | None = None
     board: tuple[int, int] | None = None
-    square_cm: float | None = None
+    square_cm: float | None = Field(default=None, gt=0.0)
     images_used: list[str] = Field(default_factory=list)
     images_skipped: list[str] = Field(default_factory=list)
 
     def to_intrinsics(self) -> Intrinsics:
         k = np.asarray(self.camera_matrix, dtype=np.float64)
-        if k.shape != (3, 3) or k[0, 0] <= 0 or k[1, 1] <= 0:
-            raise CalibrationError("camera_matrix must be 3x3 with positive focal lengths")
         return Intrinsics(k, np.asarray(self.dist_coeffs, dtype=np.float64), self.image_width_px, self.image_height_px)
 
 
@@ -196,9 +195,7 @@ def load_intrinsics(path: Path, expected_size: tuple[int, int] | None = None) ->
     try:
         intr = IntrinsicsFile.model_validate(data).to_intrinsics()
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-        raise CalibrationError(f"{path}: invalid intrinsics file at {where}: {first['msg']}") from None
+        raise CalibrationError(f"{path}: invalid intrinsics file at {describe_validation(exc)}") from None
     except CalibrationError as exc:
         raise CalibrationError(f"{path}: {exc}") from None
     if expected_size is not None and tuple(expected_size) != (intr.width_px, intr.height_px):

@@ -12,11 +12,16 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from edge.camera import UNDISTORT_CRITERIA, camera_matrix_problem
+from edge.errors import CalibrationError
+
 FloatArray = NDArray[np.float64]
 
-# cv2.undistortPoints' default (5 iterations) leaves ~0.003 px at the corners of a strongly distorted image;
-# 20 iterations reach 1e-9 px for any lens a webcam has, at well under a microsecond per point.
-UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-9)
+# A lens model must map the image one to one and be invertible by cv2.undistortPoints: distorting what was
+# undistorted gives the pixel back to well under the corner detector's noise. A model that folds over, or nearly
+# so, inside the image (coefficients from a bad fit or a corrupted file) does not, and would map pixels to the
+# wrong floor points.
+ROUND_TRIP_TOLERANCE_PX = 0.05
 
 
 @dataclass(frozen=True)
@@ -29,11 +34,35 @@ class Intrinsics:
     height_px: int
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "camera_matrix", np.asarray(self.camera_matrix, dtype=np.float64).reshape(3, 3))
+        k = np.asarray(self.camera_matrix, dtype=np.float64)
+        problem = camera_matrix_problem(k, self.width_px, self.height_px)
+        if problem is not None:
+            raise CalibrationError(problem)
+        object.__setattr__(self, "camera_matrix", k)
         d = np.zeros(5)
-        given = np.asarray(self.dist_coeffs, dtype=np.float64).ravel()[:5]
+        given = np.asarray(self.dist_coeffs, dtype=np.float64).ravel()
+        if given.size > 5 or not np.all(np.isfinite(given)):
+            raise CalibrationError("distortion must be at most 5 finite numbers (k1, k2, p1, p2, k3)")
         d[: given.size] = given
         object.__setattr__(self, "dist_coeffs", d)
+        if self.has_distortion:
+            error_px = self._round_trip_error_px()
+            if not error_px <= ROUND_TRIP_TOLERANCE_PX:  # also NaN
+                raise CalibrationError(
+                    f"the lens model (k1, k2, p1, p2, k3 = {', '.join(f'{c:.4g}' for c in d)}) cannot be inverted "
+                    f"over the {self.width_px}x{self.height_px} image (a pixel comes back {error_px:.3g} px off): "
+                    "not a lens this camera can have; calibrate the intrinsics again"
+                )
+
+    def _round_trip_error_px(self) -> float:
+        """Largest ``|distort(undistort(p)) - p|`` over a grid of the image, its corners and edges included."""
+        us = np.linspace(0.0, self.width_px - 1.0, 17)
+        vs = np.linspace(0.0, self.height_px - 1.0, 11)
+        grid = np.stack(np.meshgrid(us, vs), axis=-1).reshape(-1, 2)
+        with np.errstate(all="ignore"):
+            back = self.distort_px(self.undistort_px(grid))
+            error = np.max(np.linalg.norm(back - grid, axis=1))
+        return float(error) if np.isfinite(error) else float("inf")
 
     @property
     def has_distortion(self) -> bool:

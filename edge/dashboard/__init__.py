@@ -1,4 +1,4 @@
-"""The live web dashboard served by ``edge-ips start`` (issue 9): camera view with overlays, top-down map, rover
+"""The live web dashboard served by ``edge-ips start``: camera view with overlays, top-down map, rover
 status, calibration error map, formation controls.
 
 The parts: ``server`` (routes on the appliance's HTTP server), ``events`` (server-sent events built from
@@ -14,30 +14,31 @@ from edge.dashboard.server import Dashboard
 
 if TYPE_CHECKING:
     from edge.config import BrokerTarget, EdgeConfig
+    from edge.dashboard.runtime_view import RuntimeView
     from edge.httpserver import HttpServer
-    from edge.publisher import TlsFiles
-    from edge.runtime import EdgeRuntime
+    from edge.mqttclient import TlsFiles
 
 __all__ = ["Dashboard", "start_dashboard"]
 
 
 def start_dashboard(
     config: EdgeConfig,
-    runtime: EdgeRuntime,
+    runtime: RuntimeView,
     http: HttpServer,
     *,
     calibration: Any,
     target: BrokerTarget,
     tls: TlsFiles | None = None,
 ) -> Dashboard:
-    """Build the dashboard for a prepared runtime and register its routes on ``http``.
+    """Build the dashboard for a prepared runtime (an :class:`edge.runtime.EdgeRuntime`) and register its routes on
+    ``http``.
 
     ``calibration``: the tracker's :class:`edge.calibration.Calibration` (None when unknown: no overlays).
     ``target``: the broker the formation commands go to (the appliance's own, embedded port resolved).
     """
     from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
     from edge.dashboard.calibration_view import CalibrationView
-    from edge.dashboard.events import EventHub, Overlay, pose_event, status_event
+    from edge.dashboard.events import EventHub, Overlay, pose_event, rovers_event, status_event
     from edge.dashboard.formation import FormationDesk, with_targets
     from edge.dashboard.frames import FrameEncoder
     from edge.sources import parse_source
@@ -48,7 +49,7 @@ def start_dashboard(
     area_cm = calibration.area_cm if calibration is not None else (0.0, 0.0, AREA_WIDTH_CM, AREA_LENGTH_CM)
 
     def background() -> Any:
-        frame = runtime.slot.peek()
+        frame = runtime.newest_frame()
         return None if frame is None else frame.image
 
     view = CalibrationView(
@@ -72,14 +73,24 @@ def start_dashboard(
         wait_next=runtime.wait_tracked,
     )
     token = settings.token.get_secret_value() if settings.token is not None else None
+
+    def reported() -> dict[str, Any]:
+        return rovers_event(rover_ids, desk.reports, desk.current)
+
+    def on_change(formation: dict[str, Any] | None) -> None:
+        hub.publish("formation", formation)
+        hub.publish("rovers", reported())  # whether each rover is on the retained command may have changed
+
     desk = FormationDesk(
         target,
         edge_id=config.edge.id,
         rover_ids=rover_ids,
         token=token,
         tls=tls,
-        on_change=lambda formation: hub.publish("formation", formation),
-    ).start()
+        on_change=on_change,
+        on_report=lambda rover_id, report: hub.publish("rovers", reported()),
+    )
+    desk.start()  # after the assignment: the retained formation may arrive (and call on_change) at once
     dashboard = Dashboard(
         runtime,
         settings=settings,

@@ -1,10 +1,11 @@
 """Server-sent events for the dashboard: what the page is told, built once per tick for every viewer.
 
 The pure part turns a :class:`FrameResult` and a :class:`Snapshot` into the JSON the page reads (``pose_event``,
-``status_event``), projecting each marker's outline and heading into the image with the calibration so the browser
-draws the overlays. :class:`EventHub` runs one thread, only while a page is connected, that reads the runtime's
-newest result (a reference read, never a lock the tracker waits on), builds each event once and hands it to every
-viewer's small queue; a slow viewer loses its oldest events, nobody else waits for it.
+``status_event``; ``rovers_event`` from the rovers' own statuses), projecting each marker's outline and heading into
+the image with the calibration so the browser draws the overlays. :class:`EventHub` runs one thread, only while a
+page is connected, that reads the runtime's newest result (a reference read, never a lock the tracker waits on),
+builds each event once and hands it to every viewer's small queue; a slow viewer loses its oldest events, nobody
+else waits for it.
 """
 
 from __future__ import annotations
@@ -14,17 +15,18 @@ import math
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.dashboard.threads import background_priority
+from edge.priority import background_priority
 
 if TYPE_CHECKING:
     from edge.calibration import Calibration
+    from edge.messages import RoverStatusV2
     from edge.metrics import Snapshot
     from edge.tracking import FrameResult
 
@@ -144,6 +146,37 @@ def status_event(snap: Snapshot) -> dict[str, Any]:
             for r in snap.rovers
         },
     }
+
+
+def rovers_event(
+    rover_ids: Sequence[str], reports: Mapping[str, RoverStatusV2], retained: Mapping[str, Any] | None
+) -> dict[str, Any]:
+    """The ``rovers`` event (and ``GET /api/rovers``): what each configured rover says it applies, from its retained
+    rover status, and whether that is the broker's retained formation (same kind and seq).
+
+    ``{"retained": {kind, seq} or null, "rovers": [{id, reported, state, halt, formation, seq, fw, on_retained}]}``;
+    a rover that has published no status has ``reported: false`` and nothing else.
+    """
+    held = None if retained is None else (retained["kind"], retained["seq"])
+    rows: list[dict[str, Any]] = []
+    for rover_id in rover_ids:
+        r = reports.get(rover_id)
+        if r is None:
+            rows.append({"id": rover_id, "reported": False})
+            continue
+        rows.append(
+            {
+                "id": rover_id,
+                "reported": True,
+                "state": r.state,
+                "halt": r.halt,
+                "formation": r.formation,
+                "seq": r.seq,
+                "fw": r.fw,
+                "on_retained": r.formation is not None and (r.formation, r.seq) == held,
+            }
+        )
+    return {"retained": None if held is None else {"kind": held[0], "seq": held[1]}, "rovers": rows}
 
 
 def sse(event: str, data: Any) -> bytes:

@@ -1,9 +1,10 @@
-"""The dashboard's formation controls: who may command (a bearer token), what a command may say, and the retained
-formation the broker holds now (watched, so commands from ``edge-ips formation`` show on the page too).
+"""The dashboard's formation controls: who may command (a bearer token), what a command may say, the retained
+formation the broker holds now (watched, so commands from ``edge-ips formation`` show on the page too), and what each
+rover reports it applies (its retained rover status v2): the page shows the rovers' word, not the edge's memory.
 
 Checks in this order, so nothing about the input leaks to someone without the token: controls disabled (no token
 configured: 403), token missing or wrong (401, compared in constant time), input invalid (400). Only then is the
-retained formation v1 message published with :func:`edge.publisher.send_formation` (its ``seq`` follows the one
+retained formation v1 message published with :func:`edge.commands.send_formation` (its ``seq`` follows the one
 the broker holds).
 """
 
@@ -20,10 +21,19 @@ from typing import Any
 import paho.mqtt.client as mqtt
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from edge.commands import FORMATION_QOS, build_formation, send_formation
 from edge.config import BrokerTarget
-from edge.errors import EdgeIpsError, MessageError
-from edge.messages import FORMATION_TOPIC, FormationKind, FormationV1, parse_formation
-from edge.publisher import FORMATION_QOS, TlsFiles, build_formation, connect_host, make_client, send_formation
+from edge.errors import EdgeIpsError, MessageError, describe_validation
+from edge.messages import (
+    FORMATION_TOPIC,
+    ROVER_STATUS_WILDCARD,
+    FormationKind,
+    FormationV1,
+    RoverStatusV2,
+    parse_formation,
+    parse_rover_status,
+)
+from edge.mqttclient import TlsFiles, connect_host, make_client
 
 log = logging.getLogger("edge.dashboard")
 
@@ -75,34 +85,31 @@ def parse_request(body: bytes, rover_ids: Sequence[str]) -> Callable[[int], Form
     try:
         req = FormationRequest.model_validate(data)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "(body)"
-        message = "unknown key" if first["type"] == "extra_forbidden" else first["msg"]
-        raise MessageError(f"formation request: {where}: {message}") from None
-    ids = [i.strip() for i in req.ids]
-    unknown = [i for i in ids if i not in rover_ids]
-    if unknown:
-        raise MessageError(f"formation request: ids: not configured rovers: {', '.join(unknown)}")
-    if len(set(ids)) != len(ids):
-        raise MessageError("formation request: ids: a rover is named twice")
-    if req.kind != "stop" and not ids:
-        raise MessageError(f"formation request: ids: a {req.kind} needs at least one rover")
-    spacing = (req.spacing if req.spacing is not None else 60.0) if req.kind == "line" else None
-    side = (req.side if req.side is not None else 100.0) if req.kind == "triangle" else None
+        raise MessageError(f"formation request: {describe_validation(exc, top_level='(body)')}") from None
 
     def make(seq: int) -> FormationV1:
         return build_formation(
-            req.kind, ids, seq=seq, spacing_cm=spacing, side_cm=side, x_cm=req.x, y_cm=req.y, theta_rad=req.theta
+            req.kind,
+            req.ids,
+            seq=seq,
+            spacing_cm=req.spacing,
+            side_cm=req.side,
+            x_cm=req.x,
+            y_cm=req.y,
+            theta_rad=req.theta,
+            known_ids=rover_ids,
         )
 
-    make(1)  # the message contract's own checks (spacing in range, ...), before anything is published
+    make(1)  # every check (configured ids, each once, spacing in range, ...) before anything is published
     return make
 
 
 class FormationDesk:
-    """Publishes commands and keeps the retained formation (``current``) up to date from the broker.
+    """Publishes commands and keeps the retained formation (``current``) and the rovers' retained statuses
+    (``reports``) up to date from the broker.
 
-    ``on_change(formation dict or None)`` is called (on paho's thread) whenever the retained formation changes.
+    ``on_change(formation dict or None)`` is called (on paho's thread) whenever the retained formation changes,
+    ``on_report(rover id, its status or None)`` whenever a configured rover's status changes (None: cleared).
     """
 
     def __init__(
@@ -114,6 +121,7 @@ class FormationDesk:
         token: str | None,
         tls: TlsFiles | None = None,
         on_change: Callable[[dict[str, Any] | None], None] | None = None,
+        on_report: Callable[[str, RoverStatusV2 | None], None] | None = None,
     ) -> None:
         self.target = target
         self.edge_id = edge_id
@@ -121,6 +129,9 @@ class FormationDesk:
         self.token = token
         self.tls = tls
         self.on_change = on_change
+        self.on_report = on_report
+        self._reports: dict[str, RoverStatusV2] = {}
+        self.refused_reports = 0
         self._lock = threading.Lock()  # one command at a time: each one's seq follows the last
         self._current: FormationV1 | None = None
         self._state_lock = threading.Lock()
@@ -135,6 +146,41 @@ class FormationDesk:
         with self._state_lock:
             return None if self._current is None else self._current.model_dump(mode="json")
 
+    @property
+    def reports(self) -> dict[str, RoverStatusV2]:
+        """Each configured rover's newest status, as the rover published it (absent: none received)."""
+        with self._state_lock:
+            return dict(self._reports)
+
+    def _report(self, topic: str, payload: bytes) -> None:
+        # A status counts only on its own rover's topic and for a configured rover (on an open broker anyone may
+        # publish anything); an empty retained payload clears it.
+        parts = topic.split("/")  # ips/v2/rovers/<id>/status
+        rover_id = parts[3] if len(parts) == 5 else ""
+        if rover_id not in self.rover_ids:
+            self.refused_reports += 1
+            return
+        report = None
+        if payload:
+            try:
+                report = parse_rover_status(payload)
+            except EdgeIpsError as exc:
+                self.refused_reports += 1
+                log.warning("dashboard: ignoring a rover status that breaks the contract: %s", exc)
+                return
+            if report.id != rover_id:
+                self.refused_reports += 1
+                return
+        with self._state_lock:
+            if self._reports.get(rover_id) == report:
+                return
+            if report is None:
+                del self._reports[rover_id]
+            else:
+                self._reports[rover_id] = report
+        if self.on_report is not None:
+            self.on_report(rover_id, report)
+
     def _set(self, formation: FormationV1 | None) -> None:
         with self._state_lock:
             if formation == self._current:
@@ -145,14 +191,17 @@ class FormationDesk:
 
     # -- watching the retained message ------------------------------------------------------------------------
     def start(self) -> FormationDesk:
-        """Subscribe to the retained formation in the background (paho reconnects by itself)."""
+        """Subscribe to the retained formation and the rovers' statuses in the background (paho reconnects)."""
         client = make_client(self.target, f"edge-ips-{self.edge_id}-dashboard", tls=self.tls)
 
         def on_connect(c: mqtt.Client, u: Any, flags: Any, reason_code: Any, props: Any) -> None:
             if not reason_code.is_failure:
-                c.subscribe(FORMATION_TOPIC, qos=FORMATION_QOS)
+                c.subscribe([(FORMATION_TOPIC, FORMATION_QOS), (ROVER_STATUS_WILDCARD, 1)])
 
         def on_message(c: mqtt.Client, u: Any, message: mqtt.MQTTMessage) -> None:
+            if message.topic != FORMATION_TOPIC:
+                self._report(message.topic, bytes(message.payload))
+                return
             if not message.payload:
                 self._set(None)  # the retained formation was cleared
                 return

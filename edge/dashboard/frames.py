@@ -2,13 +2,16 @@
 per new frame whatever the number of viewers, and only while someone is looking.
 
 The encoder thread sleeps until a page asks for a frame and goes back to sleep ``idle_after_s`` after the last
-request. In the appliance it is woken as the tracker finishes a frame (``wait_next``) and encodes that frame
-(``runtime.last_frame``), so the work falls in the gap before the next frame (2.5 ms of tracking, then ~30 ms
-idle at 30 fps) instead of beside the tracker; it only reads that reference, so the tracker never waits for it.
+request. The HTTP server's loop waits for a frame with :meth:`FrameEncoder.wait_frame` (no thread per request:
+the encoder hands each new JPEG to the waiting loops). In the appliance it is woken as the tracker finishes a
+frame (``wait_next``) and encodes that frame (``runtime.last_frame``), so the work falls in the gap before the
+next frame (2.5 ms of tracking, then ~30 ms idle at 30 fps) instead of beside the tracker; it only reads that
+reference, so the tracker never waits for it.
 """
 
 from __future__ import annotations
 
+import asyncio
 import threading
 import time
 from collections.abc import Callable
@@ -18,8 +21,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.dashboard.threads import background_priority
 from edge.metrics import LatencyWindow
+from edge.priority import background_priority
 from edge.tracking import Frame
 
 POLL_S = 0.005  # without ``wait_next``: how often the encoder looks for a newer frame
@@ -78,6 +81,7 @@ class FrameEncoder:
         self._last_request = -float("inf")
         self._closed = False
         self._thread: threading.Thread | None = None
+        self._waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Future[EncodedFrame | None]]] = []
         self.encode_time = LatencyWindow(1000)
         self.encoded = 0
 
@@ -115,9 +119,36 @@ class FrameEncoder:
             next_allowed = t0 + 0.85 * self.min_interval_s  # frames come on the camera's clock: 10 of 30 fps, not 7.5
             with self._cond:
                 seq = self._latest.seq + 1 if self._latest is not None else 1
-                self._latest = EncodedFrame(seq, frame.index, frame.t_capture_s, w, h, jpeg)
+                latest = self._latest = EncodedFrame(seq, frame.index, frame.t_capture_s, w, h, jpeg)
                 self.encoded += 1
                 self._cond.notify_all()
+                waiters, self._waiters = self._waiters, []
+            for loop, future in waiters:
+                loop.call_soon_threadsafe(_resolve, future, latest)
+
+    def _asked(self) -> None:
+        """Someone wants a frame: wake (or start) the encoder. Call with ``_cond`` held."""
+        self._last_request = time.monotonic()
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="dashboard-jpeg", daemon=True)
+            self._thread.start()
+        self._cond.notify_all()
+
+    async def wait_frame(self, timeout_s: float = 2.0) -> EncodedFrame | None:
+        """On an asyncio loop: the next JPEG encoded from now, waiting up to ``timeout_s``; on timeout the newest
+        one there is (None if none was ever encoded)."""
+        future: asyncio.Future[EncodedFrame | None] = asyncio.get_running_loop().create_future()
+        with self._cond:
+            if self._closed:
+                return self._latest
+            self._waiters.append((asyncio.get_running_loop(), future))
+            self._asked()
+        try:
+            return await asyncio.wait_for(future, timeout_s)
+        except TimeoutError:
+            with self._cond:
+                self._waiters = [(lp, f) for lp, f in self._waiters if f is not future]
+                return self._latest
 
     def next_frame(self, after_seq: int | None = None, timeout_s: float = 2.0) -> EncodedFrame | None:
         """A JPEG newer than ``after_seq`` (default: newer than the one held now), waiting up to ``timeout_s``;
@@ -125,11 +156,7 @@ class FrameEncoder:
         with self._cond:
             if self._closed:
                 return self._latest
-            self._last_request = time.monotonic()
-            if self._thread is None:
-                self._thread = threading.Thread(target=self._run, name="dashboard-jpeg", daemon=True)
-                self._thread.start()
-            self._cond.notify_all()
+            self._asked()
             floor = after_seq if after_seq is not None else (self._latest.seq if self._latest is not None else 0)
             self._cond.wait_for(
                 lambda: self._closed or (self._latest is not None and self._latest.seq > floor), timeout=timeout_s
@@ -140,5 +167,13 @@ class FrameEncoder:
         with self._cond:
             self._closed = True
             self._cond.notify_all()
+            waiters, self._waiters = self._waiters, []
+        for loop, future in waiters:
+            loop.call_soon_threadsafe(_resolve, future, self._latest)
         if self._thread is not None:
             self._thread.join(timeout=2.0)
+
+
+def _resolve(future: asyncio.Future[EncodedFrame | None], frame: EncodedFrame | None) -> None:
+    if not future.done():  # the waiter may have timed out meanwhile
+        future.set_result(frame)

@@ -1,17 +1,21 @@
 """The dashboard's HTTP side, on the appliance's own server (``edge.httpserver``, port 8080).
 
-Routes:
+Routes (access levels of :mod:`edge.httpguard`):
 
-- ``GET /`` and ``GET /static/<file>``: the page (``edge/dashboard/static``, no build step).
-- ``GET /api/state``: what does not change while running (edge id, working area in cm and in image pixels, image
-  size, rovers and their colours, whether the formation controls are enabled, the calibration's figures) and the
-  current formation.
-- ``GET /api/events``: server-sent events ``pose`` (capped at ``dashboard.pose_hz``), ``status`` (1 Hz) and
-  ``formation`` (when it changes), from :class:`edge.dashboard.events.EventHub`.
-- ``GET /api/frame.jpg``: the next camera frame as JPEG (:class:`edge.dashboard.frames.FrameEncoder`).
-- ``GET /api/errormap.png``: the calibration error map (:mod:`edge.dashboard.calibration_view`).
-- ``POST /api/formation``: ``Authorization: Bearer <dashboard.token>``, JSON ``{kind, ids, spacing, side}``;
-  publishes the retained formation (:mod:`edge.dashboard.formation`).
+- ``GET /`` and ``GET /static/<file>`` (open): the page (``edge/dashboard/static``, no build step); it holds no
+  data, and asks for the token when the API answers 401.
+- ``GET /api/state`` (read): what does not change while running (edge id, working area in cm and in image pixels,
+  image size, rovers and their colours, whether the formation controls are enabled, the calibration's figures)
+  and the current formation.
+- ``GET /api/events`` (read): server-sent events ``pose`` (capped at ``dashboard.pose_hz``), ``status`` (1 Hz),
+  ``formation`` and ``rovers`` (when they change), from :class:`edge.dashboard.events.EventHub` through
+  :class:`edge.dashboard.streams.EventFanout`.
+- ``GET /api/rovers`` (read): what each rover reports it applies (its retained status: halt reason, formation kind
+  and seq) and whether that is the broker's retained formation (:func:`edge.dashboard.events.rovers_event`).
+- ``GET /api/frame.jpg`` (read): the next camera frame as JPEG (:class:`edge.dashboard.frames.FrameEncoder`).
+- ``GET /api/errormap.png`` (read): the calibration error map (:mod:`edge.dashboard.calibration_view`).
+- ``POST /api/formation`` (control): ``Authorization: Bearer <dashboard.token>``, JSON ``{kind, ids, spacing,
+  side}``; publishes the retained formation (:mod:`edge.dashboard.formation`).
 
 Everything reads the runtime's snapshots and newest-result reference; nothing here takes a lock the tracker holds
 for longer than a counter update.
@@ -19,14 +23,13 @@ for longer than a counter update.
 
 from __future__ import annotations
 
-import json
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from importlib import resources
 from typing import TYPE_CHECKING, Any
 
-from edge.dashboard.threads import background_priority
-from edge.httpserver import HttpServer, Request, Response
+from edge.dashboard.streams import EventFanout
+from edge.httpserver import HttpServer, Request, Response, json_response
 
 if TYPE_CHECKING:
     from edge.config import DashboardSection
@@ -34,7 +37,7 @@ if TYPE_CHECKING:
     from edge.dashboard.events import EventHub, Overlay
     from edge.dashboard.formation import FormationDesk
     from edge.dashboard.frames import FrameEncoder
-    from edge.runtime import EdgeRuntime
+    from edge.dashboard.runtime_view import RuntimeView
     from edge.tracker_config import RoverConfig
 
 log = logging.getLogger("edge.dashboard")
@@ -47,11 +50,6 @@ CONTENT_TYPES = {
     ".svg": "image/svg+xml",
     ".ico": "image/x-icon",
 }
-
-
-def json_response(status: int, data: Any) -> Response:
-    body = json.dumps(data, separators=(",", ":"), allow_nan=False).encode()
-    return Response(status, body, "application/json")
 
 
 def hex_color(color_bgr: Sequence[int]) -> str:
@@ -71,17 +69,20 @@ def static_files() -> dict[str, tuple[bytes, str]]:
     return out
 
 
-def _fixed(response: Response) -> Callable[[Request], Response]:
-    return lambda request: response
+def _fixed(response: Response) -> Callable[[Request], Awaitable[Response]]:
+    async def serve(request: Request) -> Response:
+        return response
+
+    return serve
 
 
 class Dashboard:
-    """The page's routes over one running :class:`EdgeRuntime`; :meth:`attach` registers them, :meth:`close`
+    """The page's routes over one running runtime (:class:`RuntimeView`); :meth:`attach` registers them, :meth:`close`
     ends the event streams, the encoder and the formation watcher."""
 
     def __init__(
         self,
-        runtime: EdgeRuntime,
+        runtime: RuntimeView,
         *,
         settings: DashboardSection,
         rovers: Sequence[RoverConfig],
@@ -103,20 +104,22 @@ class Dashboard:
         self.formation = formation
         self._static = static_files()
         self._area_px = overlay.area_px()
+        self.fanout = EventFanout(hub.stream)
 
     # -- routes -----------------------------------------------------------------------------------------------
     def attach(self, http: HttpServer) -> Dashboard:
         index = self._static.get("index.html")
         if index is None:
             raise FileNotFoundError("edge/dashboard/static/index.html is missing from the installed package")
-        http.route("/", lambda request: Response(200, index[0], index[1]))
+        http.route("/", _fixed(Response(200, index[0], index[1])))
         for name, (body, content_type) in self._static.items():
             http.route(f"/static/{name}", _fixed(Response(200, body, content_type)))
-        http.route("/api/state", self.state)
-        http.route("/api/events", self.events)
-        http.route("/api/frame.jpg", self.frame)
-        http.route("/api/errormap.png", self.errormap)
-        http.route("/api/formation", self.post_formation, method="POST")
+        http.route("/api/state", self.state, access="read")
+        http.route("/api/events", self.events, access="read")
+        http.route("/api/frame.jpg", self.frame, access="read")
+        http.route("/api/errormap.png", self.errormap, access="read")
+        http.route("/api/formation", self.post_formation, method="POST", access="control")
+        http.route("/api/rovers", self.rover_reports, access="read")
         return self
 
     def state(self, request: Request) -> Response:
@@ -138,22 +141,33 @@ class Dashboard:
             },
         )
 
-    def events(self, request: Request) -> Response:
-        from edge.dashboard.events import status_event
+    async def events(self, request: Request) -> Response:
+        from edge.dashboard.events import sse, status_event
 
         first: list[tuple[str, Any]] = [("status", status_event(self.runtime.snapshot()))]
         if self.formation is not None:
             first.append(("formation", self.formation.current))
+            first.append(("rovers", self._reports(self.formation)))
+        opening = b"retry: 2000\n\n" + b"".join(sse(name, data) for name, data in first)
         return Response(
             200,
             content_type="text/event-stream; charset=utf-8",
             headers={"X-Accel-Buffering": "no"},
-            stream=self.hub.stream(first),
+            stream=self.fanout.stream(opening),
         )
 
-    def frame(self, request: Request) -> Response:
-        background_priority()  # the request's thread only serves the page
-        encoded = self.encoder.next_frame()
+    def _reports(self, desk: FormationDesk) -> dict[str, Any]:
+        from edge.dashboard.events import rovers_event
+
+        return rovers_event([r.id for r in self.rovers], desk.reports, desk.current)
+
+    def rover_reports(self, request: Request) -> Response:
+        if self.formation is None:
+            return json_response(404, {"error": "rover statuses are not watched on this edge"})
+        return json_response(200, self._reports(self.formation))
+
+    async def frame(self, request: Request) -> Response:
+        encoded = await self.encoder.wait_frame()
         if encoded is None:
             return json_response(503, {"error": "no camera frame yet"})
         return Response(

@@ -1,7 +1,7 @@
 """Formation metrics, pure numpy: how well a fleet holds a line, a rendezvous or a triangle, and how close it came.
 
 Positions are marker centres in world cm (the simulator's ground truth, or what the edge measured). A formation's
-bar (issue 8):
+bar:
 
 * **line** (paper Figs. 27-28, "vertical line"): every rover within ``tol_cm`` of the common vertical line (the
   mean x of the rovers), and every gap between neighbours along y within ``tol_cm`` of the commanded spacing;

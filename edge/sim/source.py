@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from edge.calibration.exact import exact_calibration
+from edge.calibration.files import Calibration
 from edge.errors import SimulationError, SourceError
 from edge.sim.render import Renderer
 from edge.sim.scenarios import SimSetup, build
@@ -168,6 +170,11 @@ class SimSource:
         if found is None:
             raise SimulationError(f"sim source: no ground truth for frame {frame_index} (not produced or too old)")
         return found
+
+    # -- edge.sources.SimulatedScene -----------------------------------------------------------------------------------
+    def exact_calibration(self) -> Calibration:
+        """The exact calibration of this camera on the marker plane: the simulator knows its camera."""
+        return exact_calibration(self.setup.camera)
 
     def rover_configs(self) -> tuple[RoverConfig, ...]:
         """Rover ids and marker colours as this camera sees them, for the tracker's configuration."""

@@ -11,7 +11,8 @@ import math
 import numpy as np
 
 from edge.errors import SimulationError
-from edge.sim.world import Arc, GoTo, Plan, Pose, Segment, Straight, Turn, Wait, wrap_angle
+from edge.messages import wrap_angle
+from edge.sim.world import Arc, GoTo, Plan, Pose, Segment, Straight, Turn, Wait
 
 TAU = 2.0 * math.pi
 

@@ -24,16 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from edge.errors import SimulationError
-
-TWO_PI = 2.0 * math.pi
-
-
-def wrap_angle(theta_rad: float) -> float:
-    """Wrap an angle to (-pi, pi]."""
-    wrapped = math.fmod(theta_rad + math.pi, TWO_PI)
-    if wrapped <= 0.0:
-        wrapped += TWO_PI
-    return wrapped - math.pi
+from edge.messages import wrap_angle
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,5 @@
-# config.json: defaults, checks, loading. Imported once at boot by main.py and then dropped (its code and the
-# defaults table are ~5 KB of the ESP8266's ~35 KB heap); the host harness and flash.py use the same checks.
+# config.json: defaults, checks, loading. Imported once at boot by app.py and then dropped (its module objects and
+# the defaults table are ~3 KB of the ESP8266's 36 KB heap); the host harness and the flash tool use the same checks.
 import json
 
 import msg
@@ -22,6 +22,7 @@ DEFAULTS = {
         "stale_ms": 400,
         "fade_ms": 100,
         "forget_ms": 10000,
+        "latency_ms": 50,
         "gain_per_s": 1.0,
         "anchor_gain_per_s": 2.0,
         "max_speed_cm_s": 45.0,
@@ -57,6 +58,7 @@ _NUMBERS = (
     ("control", "stale_ms", 50, 5000),
     ("control", "fade_ms", 0, 5000),
     ("control", "forget_ms", 500, 600000),
+    ("control", "latency_ms", 0, 1000),
     ("control", "gain_per_s", 0.001, 10),
     ("control", "anchor_gain_per_s", 0, 10),
     ("control", "max_speed_cm_s", 1, 200),
@@ -71,6 +73,15 @@ _NUMBERS = (
     ("control", "heading_fix_cm", 1, 100),
     ("control", "probe_speed_cm_s", 0, 50),
 )
+
+
+# GPIOs the ESP8266 reads at reset to choose how to boot: a motor driver that pulls them the wrong way at power-on
+# stops the board from booting (or boots it into the serial bootloader).
+_STRAPPING = {
+    0: "must be high at reset (low: serial bootloader)",
+    2: "must be high at reset",
+    15: "must be low at reset (most boards pull it down)",
+}
 
 
 def merge(defaults, given):
@@ -114,6 +125,7 @@ def check(cfg):
             raise ValueError("key " + name + ": expected a number, got " + repr(v))
         if not (lo <= v <= hi):
             raise ValueError("key " + name + ": " + repr(v) + " is outside " + repr(lo) + ".." + repr(hi))
+    used = {}  # type: dict[int, str]
     for side in ("left", "right"):
         m = cfg["motors"][side]
         if type(m) is not dict:
@@ -125,8 +137,16 @@ def check(cfg):
             v = m.get(k)
             if v is None and k == "dir2":
                 continue
+            name = "key motors." + side + "." + k
             if type(v) is not int or not (0 <= v <= 16):
-                raise ValueError("key motors." + side + "." + k + ": expected a GPIO number 0-16, got " + repr(v))
+                raise ValueError(name + ": expected a GPIO number 0-16, got " + repr(v))
+            if 6 <= v <= 11:
+                raise ValueError(name + ": GPIO " + str(v) + " is wired to the flash chip (GPIO 6-11)")
+            if k == "pwm" and v == 16:
+                raise ValueError(name + ": GPIO 16 has no PWM on the ESP8266")
+            if v in used:
+                raise ValueError(name + ": GPIO " + str(v) + " is already " + used[v])
+            used[v] = "motors." + side + "." + k
         if type(m.get("invert", False)) is not bool:
             raise ValueError("key motors." + side + ".invert: expected true or false")
     for section, key in (("wifi", "ssid"), ("wifi", "password"), ("broker", "user"), ("broker", "password")):
@@ -142,6 +162,18 @@ def check(cfg):
     if cfg["control"]["safety_cm"] < 2 * g["body_radius_cm"]:
         raise ValueError("key control.safety_cm: must be at least 2 * geometry.body_radius_cm (bodies would touch)")
     return cfg
+
+
+def warnings(cfg):
+    """What a checked config allows but a user should know: motor pins on the boot-strapping GPIOs."""
+    out = []
+    for side in ("left", "right"):
+        m = cfg["motors"][side]
+        for k in ("pwm", "dir", "dir2"):
+            v = m.get(k)
+            if v in _STRAPPING:
+                out.append("motors." + side + "." + k + " on GPIO " + str(v) + ": " + _STRAPPING[v])
+    return out
 
 
 def load(path):

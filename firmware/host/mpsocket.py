@@ -1,13 +1,17 @@
-"""A MicroPython-style ``socket`` module over CPython's, for the vendored umqtt.simple under CPython.
+"""A MicroPython-style ``socket`` module over CPython's, for the vendored umqtt.simple and link.py under CPython.
 
-MicroPython sockets are streams: ``read(n)`` blocks until n bytes (or EOF) and, when non-blocking, returns None if
-nothing is waiting; ``write(buf, n)`` writes the first n bytes. Blocking reads give up after ``BLOCKING_TIMEOUT_S``
-(an OSError, as a dead link would raise on the board when the watchdog does not reset it first), so a broker that
-dies in the middle of a packet cannot hang a host test.
+MicroPython sockets are streams, and this keeps their semantics (py/stream.c, extmod/modlwip.c):
+
+- blocking, or with a timeout: ``read(n)`` returns n bytes or fewer at EOF; a timeout with nothing read is
+  ``OSError(ETIMEDOUT)``. A blocking socket without a timeout gives up after ``BLOCKING_TIMEOUT_S`` here, so a test
+  cannot hang on a dead broker (the chip would wait for ever);
+- non-blocking: ``read(n)``/``readinto(buf)`` return what has arrived, ``None`` when nothing has, ``b""``/0 at EOF;
+  ``write(buf)`` returns the bytes taken, ``None`` when none could be.
 """
 
 from __future__ import annotations
 
+import errno
 import socket as _socket
 from typing import Any
 
@@ -22,68 +26,69 @@ class socket:  # noqa: N801 - the name MicroPython code calls
     def __init__(self, *args: Any) -> None:
         self._s = _socket.socket(_socket.AF_INET, _socket.SOCK_STREAM)
         self._s.setsockopt(_socket.IPPROTO_TCP, _socket.TCP_NODELAY, 1)
-        self._blocking = True
-        self._timeout: float | None = None
-
-    def connect(self, addr: Any) -> None:
-        self._s.settimeout(self._timeout if self._timeout is not None else BLOCKING_TIMEOUT_S)
-        self._s.connect(addr)
-        self._apply()
-
-    def settimeout(self, t: float | None) -> None:
-        self._timeout = t
-        self._blocking = t is None or t > 0
-        self._apply()
-
-    def setblocking(self, flag: bool) -> None:
-        self._blocking = bool(flag)
-        self._timeout = None
+        self._timeout: float | None = None  # None: blocking; 0: non-blocking
         self._apply()
 
     def _apply(self) -> None:
-        if not self._blocking:
-            self._s.setblocking(False)
-        else:
-            self._s.settimeout(self._timeout if self._timeout is not None else BLOCKING_TIMEOUT_S)
+        self._s.settimeout(BLOCKING_TIMEOUT_S if self._timeout is None else self._timeout)
+
+    def connect(self, addr: Any) -> None:
+        try:
+            self._s.connect(addr)
+        except TimeoutError:
+            raise OSError(errno.ETIMEDOUT, "connect timed out") from None
+
+    def settimeout(self, t: float | None) -> None:
+        self._timeout = t
+        self._apply()
+
+    def setblocking(self, flag: bool) -> None:
+        self._timeout = None if flag else 0.0
+        self._apply()
+
+    def _recv_into(self, view: memoryview) -> int | None:
+        """One receive: bytes read, 0 at EOF, None when a non-blocking socket has nothing."""
+        try:
+            return self._s.recv_into(view)
+        except BlockingIOError:
+            return None
+        except TimeoutError:
+            raise OSError(errno.ETIMEDOUT, "timed out") from None
+
+    def readinto(self, buf: bytearray | memoryview, n: int | None = None) -> int | None:
+        view = memoryview(buf)
+        if n is not None:
+            view = view[:n]
+        done = 0
+        while done < len(view):
+            k = self._recv_into(view[done:])
+            if k is None:
+                return done or None
+            if k == 0:
+                break
+            done += k
+        return done
 
     def read(self, n: int) -> bytes | None:
-        if not self._blocking:
-            try:
-                first = self._s.recv(n)
-            except BlockingIOError:
-                return None
-            if not first or len(first) == n:
-                return first
-            # MicroPython returns what is there; umqtt reads one byte here, so this is rare. Finish it blocking.
-            self._s.settimeout(BLOCKING_TIMEOUT_S)
-            try:
-                return first + self._read_exactly(n - len(first))
-            finally:
-                self._apply()
-        return self._read_exactly(n)
+        buf = bytearray(n)
+        k = self.readinto(buf)
+        if k is None:
+            return None
+        return bytes(buf[:k])
 
-    def _read_exactly(self, n: int) -> bytes:
-        chunks = []
-        while n > 0:
-            chunk = self._s.recv(n)
-            if not chunk:
-                break
-            chunks.append(chunk)
-            n -= len(chunk)
-        return b"".join(chunks)
-
-    def write(self, buf: bytes | bytearray | memoryview, n: int | None = None) -> int:
+    def write(self, buf: bytes | bytearray | memoryview, n: int | None = None) -> int | None:
         data = memoryview(buf)
         if n is not None:
             data = data[:n]
-        blocking = self._blocking
-        if not blocking:
-            self._s.settimeout(BLOCKING_TIMEOUT_S)
+        if self._timeout == 0:
+            try:
+                return self._s.send(data)
+            except BlockingIOError:
+                return None
         try:
             self._s.sendall(data)
-        finally:
-            if not blocking:
-                self._apply()
+        except TimeoutError:
+            raise OSError(errno.ETIMEDOUT, "timed out") from None
         return len(data)
 
     def close(self) -> None:

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import os
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from edge.config import EdgeConfig, with_overrides
-from edge.runtime import Appliance, prepare_appliance
+from edge.appliance import Appliance, prepare_appliance
+from edge.config import EdgeConfig, default_state_dir
+from edge.config_load import with_overrides
 from edge.sources import MemorySource
 from tests.support.runtime import CentroidTracker, scene
 
@@ -22,6 +24,7 @@ def memory_sim(frames: int = 90, fps: float = 30.0) -> Any:
 def edge_config(**overrides: Any) -> EdgeConfig:
     base = {
         "edge.id": "edge-t",
+        "edge.state_dir": default_state_dir(os.environ),  # the test's own (tests/conftest.py)
         "edge.status_interval_s": 0.3,
         "http.enabled": False,
         "broker.reconnect_min_s": 0.1,

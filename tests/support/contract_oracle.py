@@ -10,7 +10,9 @@ admits ``"v":1.0``; the firmware follows the README.
 from __future__ import annotations
 
 import json
+import math
 import random
+from decimal import Decimal
 from functools import cache
 from typing import Any
 
@@ -24,11 +26,12 @@ MAX_BYTES = {"pose": messages.POSE_MAX_BYTES, "formation": messages.FORMATION_MA
 POSE_FIELDS = ("id", "seq", "frame", "t", "x", "y", "theta", "vx", "vy", "q")
 FORMATION_FIELDS = ("seq", "kind", "ids", "spacing", "side", "x", "y", "theta")
 INT_FIELDS = ("v", "seq", "frame")
+T_WRAP = 1 << 26  # the firmware keeps a pose's t as whole ms modulo this (msg.T_WRAP)
 
 
 @cache
 def validator(kind: str) -> jsonschema.Draft202012Validator:
-    doc = json.loads((SCHEMA_DIR / f"{kind}.v1.schema.json").read_text())
+    doc = json.loads((SCHEMA_DIR / messages.schema_file(kind)).read_text())
     return jsonschema.Draft202012Validator(doc)
 
 
@@ -57,13 +60,27 @@ def oracle(kind: str, payload: bytes) -> dict[str, Any] | None:
         messages.PARSERS[kind](payload)
     except MessageError:
         return None
+    if kind == "pose":
+        doc["t_ms"] = t_ms(payload)
     return dict(doc)
 
 
+def t_ms(payload: bytes) -> int:
+    """A valid pose's t in whole milliseconds (rounded down) modulo :data:`T_WRAP`, from the exact decimal value of
+    its JSON text (the last "t" when a key is doubled, as every JSON parser here keeps)."""
+    exact = json.loads(payload.decode("utf-8"), parse_float=Decimal, parse_constant=_no_constants)["t"]
+    return math.floor(Decimal(exact) * 1000) % T_WRAP
+
+
 def as_fields(kind: str, doc: dict[str, Any]) -> list[Any]:
-    """The oracle's fields in the order of the firmware's tuple (absent optional formation fields are null)."""
-    names = POSE_FIELDS if kind == "pose" else FORMATION_FIELDS
-    return [doc.get(n) for n in names]
+    """The oracle's fields in the order of the firmware's tuple (absent optional formation fields are null); a pose's
+    t as the firmware keeps it: from the payload's digits in a doc from :func:`oracle`, else from the number's
+    shortest repr (a golden file's t, which its digits give exactly)."""
+    if kind != "pose":
+        return [doc.get(n) for n in FORMATION_FIELDS]
+    out = [doc.get(n) for n in POSE_FIELDS]
+    out[3] = doc["t_ms"] if "t_ms" in doc else math.floor(Decimal(repr(doc["t"])) * 1000) % T_WRAP
+    return out
 
 
 def same_fields(got: Any, want: list[Any], rel: float = 0.0) -> bool:

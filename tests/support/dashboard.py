@@ -9,7 +9,6 @@ import os
 import queue
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -18,22 +17,11 @@ from typing import Any
 
 import paho.mqtt.client as mqtt
 
+from benchmarks._common import CHROMIUM, CHROMIUM_ARGS, ReadyLine
 from edge.messages import FORMATION_TOPIC
 from tests.conftest import REPO
-from tests.support.mosquitto import free_port, wait_for_port
+from tests.support.mosquitto import free_port
 from tests.support.runtime import stop_process
-
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
 
 
 @dataclass
@@ -57,12 +45,14 @@ def call(port: int, method: str, path: str, body: bytes | None = None, headers: 
         conn.close()
 
 
-def read_events(port: int, wanted: dict[str, int], limit: int = 2000) -> dict[str, list[Any]]:
+def read_events(
+    port: int, wanted: dict[str, int], limit: int = 2000, headers: dict[str, str] | None = None
+) -> dict[str, list[Any]]:
     """Read ``/api/events`` until at least ``wanted[name]`` events of each name arrived; returns them by name."""
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
     got: dict[str, list[Any]] = {name: [] for name in wanted}
     try:
-        conn.request("GET", "/api/events")
+        conn.request("GET", "/api/events", headers=headers or {})
         resp = conn.getresponse()
         assert resp.status == 200
         assert resp.getheader("Content-Type", "").startswith("text/event-stream")
@@ -110,7 +100,7 @@ def clean_env(**extra: str) -> dict[str, str]:
 
 @dataclass
 class EdgeProcess:
-    proc: subprocess.Popen[str]
+    proc: subprocess.Popen[bytes]
     http_port: int
     log_path: Path
 
@@ -122,29 +112,38 @@ class EdgeProcess:
         return self.log_path.read_text(errors="replace")
 
 
+class PortTaken(AssertionError):
+    """Another process took the free port chosen for the dashboard before the appliance bound it."""
+
+
+def edge_online(line: bytes) -> bool:
+    """The appliance's readiness line: the runtime says it is online (its first status, once every route is up)."""
+    return line.rstrip().endswith(b"edge.runtime: status online")
+
+
 @contextmanager
 def edge_start(args: list[str], workdir: Path, env: dict[str, str]) -> Iterator[EdgeProcess]:
-    """``edge-ips start ARGS --http-port <free>`` in a subprocess; stopped with SIGTERM (the service's way)."""
+    """``edge-ips start ARGS --http-port <free>`` in a subprocess, once it says it is online; stopped with SIGTERM
+    (the service's way). :class:`PortTaken` when another process took the port first."""
     port = free_port()
     workdir.mkdir(parents=True, exist_ok=True)
     log_path = workdir / "edge.log"
-    with log_path.open("w") as log:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "edge.cli", "start", "--http-port", str(port), *args],
-            cwd=workdir,
-            env=env,
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "edge.cli", "start", "--http-port", str(port), *args],
+        cwd=workdir,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
+    assert proc.stdout is not None
+    output = ReadyLine(proc.stdout, log_path, edge_online)
     edge = EdgeProcess(proc, port, log_path)
     try:
-        wait_for_port("127.0.0.1", port, timeout_s=60)
-        deadline = time.monotonic() + 120
-        while call(port, "GET", "/healthz").status != 200:  # online: frames tracked, broker connected
-            if proc.poll() is not None or time.monotonic() > deadline:
-                raise AssertionError(f"edge-ips start did not come online:\n{edge.log()}")
-            time.sleep(0.2)
+        if not output.wait(120):
+            proc.wait(10)  # the output ended: the process is exiting
+            if "already in use" in edge.log():
+                raise PortTaken(edge.log())
+            raise AssertionError(f"edge-ips start did not come online:\n{edge.log()}")
         yield edge
     finally:
         stop_process(proc)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import sys
 
-from edge.runtime import prepare_appliance, run_until_signalled
+from edge.appliance import prepare_appliance, run_until_signalled
 from tests.support.appliance import edge_config, memory_sim
 from tests.support.runtime import CentroidTracker
 

@@ -3,34 +3,20 @@
 from __future__ import annotations
 
 import os
-import shutil
 import socket
 import subprocess
-import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-MOSQUITTO = "/usr/sbin/mosquitto"
-MOSQUITTO_PASSWD = shutil.which("mosquitto_passwd") or "/usr/bin/mosquitto_passwd"
+from benchmarks._common import start_mosquitto, stop_process
+from edge.broker import write_password_file
 
 
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def wait_for_port(host: str, port: int, timeout_s: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while True:
-        try:
-            with socket.create_connection((host, port), timeout=0.2):
-                return
-        except OSError:
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"nothing listens on {host}:{port} after {timeout_s} s") from None
-            time.sleep(0.02)
 
 
 def _user_line() -> str:
@@ -44,7 +30,7 @@ class Mosquitto:
 
     ``users``: name -> password (anonymous access is then off unless ``allow_anonymous``); ``acl``: the text of
     an ACL file. ``conf_path`` may point at a complete config (e.g. one written by ``edge-ips broker-config``):
-    then only the listener line is replaced by this instance's port.
+    then each listener moves to a free port on ``host`` (:attr:`ports`; the first one is :attr:`port`).
     """
 
     workdir: Path
@@ -55,18 +41,26 @@ class Mosquitto:
     conf_path: Path | None = None
     host: str = "127.0.0.1"
     proc: subprocess.Popen[bytes] | None = None
+    ports: dict[int, int] = field(default_factory=dict)  # a conf_path's listener port -> this instance's
 
     def _write_config(self) -> Path:
         self.workdir.mkdir(parents=True, exist_ok=True)
         if self.conf_path is not None:
-            lines = [
-                ln
-                for ln in self.conf_path.read_text().splitlines()
-                if not ln.strip().startswith(("listener", "port ", "log_dest", "pid_file"))
-            ]
-            text = f"listener {self.port} {self.host}\nlog_dest stderr\n{_user_line()}" + "\n".join(lines) + "\n"
+            # Each listener of the file moves to a free port on this host (the first to self.port); the options
+            # that follow a listener line stay with it.
+            lines = [f"log_dest stderr\n{_user_line()}"]
+            for line in self.conf_path.read_text().splitlines():
+                if line.strip().startswith(("port ", "log_dest", "pid_file")):
+                    continue
+                if line.strip().startswith("listener"):
+                    original = int(line.split()[1])
+                    port = self.ports.setdefault(original, self.port if not self.ports else free_port())
+                    line = f"listener {port} {self.host}"
+                lines.append(line)
+            if not self.ports:  # a file without listeners: its options are for this instance's one listener
+                lines.insert(1, f"listener {self.port} {self.host}")
             conf = self.workdir / "mosquitto-test.conf"
-            conf.write_text(text)
+            conf.write_text("\n".join(lines) + "\n")
             return conf
         lines = [
             f"listener {self.port} {self.host}",
@@ -76,11 +70,7 @@ class Mosquitto:
             f"allow_anonymous {'true' if self.allow_anonymous and not self.users else 'false'}",
         ]
         if self.users:
-            pw = self.workdir / "passwd"
-            pw.write_text("")
-            for name, password in self.users.items():
-                subprocess.run([MOSQUITTO_PASSWD, "-b", str(pw), name, password], check=True, capture_output=True)
-            pw.chmod(0o600)
+            pw = write_password_file(self.workdir / "passwd", self.users)  # never a password on a command line
             lines.append(f"password_file {pw}")
         if self.acl is not None:
             acl = self.workdir / "acl"
@@ -91,37 +81,15 @@ class Mosquitto:
         conf.write_text("\n".join(lines) + "\n")
         return conf
 
-    def start(self) -> Mosquitto:
-        conf = self._write_config()
-        self.proc = subprocess.Popen(
-            [MOSQUITTO, "-c", str(conf)],
-            stdout=subprocess.DEVNULL,
-            stderr=open(self.workdir / "mosquitto.log", "ab"),  # noqa: SIM115 - closed with the process
-        )
-        try:
-            deadline = time.monotonic() + 10.0
-            while True:
-                if self.proc.poll() is not None:
-                    raise TimeoutError
-                try:
-                    wait_for_port(self.host, self.port, timeout_s=0.2)
-                    break
-                except TimeoutError:
-                    if time.monotonic() > deadline:
-                        raise
-        except TimeoutError:
-            self.stop()
-            raise RuntimeError(f"mosquitto did not start: {(self.workdir / 'mosquitto.log').read_text()}") from None
+    def start(self, timeout_s: float = 10.0) -> Mosquitto:
+        """Start the process and wait for its readiness line (logged once its listeners are open); ``timeout_s``
+        only guards against a broker that never says it."""
+        self.proc = start_mosquitto(self._write_config(), self.workdir / "mosquitto.log", timeout_s)
         return self
 
     def stop(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        if self.proc is not None:
+            stop_process(self.proc)
         self.proc = None
 
     def restart(self) -> None:

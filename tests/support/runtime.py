@@ -1,6 +1,6 @@
 """Helpers for the runtime's tests: a tiny colour-centroid tracker, synthetic frames, an MQTT recorder, an MJPEG
-stream server that can stall or vanish. Real parts everywhere except the tracker (a fake of the ``Tracker``
-protocol, STYLE point 3) until the tracking pipeline lands.
+stream server that can stall or vanish. Real parts everywhere except the tracker: a fake of the ``Tracker``
+protocol (STYLE point 3), so the runtime's tests do not depend on the vision.
 """
 
 from __future__ import annotations
@@ -96,16 +96,18 @@ class MqttRecorder:
 
     def __post_init__(self) -> None:
         self._cond = threading.Condition()
+        self.subscribed = threading.Event()  # set when the broker acknowledged the subscriptions (each connection)
         self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="")
         if self.username:
             self.client.username_pw_set(self.username, self.password)
         self.client.on_connect = self._on_connect
         self.client.on_message = self._on_message
+        self.client.on_subscribe = lambda *args: self.subscribed.set()
         self.client.reconnect_delay_set(0.1, 0.5)
 
     def _on_connect(self, c: Any, u: Any, flags: Any, rc: Any, props: Any) -> None:
-        for t in self.topics:
-            c.subscribe(t, qos=1)
+        self.subscribed.clear()
+        c.subscribe([(t, 1) for t in self.topics])
 
     def _on_message(self, c: Any, u: Any, msg: mqtt.MQTTMessage) -> None:
         with self._cond:
@@ -127,6 +129,10 @@ class MqttRecorder:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
+    def wait_subscribed(self, timeout_s: float = 20.0) -> bool:
+        """Wait until the broker has acknowledged the subscriptions: from then on nothing published is missed."""
+        return self.subscribed.wait(timeout_s)
+
     def wait_for(self, predicate: Callable[[list[Received]], bool], timeout_s: float = 20.0) -> bool:
         with self._cond:
             return self._cond.wait_for(lambda: predicate(self.messages), timeout=timeout_s)
@@ -147,12 +153,42 @@ def statuses(messages: list[Received]) -> list[dict[str, Any]]:
     return [json.loads(m.payload) for m in messages if m.topic.startswith("ips/v1/edge/")]
 
 
-class MjpegServer:
-    """An HTTP multipart-JPEG stream of :func:`scene` frames at ``fps`` that a test can stall, kill and revive."""
+class Switch:
+    """An on/off a test flips (``set``/``clear``, as :class:`threading.Event`) and a thread can wait to see off."""
 
-    def __init__(self, fps: float = 30.0, port: int = 0) -> None:
+    def __init__(self) -> None:
+        self._on = False
+        self._changed = threading.Condition()
+
+    def set(self) -> None:
+        with self._changed:
+            self._on = True
+            self._changed.notify_all()
+
+    def clear(self) -> None:
+        with self._changed:
+            self._on = False
+            self._changed.notify_all()
+
+    def is_set(self) -> bool:
+        return self._on
+
+    def wait_off(self, stop: threading.Event, timeout_s: float = 1.0) -> None:
+        """Until off, or up to ``timeout_s`` (the caller checks ``stop`` then: a stopped server does not wait)."""
+        with self._changed:
+            self._changed.wait_for(lambda: not self._on or stop.is_set(), timeout_s)
+
+
+class MjpegServer:
+    """An HTTP multipart-JPEG stream of :func:`scene` frames at ``fps`` that a test can stall, kill and revive
+    (at another ``size`` if it likes); ``requests`` counts the connections it answered."""
+
+    def __init__(self, fps: float = 30.0, port: int = 0, size: tuple[int, int] = (320, 240)) -> None:
         self.fps = fps
-        self.stalled = threading.Event()
+        self.size = size
+        self.requests = 0
+        self._answered = threading.Condition()
+        self.stalled = Switch()  # set: the connection stays open, no frames
         self._port = port
         self._server: ThreadingHTTPServer | None = None
         self._stop = threading.Event()
@@ -167,6 +203,9 @@ class MjpegServer:
 
         class Handler(BaseHTTPRequestHandler):
             def do_GET(self) -> None:
+                with owner._answered:
+                    owner.requests += 1
+                    owner._answered.notify_all()
                 self.send_response(200)
                 self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=frame")
                 self.end_headers()
@@ -174,9 +213,9 @@ class MjpegServer:
                 try:
                     while not owner._stop.is_set():
                         if owner.stalled.is_set():
-                            time.sleep(0.02)
+                            owner.stalled.wait_off(owner._stop)
                             continue
-                        _, jpg = cv2.imencode(".jpg", scene(i))
+                        _, jpg = cv2.imencode(".jpg", scene(i, *owner.size))
                         data = jpg.tobytes()
                         self.wfile.write(
                             b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: %d\r\n\r\n" % len(data)
@@ -185,7 +224,7 @@ class MjpegServer:
                         )
                         owner.frames_sent += 1
                         i += 1
-                        time.sleep(1.0 / owner.fps)
+                        owner._stop.wait(1.0 / owner.fps)  # the camera's frame period
                 except (BrokenPipeError, ConnectionResetError):
                     pass
 
@@ -193,6 +232,10 @@ class MjpegServer:
                 pass
 
         return Handler
+
+    def wait_requests(self, n: int, timeout_s: float = 30.0) -> bool:
+        with self._answered:
+            return self._answered.wait_for(lambda: self.requests >= n, timeout_s)
 
     def start(self) -> MjpegServer:
         self._stop.clear()

@@ -6,6 +6,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.sim.effects import Effects, Exposure, Optics
+from edge.sim.metrics import box_gap_cm
 from edge.sim.scenarios import SimSetup
 from edge.sim.scene import FloorLook, RoverLook, Scene, rectangle_cm
 
@@ -46,30 +47,6 @@ def linear(image: NDArray[np.uint8], gamma: float = 2.2) -> NDArray[np.float64]:
     return np.asarray((image.astype(np.float64) / 255.0) ** gamma)
 
 
-def _separation(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
-    """Distance between two convex polygons: Euclidean when apart, minus the least overlap depth when not."""
-    best = -np.inf
-    for poly in (a, b):
-        for i in range(len(poly)):
-            edge = poly[(i + 1) % len(poly)] - poly[i]
-            normal = np.array([-edge[1], edge[0]]) / np.hypot(*edge)
-            pa, pb = a @ normal, b @ normal
-            best = max(best, pb.min() - pa.max(), pa.min() - pb.max())
-    if best <= 0:
-        return float(best)
-    return min(_point_to_edges(a, b), _point_to_edges(b, a))
-
-
-def _point_to_edges(points: NDArray[np.float64], poly: NDArray[np.float64]) -> float:
-    """Smallest distance from any of ``points`` to any edge of ``poly``."""
-    a = poly
-    b = np.roll(poly, -1, axis=0)
-    ab = b - a
-    t = np.clip(np.einsum("pke,ke->pk", points[:, None, :] - a[None], ab) / np.sum(ab * ab, axis=1), 0.0, 1.0)
-    closest = a[None] + t[..., None] * ab[None]
-    return float(np.min(np.hypot(*(points[:, None, :] - closest).transpose(2, 0, 1))))
-
-
 def min_body_gap_cm(setup: SimSetup, step_s: float = 0.05) -> float:
     """Smallest distance between any two rover bodies, or a rover and a prop (a box standing in the area), over the
     scenario's run (negative if they ever overlap)."""
@@ -92,5 +69,5 @@ def min_body_gap_cm(setup: SimSetup, step_s: float = 0.05) -> float:
                 la, lb = looks[a.rover_id], looks[b.rover_id]
                 pa = rectangle_cm(a.x_cm, a.y_cm, a.theta_rad, la.body_length_cm, la.body_width_cm)
                 pb = rectangle_cm(b.x_cm, b.y_cm, b.theta_rad, lb.body_length_cm, lb.body_width_cm)
-                best = min(best, _separation(pa, pb))
+                best = min(best, box_gap_cm(pa, pb))
     return float(best)

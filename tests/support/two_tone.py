@@ -9,9 +9,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge.calibration.exact import exact_calibration
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
 from edge.pipeline import Pipeline
-from edge.runtime import exact_calibration
 from edge.sim.loop import marker_colors
 from edge.sim.scenarios import SimSetup
 from edge.sim.world import RoverState, WorldState

@@ -3,8 +3,34 @@
 "use strict";
 
 const TRAIL = 90;                 // points kept per rover trail (6 s at the default 15 pose events/s)
-const state = { info: null, rovers: new Map(), formation: null, frameSize: [1280, 720], lastPose: null };
+const state = { info: null, rovers: new Map(), formation: null, frameSize: [1280, 720], lastPose: null,
+  reports: new Map(), lastStatus: null };
 const $ = (id) => document.getElementById(id);
+
+// The dashboard token: taken from the address (?token=..., then removed from it) and kept for this tab's session.
+// fetch sends it as a bearer token; EventSource and <img> cannot send headers, so they carry ?token=.
+const TOKEN_KEY = "edge-ips-token";
+let viewToken = initialToken();
+
+function initialToken() {
+  const url = new URL(location.href);
+  const given = url.searchParams.get("token");
+  if (given !== null) {
+    sessionStorage.setItem(TOKEN_KEY, given);
+    url.searchParams.delete("token");
+    history.replaceState(null, "", url.pathname + url.search + url.hash);
+  }
+  return sessionStorage.getItem(TOKEN_KEY) || "";
+}
+
+function withToken(path) {
+  if (!viewToken) return path;
+  return `${path}${path.includes("?") ? "&" : "?"}token=${encodeURIComponent(viewToken)}`;
+}
+
+function bearer(token) {
+  return token ? { Authorization: `Bearer ${token}` } : {};
+}
 
 function colorOf(id) {
   const r = state.info && state.info.rovers.find((x) => x.id === id);
@@ -12,7 +38,13 @@ function colorOf(id) {
 }
 
 async function loadState() {
-  const res = await fetch("api/state");
+  const res = await fetch("api/state", { headers: bearer(viewToken) });
+  if (!res.ok) {
+    const out = await res.json().catch(() => ({ error: res.statusText }));
+    $("formation-result").textContent = `${out.error || res.status}: enter the dashboard token`;
+    $("formation-result").dataset.status = String(res.status);
+    return false;
+  }
   state.info = await res.json();
   state.frameSize = [state.info.image.width, state.info.image.height];
   state.formation = state.info.formation;
@@ -29,15 +61,16 @@ async function loadState() {
   } else {
     $("calibration-info").textContent = c ? `(${c.note || c.method})` : "(no calibration known)";
   }
-  $("errormap").src = "api/errormap.png";
+  $("errormap").src = withToken("api/errormap.png");
   showFormation();
+  return true;
 }
 
 // -- camera ----------------------------------------------------------------------------------------------------------
 let frameCount = 0;
 function nextFrame() {
   const img = $("camera");
-  const url = `api/frame.jpg?n=${frameCount++}`;
+  const url = withToken(`api/frame.jpg?n=${frameCount++}`);
   img.onload = () => { drawCameraOverlay(); setTimeout(nextFrame, 0); };
   img.onerror = () => setTimeout(nextFrame, 1000);
   img.src = url;
@@ -146,6 +179,18 @@ function drawFormationTarget(ctx, X, Y, scale) {
 }
 
 // -- rovers table ----------------------------------------------------------------------------------------------------
+// The last two columns are what each rover itself reports (its retained status): its halt reason and the formation it
+// applies, flagged when that is not the broker's retained command.
+function reportCells(id) {
+  const r = state.reports.get(id);
+  if (!r || !r.reported) return `<td class="halt" data-halt="">no status</td><td class="applies">–</td>`;
+  const halt = r.state === "offline" ? "offline" : r.halt;
+  const applies = r.formation ? `${r.formation} (seq ${r.seq})` : "none";
+  const off = r.formation && !r.on_retained ? " off-retained" : "";
+  const title = off ? ` title="not the broker's retained command"` : "";
+  return `<td class="halt" data-halt="${halt}">${halt}</td><td class="applies${off}"${title}>${applies}</td>`;
+}
+
 function renderTable(status) {
   const body = document.querySelector("#rovers tbody");
   const ids = state.info ? state.info.rovers.map((r) => r.id) : [...state.rovers.keys()];
@@ -158,7 +203,8 @@ function renderTable(status) {
     return `<tr data-rover="${id}" class="${missing ? "missing" : ""}"><td><span class="swatch" style="background:${colorOf(id)}"></span>${id}</td>` +
       `<td>${fmt(p && p.x, 1)}</td><td>${fmt(p && p.y, 1)}</td><td>${heading}</td><td>${fmt(speed, 1)}</td>` +
       `<td>${fmt(p && p.q, 2)}</td><td>${s ? s.rate_hz.toFixed(1) + " Hz" : "–"}</td>` +
-      `<td>${s && s.last_seen_s != null ? s.last_seen_s.toFixed(1) + " s ago" : missing ? "missing" : "–"}</td></tr>`;
+      `<td>${s && s.last_seen_s != null ? s.last_seen_s.toFixed(1) + " s ago" : missing ? "missing" : "–"}</td>` +
+      `${reportCells(id)}</tr>`;
   });
   body.innerHTML = rows.join("");
 }
@@ -191,6 +237,7 @@ function onStatus(s) {
   $("fps").textContent = s.fps.toFixed(1);
   $("lat-p50").textContent = s.latency_ms && s.latency_ms.p50 != null ? s.latency_ms.p50.toFixed(1) : "–";
   $("lat-p99").textContent = s.latency_ms && s.latency_ms.p99 != null ? s.latency_ms.p99.toFixed(1) : "–";
+  state.lastStatus = s;
   renderTable(s);
 }
 
@@ -201,10 +248,14 @@ function showFormation() {
 }
 
 function connectEvents() {
-  const es = new EventSource("api/events");
+  const es = new EventSource(withToken("api/events"));
   es.addEventListener("pose", (e) => onPose(JSON.parse(e.data)));
   es.addEventListener("status", (e) => onStatus(JSON.parse(e.data)));
   es.addEventListener("formation", (e) => { state.formation = JSON.parse(e.data); showFormation(); });
+  es.addEventListener("rovers", (e) => {
+    state.reports = new Map(JSON.parse(e.data).rovers.map((r) => [r.id, r]));
+    renderTable(state.lastStatus);
+  });
   es.onerror = () => pill($("pill-state"), "disconnected", "bad");
 }
 
@@ -214,7 +265,7 @@ async function sendFormation(kind) {
   const body = { kind, ids, spacing: Number($("spacing").value), side: Number($("side").value) };
   const res = await fetch("api/formation", {
     method: "POST",
-    headers: { "Content-Type": "application/json", Authorization: `Bearer ${$("token").value}` },
+    headers: { "Content-Type": "application/json", ...bearer($("token").value.trim()) },
     body: JSON.stringify(body),
   });
   const out = await res.json().catch(() => ({ error: res.statusText }));
@@ -227,4 +278,17 @@ for (const b of document.querySelectorAll("#formation-form button")) {
 }
 window.addEventListener("resize", () => { drawMap(); drawCameraOverlay(); });
 
-loadState().then(() => { connectEvents(); nextFrame(); drawMap(); });
+async function start() {
+  $("token").value = viewToken;
+  if (await loadState()) {
+    connectEvents(); nextFrame(); drawMap();
+    return;
+  }
+  $("token").addEventListener("change", () => {  // a token typed in: try again with it
+    viewToken = $("token").value.trim();
+    sessionStorage.setItem(TOKEN_KEY, viewToken);
+    start();
+  }, { once: true });
+}
+
+start();

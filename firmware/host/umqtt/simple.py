@@ -1,12 +1,3 @@
-# Vendored for host tests and the closed-loop simulation ONLY; the ESP8266 uses the umqtt.simple frozen into its
-# MicroPython firmware. Unmodified copy of:
-#   repository: https://github.com/micropython/micropython-lib
-#   path:       micropython/umqtt.simple/umqtt/simple.py
-#   commit:     20475d37e8bbee4d132fd0d21d7025524f637c9b (the newest version stored when vendored, Nov 2026:
-#               connect(clean_session, timeout), unsubscribe(), MQTTException(-1) on a missing CONNACK)
-#   licence:    MIT, "Copyright (c) 2013, 2014 micropython-lib contributors"; the full text is in ./LICENSE.
-# Under CPython its `socket` module is swapped for firmware/host/mpsocket.py (MicroPython sockets have read/write),
-# by edge.rover_host; nothing in this file is changed.
 import socket
 import struct
 from binascii import hexlify
@@ -14,16 +5,6 @@ from binascii import hexlify
 
 class MQTTException(Exception):
     pass
-
-
-def _encode_len(pkt, sz):
-    i = 1
-    while sz > 0x7F:
-        pkt[i] = (sz & 0x7F) | 0x80
-        sz >>= 7
-        i += 1
-    pkt[i] = sz
-    return i
 
 
 class MQTTClient:
@@ -82,8 +63,6 @@ class MQTTClient:
         self.lw_retain = retain
 
     def connect(self, clean_session=True, timeout=None):
-        if self.sock:
-            self.sock.close()
         self.sock = socket.socket()
         self.sock.settimeout(timeout)
         addr = socket.getaddrinfo(self.server, self.port)[0][-1]
@@ -112,7 +91,12 @@ class MQTTClient:
             msg[6] |= 0x4 | (self.lw_qos & 0x1) << 3 | (self.lw_qos & 0x2) << 3
             msg[6] |= self.lw_retain << 5
 
-        i = _encode_len(premsg, sz)
+        i = 1
+        while sz > 0x7F:
+            premsg[i] = (sz & 0x7F) | 0x80
+            sz >>= 7
+            i += 1
+        premsg[i] = sz
 
         self.sock.write(premsg, i + 2)
         self.sock.write(msg)
@@ -125,12 +109,10 @@ class MQTTClient:
             self._send_str(self.user)
             self._send_str(self.pswd)
         resp = self.sock.read(4)
-        r = -1
-        if resp and len(resp) > 3 and resp[0] == 0x20 and resp[1] == 0x02:
-            r = resp[3]
-            if not r:
-                return resp[2] & 1
-        raise MQTTException(r)
+        assert resp[0] == 0x20 and resp[1] == 0x02
+        if resp[3] != 0:
+            raise MQTTException(resp[3])
+        return resp[2] & 1
 
     def disconnect(self):
         self.sock.write(b"\xe0\0")
@@ -146,7 +128,12 @@ class MQTTClient:
         if qos > 0:
             sz += 2
         assert sz < 2097152
-        i = _encode_len(pkt, sz)
+        i = 1
+        while sz > 0x7F:
+            pkt[i] = (sz & 0x7F) | 0x80
+            sz >>= 7
+            i += 1
+        pkt[i] = sz
         # print(hex(len(pkt)), hexlify(pkt, ":"))
         self.sock.write(pkt, i + 1)
         self._send_str(topic)
@@ -169,33 +156,37 @@ class MQTTClient:
         elif qos == 2:
             assert 0
 
-    def _send_subunsub(self, topic, typ, ack_op, ack_n, qos=0):
-        pkt = bytearray(4)
-        pkt[0] = typ
+    def subscribe(self, topic, qos=0):
+        assert self.cb is not None, "Subscribe callback is not set"
+        pkt = bytearray(b"\x82\0\0\0")
         self.pid += 1
-        pid = self.pid
-        i = _encode_len(pkt, 4 + len(topic) + (ack_n > 3))
-        self.sock.write(pkt, i + 1)
-        struct.pack_into("!H", pkt, 0, pid)
-        self.sock.write(pkt, 2)
+        struct.pack_into("!BH", pkt, 1, 2 + 2 + len(topic) + 1, self.pid)
+        # print(hex(len(pkt)), hexlify(pkt, ":"))
+        self.sock.write(pkt)
         self._send_str(topic)
-        if ack_n > 3:
-            self.sock.write(bytes((qos,)))
+        self.sock.write(qos.to_bytes(1, "little"))
         while 1:
             op = self.wait_msg()
-            if op == ack_op:
-                resp = self.sock.read(ack_n)
-                assert (resp[1] << 8 | resp[2]) == pid
-                if ack_n > 3 and resp[3] == 0x80:
+            if op == 0x90:
+                resp = self.sock.read(4)
+                # print(resp)
+                assert resp[1] == pkt[2] and resp[2] == pkt[3]
+                if resp[3] == 0x80:
                     raise MQTTException(resp[3])
                 return
 
-    def subscribe(self, topic, qos=0):
-        assert self.cb is not None, "Subscribe callback is not set"
-        self._send_subunsub(topic, 0x82, 0x90, 4, qos)
-
     def unsubscribe(self, topic):
-        self._send_subunsub(topic, 0xA2, 0xB0, 3)
+        pkt = bytearray(b"\xa2\0\0\0")
+        self.pid += 1
+        struct.pack_into("!BH", pkt, 1, 2 + 2 + len(topic), self.pid)
+        self.sock.write(pkt)
+        self._send_str(topic)
+        while 1:
+            op = self.wait_msg()
+            if op == 0xB0:
+                resp = self.sock.read(3)
+                assert resp[1] == pkt[2] and resp[2] == pkt[3]
+                return
 
     # Wait for a single incoming MQTT message and process it.
     # Subscribed messages are delivered to a callback previously

@@ -1,5 +1,5 @@
-"""The dashboard's threads yield the CPU to the tracker: on Linux each thread has its own nice value, so the JPEG
-encoder, the event builder and the request threads serving the page run at a lower priority than the tracker and
+"""Threads that only serve people yield the CPU to the tracker: on Linux each thread has its own nice value, so the
+HTTP server's threads, the dashboard's JPEG encoder and event builder run at a lower priority than the tracker and
 the capture thread. When the two cores are busy, the kernel serves the tracker first."""
 
 from __future__ import annotations

@@ -1,0 +1,321 @@
+"""The embedded MQTT broker: amqtt (MQTT 3.1.1) on its own thread with its own asyncio event loop.
+
+Closed by default. With a :class:`~edge.broker.gate.BrokerAccess` (what ``edge-ips start`` gives it) every client
+logs in, except anonymous ones from this machine, which may only read; each login has the rights of
+:mod:`edge.broker.access`, enforced by amqtt's auth and topic-check plugins (:class:`LoginPlugin`,
+:class:`TopicRightsPlugin`) after the gate of :mod:`edge.broker.gate` has checked the CONNECT. Without one
+(tests, the simulator's closed loop) it takes anonymous clients from this machine only.
+
+Payloads above the contract's ``x-max-bytes`` for their topic are dropped, last wills included; packets above
+:data:`~edge.broker.access.MAX_PACKET_BYTES` disconnect their sender.
+
+Nothing is persisted: a restarted broker starts with no retained messages (docs/deploy.md, "Security model", says
+why that is the safe choice: a stale formation must never come back before the edge's retained ``stop``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import logging
+import threading
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from typing import Any
+
+from amqtt.contexts import Action
+from amqtt.plugins.base import BaseAuthPlugin
+from amqtt.plugins.topic_checking import TopicAccessControlListPlugin
+
+from edge.broker.access import ANONYMOUS, VIEWER_RIGHTS, Policy, payload_limit
+from edge.broker.gate import OPEN_DESCRIPTION, BrokerAccess, Connect, GateReader, admit_open
+from edge.errors import BrokerError
+
+log = logging.getLogger("edge.broker")
+
+CONNECT_TIMEOUT_S = 10.0  # a client that opens a socket and says nothing is dropped after this
+MAX_PENDING_CONNECTS = 64  # sockets at once that have not finished their CONNECT
+
+
+def _amqtt_noise(record: logging.LogRecord) -> bool:
+    """False for what amqtt logs that this module says better: its traceback when it cannot listen (start() raises
+    a one-line BrokerError instead), its warning of the QoS 0 messages still queued when it stops (dropping them
+    on shutdown is the design), and its reader's warning on a packet the gate refused (logged here)."""
+    text = record.getMessage()
+    return text != "Broker startup failed" and "messages not broadcasted" not in text and "PacketTooLarge" not in text
+
+
+_refusals = [0]
+
+
+def refused(what: str) -> None:
+    """Log a refusal; rate-limited, since a client that retries a refused login every second must not flood the
+    journal (the first 20, then every 1000th)."""
+    _refusals[0] += 1
+    if _refusals[0] <= 20 or _refusals[0] % 1000 == 0:
+        log.warning("embedded broker refused %s (%d refusals so far)", what, _refusals[0])
+
+
+# -- amqtt's plugins ---------------------------------------------------------------------------------------------
+class LoginPlugin(BaseAuthPlugin):
+    """amqtt's authentication step: the same decision as the gate (:meth:`BrokerAccess.admit`)."""
+
+    @dataclass
+    class Config:
+        hashes: dict[str, str] = field(default_factory=dict)  # empty: no logins, this machine only
+        edge_id: str = ""
+        edge_user: str = ""
+        rovers: list[str] = field(default_factory=list)
+        viewer: bool = False
+
+    def __init__(self, context: Any) -> None:
+        super().__init__(context)
+        cfg = self.context.config
+        self.access = (
+            BrokerAccess(Policy(cfg.edge_id, tuple(cfg.rovers), cfg.edge_user, cfg.viewer), cfg.hashes)
+            if cfg.hashes
+            else None
+        )
+
+    async def authenticate(self, *, session: Any) -> bool | None:
+        connect = Connect(
+            username=session.username,
+            password=session.password,
+            client_id=session.client_id or "",
+            address=session.remote_address,
+        )
+        refusal = self.access.admit(connect) if self.access is not None else admit_open(connect)
+        return refusal is None
+
+
+class TopicRightsPlugin(TopicAccessControlListPlugin):
+    """amqtt's topic ACL, configured with both lists (its own Config only declares the deprecated ``acl``)."""
+
+    @dataclass
+    class Config:
+        publish_acl: dict[str, list[str]] = field(default_factory=dict)
+        subscribe_acl: dict[str, list[str]] = field(default_factory=dict)
+
+    async def topic_filtering(self, *, session: Any = None, topic: str | None = None, action: Any = None) -> bool:
+        allowed = bool(await super().topic_filtering(session=session, topic=topic, action=action))
+        if not allowed and action in (Action.PUBLISH, Action.SUBSCRIBE):
+            who = getattr(session, "username", None) or ANONYMOUS
+            what = "a publish on" if action == Action.PUBLISH else "a subscription to"
+            refused(f"{what} {topic} from {who!r}: not in its rights")
+        return allowed
+
+
+def plugins_config(access: BrokerAccess | None) -> dict[str, Any]:
+    """amqtt's ``plugins`` section for ``access`` (None: only the login plugin, in its open mode)."""
+    plugins: dict[str, Any] = {}
+    if access is None:
+        plugins[f"{__name__}.LoginPlugin"] = {}
+        return plugins
+    policy = access.policy
+    plugins[f"{__name__}.LoginPlugin"] = {
+        "hashes": dict(access.hashes),
+        "edge_id": policy.edge_id,
+        "edge_user": policy.edge_user,
+        "rovers": list(policy.rovers),
+        "viewer": policy.viewer,
+    }
+    rights = {**policy.rights(), ANONYMOUS: VIEWER_RIGHTS}
+    plugins[f"{__name__}.TopicRightsPlugin"] = {
+        "publish_acl": {user: list(r.publish) for user, r in rights.items() if r.publish},
+        "subscribe_acl": {user: list(r.read) for user, r in rights.items()},
+    }
+    return plugins
+
+
+# -- the broker --------------------------------------------------------------------------------------------------
+def _make_broker(config: dict[str, Any], access: BrokerAccess | None) -> Any:
+    """An amqtt broker behind the gate, with per-topic payload limits and retained messages only for subscribers.
+
+    amqtt 0.12.1 (``Broker._handle_client_session``) pushes, to every client that connects, the retained messages
+    matching *any* client's subscriptions: a rover would receive topics it never subscribed to. The override
+    skips subscriptions the session does not hold (pinned: amqtt >=0.12,<0.13; a test pins the behaviour).
+    """
+    from amqtt.adapters import StreamWriterAdapter
+    from amqtt.broker import Broker
+    from amqtt.mqtt.connack import ConnackPacket
+    from amqtt.mqtt.connect import ConnectPacket
+    from amqtt.mqtt.packet import CONNECT, MQTTFixedHeader
+
+    pending = [0]  # sockets that have not finished their CONNECT
+
+    class _Broker(Broker):
+        async def stream_connected(self, reader: Any, writer: Any, listener_name: str) -> None:
+            peer = writer.get_extra_info("peername")
+            address = peer[0] if peer else None
+            out = StreamWriterAdapter(writer)
+            if pending[0] >= MAX_PENDING_CONNECTS:
+                refused(f"a connection from {address}: {MAX_PENDING_CONNECTS} others have not logged in yet")
+                await out.close()
+                return
+            gate = GateReader(reader, on_too_large=lambda why: refused(f"{why} from {address}; disconnected"))
+            pending[0] += 1
+            try:
+                header = await asyncio.wait_for(MQTTFixedHeader.from_stream(gate), CONNECT_TIMEOUT_S)
+                if header is None or header.packet_type != CONNECT:
+                    raise ValueError("the first packet is not a CONNECT")
+                packet = await asyncio.wait_for(ConnectPacket.from_stream(gate, header), CONNECT_TIMEOUT_S)
+            except Exception as exc:  # too large, not MQTT, silent, or gone: nothing reached amqtt
+                refused(f"a connection from {address}: {exc or type(exc).__name__}")
+                await out.close()
+                return
+            finally:
+                pending[0] -= 1
+            will = packet.will_flag and packet.will_topic is not None
+            connect = Connect(
+                username=packet.username if packet.username_flag else None,
+                password=packet.password if packet.password_flag else None,
+                client_id=packet.client_id or "",
+                address=address,
+                will_topic=packet.will_topic if will else None,
+                will_bytes=len(packet.will_message or b"") if will else 0,
+            )
+            refusal = access.admit(connect) if access is not None else admit_open(connect)
+            if refusal is not None:
+                refused(f"{connect.username or ANONYMOUS!r} from {address}: {refusal.reason}")
+                await ConnackPacket.build(0, refusal.code).to_stream(out)
+                await out.close()
+                return
+            gate.replay_recorded()
+            await self._client_connected(listener_name, gate, out)
+
+        async def _broadcast_message(
+            self, session: Any, topic: str | None, data: Any, force_qos: int | None = None
+        ) -> None:
+            if topic is not None and data is not None and len(data) > payload_limit(topic):
+                who = getattr(session, "username", None) or ANONYMOUS
+                limit = payload_limit(topic)
+                refused(f"a payload of {len(data)} bytes on {topic} from {who!r} (the contract allows {limit})")
+                return
+            await super()._broadcast_message(session, topic, data, force_qos)
+
+        async def retain_message(
+            self, source_session: Any, topic_name: str | None, data: Any, qos: int | None = None
+        ) -> None:
+            if topic_name is not None and data is not None and len(data) > payload_limit(topic_name):
+                return  # refused (and logged) by _broadcast_message, which amqtt calls first
+            await super().retain_message(source_session, topic_name, data, qos)
+
+        async def _publish_retained_messages_for_subscription(
+            self, subscription: tuple[str, int], session: Any
+        ) -> None:
+            holders = self._subscriptions.get(subscription[0], [])
+            if any(s.client_id == session.client_id for s, _ in holders):
+                await super()._publish_retained_messages_for_subscription(subscription, session)
+
+    return _Broker(config, loop=asyncio.get_running_loop())
+
+
+class EmbeddedBroker:
+    """An amqtt broker on ``host:port`` (port 0 = any free port; see :attr:`port` after :meth:`start`).
+
+    ``access``: the logins and their rights; None = no logins, clients from this machine only.
+    """
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 1883, access: BrokerAccess | None = None) -> None:
+        self.host, self._port = host, port
+        self.access = access
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
+        self._broker: Any = None
+        self._started: Future[int] = Future()
+
+    @property
+    def port(self) -> int:
+        return self._port
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def describe(self) -> str:
+        """Where it listens and who may connect, for the log and ``doctor``."""
+        who = self.access.describe() if self.access is not None else OPEN_DESCRIPTION
+        return f"amqtt on {self.host}:{self._port}, {who}"
+
+    def _port_in_use_message(self) -> str:
+        return (
+            f"embedded broker: port {self._port} on {self.host} is already in use (another MQTT broker, such as a "
+            "Mosquitto service?). Choose another with broker.embedded_port in the configuration or "
+            "EDGE_IPS_BROKER__EMBEDDED_PORT, or publish to the running broker with --broker mqtt://localhost:"
+            f"{self._port}"
+        )
+
+    async def _serve(self) -> None:
+        config = {
+            "listeners": {"default": {"type": "tcp", "bind": f"{self.host}:{self._port}"}},
+            "plugins": plugins_config(self.access),  # no $SYS topics, no packet logging
+        }
+        try:
+            broker = _make_broker(config, self.access)
+            await broker.start()
+        except Exception as exc:
+            self._started.set_exception(exc)
+            return
+        self._broker = broker
+        server = broker._servers["default"].instance  # the bound port when 0 was asked for
+        port = int(server.sockets[0].getsockname()[1])
+        self._started.set_result(port)
+        self._stop_requested = asyncio.Event()
+        await self._stop_requested.wait()
+        await broker.shutdown()
+
+    def _run(self) -> None:
+        loop = asyncio.new_event_loop()
+        self._loop = loop
+        try:
+            loop.run_until_complete(self._serve())
+        finally:
+            loop.close()
+
+    def start(self, timeout_s: float = 10.0) -> EmbeddedBroker:
+        """Start listening; raises :class:`BrokerError` (port taken, bad address) before returning."""
+        if self.running:
+            raise BrokerError(f"embedded broker on {self.host}:{self._port} is already running")
+        for name in ("amqtt", "transitions"):
+            if logging.getLogger(name).level == logging.NOTSET:
+                logging.getLogger(name).setLevel(logging.WARNING)  # amqtt logs every connection at INFO
+        for name in ("amqtt.broker", "amqtt.mqtt.protocol.handler"):
+            if _amqtt_noise not in logging.getLogger(name).filters:
+                logging.getLogger(name).addFilter(_amqtt_noise)
+        self._thread = threading.Thread(target=self._run, name="embedded-broker", daemon=True)
+        self._thread.start()
+        try:
+            self._port = self._started.result(timeout=timeout_s)
+        except TimeoutError:
+            raise BrokerError(f"embedded broker did not start within {timeout_s:g} s") from None
+        except Exception as exc:
+            self._thread.join(timeout=5)
+            cause: BaseException | None = exc
+            while cause is not None:
+                if isinstance(cause, OSError) and cause.errno == errno.EADDRINUSE:
+                    raise BrokerError(self._port_in_use_message()) from exc
+                if isinstance(cause, OSError) and cause.errno == errno.EACCES:
+                    raise BrokerError(
+                        f"embedded broker: no permission to listen on port {self._port} (below 1024 needs root)"
+                    ) from exc
+                cause = cause.__cause__ or cause.__context__
+            raise BrokerError(f"embedded broker on {self.host}:{self._port} cannot start: {exc}") from exc
+        log.info("embedded MQTT broker: %s", self.describe())
+        return self
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        loop, thread = self._loop, self._thread
+        if loop is None or thread is None or not thread.is_alive():
+            return
+        event = getattr(self, "_stop_requested", None)
+        if event is not None:
+            loop.call_soon_threadsafe(event.set)
+        thread.join(timeout=timeout_s)
+        self._thread = None
+        log.info("embedded MQTT broker stopped")
+
+    def __enter__(self) -> EmbeddedBroker:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

@@ -1,0 +1,159 @@
+"""The files of a Mosquitto deployment (``edge-ips broker-config``): configuration, password file, ACL, logins.
+
+Listeners, and why there are two (three with TLS):
+
+* ``127.0.0.1:<local port>`` (1884): the edge's own clients on the broker's machine. The publisher, the dashboard,
+  ``edge-ips formation`` and ``doctor`` share the edge's login and need their own client ids, so this listener
+  keeps the ids clients choose; only processes on this machine reach it.
+* ``<bind>:<port>`` (1883): rovers and the rest of the network, with ``use_username_as_clientid true``: a client's id
+  is its user name, so a login (a rover's, read out of its flash) cannot take the session of another user's client.
+* ``--tls``: ``<bind>:<tls port>`` (8883) for the edge and laptops on other machines; only clients holding the
+  client certificate connect (``require_certificate``), so rover logins are no key to it.
+
+Anonymous access is off everywhere; the ACL is :meth:`edge.broker.access.Policy.acl_text`. Packets larger than
+:data:`~edge.broker.access.MAX_PACKET_BYTES` disconnect their sender, payloads larger than the contract's largest
+``x-max-bytes`` are dropped.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from edge.broker.access import MAX_PACKET_BYTES, MAX_PAYLOAD_BYTES, hashed_users
+from edge.broker.credentials import Credentials, generate
+from edge.broker.tls import TLS_FILES, TlsPaths, write_tls_files
+from edge.errors import BrokerError
+from edge.private_files import private_dir, write_private
+
+LOCAL_PORT = 1884
+TLS_PORT = 8883
+
+
+def write_password_file(path: Path, passwords: Mapping[str, str]) -> Path:
+    """``user:$7$...`` lines (:func:`~edge.broker.access.mosquitto_hash`), mode 0600 from the first byte."""
+    hashes = hashed_users(passwords)
+    return write_private(path, "".join(f"{user}:{hashed}\n" for user, hashed in hashes.items()))
+
+
+@dataclass(frozen=True)
+class BrokerFiles:
+    conf: Path
+    passwd: Path
+    acl: Path
+    credentials: Path
+    tls: TlsPaths | None = None
+
+    def all(self) -> list[Path]:
+        tls = [] if self.tls is None else list(vars(self.tls).values())
+        return [self.conf, self.passwd, self.acl, self.credentials, *tls]
+
+
+def _conf_text(
+    *,
+    credentials: Credentials,
+    edge_id: str,
+    where: Path,
+    port: int,
+    bind: str,
+    local_port: int,
+    tls_port: int | None,
+) -> str:
+    rovers = ", ".join(credentials.rovers) or "none"
+    lines = [
+        f"# Mosquitto configuration for edge-ips (edge {edge_id!r}; rovers {rovers}),",
+        f"# written by `edge-ips broker-config`. Install: copy this directory to {where} and include this file",
+        "# from /etc/mosquitto/conf.d/. Who may do what: docs/deploy.md, section 'Security model'.",
+        "per_listener_settings false",
+        "allow_anonymous false",
+        f"password_file {where / 'passwd'}",
+        f"acl_file {where / 'acl'}",
+        "# Nothing edge-ips sends is larger: a bigger packet disconnects its sender, a bigger payload is dropped.",
+        f"max_packet_size {MAX_PACKET_BYTES}",
+        f"message_size_limit {MAX_PAYLOAD_BYTES}",
+        "# Forward each small pose at once (Nagle's algorithm would hold it for the rover's delayed ACK):",
+        "set_tcp_nodelay true",
+        "# Keep the system's `persistence true` (Debian's default): the retained formation survives restarts.",
+        "",
+        "# The edge's own clients on this machine (publisher, dashboard, `edge-ips formation`, doctor): they share",
+        "# the edge's login, so they keep their own client ids. Only processes on this machine reach it.",
+        f"listener {local_port} 127.0.0.1",
+        "",
+        "# Rovers and the rest of the network. A client's id is its user name here, so no login can take the",
+        "# session of another user's client (a rover's password cannot disconnect the edge).",
+        f"listener {port} {bind}",
+        "use_username_as_clientid true",
+        "",
+    ]
+    if tls_port is not None:
+        lines += [
+            "# TLS for the edge and laptops on other machines: only clients with client.crt (signed by ca.crt)",
+            "# connect. ESP8266 rovers stay on the plain listener (docs/deploy.md).",
+            f"listener {tls_port} {bind}",
+            f"cafile {where / 'ca.crt'}",
+            f"certfile {where / 'server.crt'}",
+            f"keyfile {where / 'server.key'}",
+            "require_certificate true",
+            "tls_version tlsv1.2",
+            "",
+        ]
+    return "\n".join(lines)
+
+
+CREDENTIALS_HEADER = (
+    "Clear-text logins written by `edge-ips broker-config`. Keep this file secret (mode 600).",
+    "The edge: [broker] username/password in edge-ips.toml (or EDGE_IPS_BROKER__PASSWORD).",
+    "Each rover: the firmware's MQTT user and password (edge-ips flash provisions them).",
+    "[viewer]: reads every ips/v1 topic, publishes nothing.",
+)
+
+
+def write_mosquitto_config(
+    out_dir: Path,
+    *,
+    rovers: Sequence[str],
+    edge_id: str = "edge-1",
+    edge_user: str = "edge",
+    port: int = 1883,
+    bind: str = "0.0.0.0",
+    local_port: int = LOCAL_PORT,
+    tls_port: int | None = None,
+    tls_names: Sequence[str] = (),
+    install_dir: Path | None = None,
+    passwords: Mapping[str, str] | None = None,
+    viewer: bool = True,
+    force: bool = False,
+) -> BrokerFiles:
+    """Write ``mosquitto.conf``, ``passwd``, ``acl`` and ``credentials.toml`` (and the TLS files with ``tls_port``).
+
+    ``install_dir`` is where the conf will find the other files on the broker machine (default: ``out_dir``).
+    Passwords are random unless given in ``passwords`` (user -> password).
+    """
+    credentials = generate(rovers, edge_user=edge_user, viewer=viewer, passwords=passwords)
+    if len({port, local_port, tls_port or port}) != (2 if tls_port is None else 3):
+        raise BrokerError(f"listener ports must differ: {port}, {local_port}" + (f", {tls_port}" if tls_port else ""))
+    names = ["mosquitto.conf", "passwd", "acl", "credentials.toml", *(TLS_FILES if tls_port is not None else ())]
+    existing = [name for name in names if (out_dir / name).exists()]
+    if existing and not force:
+        raise BrokerError(f"{out_dir}: {', '.join(existing)} already exist (use --force to overwrite)")
+    private_dir(out_dir)
+    where = install_dir if install_dir is not None else out_dir.resolve()
+    tls = write_tls_files(out_dir, tls_names) if tls_port is not None else None
+    passwd = write_password_file(out_dir / "passwd", credentials.passwords())
+    acl = write_private(out_dir / "acl", credentials.policy(edge_id).acl_text(), mode=0o640)
+    conf = write_private(
+        out_dir / "mosquitto.conf",
+        _conf_text(
+            credentials=credentials,
+            edge_id=edge_id,
+            where=where,
+            port=port,
+            bind=bind,
+            local_port=local_port,
+            tls_port=tls_port,
+        ),
+        mode=0o644,
+    )
+    secrets = write_private(out_dir / "credentials.toml", credentials.to_toml(CREDENTIALS_HEADER))
+    return BrokerFiles(conf, passwd, acl, secrets, tls)

@@ -1,0 +1,211 @@
+"""The formation command: building one, the seq after the retained one, sending it (the dashboard and
+``edge-ips formation``), and the appliance's own ``stop`` when it starts.
+
+The contract's rules (``shared/schema/README.md``, "Commands"): rovers compare whole commands and always obey
+``stop``, so a writer only has to keep ``seq`` moving (:func:`edge.messages.next_seq`: 999999999 is followed by 1) and
+must never fail because of what is retained (a hostile seq, a foreign payload, a cleared message).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import paho.mqtt.client as mqtt
+from pydantic import ValidationError
+
+from edge.config import BrokerTarget, EdgeConfig
+from edge.errors import BrokerError, EdgeIpsError, MessageError, describe_validation
+from edge.messages import FORMATION_TOPIC, FormationKind, FormationV1, dumps, next_seq, parse_formation
+from edge.mqttclient import TlsFiles, connect_blocking, make_client
+
+log = logging.getLogger("edge.commands")
+
+FORMATION_QOS = 1
+LINE_SPACING_CM = 60.0  # a line's distance between neighbours when the command names none
+TRIANGLE_SIDE_CM = 100.0  # a triangle's side when the command names none
+RETAINED_WAIT_S = 0.5  # how long a retained formation may take to arrive after subscribing (MQTT has no "none")
+
+
+def build_formation(
+    kind: FormationKind,
+    ids: Sequence[str],
+    *,
+    seq: int,
+    spacing_cm: float | None = None,
+    side_cm: float | None = None,
+    x_cm: float | None = None,
+    y_cm: float | None = None,
+    theta_rad: float | None = None,
+    known_ids: Sequence[str] | None = None,
+) -> FormationV1:
+    """A validated formation message (raises :class:`MessageError` naming the bad field): what a command may say,
+    for ``edge-ips formation``, the dashboard and the simulator alike.
+
+    Ids are taken without surrounding spaces and, when ``known_ids`` is given, must be among them. A line's
+    ``spacing_cm`` defaults to :data:`LINE_SPACING_CM`, a triangle's ``side_cm`` to :data:`TRIANGLE_SIDE_CM`; other
+    kinds carry neither. Beyond the contract: every rover is named once, a formation other than ``stop`` names at
+    least one rover, and a triangle at least three (the firmware would make a 2-gon of two)."""
+    ids = [i.strip() for i in ids]
+    unknown = [i for i in ids if known_ids is not None and i not in known_ids]
+    if unknown:
+        raise MessageError(f"formation: ids: not configured rovers: {', '.join(unknown)}")
+    twice = sorted({i for i in ids if ids.count(i) > 1})
+    if twice:
+        raise MessageError(f"formation: ids: {', '.join(twice)} named more than once")
+    if kind != "stop" and not ids:
+        raise MessageError(f"formation: ids: a {kind} needs at least one rover")
+    if kind == "triangle" and len(ids) < 3:
+        raise MessageError(f"formation: ids: a triangle needs at least three rovers, got {len(ids)}")
+    spacing_cm = (LINE_SPACING_CM if spacing_cm is None else spacing_cm) if kind == "line" else None
+    side_cm = (TRIANGLE_SIDE_CM if side_cm is None else side_cm) if kind == "triangle" else None
+    try:
+        return FormationV1(
+            v=1,
+            seq=seq,
+            kind=kind,
+            ids=ids,
+            spacing=spacing_cm,
+            side=side_cm,
+            x=x_cm,
+            y=y_cm,
+            theta=theta_rad,
+        )
+    except ValidationError as exc:
+        raise MessageError(f"formation: {describe_validation(exc)}") from exc
+
+
+def read_retained(payload: bytes) -> FormationV1 | None:
+    """The retained formation a writer continues from: None when it is cleared (empty) or breaks the contract (a
+    foreign payload is said in the log and otherwise ignored: the next seq is 1)."""
+    if not payload:
+        return None
+    try:
+        return parse_formation(payload)
+    except MessageError as exc:
+        log.warning("ignoring the retained formation on the broker: %s", exc)
+        return None
+
+
+def send_formation(
+    target: BrokerTarget,
+    make: Callable[[int], FormationV1],
+    *,
+    client_id: str = "",
+    tls: TlsFiles | None = None,
+    timeout_s: float = 5.0,
+    retained_wait_s: float = RETAINED_WAIT_S,
+) -> FormationV1:
+    """Publish a retained formation whose ``seq`` follows the one currently retained (:func:`next_seq`: 1 if none
+    or if it breaks the contract, and 999999999 is followed by 1).
+
+    ``make(seq)`` builds the message. Returns what was published once the broker acknowledged it. Rovers compare
+    whole commands, so two writers at once may publish the same seq: both are applied, in the broker's order.
+    """
+    client = make_client(target, client_id, tls=tls)
+    current: list[FormationV1 | None] = []
+    got = threading.Event()
+
+    def on_message(c: mqtt.Client, u: Any, message: mqtt.MQTTMessage) -> None:
+        current.append(read_retained(bytes(message.payload)))
+        got.set()
+
+    client.on_message = on_message
+    connect_blocking(client, target, timeout_s)
+    try:
+        client.subscribe(FORMATION_TOPIC, qos=FORMATION_QOS)
+        got.wait(retained_wait_s)  # a retained message arrives right after the subscription, if there is one
+        client.unsubscribe(FORMATION_TOPIC)
+        retained = current[-1] if current else None
+        seq = next_seq(retained.seq if retained is not None else None)
+        message = make(seq)
+        info = client.publish(FORMATION_TOPIC, dumps(message), qos=FORMATION_QOS, retain=True)
+        info.wait_for_publish(timeout_s)
+        if not info.is_published():
+            raise BrokerError(f"broker {target.display()} did not acknowledge the formation within {timeout_s:g} s")
+        return message
+    finally:
+        client.disconnect()
+        client.loop_stop()
+
+
+def publish_formation(
+    config: EdgeConfig,
+    kind: FormationKind,
+    ids: Sequence[str] | None = None,
+    *,
+    spacing_cm: float | None = None,
+    side_cm: float | None = None,
+    x_cm: float | None = None,
+    y_cm: float | None = None,
+    theta_rad: float | None = None,
+) -> FormationV1:
+    """``edge-ips formation``: the command checked first (a mistake is said before connecting), then published
+    retained on the edge's broker (:func:`edge.broker.clients.select_broker`) with the seq after the one it holds.
+    ``ids``: the rovers in formation order (None: the configured ones)."""
+    from edge.broker.clients import select_broker
+
+    chosen = list(ids) if ids is not None else [r.id for r in config.rovers]
+
+    def make(seq: int) -> FormationV1:
+        return build_formation(
+            kind, chosen, seq=seq, spacing_cm=spacing_cm, side_cm=side_cm, x_cm=x_cm, y_cm=y_cm, theta_rad=theta_rad
+        )
+
+    make(1)
+    return send_formation(
+        select_broker(config).target,
+        make,
+        client_id=f"edge-ips-formation-{config.edge.id}",
+        tls=TlsFiles.of(config.broker),
+    )
+
+
+class StopAtStart:
+    """The appliance's retained ``stop`` at start, so that after a restart, crash or power cut every rover halts until
+    someone commands again.
+
+    Sent with :func:`send_formation` (its own short connection, seq after the retained one) when :meth:`on_connected`
+    is first called (the edge's publisher has reached the broker); if that attempt fails it is made again at the
+    next connection. :attr:`done` is set once the broker acknowledged the stop; ``tap(topic, payload, retain)`` is
+    then shown it (the recording, like everything the edge publishes).
+    """
+
+    def __init__(
+        self,
+        target: BrokerTarget,
+        *,
+        client_id: str,
+        tls: TlsFiles | None = None,
+        tap: Callable[[str, bytes, bool], None] | None = None,
+    ) -> None:
+        self.target = target
+        self.client_id = client_id
+        self.tls = tls
+        self.tap = tap
+        self.done = threading.Event()
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+
+    def on_connected(self) -> None:
+        """Start the attempt unless one is running or it is done (any thread; returns at once)."""
+        with self._lock:
+            if self.done.is_set() or (self._thread is not None and self._thread.is_alive()):
+                return
+            self._thread = threading.Thread(target=self._send, name="stop-at-start", daemon=True)
+            self._thread.start()
+
+    def _send(self) -> None:
+        try:
+            sent = send_formation(
+                self.target, lambda seq: build_formation("stop", [], seq=seq), client_id=self.client_id, tls=self.tls
+            )
+        except EdgeIpsError as exc:
+            log.warning("the retained stop at start was not published (%s); trying again at the next connection", exc)
+            return
+        if self.tap is not None:
+            self.tap(FORMATION_TOPIC, dumps(sent), True)
+        self.done.set()
+        log.info("published a retained stop (seq %d): every rover halts until someone commands a formation", sent.seq)

@@ -1,0 +1,444 @@
+"""Colour enrolment: the rovers' marker colours as this camera sees them under this light, from one frame with the
+rovers in view and one of the empty floor.
+
+Typing ``color_bgr`` "as the camera sees it" into a configuration is guesswork; the camera knows. :func:`enroll`
+finds every marker-sized blob of colour that is not on the empty floor, and measures it:
+
+* its **colour**: the per-channel median over the blob's interior (its edge pixels, mixed with the dark body and
+  the floor, are eroded away; clipped pixels are left out), so a glare on part of the marker does not move it;
+* its **size** on the marker plane (through the calibration), and where it stands;
+* for a **two-tone** marker, its light front part: the bright, unsaturated pixels that are not on the empty floor
+  and touch the coloured part. Their median colour is ``front_color_bgr`` and their share of the marker's area
+  ``front_fraction``;
+* how far its hue **spreads** over the marker (the 95th percentile of its pixels' hue deviation).
+
+Rovers are named by hue when no ids are given. Two markers whose hues are closer than their spreads plus a margin
+for the light changing across the room cannot be told apart reliably under this camera and light: that is said,
+naming both. Arrays in, dataclasses out: the CLI (``edge-ips rovers enroll``) and the dashboard call
+:func:`enroll` with a frame and a background and write :meth:`Enrolment.toml`.
+"""
+
+from __future__ import annotations
+
+import colorsys
+import math
+import re
+import tomllib
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from datetime import UTC, datetime
+from itertools import permutations
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from edge.errors import EnrollmentError
+from edge.messages import ID_PATTERN
+from edge.tracker_config import RoverConfig
+from edge.trackers.base import PlaneMapping
+
+U8 = NDArray[np.uint8]
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+MIN_SATURATION = 0.25  # relative saturation |chroma| / luminance of a marker's coloured part (floors: < 0.1)
+CHROMA_CHANGE = 0.12  # normalised chroma difference from the empty floor that counts as "something is there"
+AREA_RANGE = (0.25, 1.6)  # a coloured blob's area as a share of the nominal marker's: smaller is debris, larger not
+MIN_FRONT_SHARE = 0.1  # a light part smaller than this share of the marker is a reflection, not a two-tone front
+LIGHT_MARGIN_DEG = 10.0  # how far a hue may move between places in a room (lamps, window light) beyond its spread
+CLIPPED = 250  # a channel this bright is clipped (glare): its hue is not the marker's
+HUE_NAMES = ((0.0, "red"), (30.0, "orange"), (60.0, "yellow"), (90.0, "lime"), (120.0, "green"), (150.0, "teal"),
+             (180.0, "cyan"), (210.0, "azure"), (240.0, "blue"), (270.0, "purple"), (300.0, "magenta"),
+             (330.0, "pink"))  # fmt: skip  # HSV hue (degrees) -> name, for rovers enrolled without ids
+
+
+@dataclass(frozen=True)
+class EnrolledMarker:
+    """One marker as measured. ``hue_deg``: HSV hue of ``color_bgr``; ``spread_deg``: 95th percentile of its
+    pixels' hue deviation (the tracker's opponent-colour hue); ``xy_cm``: its centre on the marker plane;
+    ``length_cm`` x ``width_cm``: its size; ``front_*``: the light front part of a two-tone marker, else None."""
+
+    rover_id: str
+    color_bgr: tuple[int, int, int]
+    hue_deg: float
+    saturation: float
+    spread_deg: float
+    xy_cm: tuple[float, float]
+    uv_px: tuple[float, float]
+    length_cm: float
+    width_cm: float
+    area_cm2: float
+    pixels: int
+    front_color_bgr: tuple[int, int, int] | None = None
+    front_fraction: float | None = None
+
+    def rover_config(self) -> RoverConfig:
+        if self.front_color_bgr is None or self.front_fraction is None:
+            return RoverConfig(id=self.rover_id, color_bgr=self.color_bgr)
+        return RoverConfig(
+            id=self.rover_id,
+            color_bgr=self.color_bgr,
+            front_color_bgr=self.front_color_bgr,
+            front_fraction=self.front_fraction,
+        )
+
+
+@dataclass(frozen=True)
+class Enrolment:
+    """Every marker found (in id order as given, else by hue), what was ignored, and the warnings."""
+
+    markers: tuple[EnrolledMarker, ...]
+    warnings: tuple[str, ...]
+    ignored: tuple[str, ...]
+    image_size: tuple[int, int]
+
+    def rover_configs(self) -> list[RoverConfig]:
+        return [m.rover_config() for m in self.markers]
+
+    def toml(self, source: str = "") -> str:
+        """``[[rovers]]`` tables that ``--config`` and ``edge-ips start`` read, with what was measured as comments."""
+        w, h = self.image_size
+        when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+        lines = [
+            f"# Enrolled by `edge-ips rovers enroll` {when}{f' from {source}' if source else ''} ({w}x{h}).",
+            "# Each colour is the median of the marker's interior as this camera saw it under this light: enroll",
+            "# again after changing the camera's white balance, exposure or the lamps.",
+        ]
+        for warning in self.warnings:
+            lines.append(f"# WARNING: {warning}")
+        for m in self.markers:
+            lines += [
+                "",
+                "[[rovers]]",
+                f'id = "{m.rover_id}"',
+                f"color_bgr = [{', '.join(str(c) for c in m.color_bgr)}]"
+                f"  # hue {m.hue_deg:.0f} deg (spread {m.spread_deg:.1f}), at ({m.xy_cm[0]:.0f}, {m.xy_cm[1]:.0f}) "
+                f"cm, {m.length_cm:.1f} x {m.width_cm:.1f} cm",
+            ]
+            if m.front_color_bgr is not None:
+                lines.append(f"front_color_bgr = [{', '.join(str(c) for c in m.front_color_bgr)}]  # light front part")
+                lines.append(f"front_fraction = {m.front_fraction}")
+        return "\n".join(lines) + "\n"
+
+
+# -- measuring -------------------------------------------------------------------------------------------------------
+def _planes(image: U8) -> tuple[FloatArray, FloatArray, FloatArray]:
+    f = image.astype(np.float64)
+    b, g, r = f[..., 0], f[..., 1], f[..., 2]
+    return (r - g) / math.sqrt(2.0), (r + g - 2.0 * b) / math.sqrt(6.0), (b + g + r) / 3.0
+
+
+def _saturation(c1: FloatArray, c2: FloatArray, lum: FloatArray) -> FloatArray:
+    return np.asarray(np.hypot(c1, c2) / np.maximum(lum, 8.0))
+
+
+def _hsv_hue_deg(color_bgr: Sequence[int]) -> float:
+    b, g, r = (c / 255.0 for c in color_bgr)
+    return colorsys.rgb_to_hsv(r, g, b)[0] * 360.0
+
+
+def _hue_gap_deg(a: float, b: float) -> float:
+    d = abs(a - b) % 360.0
+    return min(d, 360.0 - d)
+
+
+def _components(mask: BoolArray) -> list[BoolArray]:
+    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    return [labels == k for k in range(1, n)]
+
+
+def _world_outline(mask: BoolArray, calibration: PlaneMapping) -> FloatArray | None:
+    """(K, 2) the blob's outline on the marker plane, cm; None when it leaves the plane (beyond the horizon)."""
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    outline = max(contours, key=len).reshape(-1, 2).astype(np.float64)
+    world = calibration.pixel_to_world(outline)
+    return None if not np.all(np.isfinite(world)) else world
+
+
+def _interior(mask: BoolArray) -> BoolArray:
+    """The blob without its edge pixels (mixed with the body or the floor); the blob itself when that is all."""
+    for iterations in (2, 1):
+        inner = cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8), iterations=iterations).astype(bool)
+        if inner.sum() >= 12:
+            return inner
+    return mask
+
+
+def _median_bgr(image: U8, mask: BoolArray) -> tuple[int, int, int]:
+    pixels = image[mask].astype(np.int32)
+    unclipped = pixels[pixels.max(axis=1) < CLIPPED]
+    use = unclipped if len(unclipped) >= max(4, len(pixels) // 4) else pixels
+    b, g, r = (round(float(v)) for v in np.median(use, axis=0))
+    return b, g, r
+
+
+def _spread_deg(c1: FloatArray, c2: FloatArray, mask: BoolArray, color_bgr: Sequence[int]) -> float:
+    f = np.asarray(color_bgr, dtype=np.float64)
+    centre = math.atan2((f[2] + f[1] - 2.0 * f[0]) / math.sqrt(6.0), (f[2] - f[1]) / math.sqrt(2.0))
+    angles = np.arctan2(c2[mask], c1[mask])
+    deviation = np.abs(np.angle(np.exp(1j * (angles - centre))))
+    return float(np.degrees(np.percentile(deviation, 95))) if deviation.size else 0.0
+
+
+@dataclass(frozen=True)
+class _Blob:
+    mask: BoolArray
+    world: FloatArray
+    area_cm2: float
+
+
+def _blobs(colored: BoolArray, calibration: PlaneMapping, nominal_cm2: float) -> tuple[list[_Blob], list[str]]:
+    """Marker-sized blobs of ``colored``, and a line for each blob of colour that is not marker-sized."""
+    found, ignored = [], []
+    lo, hi = AREA_RANGE
+    for mask in _components(colored):
+        if mask.sum() < 6:
+            continue
+        world = _world_outline(mask, calibration)
+        if world is None:
+            continue
+        area = float(cv2.contourArea(world.astype(np.float32)))
+        centre = world.mean(axis=0)
+        if lo * nominal_cm2 <= area <= hi * nominal_cm2:
+            found.append(_Blob(mask, world, area))
+        elif area >= 0.05 * nominal_cm2:
+            size = "too small" if area < lo * nominal_cm2 else "too large"
+            ignored.append(
+                f"a coloured blob of {area:.0f} cm2 at ({centre[0]:.0f}, {centre[1]:.0f}) cm: {size} for a "
+                f"marker of {nominal_cm2:.0f} cm2"
+            )
+    return found, ignored
+
+
+def enroll(
+    frame: U8,
+    background: U8,
+    calibration: PlaneMapping,
+    *,
+    ids: Sequence[str] | None = None,
+    marker_length_cm: float = 21.5,
+    marker_width_cm: float = 16.8,
+) -> Enrolment:
+    """Measure every rover marker in ``frame`` (H, W, 3 BGR) that is not in ``background`` (the empty floor, same
+    size); ``calibration`` maps the frame's pixels onto the marker plane (load it for the frame's size).
+    ``ids``: one per marker (hue names such as ``red`` are matched by hue, other ids given in order of x then y on
+    the floor); None names them by hue. ``marker_*_cm``: the markers' size as the tracker is configured.
+
+    Raises :class:`EnrollmentError` when the two images differ in size, when no marker is found, when the
+    background has a marker in it, or when the markers and ``ids`` do not match up.
+    """
+    h, w = frame.shape[:2]
+    if frame.ndim != 3 or background.shape != frame.shape:
+        raise EnrollmentError(f"the frame is {w}x{h} but the background is {background.shape[1]}x{background.shape[0]}")
+    f1, f2, flum = _planes(frame)
+    b1, b2, blum = _planes(background)
+    changed = (
+        np.hypot(
+            f1 / np.maximum(flum, 8.0) - b1 / np.maximum(blum, 8.0),
+            f2 / np.maximum(flum, 8.0) - b2 / np.maximum(blum, 8.0),
+        )
+        > CHROMA_CHANGE
+    )
+    changed |= np.abs(flum - blum) > np.maximum(20.0, 0.25 * blum)
+    open3 = np.ones((3, 3), np.uint8)
+    frame_sat, back_sat = _saturation(f1, f2, flum), _saturation(b1, b2, blum)
+    colored = cv2.morphologyEx((changed & (frame_sat >= MIN_SATURATION)).astype(np.uint8), cv2.MORPH_OPEN, open3)
+    nominal_cm2 = marker_length_cm * marker_width_cm
+
+    in_background = (changed & (back_sat >= MIN_SATURATION) & (frame_sat < MIN_SATURATION)).astype(np.uint8)
+    left_behind, _ = _blobs(
+        cv2.morphologyEx(in_background, cv2.MORPH_OPEN, open3).astype(bool), calibration, nominal_cm2
+    )
+    if left_behind:
+        x, y = left_behind[0].world.mean(axis=0)
+        raise EnrollmentError(
+            f"the background image has a marker in it at ({x:.0f}, {y:.0f}) cm that the frame does not: take the "
+            "background with no rover in view"
+        )
+
+    blobs, ignored = _blobs(colored.astype(bool), calibration, nominal_cm2)
+    if not blobs:
+        hint = f" ({'; '.join(ignored)})" if ignored else ""
+        raise EnrollmentError(f"no marker-sized blob of colour differs from the background{hint}")
+    light = changed & (frame_sat < MIN_SATURATION) & (flum > blum + 10.0)
+    markers = [_measure(frame, (f1, f2, flum), blob, light, calibration, nominal_cm2) for blob in blobs]
+    named = _name(markers, ids)
+    warnings = _too_close(named) + _odd_sizes(named, marker_length_cm, marker_width_cm)
+    return Enrolment(tuple(named), tuple(warnings), tuple(ignored), (w, h))
+
+
+def _pixel_areas_cm2(calibration: PlaneMapping, box: tuple[int, int, int, int]) -> FloatArray:
+    """(y1 - y0, x1 - x0) each pixel's area on the marker plane, cm2, from where its four corners land."""
+    x0, y0, x1, y1 = box
+    us, vs = np.meshgrid(np.arange(x0, x1 + 1) - 0.5, np.arange(y0, y1 + 1) - 0.5)
+    corners = calibration.pixel_to_world(np.column_stack([us.ravel(), vs.ravel()])).reshape(y1 - y0 + 1, x1 - x0 + 1, 2)
+    d1 = corners[1:, 1:] - corners[:-1, :-1]
+    d2 = corners[:-1, 1:] - corners[1:, :-1]
+    return np.asarray(0.5 * np.abs(d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]))
+
+
+def _measure(
+    frame: U8,
+    planes: tuple[FloatArray, FloatArray, FloatArray],
+    blob: _Blob,
+    light: BoolArray,
+    calibration: PlaneMapping,
+    nominal_cm2: float,
+) -> EnrolledMarker:
+    """Colour, spread, area, size and the light front part of one blob.
+
+    The coloured area is a sum of coverage: a pixel's chroma along the marker's hue, as a share of the interior's,
+    is the share of the pixel the marker covers (chroma is linear in coverage: the black body, the white front and
+    the grey floor add none). Counting pixels instead would count every edge pixel in full.
+    """
+    c1, c2, lum = planes
+    h, w = lum.shape
+    inner = _interior(blob.mask)
+    color = _median_bgr(frame, inner)
+    vs, us = np.nonzero(blob.mask)
+    pad = 4
+    box = (max(0, us.min() - pad), max(0, vs.min() - pad), min(w, us.max() + pad + 1), min(h, vs.max() + pad + 1))
+    x0, y0, x1, y1 = box
+    areas = _pixel_areas_cm2(calibration, box)
+    ring = cv2.dilate(blob.mask[y0:y1, x0:x1].astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    direction = np.array([np.median(c1[inner]), np.median(c2[inner])])
+    full = float(np.hypot(*direction))
+    along = (c1[y0:y1, x0:x1] * direction[0] + c2[y0:y1, x0:x1] * direction[1]) / max(full, 1e-6) ** 2
+    colored_cm2 = float(np.sum(np.clip(along, 0.0, 1.0)[ring] * areas[ring]))
+
+    near = np.zeros_like(blob.mask)
+    near[y0:y1, x0:x1] = ring
+    front_mask = np.zeros_like(blob.mask)
+    for part in _components(light & (lum > float(np.median(lum[inner])))):
+        if (part & near).any():
+            front_mask |= part
+    front_cm2 = 0.0
+    if front_mask[y0:y1, x0:x1].any():
+        front_cm2 = float(np.sum(areas[front_mask[y0:y1, x0:x1]]))
+    front_color: tuple[int, int, int] | None = None
+    front_fraction: float | None = None
+    whole = blob.mask
+    if front_cm2 >= MIN_FRONT_SHARE * nominal_cm2:
+        front_color = _median_bgr(frame, _interior(front_mask))
+        # the marker's size is the tracker's (it places the centre by it); its coloured share is measured
+        front_fraction = round(min(0.6, max(0.05, 1.0 - colored_cm2 / nominal_cm2)), 2)
+        whole = blob.mask | front_mask
+        measured_cm2 = colored_cm2 + front_cm2
+    else:
+        measured_cm2 = colored_cm2
+    outline = _world_outline(whole, calibration)
+    (cx, cy), (a, b), _ = cv2.minAreaRect((outline if outline is not None else blob.world).astype(np.float32))
+    scale = math.sqrt(measured_cm2 / max(a * b, 1e-6))  # the outline's box, scaled to the measured area
+    wvs, wus = np.nonzero(whole)
+    return EnrolledMarker(
+        rover_id="",
+        color_bgr=color,
+        hue_deg=round(_hsv_hue_deg(color), 1),
+        saturation=round(float(np.median(_saturation(c1, c2, lum)[inner])), 3),
+        spread_deg=round(_spread_deg(c1, c2, inner, color), 1),
+        xy_cm=(round(float(cx), 1), round(float(cy), 1)),
+        uv_px=(round(float(wus.mean()), 1), round(float(wvs.mean()), 1)),
+        length_cm=round(float(max(a, b)) * scale, 1),
+        width_cm=round(float(min(a, b)) * scale, 1),
+        area_cm2=round(measured_cm2, 1),
+        pixels=int(whole.sum()),
+        front_color_bgr=front_color,
+        front_fraction=front_fraction,
+    )
+
+
+# -- naming ----------------------------------------------------------------------------------------------------------
+def _hue_name(hue_deg: float) -> str:
+    return min(HUE_NAMES, key=lambda named: _hue_gap_deg(named[0], hue_deg))[1]
+
+
+def _name(markers: list[EnrolledMarker], ids: Sequence[str] | None) -> list[EnrolledMarker]:
+    if ids is None:
+        ordered = sorted(markers, key=lambda m: m.hue_deg)
+        names: list[str] = []
+        for m in ordered:
+            base = _hue_name(m.hue_deg)
+            name, k = base, 2
+            while name in names:
+                name, k = f"{base}-{k}", k + 1
+            names.append(name)
+        return [replace(m, rover_id=n) for m, n in zip(ordered, names, strict=True)]
+    bad = [i for i in ids if not re.match(ID_PATTERN, i)]
+    if bad:
+        raise EnrollmentError(f"rover id {bad[0]!r} is not an id: 1-16 of a-z, 0-9, _ and -")
+    if len(set(ids)) != len(ids):
+        raise EnrollmentError(f"rover ids must be unique: {', '.join(ids)}")
+    if len(markers) != len(ids):
+        more = "more" if len(markers) > len(ids) else "fewer"
+        where = ", ".join(f"({m.xy_cm[0]:.0f}, {m.xy_cm[1]:.0f}) cm hue {m.hue_deg:.0f}" for m in markers)
+        raise EnrollmentError(
+            f"found {len(markers)} markers, {more} than the {len(ids)} ids given ({', '.join(ids)}): {where}"
+        )
+    hue_of = dict((name, hue) for hue, name in HUE_NAMES)
+    if all(i in hue_of for i in ids) and len(ids) <= 8:  # red,green,blue: each id to the marker nearest its hue
+        best = min(
+            permutations(range(len(markers))),
+            key=lambda p: sum(_hue_gap_deg(markers[j].hue_deg, hue_of[i]) for i, j in zip(ids, p, strict=True)),
+        )
+        return [replace(markers[j], rover_id=i) for i, j in zip(ids, best, strict=True)]
+    ordered = sorted(markers, key=lambda m: (m.xy_cm[0], m.xy_cm[1]))
+    return [replace(m, rover_id=i) for m, i in zip(ordered, ids, strict=True)]
+
+
+def _too_close(markers: Sequence[EnrolledMarker]) -> list[str]:
+    """A line for each pair whose hues this camera and light cannot keep apart (the tracker's opponent hue)."""
+    warnings = []
+    hues = {m.rover_id: _opponent_hue_deg(m.color_bgr) for m in markers}
+    for i, a in enumerate(markers):
+        for b in markers[i + 1 :]:
+            gap = _hue_gap_deg(hues[a.rover_id], hues[b.rover_id])
+            need = a.spread_deg + b.spread_deg + LIGHT_MARGIN_DEG
+            if gap < need:
+                warnings.append(
+                    f"{a.rover_id} and {b.rover_id} are too close to tell apart under this camera and light: their "
+                    f"hues are {gap:.0f} deg apart, and each varies by up to {a.spread_deg:.0f} and "
+                    f"{b.spread_deg:.0f} deg over its marker (with {LIGHT_MARGIN_DEG:.0f} deg for the light across "
+                    f"the room they need {need:.0f}); use markers of more different colours"
+                )
+    return warnings
+
+
+def _odd_sizes(markers: Sequence[EnrolledMarker], length_cm: float, width_cm: float) -> list[str]:
+    """One-colour markers whose measured area is far from the size the tracker expects (it sizes its windows and
+    filters blobs by it)."""
+    nominal = length_cm * width_cm
+    return [
+        f"{m.rover_id} measures {m.area_cm2:.0f} cm2 ({m.length_cm:.1f} x {m.width_cm:.1f} cm) but the tracker expects "
+        f"{length_cm:g} x {width_cm:g} cm: set [tracker] marker_length_cm and marker_width_cm"
+        for m in markers
+        if m.front_color_bgr is None and abs(m.area_cm2 / nominal - 1.0) > 0.3
+    ]
+
+
+def save_enrolment(enrolment: Enrolment, path: Path, source: str = "") -> None:
+    """Write :meth:`Enrolment.toml` to ``path``, replacing an earlier rovers file but never a configuration with
+    other sections in it (``/etc/edge-ips/config.toml`` given by mistake)."""
+    if path.exists():
+        try:
+            existing = tomllib.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+            raise EnrollmentError(f"{path}: exists and is not a rovers file; choose another --out") from None
+        others = sorted(set(existing) - {"rovers"})
+        if others:
+            raise EnrollmentError(
+                f"{path}: is a configuration with [{'], ['.join(others)}]: write the rovers to a file of their own "
+                "and copy the [[rovers]] tables in"
+            )
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.write_text(enrolment.toml(source), encoding="utf-8")
+        tmp.replace(path)
+    except OSError as exc:
+        raise EnrollmentError(f"{path}: cannot write ({exc.strerror})") from exc
+
+
+def _opponent_hue_deg(color_bgr: Sequence[int]) -> float:
+    b, g, r = (float(c) for c in color_bgr)
+    return math.degrees(math.atan2((r + g - 2.0 * b) / math.sqrt(6.0), (r - g) / math.sqrt(2.0))) % 360.0

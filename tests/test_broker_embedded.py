@@ -1,0 +1,242 @@
+"""The embedded broker with logins, as an attacker on the lab's network would try it (paho clients over TCP)."""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from edge.broker import BrokerAccess, Credentials, EmbeddedBroker, ensure_credentials
+from edge.broker.access import MAX_PACKET_BYTES, Policy, payload_limit
+from edge.broker.gate import IDENTIFIER_REJECTED, NOT_AUTHORIZED, PacketLimit, PacketTooLarge
+from edge.config import BrokerTarget
+from edge.messages import FORMATION_TOPIC, ROVER_STATUS_WILDCARD, edge_status_topic, pose_topic, rover_status_topic
+from edge.publisher import MqttPublisher
+from tests.support.probe import OtherHost, Probe, edge_states_until_marker, other_host
+
+ROVERS = ["red", "green", "blue"]
+EDGE_ID = "edge-t"
+
+
+class Refusals(logging.Handler):
+    """The broker's refusal lines, waited on: a refused publish is logged before anything could deliver it."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.lines: list[str] = []
+        self._cond = threading.Condition()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        with self._cond:
+            self.lines.append(record.getMessage())
+            self._cond.notify_all()
+
+    def wait_for(self, text: str, timeout_s: float = 10.0) -> bool:
+        with self._cond:
+            return self._cond.wait_for(lambda: any(text in line for line in self.lines), timeout=timeout_s)
+
+
+@pytest.fixture
+def refusals() -> Iterator[Refusals]:
+    handler = Refusals()
+    logger = logging.getLogger("edge.broker")
+    logger.addHandler(handler)
+    old = logger.level
+    logger.setLevel(logging.INFO)
+    yield handler
+    logger.removeHandler(handler)
+    logger.setLevel(old)
+
+
+@pytest.fixture
+def secured(tmp_path: Path) -> Iterator[tuple[EmbeddedBroker, Credentials]]:
+    credentials = ensure_credentials(tmp_path / "state", ROVERS)
+    access = BrokerAccess.of(credentials, EDGE_ID, tmp_path / "state" / "broker-credentials.toml")
+    with EmbeddedBroker("0.0.0.0", 0, access) as broker:
+        yield broker, credentials
+
+
+def login(credentials: Credentials, user: str) -> dict[str, str]:
+    found = credentials.edge if user == "edge" else credentials.rovers[user]
+    return {"user": found.username, "password": found.password}
+
+
+def test_a_rover_login_publishes_its_own_status_and_nothing_else(
+    secured: tuple[EmbeddedBroker, Credentials], refusals: Refusals
+) -> None:
+    broker, creds = secured
+    with (
+        Probe("127.0.0.1", broker.port, client_id="watcher") as watcher,
+        Probe("127.0.0.1", broker.port, client_id="rover-red", **login(creds, "red")) as red,
+        Probe("127.0.0.1", broker.port, client_id=f"edge-ips-{EDGE_ID}", **login(creds, "edge")) as edge,
+    ):
+        assert watcher.accepted and red.accepted and edge.accepted
+        watcher.subscribe("ips/v1/#")
+        watcher.subscribe(ROVER_STATUS_WILDCARD)
+        red.publish(FORMATION_TOPIC, b'{"forged":"formation"}', retain=True)
+        red.publish(pose_topic("blue"), b'{"forged":"pose"}')
+        red.publish(rover_status_topic("green"), b'{"forged":"status"}', retain=True)
+        red.publish(rover_status_topic("red"), b'{"marker":1}', retain=True)  # same connection: after the others
+        assert watcher.wait_payload(rover_status_topic("red"), b'{"marker":1}')
+        edge.publish(FORMATION_TOPIC, b'{"edge":"formation"}', retain=True)
+        assert watcher.wait_payload(FORMATION_TOPIC, b'{"edge":"formation"}')
+        forged = [m.payload for m in watcher.received if b"forged" in m.payload]
+    assert forged == []
+    assert refusals.wait_for(f"a publish on {FORMATION_TOPIC} from 'red': not in its rights")
+
+
+def test_anonymous_clients_on_this_machine_only_read(
+    secured: tuple[EmbeddedBroker, Credentials], refusals: Refusals
+) -> None:
+    broker, _ = secured
+    with Probe("127.0.0.1", broker.port, client_id="viewer-1") as anonymous:
+        assert anonymous.accepted
+        assert anonymous.subscribe("ips/v1/#") == 1
+        assert anonymous.subscribe("#") == 0x80  # beyond the viewer's rights
+        anonymous.publish(FORMATION_TOPIC, b'{"anonymous":1}', retain=True)
+        assert refusals.wait_for(f"a publish on {FORMATION_TOPIC} from 'anonymous': not in its rights")
+    with Probe("127.0.0.1", broker.port, client_id="late") as late:
+        late.subscribe(FORMATION_TOPIC)
+        assert late.payloads(FORMATION_TOPIC) == []  # nothing retained: the publish was dropped
+
+
+def test_nothing_from_another_host_without_a_login(secured: tuple[EmbeddedBroker, Credentials]) -> None:
+    broker, creds = secured
+    with other_host() as there:
+        anonymous = there.probe(broker.port, client_id="x", publish=FORMATION_TOPIC, payload='{"lan":1}')
+        wrong = there.probe(broker.port, client_id="rover-red", user="red", password="guess")
+        right = there.probe(broker.port, client_id="rover-red", password=creds.rovers["red"].password, user="red")
+    assert (anonymous["accepted"], anonymous["connack"]) == (False, NOT_AUTHORIZED)
+    assert (wrong["accepted"], wrong["connack"]) == (False, 4)  # bad user name or password
+    assert right["accepted"]
+
+
+def test_an_unauthenticated_connect_with_a_rovers_client_id_leaves_its_session_alone(
+    secured: tuple[EmbeddedBroker, Credentials],
+) -> None:
+    # amqtt alone deletes the session's subscriptions on any clean-session CONNECT with the same id, login or not.
+    broker, creds = secured
+    with (
+        Probe("127.0.0.1", broker.port, client_id="rover-red", **login(creds, "red")) as red,
+        Probe("127.0.0.1", broker.port, client_id=f"edge-ips-{EDGE_ID}", **login(creds, "edge")) as edge,
+    ):
+        red.subscribe(FORMATION_TOPIC)
+        for attempt in (
+            {"client_id": "rover-red"},
+            {"client_id": "rover-red", "user": "red", "password": "guess"},
+            {"client_id": "rover-red", **login(creds, "green")},
+        ):
+            with Probe("127.0.0.1", broker.port, **attempt) as intruder:  # type: ignore[arg-type]
+                assert not intruder.accepted
+        edge.publish(FORMATION_TOPIC, b'{"still":"subscribed"}', retain=True)
+        assert red.wait_payload(FORMATION_TOPIC, b'{"still":"subscribed"}')
+        assert red.disconnects == 0
+
+
+def test_a_rover_login_cannot_take_the_edges_client_id(
+    secured: tuple[EmbeddedBroker, Credentials],
+) -> None:
+    broker, creds = secured
+    target = BrokerTarget(False, "127.0.0.1", broker.port, username="edge", password=creds.edge.password)
+    publisher = MqttPublisher(target, edge_id=EDGE_ID, rovers=ROVERS, reconnect_min_s=0.1, reconnect_max_s=0.2)
+    publisher.start()
+    try:
+        assert publisher.wait_connected(10)
+        with Probe("127.0.0.1", broker.port, client_id="watch") as watcher:
+            watcher.subscribe(edge_status_topic(EDGE_ID))
+            with Probe("127.0.0.1", broker.port, client_id=f"edge-ips-{EDGE_ID}", **login(creds, "red")) as red:
+                assert (red.accepted, red.connack_code) == (False, IDENTIFIER_REJECTED)
+            states = edge_states_until_marker(publisher, watcher, EDGE_ID)
+        assert "offline" not in states  # the edge's last will was never published
+        assert publisher.connected and publisher.stats.disconnects == 0
+    finally:
+        publisher.stop()
+
+
+def test_a_last_will_on_a_topic_the_login_may_not_publish_is_refused_at_connect(
+    secured: tuple[EmbeddedBroker, Credentials],
+) -> None:
+    broker, creds = secured
+    will = (FORMATION_TOPIC, b'{"v":1,"seq":1,"kind":"line"}')
+    with Probe("127.0.0.1", broker.port, client_id="rover-red", will=will, **login(creds, "red")) as red:
+        assert (red.accepted, red.connack_code) == (False, NOT_AUTHORIZED)
+    own = (rover_status_topic("red"), b'{"state":"offline"}')
+    with Probe("127.0.0.1", broker.port, client_id="rover-red", will=own, **login(creds, "red")) as red:
+        assert red.accepted
+
+
+def test_oversized_payloads_are_dropped_and_oversized_packets_disconnect(
+    secured: tuple[EmbeddedBroker, Credentials], refusals: Refusals
+) -> None:
+    broker, creds = secured
+    with Probe("127.0.0.1", broker.port, client_id="edge-ips-x", **login(creds, "edge")) as edge:
+        edge.publish(FORMATION_TOPIC, b'{"fits":1}', retain=True)
+        edge.publish(FORMATION_TOPIC, b"{" + b" " * payload_limit(FORMATION_TOPIC) + b"}", retain=True)
+        assert refusals.wait_for(f"a payload of {payload_limit(FORMATION_TOPIC) + 2} bytes on {FORMATION_TOPIC}")
+        edge.client.publish(FORMATION_TOPIC, b"x" * (2 << 20), qos=1, retain=True)  # 2 MiB
+        assert edge.wait(lambda: edge.disconnects > 0)
+    assert refusals.wait_for(f"a packet of {(2 << 20) + 2 + len(FORMATION_TOPIC) + 2} bytes")
+    with Probe("127.0.0.1", broker.port, client_id="late") as late:
+        late.subscribe(FORMATION_TOPIC)
+        assert late.wait(lambda: len(late.received) == 1)
+        assert late.payloads(FORMATION_TOPIC) == [b'{"fits":1}']
+
+
+def test_without_logins_it_serves_this_machine_only() -> None:
+    with EmbeddedBroker("0.0.0.0", 0) as broker, other_host() as there:
+        remote = there.probe(broker.port, client_id="x")
+        with Probe("127.0.0.1", broker.port, client_id="local") as local:
+            assert local.accepted
+    assert (remote["accepted"], remote["connack"]) == (False, NOT_AUTHORIZED)
+
+
+# -- the pieces --------------------------------------------------------------------------------------------------
+@given(st.integers(0, 3 * MAX_PACKET_BYTES), st.integers(1, 7))
+def test_packet_limit_follows_packets_in_any_chunking(length: int, chunk: int) -> None:
+    body = bytes(length)
+    encoded, value = bytearray(), length
+    while True:
+        byte, value = value % 128, value // 128
+        encoded.append(byte | (0x80 if value else 0))
+        if not value:
+            break
+    stream = bytes([0x30]) + bytes(encoded) + body + bytes([0xC0, 0x00])  # a PUBLISH, then a PINGREQ
+    limit = PacketLimit()
+    chunks = [stream[i : i + chunk] for i in range(0, len(stream), chunk)]
+    if length > MAX_PACKET_BYTES:
+        with pytest.raises(PacketTooLarge):
+            for piece in chunks:
+                limit.feed(piece)
+    else:
+        for piece in chunks:
+            limit.feed(piece)
+
+
+@pytest.mark.parametrize(
+    ("user", "client_id", "allowed"),
+    [
+        ("red", "rover-red", True),
+        ("red", "rover-green", False),
+        ("red", "edge-ips-edge-1", False),
+        ("red", "anything", False),
+        ("edge", "edge-ips-edge-1-dashboard", True),
+        ("edge", "rover-red", False),
+        ("edge", "laptop", True),
+        ("viewer", "edge-ips-edge-1", False),
+        ("viewer", "laptop", True),
+        (None, "rover-red", False),
+        (None, "", True),
+    ],
+)
+def test_client_ids_belong_to_logins(user: str | None, client_id: str, allowed: bool) -> None:
+    assert Policy("edge-1", tuple(ROVERS)).may_use_client_id(user, client_id) is allowed
+
+
+def test_other_host_is_not_this_machines_loopback() -> None:
+    with other_host() as there:
+        assert isinstance(there, OtherHost) and not there.address.startswith("127.")

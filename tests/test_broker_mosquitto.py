@@ -1,0 +1,132 @@
+"""`broker-config`'s files enforced by a real Mosquitto: client ids tied to logins, TLS, sizes, last wills."""
+
+from __future__ import annotations
+
+import ssl
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from edge.broker import BrokerFiles, read_credentials, write_mosquitto_config, write_password_file
+from edge.broker.access import MAX_PACKET_BYTES, MAX_PAYLOAD_BYTES
+from edge.broker.mosquitto import LOCAL_PORT, TLS_PORT
+from edge.config import BrokerTarget
+from edge.messages import FORMATION_TOPIC, edge_status_topic, rover_status_topic
+from edge.mqttclient import TlsFiles
+from edge.publisher import MqttPublisher
+from tests.support.mosquitto import Mosquitto
+from tests.support.probe import Probe, edge_states_until_marker
+
+ROVERS = ["red", "green", "blue"]
+EDGE_ID = "edge-1"
+
+
+@pytest.fixture
+def deployed(tmp_path: Path) -> Iterator[tuple[Mosquitto, BrokerFiles]]:
+    files = write_mosquitto_config(
+        tmp_path / "conf", rovers=ROVERS, edge_id=EDGE_ID, tls_port=TLS_PORT, tls_names=["localhost", "127.0.0.1"]
+    )
+    with Mosquitto(tmp_path / "run", conf_path=files.conf) as broker:
+        yield broker, files
+
+
+def logins(files: BrokerFiles) -> dict[str, dict[str, str]]:
+    creds = read_credentials(files.credentials)
+    found = {"edge": creds.edge, **creds.rovers}
+    return {user: {"user": login.username, "password": login.password} for user, login in found.items()}
+
+
+def test_a_rover_login_with_the_edges_client_id_does_not_disconnect_the_edge(
+    deployed: tuple[Mosquitto, BrokerFiles],
+) -> None:
+    broker, files = deployed
+    users = logins(files)
+    local, network = broker.ports[LOCAL_PORT], broker.ports[1883]
+    edge_login = users["edge"]
+    target = BrokerTarget(False, "127.0.0.1", local, username=edge_login["user"], password=edge_login["password"])
+    publisher = MqttPublisher(target, edge_id=EDGE_ID, rovers=ROVERS, reconnect_min_s=0.1, reconnect_max_s=0.2)
+    publisher.start()
+    try:
+        assert publisher.wait_connected(10)
+        with Probe("127.0.0.1", local, client_id="watch", **users["edge"]) as watcher:
+            watcher.subscribe(edge_status_topic(EDGE_ID))
+            watcher.subscribe(rover_status_topic("red"))
+            # On the network listener the client id becomes the user name: "red" takes over nobody but itself.
+            with Probe("127.0.0.1", network, client_id=f"edge-ips-{EDGE_ID}", **users["red"]) as red:
+                assert red.accepted
+                red.publish(rover_status_topic("red"), b'{"marker":1}')
+                assert watcher.wait_payload(rover_status_topic("red"), b'{"marker":1}')
+            states = edge_states_until_marker(publisher, watcher, EDGE_ID)
+        assert "offline" not in states  # no last will: the edge's session was never taken
+        assert publisher.connected and publisher.stats.disconnects == 0
+    finally:
+        publisher.stop()
+
+
+def test_the_tls_listener_takes_the_edge_with_the_client_certificate_and_nobody_without(
+    deployed: tuple[Mosquitto, BrokerFiles],
+) -> None:
+    broker, files = deployed
+    assert files.tls is not None
+    users = logins(files)
+    for key in (files.tls.server_key, files.tls.client_key, files.passwd, files.credentials):
+        assert key.stat().st_mode & 0o777 == 0o600
+    port = broker.ports[TLS_PORT]
+    tls = TlsFiles(files.tls.ca_cert, files.tls.client_cert, files.tls.client_key)
+    target = BrokerTarget(False, "localhost", port, tls=True, username="edge", password=users["edge"]["password"])
+    publisher = MqttPublisher(target, edge_id=EDGE_ID, rovers=ROVERS, tls=tls)
+    publisher.start()
+    try:
+        assert publisher.wait_connected(10)
+    finally:
+        publisher.stop()
+    no_certificate = {"ca_certs": str(files.tls.ca_cert), "cert_reqs": ssl.CERT_REQUIRED}
+    with Probe("localhost", port, client_id="rover-red", tls=no_certificate, **users["red"]) as red:
+        assert not red.accepted  # the handshake fails before any login is read
+    with Probe("localhost", broker.ports[1883], client_id="x", tls=no_certificate, **users["red"]) as plain:
+        assert not plain.accepted  # the plain listener speaks no TLS
+
+
+def test_oversized_messages_are_refused_by_mosquitto(deployed: tuple[Mosquitto, BrokerFiles]) -> None:
+    broker, files = deployed
+    users = logins(files)
+    with Probe("127.0.0.1", broker.port, client_id="edge-ips-x", **users["edge"]) as edge:
+        edge.publish(FORMATION_TOPIC, b'{"fits":1}', retain=True)
+        edge.publish(FORMATION_TOPIC, b" " * (MAX_PAYLOAD_BYTES + 1), retain=True)  # dropped
+        edge.client.publish(FORMATION_TOPIC, b"x" * (2 << 20), qos=1, retain=True)
+        assert edge.wait(lambda: edge.disconnects > 0)
+    with Probe("127.0.0.1", broker.port, client_id="late", **users["edge"]) as late:
+        late.subscribe(FORMATION_TOPIC)
+        assert late.wait(lambda: len(late.received) == 1)
+        assert late.payloads(FORMATION_TOPIC) == [b'{"fits":1}']
+    assert MAX_PACKET_BYTES > MAX_PAYLOAD_BYTES + 64
+
+
+def test_a_rovers_last_will_cannot_set_the_formation(deployed: tuple[Mosquitto, BrokerFiles]) -> None:
+    broker, files = deployed
+    users = logins(files)
+    network = broker.ports[1883]
+    with Probe("127.0.0.1", broker.port, client_id="edge-ips-watch", **users["edge"]) as watcher:
+        watcher.subscribe(FORMATION_TOPIC)
+        watcher.subscribe(rover_status_topic("red"))
+        will = (FORMATION_TOPIC, b'{"v":1,"seq":7,"kind":"line"}')
+        red = Probe("127.0.0.1", network, client_id="rover-red", will=will, **users["red"])
+        assert red.accepted
+        red.client.loop_stop()
+        red.client.socket().close()  # vanish: Mosquitto checks the will against the ACL before it publishes it
+        with Probe("127.0.0.1", network, client_id="rover-red", **users["red"]) as again:  # the old session is gone
+            again.publish(rover_status_topic("red"), b'{"marker":1}')
+        assert watcher.wait_payload(rover_status_topic("red"), b'{"marker":1}')
+        assert watcher.payloads(FORMATION_TOPIC) == []
+
+
+def test_mosquitto_accepts_the_python_hash(tmp_path: Path) -> None:
+    password = "pä$$word with spaces"
+    passwd = write_password_file(tmp_path / "passwd", {"edge": password})
+    assert passwd.stat().st_mode & 0o777 == 0o600 and passwd.read_text().startswith("edge:$7$101$")
+    with Mosquitto(tmp_path / "run", users={"edge": password}) as broker:  # its passwd: write_password_file's
+        with Probe("127.0.0.1", broker.port, user="edge", password=password) as right:
+            assert right.accepted
+        with Probe("127.0.0.1", broker.port, user="edge", password="pa$$word with spaces") as wrong:
+            assert not wrong.accepted
