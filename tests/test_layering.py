@@ -54,8 +54,6 @@ MAX_LINES = 450
 # Files still over MAX_LINES, each being changed on another branch now. The list can only shrink: a file that comes
 # under the limit leaves it, and no file joins it.
 STILL_OVER = {
-    "edge/pipeline.py",
-    "edge/trackers/base.py",
     "edge/sim/render.py",
     "edge/sim/scenarios.py",
     "edge/sim/world.py",

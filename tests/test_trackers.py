@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from edge.camera import MARKER_HEIGHT_CM
-from edge.pipeline import prepare_window
 from edge.segmentation import BackgroundModel, ColorModel
 from edge.tracker_config import TrackerConfig
 from edge.trackers import METHODS, make_tracker
 from edge.trackers.base import NullClock, PlaneGrid, RoverModel, world_blob
+from edge.trackers.window import prepare_window
 from edge.tracking import StageTimes
 from tests.support.track import COLORS, SynthRover, shared_scene
 
