@@ -61,7 +61,7 @@ def min_body_gap_cm(setup: SimSetup, step_s: float = 0.05) -> float:
             look = looks[r.rover_id]
             body = rectangle_cm(r.x_cm, r.y_cm, r.theta_rad, look.body_length_cm, look.body_width_cm)
             for prop in props:
-                best = min(best, _separation(body, prop))
+                best = min(best, box_gap_cm(body, prop))
         for i in range(len(rovers)):
             near = np.nonzero(np.hypot(*(xy[i + 1 :] - xy[i]).T) < 40.0)[0] + i + 1
             for j in near:
