@@ -12,10 +12,11 @@ from edge.camera import paper_camera
 from edge.errors import SimulationError
 from edge.sim.cameras import BODY_ALBEDOS, draw_bodies, draw_camera
 from edge.sim.colour import AutoWhiteBalance, ColourResponse, awb_gains, crosstalk_matrix, tone_encode
-from edge.sim.effects import Compression, Effects, Prop, jpeg_roundtrip
+from edge.sim.effects import Compression, Effects, Prop
 from edge.sim.render import Renderer
 from edge.sim.scenarios import SCENARIOS, build
 from edge.sim.scene import EIGHT_HUES, FloorLook, Scene, fleet_looks
+from edge.sim.sensor import jpeg_roundtrip
 from edge.sim.world import WorldState
 from tests.support.sim import clean_effects
 
