@@ -100,6 +100,7 @@ class Pipeline:
         self.acquire_scale = self.config.acquire_scale
         self._last_t: float | None = None
         self._frames = 0
+        self._time_s = 0.0  # the stream's time: the sum of frame intervals (nominal ones where stamps are unusable)
 
     # -- the frame loop -----------------------------------------------------------------------------------------
     def process(self, frame: Frame) -> FrameResult:
@@ -116,6 +117,7 @@ class Pipeline:
                 "(the calibration and the background are for one image size)"
             )
         dt = self._dt(frame)
+        self._time_s += dt
 
         t0 = time.perf_counter()
         for tr in self.tracks:
@@ -331,6 +333,7 @@ class Pipeline:
         found: dict[int, Observation] = {}
         # Where the tracked rovers are: a candidate there is another rover's marker seen in a confusable hue.
         taken = [tr.filter.position for tr in self.tracks if tr.filter is not None]
+        slack = self.config.marker_radius_cm + self.config.window_margin_cm
         for tr in self.tracks:
             if tr.filter is not None:
                 continue
@@ -343,6 +346,8 @@ class Pipeline:
                     continue
                 if any(math.hypot(xy[0] - p[0], xy[1] - p[1]) < self.config.marker_radius_cm for p in taken):
                     continue
+                if not tr.within_reach((float(xy[0]), float(xy[1])), self._time_s, self.config.max_speed_cm_s, slack):
+                    continue  # farther than the rover could have driven since it was last seen: not it
                 radius = self.config.marker_radius_cm + self.config.window_margin_cm + 2.0 * s
                 box, _ = self._window_box((float(xy[0]), float(xy[1])), radius, image.shape, (u, v))
                 if box is None:
@@ -390,6 +395,7 @@ class Pipeline:
             assert tr.filter is not None
             tr.misses = 0
             tr.uv = m.uv_px
+            tr.seen = (m.xy_cm[0], m.xy_cm[1], self._time_s)
             tr.level = m.level if tr.level <= 0.0 else 0.8 * tr.level + 0.2 * m.level
             if m.quality > 0.8:
                 tr.areas.append(m.area_cm2)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -38,6 +39,7 @@ class RoverTrack:
     uv: tuple[float, float] | None = None
     theta_rad: float | None = None
     two_tone: TwoToneHeading = field(default_factory=TwoToneHeading)  # a two-tone marker's heading through time
+    seen: tuple[float, float, float] | None = None  # where (cm) and when (s, the stream's time) it was last measured
 
     @property
     def lost(self) -> bool:
@@ -63,3 +65,11 @@ class RoverTrack:
         spread = 1.4826 * float(np.median(np.abs(np.asarray(self.areas) - expected_cm2))) / expected_cm2
         low = max(min(min_fraction, 1.0 - 3.0 * spread), 0.75)
         return low, max(max_fraction, 1.0 + 3.0 * spread)
+
+    def within_reach(self, xy_cm: tuple[float, float], t_s: float, max_speed_cm_s: float, slack_cm: float) -> bool:
+        """Could the rover be at ``xy_cm`` at ``t_s``, driving at most ``max_speed_cm_s`` since it was last seen
+        (``slack_cm`` more)? Always, before it has been seen at all."""
+        if self.seen is None:
+            return True
+        x, y, t = self.seen
+        return math.hypot(xy_cm[0] - x, xy_cm[1] - y) <= max_speed_cm_s * max(0.0, t_s - t) + slack_cm

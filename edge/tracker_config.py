@@ -109,6 +109,12 @@ class TrackerSettings(BaseModel):
     max_elongation_factor: float = Field(
         default=1.5, ge=1.0, description="A blob more elongated than the marker's own aspect times this is not it."
     )
+    max_speed_cm_s: float = Field(
+        default=60.0,
+        gt=0.0,
+        description="Fastest a rover drives: a lost rover is looked for again only as far from where it was last "
+        "seen as it could have driven since (something of its hue farther away, a shirt or a box, is not it).",
+    )
     heading_min_speed_cm_s: float = Field(default=3.0, ge=0.0, description="Slowest motion that gives a heading.")
     accel_sigma_cm_s2: float = Field(default=40.0, gt=0.0, description="Filter process noise (acceleration).")
     measurement_sigma_px: float = Field(default=0.15, gt=0.0, description="Marker centre noise in pixels.")

@@ -89,7 +89,7 @@ CASES: list[tuple[dict[str, Any], dict[str, Any]]] = [
 
 
 def test_the_table_names_every_setting() -> None:
-    named = {key for changes, _ in CASES for key in changes} | {"background_threshold"}  # its own test below
+    named = {key for changes, _ in CASES for key in changes} | {"background_threshold", "max_speed_cm_s"}  # below
     assert named == set(TrackerSettings.model_fields)
 
 
@@ -102,6 +102,36 @@ def test_each_setting_changes_what_the_tracker_reports(changes: dict[str, Any], 
     assert sum(len(f) for f in before) == 3 * FRAMES  # every rover reported each frame, as seen or missing
     after = track(**base, **changes)
     assert after != before
+
+
+def _hidden_rover_and_a_far_decoy(**settings: Any) -> list[tuple[float, float] | None]:
+    """Red stands at (150, 200) and is tracked, then is hidden (frames 12-35) while a marker of its colour stands
+    220 cm away: where the tracker reports red, frame by frame."""
+    scene = shared_scene()
+    tracker = build_tracker(
+        TrackerConfig(rovers=(RoverConfig(id="red", color_bgr=COLORS["red"]),), **settings), scene.mapping
+    )
+    rng = np.random.default_rng(5)
+    out: list[tuple[float, float] | None] = []
+    for i in range(36):
+        hidden = i >= 12
+        rovers = [SynthRover("red", 150.0, 200.0, 0.3, COLORS["red"], visible=not hidden)]
+        if hidden:
+            rovers.append(SynthRover("decoy", 300.0, 365.0, 1.2, COLORS["red"]))
+        result = tracker.process(frame(scene.render(rovers, noise_sigma=2.0, rng=rng), i, FPS))
+        out.append(next(((e.x_cm, e.y_cm) for e in result.estimates if e.rover_id == "red"), None))
+    return out
+
+
+@pytest.mark.slow
+def test_a_lost_rover_is_not_taken_for_a_marker_of_its_colour_farther_than_it_could_have_driven() -> None:
+    """A rover hidden by a person is not re-found at once in a shirt of its colour across the room; how far it could
+    have driven since it was last seen is ``max_speed_cm_s`` times the time since."""
+    gated = _hidden_rover_and_a_far_decoy()
+    assert all(p is not None and math.hypot(p[0] - 150.0, p[1] - 200.0) < 1.0 for p in gated[:12])
+    assert all(p is None for p in gated[12:])  # 0.8 s after: at 60 cm/s it is within 66 cm of where it was
+    ungated = _hidden_rover_and_a_far_decoy(max_speed_cm_s=1000.0)
+    assert any(p is not None and math.hypot(p[0] - 300.0, p[1] - 365.0) < 1.0 for p in ungated[12:])
 
 
 @pytest.mark.slow
