@@ -213,14 +213,14 @@ class Pipeline:
         window = prepare_window(
             image,
             box,
-            tr.index,
-            uv,
-            self.colors,
-            self.maps,
-            self.background,
-            self.config.background_threshold,
-            clock,
-            self.white,
+            rover_index=tr.index,
+            predicted_uv=uv,
+            colors=self.colors,
+            maps=self.maps,
+            background=self.background,
+            background_threshold=self.config.background_threshold,
+            clock=clock,
+            white=self.white,
         )
         if window is None:
             return None

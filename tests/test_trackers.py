@@ -32,7 +32,17 @@ def measure(method, image, rover: SynthRover, offset_px=(0.0, 0.0), background=N
     us, vs = local.to_pixel(rover.x + r * np.array([-1, 1, 1, -1.0]), rover.y + r * np.array([-1, -1, 1, 1.0]))
     box = (int(us.min()) - 3, int(vs.min()) - 3, int(us.max()) + 4, int(vs.max()) + 4)
     bg = BackgroundModel(image.shape[:2], 100, background)
-    window = prepare_window(image, box, 0, (float(uv[0]), float(uv[1])), colors, maps, bg, 0.2, NullClock())
+    window = prepare_window(
+        image,
+        box,
+        rover_index=0,
+        predicted_uv=(float(uv[0]), float(uv[1])),
+        colors=colors,
+        maps=maps,
+        background=bg,
+        background_threshold=0.2,
+        clock=NullClock(),
+    )
     assert window is not None
     tracker = tracker or make_tracker(method)
     return tracker.measure(window, RoverModel(0, MARKER_AREA, 0.0), StageTimes())
@@ -191,7 +201,17 @@ def test_particles_choose_the_marker_nearest_the_prediction_in_a_window_far_from
     bg = BackgroundModel(image.shape[:2], 100)
     for target in (a, b):
         i = 0 if target is a else 1
-        window = prepare_window(image, box, 0, (float(uv[i, 0]), float(uv[i, 1])), colors, maps, bg, 0.2, NullClock())
+        window = prepare_window(
+            image,
+            box,
+            rover_index=0,
+            predicted_uv=(float(uv[i, 0]), float(uv[i, 1])),
+            colors=colors,
+            maps=maps,
+            background=bg,
+            background_threshold=0.2,
+            clock=NullClock(),
+        )
         assert window is not None
         m = make_tracker("particles").measure(window, RoverModel(0, MARKER_AREA, 0.0), StageTimes())
         assert m is not None

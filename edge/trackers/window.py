@@ -74,6 +74,7 @@ class Window:
 def prepare_window(
     image: NDArray[np.uint8],
     box: tuple[int, int, int, int],
+    *,
     rover_index: int,
     predicted_uv: tuple[float, float],
     colors: ColorModel,
@@ -84,7 +85,8 @@ def prepare_window(
     white: LocalWhite | None = None,
 ) -> Window | None:
     """The per-window stages before a tracker runs: the window seen under the configured white (``edge.white``),
-    colour planes, hue classes, background subtraction (eq. 2)."""
+    colour planes, hue classes, background subtraction (eq. 2). ``box``: the window in the image; ``rover_index``:
+    whose colour plane to extract; ``predicted_uv``: where the filter expects the marker (image pixels)."""
     x0, y0, x1, y1 = box
     t0 = time.perf_counter()
     raw = image[y0:y1, x0:x1]
