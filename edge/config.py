@@ -154,6 +154,11 @@ class DashboardSection(BaseModel):
     jpeg_quality: int = Field(default=70, ge=10, le=95, description="JPEG quality of the camera view.")
     max_width_px: int = Field(default=960, ge=160, le=4096, description="Camera view downscaled to this width.")
     pose_hz: float = Field(default=15.0, gt=0.0, le=60.0, description="Most pose events per second per viewer.")
+    rovers_file: Path | None = Field(
+        default=None,
+        description="Where the page's enrolment saves the [[rovers]] it measured (relative to this file); "
+        "unset = download only. Never a configuration with other sections.",
+    )
 
 
 class EdgeConfig(BaseModel):

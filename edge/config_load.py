@@ -111,6 +111,7 @@ def _resolve_paths(config: EdgeConfig, base: Path) -> EdgeConfig:
             "edge": config.edge.model_copy(update={"state_dir": fix(config.edge.state_dir)}),
             "calibration": config.calibration.model_copy(update={"path": fix(config.calibration.path)}),
             "recording": config.recording.model_copy(update={"dir": fix(config.recording.dir)}),
+            "dashboard": config.dashboard.model_copy(update={"rovers_file": fix(config.dashboard.rovers_file)}),
             "broker": config.broker.model_copy(
                 update={
                     "ca_file": fix(config.broker.ca_file),

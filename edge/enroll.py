@@ -97,12 +97,12 @@ class Enrolment:
     def rover_configs(self) -> list[RoverConfig]:
         return [m.rover_config() for m in self.markers]
 
-    def toml(self, source: str = "") -> str:
+    def toml(self, source: str = "", by: str = "`edge-ips rovers enroll`") -> str:
         """``[[rovers]]`` tables that ``--config`` and ``edge-ips start`` read, with what was measured as comments."""
         w, h = self.image_size
         when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
         lines = [
-            f"# Enrolled by `edge-ips rovers enroll` {when}{f' from {source}' if source else ''} ({w}x{h}).",
+            f"# Enrolled by {by} {when}{f' from {source}' if source else ''} ({w}x{h}).",
             "# Each colour is the median of the marker's interior as this camera saw it under this light: enroll",
             "# again after changing the camera's white balance, exposure or the lamps.",
         ]
@@ -315,8 +315,11 @@ def _measure(
         if (part & near).any():
             front_mask |= part
     front_cm2 = 0.0
-    if front_mask[y0:y1, x0:x1].any():
-        front_cm2 = float(np.sum(areas[front_mask[y0:y1, x0:x1]]))
+    if front_mask.any():  # over the front's own box: a front pointing along a row or column sticks out of the blob's
+        fvs, fus = np.nonzero(front_mask)
+        fx0, fy0, fx1, fy1 = int(fus.min()), int(fvs.min()), int(fus.max()) + 1, int(fvs.max()) + 1
+        front_areas = _pixel_areas_cm2(calibration, (fx0, fy0, fx1, fy1))
+        front_cm2 = float(np.sum(front_areas[front_mask[fy0:fy1, fx0:fx1]]))
     front_color: tuple[int, int, int] | None = None
     front_fraction: float | None = None
     whole = blob.mask
@@ -417,9 +420,10 @@ def _odd_sizes(markers: Sequence[EnrolledMarker], length_cm: float, width_cm: fl
     ]
 
 
-def save_enrolment(enrolment: Enrolment, path: Path, source: str = "") -> None:
-    """Write :meth:`Enrolment.toml` to ``path``, replacing an earlier rovers file but never a configuration with
-    other sections in it (``/etc/edge-ips/config.toml`` given by mistake)."""
+def save_enrolment(enrolment: Enrolment, path: Path, source: str = "", *, text: str | None = None) -> None:
+    """Write :meth:`Enrolment.toml` (or ``text``, the TOML already shown for it) to ``path``, replacing an earlier
+    rovers file but never a configuration with other sections in it (``/etc/edge-ips/config.toml`` given by
+    mistake)."""
     if path.exists():
         try:
             existing = tomllib.loads(path.read_text(encoding="utf-8"))
@@ -433,7 +437,7 @@ def save_enrolment(enrolment: Enrolment, path: Path, source: str = "") -> None:
             )
     tmp = path.with_name(f".{path.name}.tmp")
     try:
-        tmp.write_text(enrolment.toml(source), encoding="utf-8")
+        tmp.write_text(enrolment.toml(source) if text is None else text, encoding="utf-8")
         tmp.replace(path)
     except OSError as exc:
         raise EnrollmentError(f"{path}: cannot write ({exc.strerror})") from exc

@@ -105,6 +105,7 @@ def test_the_watcher_keeps_each_rovers_own_status_and_refuses_forgeries(mosquitt
     rovers.say(rover_status_topic("red"), report("red", "none", "line", 3))  # retained before the watcher starts
     desk.start()
     try:
+        wait_for(1)  # red's retained status arrived: the watcher is subscribed, so what follows reaches it live
         forged = [
             (rover_status_topic("green"), report("red")),  # red's status on green's topic
             (rover_status_topic("mallory"), report("mallory")),  # not a configured rover

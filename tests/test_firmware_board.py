@@ -1,4 +1,4 @@
-"""The rover on a board stand-in that behaves like an ESP8266 (tests/support/board.py): a reset runs boot.py and
+"""The rover on a board stand-in that behaves like an ESP8266 (firmware/harness/board.py): a reset runs boot.py and
 main.py, a started machine.WDT resets the chip 3.2 s after its last feed whatever runs (the REPL does not feed it),
 Ctrl-C ends the program, mpremote sessions take the time a serial link takes and are cut by a reset.
 
@@ -19,8 +19,8 @@ from typing import Any
 import pytest
 
 from edge import flashing
-from tests.support.board import Board
-from tests.support.firmware import mpy_driver, rover_configs
+from firmware.harness.board import Board
+from firmware.harness.runner import mpy_driver, rover_configs
 
 PORT = "/dev/ttyUSB0"
 # The design the issue found on the boards: a hardware watchdog fed by the loop (and nothing else).

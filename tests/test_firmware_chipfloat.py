@@ -1,5 +1,5 @@
 """The firmware with the ESP8266's floats: 30 bits in the object word (MicroPython v1.28.0, MICROPY_OBJ_REPR_C), every
-intermediate rounded as the chip rounds it (tests/support/chipfloat.py). The parser's verdicts stay the contract's,
+intermediate rounded as the chip rounds it (firmware/harness/chipfloat.py). The parser's verdicts stay the contract's,
 the safety layer's barrier holds, and formations still meet their bars without NaN or oscillation."""
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from firmware.harness.chipfloat import ChipRover, chip_float, chip_modules, parse
+from firmware.harness.runner import KinematicFleet, assert_formation_bars, formation_run
 from tests.support import contract_oracle as oracle
-from tests.support.chipfloat import ChipRover, chip_float, chip_modules, parse
-from tests.support.firmware import KinematicFleet, assert_formation_bars, formation_run
 
 CHIP: Any = chip_modules()
 IDS = ["red", "green", "blue"]

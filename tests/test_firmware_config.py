@@ -9,7 +9,7 @@ import pytest
 
 from edge.errors import ConfigError
 from edge.rover_host import check_rover_config, firmware_modules
-from tests.support.firmware import rover_configs
+from firmware.harness.runner import rover_configs
 
 config: Any = firmware_modules()["config"]
 

@@ -1,6 +1,6 @@
 """The formation law (firmware/esp8266/formation.py) and the rover's safety rules (rover.py), under CPython.
 
-Closed-loop runs use :class:`tests.support.firmware.KinematicFleet`: each rover's real firmware drives a kinematic
+Closed-loop runs use :class:`firmware.harness.runner.KinematicFleet`: each rover's real firmware drives a kinematic
 differential-drive body; poses carry measurement noise and latency, motors a gain error. Time is simulated.
 """
 
@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 from edge import messages
 from edge.rover_host import HostRover, firmware_modules
-from tests.support.firmware import (
+from firmware.harness.runner import (
     Body,
     KinematicFleet,
     assert_formation_bars,

@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from edge.rover_host import firmware_modules
-from tests.support.firmware import (
+from firmware.harness.runner import (
     Body,
     KinematicFleet,
     assert_formation_bars,

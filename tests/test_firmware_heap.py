@@ -1,8 +1,8 @@
 """The firmware's heap on the ESP8266: measured in MicroPython, deployed as the flash tool deploys it.
 
-tests/mpy/budget.py mounts the flash bundle's ROMFS image and runs the chip's own sequence (boot.py, main.py compiled
+harness/mpy/budget.py mounts the flash bundle's ROMFS image and runs the chip's own sequence (boot.py, main.py compiled
 from source and its imports, app.start, the first connection, the loop, the largest message the rover accepts, a
-packet too long to keep); tests/support/budget.py carries each phase over to the ESP8266's object model (floats in the
+packet too long to keep); harness/budget.py carries each phase over to the ESP8266's object model (floats in the
 object word, its qstr pools) and bounds the live heap inside every phase. The budget: at least 12 KB of the 36 KB an
 ESP8266_GENERIC board has free after boot stay free.
 """
@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import json
 
-from tests.support.budget import FLOAT_BYTES, chip_pool_bytes, measure
-from tests.support.firmware import HEAP_FREE_AFTER_BOOT, HEAP_KEPT_FREE, budget_config, budget_files, run_micropython
+from firmware.harness.budget import FLOAT_BYTES, chip_pool_bytes, measure
+from firmware.harness.runner import HEAP_FREE_AFTER_BOOT, HEAP_KEPT_FREE, budget_config, budget_files, run_micropython
 
 
 def test_the_firmware_leaves_12_kb_of_the_esp8266s_heap_free_at_its_peak() -> None:

@@ -21,7 +21,7 @@ from edge import messages
 from edge.config import BrokerTarget
 from edge.publisher import MqttPublisher
 from edge.rover_host import HostRover, firmware_modules
-from tests.support.firmware import rover_configs
+from firmware.harness.runner import rover_configs
 from tests.support.mosquitto import Mosquitto
 
 fw = firmware_modules()

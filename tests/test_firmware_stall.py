@@ -1,6 +1,6 @@
 """The rover never blocks beyond a bound, whatever the network does: the real app, link.py and the umqtt.simple of
 MicroPython v1.28.0 (pinned) against a scripted broker that stalls at each point of a packet, in simulated time,
-under CPython and inside MicroPython (tests/mpy/stall.py, tests/mpy/fakenet.py).
+under CPython and inside MicroPython (firmware/harness/mpy/stall.py, firmware/harness/mpy/fakenet.py).
 
 The stop bound: the motors are off at most 0.5 s after the last own pose that arrived whole. A Wi-Fi drop leaves the
 rest of a packet (or anything after it) unsent and fills the send buffer; a silent broker takes the TCP connection
@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from tests.support.firmware import STALL_CASES, run_stall, stall_config
+from firmware.harness.runner import STALL_CASES, run_stall, stall_config
 
 STOP_BOUND_MS = 500
 CUTS = ("boundary", "first byte", "remaining length", "topic length", "topic", "payload", "broker silent")
@@ -117,7 +117,7 @@ def test_ctrl_c_stops_the_motors_and_the_watchdog_for_good(runs: dict[tuple[str,
 def test_the_stall_runs_use_the_pinned_umqtt(tmp_path: Path) -> None:
     import hashlib
 
-    from tests.support.firmware import HOST
+    from firmware.harness.runner import HOST
 
     digest = hashlib.sha256((HOST / "umqtt" / "simple.py").read_bytes()).hexdigest()
     assert digest == "0792c0bd6d9219c8180a9ee7dae3d7c15fafe53e0605fa30839b1033fa4a189c"  # umqtt.simple 1.7.0

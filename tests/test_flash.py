@@ -20,8 +20,8 @@ import pytest
 
 from edge import flashing
 from edge.errors import FlashError
+from firmware.harness.runner import micropython_image
 from tests.conftest import REPO
-from tests.support.firmware import micropython_image
 
 TOOL = [sys.executable, str(REPO / "tools" / "flash.py")]
 SECRETS = {"EDGE_IPS_WIFI_SSID": "lab-net", "EDGE_IPS_WIFI_PASSWORD": "wifi-pw", "EDGE_IPS_MQTT_PASSWORD": "mqtt-pw"}

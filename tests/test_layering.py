@@ -196,3 +196,25 @@ def test_the_vision_core_does_no_io_and_knows_no_appliance(module: str) -> None:
 def test_configuration_and_interface_do_not_depend_on_the_tracker_implementation(module: str) -> None:
     reached = reachable(module)
     assert sorted(n for n in reached if _within(n, ("edge.pipeline", "edge.trackers", "cv2"))) == []
+
+
+REPO = EDGE.parent
+
+
+def _imports_of_file(path: Path) -> set[str]:
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.add(node.module)
+    return found
+
+
+@pytest.mark.parametrize("folder", ["benchmarks", "docs", "tools", "firmware/harness", "edge"])
+def test_scripts_and_the_firmware_harness_do_not_import_the_tests(folder: str) -> None:
+    files = sorted((REPO / folder).rglob("*.py"))
+    assert files, folder
+    uses = {str(p.relative_to(REPO)): sorted(m for m in _imports_of_file(p) if m == "tests" or m.startswith("tests."))
+            for p in files}  # fmt: skip
+    assert {name: used for name, used in uses.items() if used} == {}

@@ -1,9 +1,10 @@
 """The live web dashboard served by ``edge-ips start``: camera view with overlays, top-down map, rover
-status, calibration error map, formation controls.
+status, calibration error map, formation controls, colour enrolment of the rovers in view.
 
 The parts: ``server`` (routes on the appliance's HTTP server), ``events`` (server-sent events built from
 snapshots), ``frames`` (the JPEG camera view, on its own thread), ``formation`` (token-checked commands and the
-retained formation), ``calibration_view`` (the error map panel). The page itself is ``static/`` (no build step).
+retained formation), ``calibration_view`` (the error map panel), ``enrolment`` (the rovers' colours measured from
+the camera). The page itself is ``static/`` (no build step).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ def start_dashboard(
     """
     from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
     from edge.dashboard.calibration_view import CalibrationView
+    from edge.dashboard.enrolment import EnrolDesk
     from edge.dashboard.events import EventHub, Overlay, pose_event, rovers_event, status_event
     from edge.dashboard.formation import FormationDesk, with_targets
     from edge.dashboard.frames import FrameEncoder
@@ -102,4 +104,14 @@ def start_dashboard(
         encoder=encoder,
         formation=desk,
     )
-    return dashboard.attach(http)
+    dashboard.attach(http)
+    EnrolDesk(
+        runtime,
+        calibration,
+        enabled=token is not None,
+        marker_length_cm=config.tracker.marker_length_cm,
+        marker_width_cm=config.tracker.marker_width_cm,
+        rovers_file=settings.rovers_file,
+        source=runtime.info.description,
+    ).attach(http)
+    return dashboard

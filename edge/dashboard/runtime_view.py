@@ -43,3 +43,12 @@ class RuntimeView(Protocol):
     def wait_tracked(self, timeout_s: float) -> None:
         """Block until the tracker has finished its next frame (or ``timeout_s``)."""
         ...
+
+    def camera_state(self) -> str:
+        """The camera's state now ("ok", "stalled", ...)."""
+        ...
+
+    @property
+    def tracker(self) -> object:
+        """The tracker in use (enrolment reads its background model)."""
+        ...

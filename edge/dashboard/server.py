@@ -16,6 +16,7 @@ Routes (access levels of :mod:`edge.httpguard`):
 - ``GET /api/errormap.png`` (read): the calibration error map (:mod:`edge.dashboard.calibration_view`).
 - ``POST /api/formation`` (control): ``Authorization: Bearer <dashboard.token>``, JSON ``{kind, ids, spacing,
   side}``; publishes the retained formation (:mod:`edge.dashboard.formation`).
+- ``/api/enroll`` and ``/api/enroll/...``: colour enrolment of the rovers in view (:mod:`edge.dashboard.enrolment`).
 
 Everything reads the runtime's snapshots and newest-result reference; nothing here takes a lock the tracker holds
 for longer than a counter update.

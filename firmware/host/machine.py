@@ -4,7 +4,7 @@
 #
 # Every instance remembers what the firmware did to it (level, duty, frequency), so a test or the closed-loop
 # simulation can read the motor commands back; several rovers in one process each get their own pins. Timers fire
-# only when a simulated clock calls run_timers(now_ms) (tests/mpy/fakenet.py), as the chip runs them between
+# only when a simulated clock calls run_timers(now_ms) (firmware/harness/mpy/fakenet.py), as the chip runs them between
 # bytecodes and inside waits. A board stand-in (firmware/host/board.py) may take over the watchdog and reset():
 # without one a started WDT only counts feeds.
 

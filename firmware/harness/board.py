@@ -31,7 +31,7 @@ from contextlib import redirect_stdout
 from pathlib import Path
 from typing import Any
 
-from tests.support.firmware import firmware_module, host_module, mpy_driver
+from firmware.harness.runner import firmware_module, host_module, mpy_driver
 
 WDT_MS = 3200  # the SDK's soft watchdog: a 1.6 s timer, reset at the second tick without a feed
 BAUD_BYTES_S = 11520  # 115200 baud

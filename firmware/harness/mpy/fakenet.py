@@ -1,6 +1,6 @@
 # A simulated clock and a scripted MQTT broker behind a MicroPython-style socket module, so the rover's real app,
 # link and umqtt.simple run against a network that stalls where a test says, in simulated time, under CPython and
-# inside MicroPython alike (tests/mpy/stall.py drives them; no typing, no __future__).
+# inside MicroPython alike (firmware/harness/mpy/stall.py drives them; no typing, no __future__).
 #
 # The socket behaves like lwip's on the ESP8266 (extmod/modlwip.c): non-blocking reads return what has arrived or
 # None, blocking ones wait (the clock runs) up to the timeout and then raise OSError(ETIMEDOUT), without a timeout

@@ -62,7 +62,7 @@ def _setup(path):
 
 def _chunk(n):
     # Up to n events; False at the end. Collections happen between chunks, from run()'s small frame (see
-    # tests/support/firmware.py: a collection inside a large running function corrupts this wasm build's heap).
+    # firmware/harness/runner.py: a collection inside a large running function corrupts this wasm build's heap).
     r = _state["rover"]
     lines = _state["lines"]
     k = _state["next"]

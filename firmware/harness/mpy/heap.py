@@ -106,7 +106,7 @@ def _report():
 
 
 def main(total_steps=10000, chunk=100):
-    # Every frame running during gc.collect() keeps to a handful of locals (tests/support/firmware.py): the state
+    # Every frame running during gc.collect() keeps to a handful of locals (firmware/harness/runner.py): the state
     # lives in _s, the work in _chunk.
     gc.disable()
     _setup()

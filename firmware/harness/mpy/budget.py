@@ -129,7 +129,7 @@ _W = const(6)
 
 
 def _end(name):
-    # Locals and stack kept small: a collection runs inside (tests/support/firmware.py).
+    # Locals and stack kept small: a collection runs inside (firmware/harness/runner.py).
     rec = _s["rec"]
     i = _s["n"] * _W
     rec[i] = gc.mem_alloc() - _s["live0"]
@@ -156,7 +156,7 @@ _SCALARS = (int, bool, str, bytes, bytearray, memoryview, type(None))
 
 def _live_floats():
     # Distinct float objects the firmware's state holds (16 B each here, nothing on the ESP8266); module constants
-    # are counted from the .mpy files instead (tests/support/firmware.py).
+    # are counted from the .mpy files instead (firmware/harness/runner.py).
     seen = {}
     done = {}
     todo = [_s["rover"], _s["wd"], _s["cfg"]]
@@ -296,7 +296,7 @@ def _frames(count):
 
 
 def _run(frames):
-    # Every function that is running when gc.collect() runs keeps to a handful of locals (tests/support/firmware.py).
+    # Every function that is running when gc.collect() runs keeps to a handful of locals (firmware/harness/runner.py).
     _begin()
     _boot()
     _end("boot.py")

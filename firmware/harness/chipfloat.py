@@ -193,7 +193,7 @@ def chip_tree(x: Any, counter: Counter | None = None) -> Any:
 
 
 class ChipRover:
-    """A rover's firmware with the chip's floats, for :class:`tests.support.firmware.KinematicFleet` (the part of
+    """A rover's firmware with the chip's floats, for :class:`firmware.harness.runner.KinematicFleet` (the part of
     HostRover it uses: no broker; messages are handed over with :meth:`deliver`)."""
 
     def __init__(self, config: dict[str, Any], modules: dict[str, types.ModuleType] | None = None) -> None:

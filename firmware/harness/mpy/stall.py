@@ -5,7 +5,7 @@
 # motors went off for good, and what the link did.
 #
 # The loop runs in chunks of CHUNK steps with collections only between them, from small frames (the wasm build frees
-# heap-allocated frames of larger functions if a collection runs inside them: tests/support/firmware.py).
+# heap-allocated frames of larger functions if a collection runs inside them: firmware/harness/runner.py).
 import gc
 import json
 import sys
@@ -232,7 +232,7 @@ def timing(stall_ms, run_ms, after_ms):
 
 
 def _run():
-    # Every frame alive during gc.collect() is small (tests/support/firmware.py).
+    # Every frame alive during gc.collect() is small (firmware/harness/runner.py).
     try:
         while _chunk():
             if MICROPYTHON:  # CPython needs no help, and its collections are slow in a big test process
