@@ -12,7 +12,7 @@ floor: its reference is a local white reference at every pixel.
   colours were configured under;
 * a coarse map of the reference's colour (blocks of 32 pixels, a tile or more of floor: the floor's own pattern,
   grout and tape average out, the light's slow variation across the room, a sunlit patch, stays), refreshed as the
-  reference is.
+  reference is; a block whose colour no light has (a poster of a marker's hue on the floor) counts as the white.
 
 For a window, the light there now is the coarse map's colour there, corrected by how the floor just around the
 window has changed since the reference was taken (median ratio of the window's border pixels to the reference's:
@@ -32,6 +32,10 @@ from edge.segmentation import LINEAR, U8, BoolArray, linear_bgr
 FloatArray = NDArray[np.float64]
 BLOCK_PX = 32
 MAX_GAIN = 2.5  # no channel is corrected more than this (a saturated or black floor says little about the light)
+# Lamps, daylight and sunlight (2700 K to 6500 K) differ in chromaticity by under 0.15 in any channel: a block of the
+# reference farther than this from the configured white is a coloured thing lying on the floor (a poster, a rug, a
+# parked object of a marker's hue), not the light's colour.
+MAX_LIGHT_SHIFT = 0.2
 _ENCODE = np.asarray(np.interp(np.linspace(0.0, 1.0, 4096), LINEAR, np.arange(256)).round(), dtype=np.uint8)
 
 
@@ -60,6 +64,7 @@ class LocalWhite:
         share = cv2.resize(valid.astype(np.float32), size, interpolation=cv2.INTER_AREA)
         chroma = lin / np.maximum(lin.sum(axis=2, keepdims=True), 1e-6)
         chroma[share < 0.95] = self.white  # a block with a rover (or its unrefreshed ghost) in it says nothing
+        chroma[np.abs(chroma - self.white).max(axis=2) > MAX_LIGHT_SHIFT] = self.white  # nor a coloured object
         self.coarse = chroma.astype(np.float64)
 
     def gains(

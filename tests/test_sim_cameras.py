@@ -159,7 +159,7 @@ def test_eight_rovers_carry_the_eight_hue_palette():
 def test_grey_world_white_balance_drifts_as_a_warm_sunlit_patch_grows():
     setup = build("daylight", seed=0)
     renderer = setup.renderer()
-    gains = np.array([renderer._white_balance(i) for i in range(0, 300, 10)])
+    gains = np.array([renderer._sensor.white_balance(i) for i in range(0, 300, 10)])
     assert gains[:, 1] == pytest.approx(1.0)
     assert np.ptp(gains[:, 0]) > 0.01  # the blue gain follows the clouds over the patch
     frame = renderer.render(setup.world().state_at(1.0), 30)

@@ -118,3 +118,18 @@ def test_rovers_in_the_daylight_scenario_are_all_tracked_and_the_boxes_never_tak
         assert row["det"] >= 0.99, rid
         assert row["ghosts"] == 0 and row["swaps"] == 0, rid
         assert row["max"] < 2.0, rid
+
+
+def test_a_poster_of_a_markers_colour_on_the_floor_is_not_taken_for_the_light():
+    """The reference's colour is the light's only where no light could have that colour: a red poster lying on the
+    floor leaves a window over it seen under the room's white, not corrected towards cyan."""
+    floor = np.full((256, 320, 3), 150, np.uint8)
+    poster = floor.copy()
+    poster[64:192, 96:224] = (50, 45, 190)  # four blocks of red paper
+    valid = np.ones(floor.shape[:2], bool)
+    box = (112, 80, 208, 176)
+    plain = LocalWhite(floor, valid).gains(box, floor[80:176, 112:208], floor[80:176, 112:208], valid[80:176, 112:208])
+    with_poster = LocalWhite(poster, valid).gains(
+        box, poster[80:176, 112:208], poster[80:176, 112:208], valid[80:176, 112:208]
+    )
+    assert np.allclose(with_poster, plain, atol=0.02)
