@@ -94,12 +94,15 @@ def machine() -> str:
 
 
 # -- stages (Table IV) --------------------------------------------------------------------------------------------
-def bench_stages(frames: int, seed: int) -> None:
+def bench_stages(frames: int, seed: int, outline_fit: bool) -> None:
     clip = render_clip("lab", seed, frames)
-    score = run_clip(clip, "particles", use_background=False)
+    score = run_clip(clip, "particles", use_background=False, outline_fit=outline_fit)
     paper = run_clip(clip, "paper")
     print(f"## Table IV: stage times, 1280x720, 3 rovers, one core ({machine()})")
-    print(f"lab scenario seed {seed}, {len(clip.frames)} frames; median (and 95th percentile) ms per frame\n")
+    print(
+        f"outline_fit = {str(outline_fit).lower()}; lab scenario seed {seed}, {len(clip.frames)} frames; "
+        "median (and 95th percentile) ms per frame\n"
+    )
     print("| stage (paper's Table IV row) | windowed pipeline | full-frame paper pipeline | paper (Table IV) |")
     print("|---|---|---|---|")
 
@@ -221,7 +224,12 @@ def bars_hold(r: dict[str, float], per_colour: list[dict[str, float]]) -> list[s
 
 
 def bench_family(
-    scenarios: list[str], seeds: list[int], frames: int | None, calibrations: list[str], detail: bool
+    scenarios: list[str],
+    seeds: list[int],
+    frames: int | None,
+    calibrations: list[str],
+    detail: bool,
+    outline_fit: bool = False,
 ) -> None:
     """Render each scenario and seed once through the family's camera, track it with each calibration, print a
     table per calibration."""
@@ -231,8 +239,9 @@ def bench_family(
             clip = family_clip(name, seed, frames)
             about = SimpleNamespace(name=name, seed=seed, camera_name=clip.camera_name, bodies=clip.bodies)  # type: ignore[attr-defined]
             for c in calibrations:
-                runs[c].append((about, run_clip(clip, "particles", calibration=c)))  # type: ignore[arg-type]
+                runs[c].append((about, run_clip(clip, "particles", calibration=c, outline_fit=outline_fit)))  # type: ignore[arg-type]
             print(f"{name} seed {seed}: {clip.camera_name}", file=sys.stderr, flush=True)  # type: ignore[attr-defined]
+    print(f"tracker setting outline_fit = {str(outline_fit).lower()}\n")
     for c in calibrations:
         family_table(runs[c], seeds, frames, c, detail)
         print()
@@ -317,11 +326,14 @@ def main() -> None:
     parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument("--calibration", choices=("camera", "points", "both"), default="camera")
     parser.add_argument("--heading", choices=("plain", "two_tone"), default="plain", help="Markers on the rovers.")
+    parser.add_argument(
+        "--outline-fit", action="store_true", help="stages, family: track with outline_fit = true (default: false)"
+    )
     parser.add_argument("--detail", action="store_true", help="family: a row per scenario, camera and colour")
     args = parser.parse_args()
     print(f"# edge-ips tracking benchmark, {time.strftime('%Y-%m-%d %H:%M')}\n")
     if args.what in ("stages", "all"):
-        bench_stages(args.frames or 300, args.seed)
+        bench_stages(args.frames or 300, args.seed, args.outline_fit)
         print()
     if args.what in ("scale", "all"):
         bench_scale(args.frames or 120, [int(c) for c in args.counts.split(",")], args.seed)
@@ -337,7 +349,7 @@ def main() -> None:
         seeds = [int(s) for s in args.seeds.split(",")]
         scenarios = args.scenarios.split(",") if args.scenarios != ",".join(SCENARIOS) else list(FAMILY_SCENARIOS)
         calibrations = ["camera", "points"] if args.calibration == "both" else [args.calibration]
-        bench_family(scenarios, seeds, args.frames, calibrations, args.detail)
+        bench_family(scenarios, seeds, args.frames, calibrations, args.detail, args.outline_fit)
 
 
 if __name__ == "__main__":

@@ -215,10 +215,12 @@ def plane_mapping(clip: Clip, calibration: str) -> object:
     return calibrate_points(table, (1280, 720), height_cm=clip.height_cm, intrinsics=intrinsics).calibration
 
 
-def run_clip(clip: Clip, method: str, use_background: bool | None = None, calibration: str = "camera") -> Score:
+def run_clip(
+    clip: Clip, method: str, use_background: bool | None = None, calibration: str = "camera", outline_fit: bool = False
+) -> Score:
     """Track ``clip`` with ``method`` (the paper baseline gets the empty-scene reference; the others learn it
-    unless ``use_background``) and score it."""
-    config = TrackerConfig(rovers=clip.rovers, method=method, fps=clip.fps)  # type: ignore[arg-type]
+    unless ``use_background``; ``outline_fit``: the tracker setting of that name) and score it."""
+    config = TrackerConfig(rovers=clip.rovers, method=method, fps=clip.fps, outline_fit=outline_fit)  # type: ignore[arg-type]
     mapping = plane_mapping(clip, calibration)
     with_bg = (method == "paper") if use_background is None else use_background
     tracker = build_tracker(config, mapping, clip.background if with_bg else None)  # type: ignore[arg-type]

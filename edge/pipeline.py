@@ -227,7 +227,7 @@ class Pipeline:
         learned = tr.learned
         model = RoverModel(tr.index, tr.expected_area(self.config.marker_area_cm2), tr.level)
         m = (tracker or self.tracker).measure(window, model, clock)
-        if m is not None and tr.config.front_color_bgr is None:
+        if m is not None and self.config.outline_fit and tr.config.front_color_bgr is None:
             t0 = time.perf_counter()
             size = (self.config.marker_length_cm, self.config.marker_width_cm)
             m = refine_outline(window, m, size, tr.index)
@@ -313,8 +313,11 @@ class Pipeline:
         if m.outlined:
             return True  # its four edges were found where a whole marker of its size has them
         ratio = m.area_cm2 / expected_area_cm2
-        band = tr.area_band(expected_area_cm2, self.config.min_area_fraction, self.config.max_area_fraction)
-        low, high = band if learned else self.config.acquire_area_range
+        low, high = (
+            tr.area_band(expected_area_cm2, self.config.min_area_fraction, self.config.max_area_fraction)
+            if learned
+            else self.config.acquire_area_range
+        )
         if not low <= ratio <= high:
             return False
         aspect = max(self.config.marker_length_cm, self.config.marker_width_cm) / min(

@@ -61,9 +61,10 @@ class RoverTrack:
     def area_band(self, expected_cm2: float, min_fraction: float, max_fraction: float) -> tuple[float, float]:
         """The accepted blob area, as a share of the learned one: ``min_fraction``..``max_fraction``, widened to
         three robust standard deviations of this rover's own recent areas (a compressed stream's far-side areas
-        scatter by 10 %; a marker a leg hides loses far more), never below 0.75."""
+        scatter by 10 %; a marker a leg hides loses far more); the scatter widens the lower end to 0.75 at most,
+        ``min_fraction`` below that lowers it further."""
         spread = 1.4826 * float(np.median(np.abs(np.asarray(self.areas) - expected_cm2))) / expected_cm2
-        low = max(min(min_fraction, 1.0 - 3.0 * spread), 0.75)
+        low = min(min_fraction, max(1.0 - 3.0 * spread, 0.75))
         return low, max(max_fraction, 1.0 + 3.0 * spread)
 
     def within_reach(self, xy_cm: tuple[float, float], t_s: float, max_speed_cm_s: float, slack_cm: float) -> bool:

@@ -115,6 +115,12 @@ class TrackerSettings(BaseModel):
         description="Fastest a rover drives: a lost rover is looked for again only as far from where it was last "
         "seen as it could have driven since (something of its hue farther away, a shirt or a box, is not it).",
     )
+    outline_fit: bool = Field(
+        default=False,
+        description="Centre and long axis of a one-colour marker from its fitted outline (edges in linear light) "
+        "instead of its coverage centroid: less colour-dependent bias on some cameras, but about 8x the tracking "
+        "time per frame; a fitted marker skips the area and shape checks (its edges showed its size).",
+    )
     heading_min_speed_cm_s: float = Field(default=3.0, ge=0.0, description="Slowest motion that gives a heading.")
     accel_sigma_cm_s2: float = Field(default=40.0, gt=0.0, description="Filter process noise (acceleration).")
     measurement_sigma_px: float = Field(default=0.15, gt=0.0, description="Marker centre noise in pixels.")
