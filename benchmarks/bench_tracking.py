@@ -73,7 +73,7 @@ TABLE_IV = (
     ("P.M.O. - erosion", ("erosion",)),
     ("A.M.O. - automatic hole filling", ("holes",)),
     ("Tracker (particles, centre of mass)", ("measure",)),
-    ("Outline fit (centre and axis from the edges)", ("outline",)),
+    ("Marker edges (axis; with outline_fit the centre too)", ("outline",)),
     ("Search windows", ("window",)),
     ("Reacquisition pass (1/4 resolution)", ("acquire",)),
     ("Filter, identity, heading", ("filter",)),

@@ -37,7 +37,7 @@ from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr
 from edge.tracker_config import TrackerConfig
 from edge.trackers import make_filters, make_tracker
 from edge.trackers.base import Measurement, PlaneGrid, PlaneMapping, RoverModel, Window, WindowTracker, world_blob
-from edge.trackers.refine import refine_outline
+from edge.trackers.refine import refine_axis, refine_outline
 from edge.trackers.window import prepare_window, window_box
 from edge.tracking import Frame, FrameResult, RoverEstimate, StageTimes
 from edge.two_tone import MarkerPixels, TwoToneGeometry, inner_edge_weights, view_marker
@@ -227,10 +227,11 @@ class Pipeline:
         learned = tr.learned
         model = RoverModel(tr.index, tr.expected_area(self.config.marker_area_cm2), tr.level)
         m = (tracker or self.tracker).measure(window, model, clock)
-        if m is not None and self.config.outline_fit and tr.config.front_color_bgr is None:
+        if m is not None and tr.config.front_color_bgr is None:
             t0 = time.perf_counter()
             size = (self.config.marker_length_cm, self.config.marker_width_cm)
-            m = refine_outline(window, m, size, tr.index)
+            refine = refine_outline if self.config.outline_fit else refine_axis
+            m = refine(window, m, size, tr.index)
             clock.add("outline", time.perf_counter() - t0)
         if m is None or not self._plausible(m, model.marker_area_cm2, learned, tr):
             return None

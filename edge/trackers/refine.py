@@ -35,17 +35,10 @@ def refine_outline(
     or ``m`` with only the axis refined when the outline does not fit (not a clean rectangle of the marker's size
     within a pixel of the area centroid). ``size_cm``: the marker's (length, width); ``exclude``: pixels of other
     things (other rovers) in the window."""
-    if m.weights is None:
+    edges = _edge_signal(window, m, rover_index, exclude)
+    if edges is None:
         return m
-    sample = erode(m.weights >= 1.0, 1)
-    if not sample.any():
-        return m
-    signal = marker_signal(linear_bgr(window.bgr), sample)
-    if signal is None:
-        return m
-    usable = ~((window.classes >= 0) & (window.classes != rover_index))
-    if exclude is not None:
-        usable &= ~exclude
+    signal, usable = edges
     x0, y0, x1, y1 = window.box
     x_cm = window.grid.x_cm[y0:y1, x0:x1]
     y_cm = window.grid.y_cm[y0:y1, x0:x1]
@@ -60,6 +53,38 @@ def refine_outline(
     if shift > MAX_SHIFT_PX * max(cm_per_px) or size_error > MAX_SIZE_ERROR:
         return replace(m, axis_rad=axis)
     return replace(m, xy_cm=fit.xy_cm, axis_rad=axis, outlined=True)
+
+
+def refine_axis(
+    window: Window, m: Measurement, size_cm: tuple[float, float], rover_index: int, exclude: BoolArray | None = None
+) -> Measurement:
+    """``m`` with its long axis (``axis_rad``) from the marker's edges (:func:`marker_axis`), its centre unchanged:
+    the heading's part of :func:`refine_outline`, at a tenth of its cost."""
+    edges = _edge_signal(window, m, rover_index, exclude)
+    if edges is None:
+        return m
+    signal, usable = edges
+    jacobian = window.local.jacobian(*m.uv_px)
+    return replace(m, axis_rad=marker_axis(signal, window.lum, m, jacobian, usable, size_cm))
+
+
+def _edge_signal(
+    window: Window, m: Measurement, rover_index: int, exclude: BoolArray | None
+) -> tuple[np.ndarray, BoolArray] | None:
+    """The marker's chroma signal in linear light (``edge.outline.marker_signal``) and the window's pixels not of
+    other things (other rovers' hues, ``exclude``); None without a marker interior to measure it from."""
+    if m.weights is None:
+        return None
+    sample = erode(m.weights >= 1.0, 1)
+    if not sample.any():
+        return None
+    signal = marker_signal(linear_bgr(window.bgr), sample)
+    if signal is None:
+        return None
+    usable = ~((window.classes >= 0) & (window.classes != rover_index))
+    if exclude is not None:
+        usable &= ~exclude
+    return signal, usable
 
 
 def marker_axis(
