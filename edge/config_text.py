@@ -136,7 +136,7 @@ id = "blue"
 color_bgr = [190, 90, 30]
 
 [tracker]                     # tracking pipeline settings (see docs for the keys); empty = defaults
-# outline_fit = false         # true: one-colour markers' centre and axis from their fitted edges (less camera-
+# outline_fit = false         # true: one-colour markers' centre from their fitted edges (less camera-
                               # dependent bias) at about 8x the tracking time per frame: only on a board with time
 
 [broker]

@@ -117,9 +117,9 @@ class TrackerSettings(BaseModel):
     )
     outline_fit: bool = Field(
         default=False,
-        description="Centre and long axis of a one-colour marker from its fitted outline (edges in linear light) "
-        "instead of its coverage centroid: less colour-dependent bias on some cameras, but about 8x the tracking "
-        "time per frame; a fitted marker skips the area and shape checks (its edges showed its size).",
+        description="Centre of a one-colour marker from its fitted outline (edges in linear light) instead of its "
+        "coverage centroid: less colour-dependent bias on some cameras, but about 8x the tracking time per frame; a "
+        "fitted marker skips the area and shape checks (its edges showed its size).",
     )
     heading_min_speed_cm_s: float = Field(default=3.0, ge=0.0, description="Slowest motion that gives a heading.")
     accel_sigma_cm_s2: float = Field(default=40.0, gt=0.0, description="Filter process noise (acceleration).")

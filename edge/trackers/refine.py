@@ -5,6 +5,9 @@ measures its area; this step moves the centre to the middle of the marker's fitt
 the camera's tone curve, blur or what surrounds the marker, and gives the marker's long axis from its edges (the
 direction of a one-colour marker, modulo 180 degrees). Where the outline cannot be fitted (the marker glared out,
 half in shadow, an edge shared with something of the same colour), the area centroid stands.
+
+The fit costs most of a frame's time, so it runs only with the ``outline_fit`` setting (:func:`refine_outline`);
+without it the pipeline takes only the axis from the edges (:func:`refine_axis`) and keeps the area centroid.
 """
 
 from __future__ import annotations
