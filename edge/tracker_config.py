@@ -118,7 +118,7 @@ class TrackerSettings(BaseModel):
     outline_fit: bool = Field(
         default=False,
         description="Centre of a one-colour marker from its fitted outline (edges in linear light) instead of its "
-        "coverage centroid: less colour-dependent bias on some cameras, but about 8x the tracking time per frame; a "
+        "coverage centroid: less colour-dependent bias on some cameras, but about 3.5x the tracking time per frame; a "
         "fitted marker skips the area and shape checks (its edges showed its size).",
     )
     heading_min_speed_cm_s: float = Field(default=3.0, ge=0.0, description="Slowest motion that gives a heading.")
