@@ -350,7 +350,8 @@ class Pipeline:
                     continue
                 if any(math.hypot(xy[0] - p[0], xy[1] - p[1]) < self.config.marker_radius_cm for p in taken):
                     continue
-                if not tr.within_reach((float(xy[0]), float(xy[1])), self._time_s, self.config.max_speed_cm_s, slack):
+                speed = self.config.max_speed_cm_s
+                if speed is not None and not tr.within_reach((float(xy[0]), float(xy[1])), self._time_s, speed, slack):
                     continue  # farther than the rover could have driven since it was last seen: not it
                 radius = self.config.marker_radius_cm + self.config.window_margin_cm + 2.0 * s
                 box, _ = self._window_box((float(xy[0]), float(xy[1])), radius, image.shape, (u, v))

@@ -109,11 +109,12 @@ class TrackerSettings(BaseModel):
     max_elongation_factor: float = Field(
         default=1.5, ge=1.0, description="A blob more elongated than the marker's own aspect times this is not it."
     )
-    max_speed_cm_s: float = Field(
-        default=60.0,
+    max_speed_cm_s: float | None = Field(
+        default=None,
         gt=0.0,
         description="Fastest a rover drives: a lost rover is looked for again only as far from where it was last "
-        "seen as it could have driven since (something of its hue farther away, a shirt or a box, is not it).",
+        "seen as it could have driven since (something of its hue farther away, a shirt or a box, is not it); "
+        "unset: anywhere (a rover carried elsewhere, or a video that starts again, is found at once).",
     )
     outline_fit: bool = Field(
         default=False,
