@@ -27,6 +27,7 @@ FRAMES = {
     "occlusion": 230,
     "lens": 300,
     "crowd": 120,
+    "daylight": 250,
 }
 
 

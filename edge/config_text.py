@@ -136,6 +136,8 @@ id = "blue"
 color_bgr = [190, 90, 30]
 
 [tracker]                     # tracking pipeline settings (see docs for the keys); empty = defaults
+# outline_fit = false         # true: one-colour markers' centre from their fitted edges (less camera-
+                              # dependent bias) at about 3.5x the tracking time per frame: only on a board with time
 
 [broker]
 url = "embedded"              # embedded (amqtt in this process), mqtt://[user:pass@]host:port or mqtts://host:port

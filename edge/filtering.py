@@ -142,6 +142,37 @@ class ConstantVelocityFilterFactory:
         return ConstantVelocityFilter(self.settings, xy_cm, r_cm2)
 
 
+def axis_heading(
+    axis_rad: float | None,
+    velocity_cm_s: tuple[float, float] | None,
+    last_heading_rad: float | None,
+    min_speed_cm_s: float,
+) -> float | None:
+    """A one-colour marker's heading: its long axis (``axis_rad``, modulo pi, from the marker's edges) pointed the
+    way the rover drives while it moves faster than ``min_speed_cm_s``, else the way it pointed last (a rover turning
+    on the spot or standing keeps its front), else None.
+
+    The direction of motion alone (the filter's velocity) lags in a turn and scatters at low speed: 12 degrees at
+    the 95th percentile in turns, where the axis of the marker's edges is within a degree or two; the velocity is
+    only needed to tell the front end from the back. Without an axis, the direction of motion while moving.
+    """
+    speed = math.hypot(*velocity_cm_s) if velocity_cm_s is not None else 0.0
+    moving = velocity_cm_s is not None and speed >= min_speed_cm_s
+    if axis_rad is None:
+        return math.atan2(velocity_cm_s[1], velocity_cm_s[0]) if moving and velocity_cm_s is not None else None
+    if moving and velocity_cm_s is not None:
+        reference = math.atan2(velocity_cm_s[1], velocity_cm_s[0])
+    elif last_heading_rad is not None:
+        reference = last_heading_rad
+    else:
+        return None
+    return (
+        axis_rad
+        if abs(math.remainder(axis_rad - reference, math.tau)) <= 0.5 * math.pi
+        else axis_rad + (math.pi if axis_rad <= 0 else -math.pi)
+    )
+
+
 _TRANSITIONS: dict[float, tuple[FloatArray, FloatArray]] = {}
 
 

@@ -24,64 +24,29 @@ from __future__ import annotations
 
 import math
 import time
-from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
+from edge.acquisition import acquisition_scale, candidates, low_resolution_classes
 from edge.errors import ConfigError, SourceError
-from edge.filtering import ConstantVelocityFilter, FilterFactory
-from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr, opponent_planes
-from edge.tracker_config import RoverConfig, TrackerConfig
+from edge.filtering import FilterFactory, axis_heading
+from edge.rover_track import Observation, RoverTrack
+from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr
+from edge.tracker_config import TrackerConfig
 from edge.trackers import make_filters, make_tracker
-from edge.trackers.base import (
-    Measurement,
-    PlaneGrid,
-    PlaneMapping,
-    RoverModel,
-    StageClock,
-    Window,
-    WindowTracker,
-    world_blob,
-)
+from edge.trackers.base import Measurement, PlaneGrid, PlaneMapping, RoverModel, Window, WindowTracker, world_blob
+from edge.trackers.refine import refine_axis, refine_outline
+from edge.trackers.window import prepare_window, window_box
 from edge.tracking import Frame, FrameResult, RoverEstimate, StageTimes
-from edge.two_tone import TwoToneGeometry, TwoToneHeading, inner_edge_weights, view_marker
+from edge.two_tone import MarkerPixels, TwoToneGeometry, inner_edge_weights, view_marker
+from edge.white import LocalWhite
 
 FloatArray = NDArray[np.float64]
 
 
-_WINDOW_PAD_PX = 6  # room for the marker's edge band (2 px ring + 3 px outer band) where a centimetre is few pixels
-
-
-@dataclass(frozen=True)
-class _Observation:
-    """A measurement that passed the pipeline's checks, with its covariance on the plane (cm^2)."""
-
-    measurement: Measurement
-    r_cm2: FloatArray
-
-
-@dataclass
-class _RoverTrack:
-    """The pipeline's mutable state for one rover."""
-
-    config: RoverConfig
-    index: int
-    filter: ConstantVelocityFilter | None = None
-    misses: int = 0
-    level: float = 0.0
-    areas: deque[float] = field(default_factory=lambda: deque(maxlen=31))
-    box: tuple[int, int, int, int] | None = None
-    uv: tuple[float, float] | None = None
-    theta_rad: float | None = None
-    two_tone: TwoToneHeading = field(default_factory=TwoToneHeading)  # a two-tone marker's heading through time
-
-    @property
-    def lost(self) -> bool:
-        return self.filter is None
+WHITE_REFRESH_FRAMES = 15  # the light's map follows the background reference this often
 
 
 class Pipeline:
@@ -126,14 +91,16 @@ class Pipeline:
     def reset(self) -> None:
         """Forget every rover and the background: the next frame starts tracking afresh, at its own size."""
         self.maps: PlaneGrid | None = None
-        self.tracks = [_RoverTrack(r, i) for i, r in enumerate(self.config.rovers)]
+        self.tracks = [RoverTrack(r, i) for i, r in enumerate(self.config.rovers)]
         for tr in self.tracks:
             self.tracker.reset(tr.index)
             self.acquirer.reset(tr.index)
         self.background: BackgroundModel | None = None
+        self.white: LocalWhite | None = None
         self.acquire_scale = self.config.acquire_scale
         self._last_t: float | None = None
         self._frames = 0
+        self._time_s = 0.0  # the stream's time: the sum of frame intervals (nominal ones where stamps are unusable)
 
     # -- the frame loop -----------------------------------------------------------------------------------------
     def process(self, frame: Frame) -> FrameResult:
@@ -150,6 +117,7 @@ class Pipeline:
                 "(the calibration and the background are for one image size)"
             )
         dt = self._dt(frame)
+        self._time_s += dt
 
         t0 = time.perf_counter()
         for tr in self.tracks:
@@ -157,7 +125,7 @@ class Pipeline:
                 tr.filter.predict(dt)
         clock.add("filter", time.perf_counter() - t0)
 
-        measured: dict[int, _Observation] = {}
+        measured: dict[int, Observation] = {}
         for tr in self.tracks:
             if tr.filter is None:
                 continue
@@ -169,7 +137,7 @@ class Pipeline:
                 if tr.misses >= self.config.lost_after_frames:
                     self._lose(tr)
 
-        acquired: dict[int, _Observation] = {}
+        acquired: dict[int, Observation] = {}
         if any(tr.lost for tr in self.tracks):
             acquired = self._acquire(image, clock)
 
@@ -178,6 +146,10 @@ class Pipeline:
         t0 = time.perf_counter()
         exclude = [self._exclusion_box(tr.box, image.shape) for tr in self.tracks if tr.box is not None]
         self.background.refresh(image, exclude)
+        if self.white is None:
+            self.white = LocalWhite(self.background.reference, self.background.valid)
+        elif self._frames % WHITE_REFRESH_FRAMES == 0:
+            self.white.update(self.background.reference, self.background.valid)
         clock.add("reference", time.perf_counter() - t0)
 
         self._frames += 1
@@ -195,21 +167,10 @@ class Pipeline:
         self.maps = PlaneGrid(self.calibration, (w, h))
         period = max(1, round(self.config.background_refresh_s * self.config.fps))
         self.background = BackgroundModel((h, w), period, self._empty_scene)
-        self.acquire_scale = self._acquisition_scale()
-
-    def _acquisition_scale(self) -> int:
-        """The acquisition pass's downscale: as coarse as ``acquire_scale`` allows while the smallest marker in
-        the working area stays two low-resolution pixels across or more (4 for the paper's 1280x720 view, whose
-        far-side markers are about 21 x 9 px; less for a smaller image or a farther camera)."""
-        assert self.maps is not None
-        x0, y0, x1, y1 = getattr(self.calibration, "area_cm", None) or (0.0, 0.0, AREA_WIDTH_CM, AREA_LENGTH_CM)
-        grid = self.maps
-        inside = (grid.area_cm2 > 0) & (grid.x_cm >= x0) & (grid.x_cm <= x1) & (grid.y_cm >= y0) & (grid.y_cm <= y1)
-        if not inside.any():
-            return self.config.acquire_scale
-        smallest_px = self.config.marker_area_cm2 / float(grid.area_cm2[inside].max())
-        short_side_px = math.sqrt(smallest_px / 2.5)  # perspective flattens far markers up to about 2.5:1
-        return max(1, min(self.config.acquire_scale, int(short_side_px / 2.0)))
+        self.white = LocalWhite(self._empty_scene, np.ones((h, w), bool)) if self._empty_scene is not None else None
+        self.acquire_scale = acquisition_scale(
+            self.config.marker_area_cm2, self.config.acquire_scale, self.maps, self.calibration
+        )
 
     def _dt(self, frame: Frame) -> float:
         nominal = 1.0 / self.config.fps
@@ -220,14 +181,7 @@ class Pipeline:
         return dt if 0.0 < dt < 5.0 else nominal
 
     # -- tracking in a window -----------------------------------------------------------------------------------
-    def _expected_area(self, tr: _RoverTrack) -> float:
-        if len(tr.areas) >= 10:
-            learned = float(np.median(tr.areas))
-            nominal = self.config.marker_area_cm2
-            return min(max(learned, 0.5 * nominal), 2.0 * nominal)
-        return self.config.marker_area_cm2
-
-    def _track(self, image: NDArray[np.uint8], tr: _RoverTrack, clock: StageTimes) -> _Observation | None:
+    def _track(self, image: NDArray[np.uint8], tr: RoverTrack, clock: StageTimes) -> Observation | None:
         assert tr.filter is not None
         x, y = tr.filter.position
         sigma = min(tr.filter.position_sigma_cm, 30.0)
@@ -241,59 +195,44 @@ class Pipeline:
         return self._measure(image, tr, box, uv, clock)
 
     def _window_box(
-        self,
-        xy_cm: tuple[float, float],
-        radius_cm: float,
-        shape: tuple[int, ...],
-        hint_uv: tuple[float, float] | None,
+        self, xy_cm: tuple[float, float], radius_cm: float, shape: tuple[int, ...], hint_uv: tuple[float, float] | None
     ) -> tuple[tuple[int, int, int, int] | None, tuple[float, float]]:
-        """Pixel box around the world circle ``xy_cm``/``radius_cm`` on the plane, clipped to the image.
-
-        Projected through the local plane map near ``hint_uv`` (the rover's last image position) instead of the
-        full calibration: a few multiplications instead of a lens model per point.
-        """
         assert self.maps is not None
-        if hint_uv is None:
-            centre = np.asarray(self.calibration.world_to_pixel(np.array([xy_cm])), dtype=np.float64)[0]
-            hint_uv = (float(centre[0]), float(centre[1]))
-        local = self.maps.at(*hint_uv)
-        if local is None:
-            return None, (math.nan, math.nan)
-        u, v, _, _ = local.pixel_of(*xy_cm)
-        better = self.maps.at(u, v)
-        if better is None:
-            return None, (u, v)
-        u, v, su, sv = better.pixel_of(*xy_cm)
-        # The image of the circle is an ellipse whose bounding box, to first order, is this (the margin covers
-        # the perspective's second order).
-        h, w = shape[:2]
-        pad = _WINDOW_PAD_PX
-        x0 = max(0, math.floor(u - radius_cm * su) - pad)
-        y0 = max(0, math.floor(v - radius_cm * sv) - pad)
-        x1 = min(w, math.ceil(u + radius_cm * su) + pad + 1)
-        y1 = min(h, math.ceil(v + radius_cm * sv) + pad + 1)
-        if x1 - x0 < 4 or y1 - y0 < 4:
-            return None, (u, v)
-        return (x0, y0, x1, y1), (u, v)
+        return window_box(self.maps, self.calibration, xy_cm, radius_cm, shape, hint_uv)
 
     def _measure(
         self,
         image: NDArray[np.uint8],
-        tr: _RoverTrack,
+        tr: RoverTrack,
         box: tuple[int, int, int, int],
         uv: tuple[float, float],
         clock: StageTimes,
         tracker: WindowTracker | None = None,
-    ) -> _Observation | None:
+    ) -> Observation | None:
         assert self.background is not None and self.maps is not None
         window = prepare_window(
-            image, box, tr.index, uv, self.colors, self.maps, self.background, self.config.background_threshold, clock
+            image,
+            box,
+            rover_index=tr.index,
+            predicted_uv=uv,
+            colors=self.colors,
+            maps=self.maps,
+            background=self.background,
+            background_threshold=self.config.background_threshold,
+            clock=clock,
+            white=self.white,
         )
         if window is None:
             return None
-        learned = len(tr.areas) >= 10
-        model = RoverModel(tr.index, self._expected_area(tr), tr.level)
+        learned = tr.learned
+        model = RoverModel(tr.index, tr.expected_area(self.config.marker_area_cm2), tr.level)
         m = (tracker or self.tracker).measure(window, model, clock)
+        if m is not None and tr.config.front_color_bgr is None:
+            t0 = time.perf_counter()
+            size = (self.config.marker_length_cm, self.config.marker_width_cm)
+            refine = refine_outline if self.config.outline_fit else refine_axis
+            m = refine(window, m, size, tr.index)
+            clock.add("outline", time.perf_counter() - t0)
         if m is None or not self._plausible(m, model.marker_area_cm2, learned, tr):
             return None
         if tr.config.front_color_bgr is not None:
@@ -304,9 +243,9 @@ class Pipeline:
         # Measurement covariance: the pixel noise seen through the local scale of the plane mapping.
         jac = window.local.jacobian(*m.uv_px)
         sigma = self.config.measurement_sigma_px
-        return _Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + np.eye(2) * 1e-4)
+        return Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + np.eye(2) * 1e-4)
 
-    def _two_tone(self, window: Window, m: Measurement, tr: _RoverTrack) -> Measurement | None:
+    def _two_tone(self, window: Window, m: Measurement, tr: RoverTrack) -> Measurement | None:
         """A two-tone marker (``edge.two_tone``): the heading from the coloured part's edges and the light end, and
         the marker's centre (the coloured part covers only the rear ``1 - front_fraction`` of the marker, so its
         centroid lies ``front_fraction * length / 2`` behind the centre, along the heading).
@@ -328,20 +267,18 @@ class Pipeline:
                 others |= (wx - ox) ** 2 + (wy - oy) ** 2 <= reach * reach
         geometry = TwoToneGeometry(self.config.marker_length_cm, self.config.marker_width_cm, tr.config.front_fraction)
         jacobian = window.local.jacobian(*m.uv_px)
-        view = view_marker(
-            window.bgr,
-            window.lum,
-            window.plane,
-            window.classes == tr.index,
-            wx,
-            wy,
-            m.xy_cm,
-            jacobian,
-            geometry,
-            others,
-            m.weights,
-            self.maps.area_cm2[y0:y1, x0:x1],
+        pixels = MarkerPixels(
+            bgr=window.bgr,
+            lum=window.lum,
+            plane=window.plane,
+            own=window.classes == tr.index,
+            x_cm=wx,
+            y_cm=wy,
+            others=others,
+            coverage=m.weights,
+            area_cm2=self.maps.area_cm2[y0:y1, x0:x1],
         )
+        view = view_marker(pixels, m.xy_cm, jacobian, geometry)
         heading = tr.two_tone.update(view)
         if heading is None:
             return None
@@ -355,14 +292,16 @@ class Pipeline:
         centre = (part[0] + shift * math.cos(heading), part[1] + shift * math.sin(heading))
         return replace(m, xy_cm=centre)
 
-    def _plausible(self, m: Measurement, expected_area_cm2: float, learned: bool, tr: _RoverTrack) -> bool:
+    def _plausible(self, m: Measurement, expected_area_cm2: float, learned: bool, tr: RoverTrack) -> bool:
         """Is this blob the whole marker? Its area on the plane, its shape, its colour's strength, and not cut off
         by the image border.
 
         A partly hidden or cut-off marker would give a biased centre, and a blob of the right hue but the wrong
         size, shape or colour strength (dark clothes, a poster, a reflection) is not a marker: both are reported
-        as missing instead. The colour strength (the marker's level in its plane) may follow the light within
-        ``level_range`` of the configured colour, and from frame to frame within a factor of two.
+        as missing instead. A marker whose outline was fitted (``Measurement.outlined``) has shown its size and shape
+        edge by edge; the blob's area, noisier in a compressed stream, is then not needed. The colour strength (the
+        marker's level in its plane) may follow the light within ``level_range`` of the configured colour, and from
+        frame to frame within a factor of two.
         """
         if m.at_image_edge:
             return False
@@ -372,9 +311,11 @@ class Pipeline:
             return False
         if tr.level > 0 and not 0.5 <= m.level / tr.level <= 2.0:
             return False
+        if m.outlined:
+            return True  # its four edges were found where a whole marker of its size has them
         ratio = m.area_cm2 / expected_area_cm2
         low, high = (
-            (self.config.min_area_fraction, self.config.max_area_fraction)
+            tr.area_band(expected_area_cm2, self.config.min_area_fraction, self.config.max_area_fraction)
             if learned
             else self.config.acquire_area_range
         )
@@ -386,37 +327,32 @@ class Pipeline:
         return m.elongation <= aspect * self.config.max_elongation_factor
 
     # -- acquisition (low resolution) ---------------------------------------------------------------------------
-    def _acquire(self, image: NDArray[np.uint8], clock: StageTimes) -> dict[int, _Observation]:
-        """Find lost rovers from a 1/``acquire_scale`` resolution pass, then measure them at full resolution."""
+    def _acquire(self, image: NDArray[np.uint8], clock: StageTimes) -> dict[int, Observation]:
+        """Find lost rovers from a 1/``acquire_scale`` resolution pass (``edge.acquisition``), then measure them at
+        full resolution."""
         t0 = time.perf_counter()
         s = self.acquire_scale
-        h, w = image.shape[:2]
-        small = (
-            np.asarray(cv2.resize(image, (w // s, h // s), interpolation=cv2.INTER_AREA), np.uint8) if s > 1 else image
-        )
-        c1, c2, lum = opponent_planes(small)
-        classes = self.colors.classify(c1, c2, lum)
+        classes = low_resolution_classes(image, s, self.colors, self.white)
         clock.add("acquire", time.perf_counter() - t0)
-        found: dict[int, _Observation] = {}
+        found: dict[int, Observation] = {}
         # Where the tracked rovers are: a candidate there is another rover's marker seen in a confusable hue.
         taken = [tr.filter.position for tr in self.tracks if tr.filter is not None]
+        slack = self.config.marker_radius_cm + self.config.window_margin_cm
         for tr in self.tracks:
             if tr.filter is not None:
                 continue
             t1 = time.perf_counter()
-            mask = (classes == tr.index).view(np.uint8)
-            n, _, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
-            order: list[int] = (np.argsort(-stats[1:, cv2.CC_STAT_AREA])[:6] + 1).tolist() if n > 1 else []
+            places = candidates(classes, tr.index, s)
             clock.add("acquire", time.perf_counter() - t1)
-            for label in order:
-                if stats[label, cv2.CC_STAT_AREA] < 1:
-                    continue
-                u, v = (float(cents[label, 0]) + 0.5) * s - 0.5, (float(cents[label, 1]) + 0.5) * s - 0.5
+            for u, v in places:
                 xy = self.calibration.pixel_to_world(np.array([[u, v]]))[0]
                 if not np.all(np.isfinite(xy)):
                     continue
                 if any(math.hypot(xy[0] - p[0], xy[1] - p[1]) < self.config.marker_radius_cm for p in taken):
                     continue
+                speed = self.config.max_speed_cm_s
+                if speed is not None and not tr.within_reach((float(xy[0]), float(xy[1])), self._time_s, speed, slack):
+                    continue  # farther than the rover could have driven since it was last seen: not it
                 radius = self.config.marker_radius_cm + self.config.window_margin_cm + 2.0 * s
                 box, _ = self._window_box((float(xy[0]), float(xy[1])), radius, image.shape, (u, v))
                 if box is None:
@@ -431,7 +367,7 @@ class Pipeline:
                 break
         return found
 
-    def _lose(self, tr: _RoverTrack) -> None:
+    def _lose(self, tr: RoverTrack) -> None:
         tr.filter = None
         tr.box = None
         tr.uv = None
@@ -441,7 +377,7 @@ class Pipeline:
 
     # -- filtering, identity, heading ---------------------------------------------------------------------------
     def _estimates(
-        self, measured: dict[int, _Observation], acquired: dict[int, _Observation], clock: StageTimes
+        self, measured: dict[int, Observation], acquired: dict[int, Observation], clock: StageTimes
     ) -> tuple[RoverEstimate, ...]:
         """Fuse this frame's measurements into the filters (new filters for rovers just acquired)."""
         t0 = time.perf_counter()
@@ -464,11 +400,12 @@ class Pipeline:
             assert tr.filter is not None
             tr.misses = 0
             tr.uv = m.uv_px
+            tr.seen = (m.xy_cm[0], m.xy_cm[1], self._time_s)
             tr.level = m.level if tr.level <= 0.0 else 0.8 * tr.level + 0.2 * m.level
             if m.quality > 0.8:
                 tr.areas.append(m.area_cm2)
             vel = tr.filter.velocity
-            theta = self._heading(tr, vel)
+            theta = self._heading(tr, vel, m)
             x, y = tr.filter.position
             out.append(
                 RoverEstimate(
@@ -489,60 +426,27 @@ class Pipeline:
         return tuple(out)
 
     @staticmethod
-    def _quality(tr: _RoverTrack, m: Measurement) -> float:
+    def _quality(tr: RoverTrack, m: Measurement) -> float:
         """The measurement's quality; for a two-tone marker scaled down (to half) while the evidence for which end
         is its front is weak, since the centre is placed by that end."""
         if tr.config.front_color_bgr is None:
             return m.quality
         return m.quality * (0.5 + 0.5 * min(1.0, max(0.0, tr.two_tone.evidence)))
 
-    def _heading(self, tr: _RoverTrack, vel: tuple[float, float] | None) -> float | None:
+    def _heading(self, tr: RoverTrack, vel: tuple[float, float] | None, m: Measurement) -> float | None:
         """A two-tone marker's own heading while the evidence for its front end is strong (else None: the
         direction of motion would be the opposite of the body's whenever the rover backs up); for a one-colour
-        marker the direction of motion while moving, else None."""
+        marker its long axis pointed the way it drives, or kept from the last heading while it stands or turns on
+        the spot (``edge.filtering.axis_heading``)."""
         if tr.config.front_color_bgr is not None:
             return tr.two_tone.heading_rad if tr.two_tone.confident else None
-        if vel is None:
-            return None
-        speed = math.hypot(*vel)
-        if speed < self.config.heading_min_speed_cm_s:
-            return None
-        return math.atan2(vel[1], vel[0])
+        square = abs(self.config.marker_length_cm - self.config.marker_width_cm) < 0.05 * self.config.marker_length_cm
+        axis = None if square else m.axis_rad
+        tr.theta_rad = axis_heading(axis, vel, tr.theta_rad, self.config.heading_min_speed_cm_s)
+        return tr.theta_rad
 
     def _exclusion_box(self, box: tuple[int, int, int, int], shape: tuple[int, ...]) -> tuple[int, int, int, int]:
         """The search window grown to cover the rover's body below and around the marker."""
         x0, y0, x1, y1 = box
         gw, gh = (x1 - x0) // 2, (y1 - y0) // 2
         return max(0, x0 - gw), max(0, y0 - gh), min(shape[1], x1 + gw), min(shape[0], y1 + 2 * gh)
-
-
-def prepare_window(
-    image: NDArray[np.uint8],
-    box: tuple[int, int, int, int],
-    rover_index: int,
-    predicted_uv: tuple[float, float],
-    colors: ColorModel,
-    maps: PlaneGrid,
-    background: BackgroundModel,
-    background_threshold: float,
-    clock: StageClock,
-) -> Window | None:
-    """The per-window stages before a tracker runs: colour planes, hue classes, background subtraction (eq. 2)."""
-    x0, y0, x1, y1 = box
-    t0 = time.perf_counter()
-    crop = image[y0:y1, x0:x1]
-    c1, c2, lum = opponent_planes(crop)  # RGB colour planes extraction, generalised to N colours
-    classes = colors.classify(c1, c2, lum)
-    plane = colors.plane(rover_index, c1, c2)
-    t1 = time.perf_counter()
-    clock.add("planes", t1 - t0)
-    valid = background.valid[y0:y1, x0:x1]
-    reference = background.reference[y0:y1, x0:x1] if valid.any() else None
-    local = maps.at(0.5 * (x0 + x1), 0.5 * (y0 + y1))
-    clock.add("calibration", time.perf_counter() - t1)
-    if local is None:
-        return None
-    size = (image.shape[1], image.shape[0])
-    return Window(
-        box, crop, c1, c2, lum, classes, plane, reference, valid, maps, local, predicted_uv, size, background_threshold
-    )

@@ -40,6 +40,22 @@ HUE_BINS = 720  # 0.5 degree resolution of the hue look-up table
 NO_ROVER = -1
 
 
+# -- linear light ------------------------------------------------------------------------------------------------
+def _srgb_to_linear() -> NDArray[np.float32]:
+    v = np.arange(256, dtype=np.float64) / 255.0
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+# 8-bit value -> linear light (0..1): webcams encode with the sRGB tone curve (or BT.709, or a power law near 2.2,
+# all within a few per cent of it); light mixes linearly, 8-bit values do not.
+LINEAR = _srgb_to_linear()
+
+
+def linear_bgr(bgr: U8) -> F32:
+    """(h, w, 3) uint8 BGR -> (h, w, 3) float32 linear light through :data:`LINEAR`."""
+    return np.asarray(cv2.LUT(bgr, LINEAR), dtype=np.float32)
+
+
 # -- colour planes -----------------------------------------------------------------------------------------------
 def chroma_of_bgr(color_bgr: Sequence[float]) -> tuple[float, float, float]:
     """``(c1, c2, luminance)`` of one BGR colour (0-255): the opponent chroma and the mean of the channels."""
@@ -370,14 +386,16 @@ def coverage_weights(
 
     Pixels of the core's interior are fully covered (1, even under a glare spot that hole filling closed). A pixel
     within ``ring_px`` of the core's edge sees a mix of the marker ``M`` and what surrounds it: the bright floor
-    ``F`` or the dark rover body ``D``. Its colour is ``p = a M + b F + (1 - a - b) D``, linear in the shares, so
-    three colour channels give the marker's share ``a`` by least squares (linear unmixing). ``M`` is the mean
-    of the interior's ``pure`` pixels (glare excluded), ``D`` and ``F`` the means of the darker and brighter
-    halves of a band just outside the ring. Being linear, the shares keep the marker's centroid where it is under
-    optical blur and under the half-resolution chroma of JPEG/H.264 (which a binary mask or a hue test would cut
-    off on one side), to a small fraction of a pixel: a far-side marker is only 9 pixels tall. Shares below 0 are
-    kept (down to -0.5) so noise on background pixels averages out instead of biasing. ``exclude``: pixels of
-    something else (another rover's marker).
+    ``F`` or the dark rover body ``D``. In *linear* light (the camera's tone curve undone: light mixes linearly,
+    8-bit values do not) its colour is ``p = a M + b F + (1 - a - b) D``, so three colour channels give the
+    marker's share ``a`` by least squares (linear unmixing). ``M`` is the mean of the interior's ``pure`` pixels
+    (glare excluded), ``D`` and ``F`` the means of the darker and brighter halves of a band just outside the ring.
+    Shares below 0 are kept (down to -0.5) so noise on background pixels averages out instead of biasing.
+    ``exclude``: pixels of something else (another rover's marker). ``lum_roi`` is not used (kept for callers).
+
+    Unmixed in the camera's 8-bit values instead, a pixel half covered by the black body looked 73 % marker: the
+    edge moved out on the dark side (towards the camera, where the body's side shows), by 0.4 cm with a 1.2 px blur.
+    The outline fit (``edge.outline``) refines the centre further; these shares give the area and its start.
     """
     weights = core.astype(np.float32)
     region = dilate(core, ring_px)
@@ -388,27 +406,34 @@ def coverage_weights(
     interior = erode(core, 1)
     if not interior.any():
         interior = core
-    lum_outer = lum_roi[outer]
-    if lum_outer.size < 4:
+    if int(outer.sum()) < 4:
         return weights
+    lin = linear_bgr(bgr_roi)
+    lum = lin.sum(axis=2)
     sample = interior & pure if pure is not None else interior
-    marker = _mean_bgr(bgr_roi, sample if sample.any() else interior)
+    marker = _mean(lin, sample if sample.any() else interior)
+    lum_outer = lum[outer]
     half = lum_outer.size // 2
     cut = np.float32(np.partition(lum_outer, half)[half])
-    dark = _mean_bgr(bgr_roi, outer & (lum_roi <= cut))
-    bright = _mean_bgr(bgr_roi, outer & (lum_roi >= cut))
+    dark = _mean(lin, outer & (lum <= cut))
+    bright = _mean(lin, outer & (lum >= cut))
     a_vec, b_vec = marker - dark, bright - dark
     aa, ab = float(a_vec @ a_vec), float(a_vec @ b_vec)
     bb = float(b_vec @ b_vec) + 1e-3 * aa  # ridge: floor and body alike (no floor in view) is not singular
     det = aa * bb - ab * ab
-    if aa <= 1.0 or det <= 1e-9:
+    if aa <= 1e-6 or det <= 1e-14:
         return weights
     ring = region & ~interior
-    p = bgr_roi[ring].astype(np.float64) - dark
+    p = lin[ring].astype(np.float64) - dark
     share = ((p @ a_vec) * bb - (p @ b_vec) * ab) / det
     weights[ring] = np.clip(share, -0.5, 1.0)
     weights[interior] = 1.0
     return weights
+
+
+def _mean(values: F32, mask: BoolArray) -> NDArray[np.float64]:
+    """(3,) mean of the masked pixels of an (h, w, 3) image."""
+    return np.asarray(values[mask].mean(axis=0), dtype=np.float64) if mask.any() else np.zeros(3)
 
 
 def _mean_bgr(bgr_roi: U8, mask: BoolArray) -> NDArray[np.float64]:

@@ -109,6 +109,19 @@ class TrackerSettings(BaseModel):
     max_elongation_factor: float = Field(
         default=1.5, ge=1.0, description="A blob more elongated than the marker's own aspect times this is not it."
     )
+    max_speed_cm_s: float | None = Field(
+        default=None,
+        gt=0.0,
+        description="Fastest a rover drives: a lost rover is looked for again only as far from where it was last "
+        "seen as it could have driven since (something of its hue farther away, a shirt or a box, is not it); "
+        "unset: anywhere (a rover carried elsewhere, or a video that starts again, is found at once).",
+    )
+    outline_fit: bool = Field(
+        default=False,
+        description="Centre of a one-colour marker from its fitted outline (edges in linear light) instead of its "
+        "coverage centroid: less colour-dependent bias on some cameras, but about 3.5x the tracking time per frame; a "
+        "fitted marker skips the area and shape checks (its edges showed its size).",
+    )
     heading_min_speed_cm_s: float = Field(default=3.0, ge=0.0, description="Slowest motion that gives a heading.")
     accel_sigma_cm_s2: float = Field(default=40.0, gt=0.0, description="Filter process noise (acceleration).")
     measurement_sigma_px: float = Field(default=0.15, gt=0.0, description="Marker centre noise in pixels.")

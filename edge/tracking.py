@@ -71,6 +71,19 @@ class Tracker(Protocol):
         ...
 
 
+class StageClock(Protocol):
+    """Accumulates the time of named stages (Table IV rows). ``edge.tracking.StageTimes`` implements it."""
+
+    def add(self, stage: str, seconds: float) -> None: ...
+
+
+class NullClock:
+    """A :class:`StageClock` that records nothing."""
+
+    def add(self, stage: str, seconds: float) -> None:
+        return None
+
+
 class StageTimes:
     """Accumulated wall time per named stage within one frame (the rows of the paper's Table IV)."""
 

@@ -167,27 +167,35 @@ def end_strip_scores(
     return out[0], out[1], out[2], out[3]
 
 
-def view_marker(
-    bgr: U8,
-    lum: F32,
-    plane: F32,
-    own: BoolArray,
-    x_cm: FloatArray,
-    y_cm: FloatArray,
-    centroid_cm: tuple[float, float],
-    jacobian_cm_per_px: FloatArray,
-    geometry: TwoToneGeometry,
-    others: BoolArray | None = None,
-    coverage: F32 | None = None,
-    area_cm2: FloatArray | None = None,
-) -> TwoToneView | None:
-    """One frame's view of a two-tone marker in a tracker window (all arrays (h, w), the window's pixels).
+@dataclass(frozen=True, kw_only=True)
+class MarkerPixels:
+    """A tracker window's pixels as :func:`view_marker` reads them (every array (h, w), the window's pixels).
 
-    ``own``: pixels of the rover's hue class; ``others``: pixels of other rovers (their hue, or near their
-    positions); ``coverage`` and ``area_cm2``: the tracker's coverage of each pixel by the coloured part and each
-    pixel's area on the plane (for the shape prior; none without them). None when the coloured part is not in the
-    window.
+    ``bgr``, ``lum``, ``plane``: the window seen under the configured white, its luminance and the rover's colour
+    plane; ``own``: pixels of the rover's hue class; ``x_cm``, ``y_cm``: each pixel centre on the plane;
+    ``others``: pixels of other rovers (their hue, or near their positions); ``coverage`` and ``area_cm2``: the
+    tracker's coverage of each pixel by the coloured part and each pixel's area on the plane (for the shape prior;
+    none without them).
     """
+
+    bgr: U8
+    lum: F32
+    plane: F32
+    own: BoolArray
+    x_cm: FloatArray
+    y_cm: FloatArray
+    others: BoolArray | None = None
+    coverage: F32 | None = None
+    area_cm2: FloatArray | None = None
+
+
+def view_marker(
+    pixels: MarkerPixels, centroid_cm: tuple[float, float], jacobian_cm_per_px: FloatArray, geometry: TwoToneGeometry
+) -> TwoToneView | None:
+    """One frame's view of a two-tone marker in a tracker window whose coloured part's centroid is
+    ``centroid_cm``. None when the coloured part is not in the window."""
+    bgr, lum, plane, own, others = pixels.bgr, pixels.lum, pixels.plane, pixels.own, pixels.others
+    x_cm, y_cm, coverage, area_cm2 = pixels.x_cm, pixels.y_cm, pixels.coverage, pixels.area_cm2
     half_diag = 0.5 * math.hypot(geometry.coloured_length_cm, geometry.width_cm)
     d2 = (x_cm - centroid_cm[0]) ** 2 + (y_cm - centroid_cm[1]) ** 2
     part = own & (d2 <= (half_diag + 1.0) ** 2)

@@ -123,3 +123,32 @@ def test_position_uncertainty_grows_while_coasting():
     for _ in range(10):
         f.predict(DT)
     assert f.position_sigma_cm > 2.0 * sigma
+
+
+@pytest.mark.parametrize(
+    ("axis_deg", "velocity", "last_deg", "expected_deg"),
+    [
+        (30.0, (10.0, 6.0), None, 30.0),  # moving along the axis
+        (30.0, (-10.0, -6.0), None, -150.0),  # moving the other way: the axis points back
+        (-150.0, (10.0, 6.0), 100.0, 30.0),  # the motion decides while moving, not the last heading
+        (95.0, (0.5, 0.0), 80.0, 95.0),  # standing (turning on the spot): the end nearest the last heading
+        (95.0, None, -80.0, -85.0),
+        (95.0, None, None, None),  # never moved: no front known
+        (None, (0.0, 12.0), 10.0, 90.0),  # no axis (a square marker): the direction of motion
+        (None, (0.5, 0.0), 10.0, None),
+    ],
+)
+def test_a_one_colour_markers_heading_is_its_axis_pointed_by_the_motion(axis_deg, velocity, last_deg, expected_deg):
+    from edge.filtering import axis_heading
+
+    got = axis_heading(
+        None if axis_deg is None else math.radians(axis_deg),
+        velocity,
+        None if last_deg is None else math.radians(last_deg),
+        3.0,
+    )
+    if expected_deg is None:
+        assert got is None
+    else:
+        assert got is not None
+        assert math.degrees(math.remainder(got - math.radians(expected_deg), math.tau)) == pytest.approx(0.0, abs=1e-9)

@@ -16,14 +16,12 @@ from edge.sim.effects import (
     Flicker,
     Occluder,
     SensorNoise,
-    auto_exposure_gains,
-    flicker_amplitude,
-    noise_sigma_lut,
 )
 from edge.sim.raster import polygon_centroid
 from edge.sim.render import Renderer
 from edge.sim.scenarios import build, lens_camera
 from edge.sim.scene import RoverLook, Scene, fleet_looks, marker_albedo_for_hue
+from edge.sim.sensor import auto_exposure_gains, flicker_amplitude, noise_sigma_lut
 from edge.sim.world import RoverState, WorldState
 from tests.support.sim import black_scene, clean_effects, linear
 

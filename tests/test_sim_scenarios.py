@@ -13,7 +13,7 @@ from edge.sim.scenarios import SCENARIOS, build, get_scenario
 from edge.sim.source import SimSource
 from tests.support.sim import min_body_gap_cm
 
-NAMES = ["lab", "drift", "sun", "cross", "occlusion", "lens", "crowd"]
+NAMES = ["lab", "drift", "sun", "cross", "occlusion", "lens", "crowd", "daylight"]
 
 
 def test_the_issues_scenarios_are_all_there_with_one_line_of_help():
@@ -56,7 +56,7 @@ def test_seeds_vary_the_runs(name):
     assert a != b
 
 
-@pytest.mark.parametrize("name", ["lab", "drift", "sun", "cross", "lens", "crowd"])
+@pytest.mark.parametrize("name", ["lab", "drift", "sun", "cross", "lens", "crowd", "daylight"])
 def test_rovers_stay_on_the_floor_in_view(name):
     setup = build(name, seed=5)
     world = setup.world()

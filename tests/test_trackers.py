@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from edge.camera import MARKER_HEIGHT_CM
-from edge.pipeline import prepare_window
 from edge.segmentation import BackgroundModel, ColorModel
 from edge.tracker_config import TrackerConfig
 from edge.trackers import METHODS, make_tracker
 from edge.trackers.base import NullClock, PlaneGrid, RoverModel, world_blob
+from edge.trackers.window import prepare_window
 from edge.tracking import StageTimes
 from tests.support.track import COLORS, SynthRover, shared_scene
 
@@ -32,7 +32,17 @@ def measure(method, image, rover: SynthRover, offset_px=(0.0, 0.0), background=N
     us, vs = local.to_pixel(rover.x + r * np.array([-1, 1, 1, -1.0]), rover.y + r * np.array([-1, -1, 1, 1.0]))
     box = (int(us.min()) - 3, int(vs.min()) - 3, int(us.max()) + 4, int(vs.max()) + 4)
     bg = BackgroundModel(image.shape[:2], 100, background)
-    window = prepare_window(image, box, 0, (float(uv[0]), float(uv[1])), colors, maps, bg, 0.2, NullClock())
+    window = prepare_window(
+        image,
+        box,
+        rover_index=0,
+        predicted_uv=(float(uv[0]), float(uv[1])),
+        colors=colors,
+        maps=maps,
+        background=bg,
+        background_threshold=0.2,
+        clock=NullClock(),
+    )
     assert window is not None
     tracker = tracker or make_tracker(method)
     return tracker.measure(window, RoverModel(0, MARKER_AREA, 0.0), StageTimes())
@@ -172,3 +182,37 @@ def test_no_marker_in_the_window_gives_no_measurement(method):
 def test_unknown_tracker_name_is_refused():
     with pytest.raises(ValueError, match="unknown tracking method"):
         make_tracker("kalman")
+
+
+def test_particles_choose_the_marker_nearest_the_prediction_in_a_window_far_from_the_image_origin():
+    """Two markers of the same hue in one window (a rover meeting a red poster): the one the filter predicted is
+    measured, wherever in the image the window lies (the particles' centres are in window pixels, the prediction
+    in image pixels)."""
+    scene = shared_scene()
+    a = SynthRover("red", 200.0, 250.0, 0.0, COLORS["red"])
+    b = SynthRover("red", 245.0, 290.0, 0.0, COLORS["red"])
+    image = scene.render([a, b], noise_sigma=2.0, rng=np.random.default_rng(3))
+    uv = scene.camera.project(np.array([[r.x, r.y, MARKER_HEIGHT_CM] for r in (a, b)]))
+    lo, hi = uv.min(axis=0), uv.max(axis=0)
+    box = (int(lo[0]) - 40, int(lo[1]) - 40, int(hi[0]) + 41, int(hi[1]) + 41)
+    config = TrackerConfig(rovers=(a.config(), SynthRover("other", 0, 0, 0, COLORS["blue"]).config()))
+    colors = ColorModel.from_colors([r.color_bgr for r in config.rovers], 30.0, 0.35)
+    maps = PlaneGrid(scene.mapping, (image.shape[1], image.shape[0]))
+    bg = BackgroundModel(image.shape[:2], 100)
+    for target in (a, b):
+        i = 0 if target is a else 1
+        window = prepare_window(
+            image,
+            box,
+            rover_index=0,
+            predicted_uv=(float(uv[i, 0]), float(uv[i, 1])),
+            colors=colors,
+            maps=maps,
+            background=bg,
+            background_threshold=0.2,
+            clock=NullClock(),
+        )
+        assert window is not None
+        m = make_tracker("particles").measure(window, RoverModel(0, MARKER_AREA, 0.0), StageTimes())
+        assert m is not None
+        assert math.hypot(m.xy_cm[0] - target.x, m.xy_cm[1] - target.y) < 0.3

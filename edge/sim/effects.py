@@ -5,14 +5,16 @@ image; the renderer (:mod:`edge.sim.render`) applies them. Light is handled in l
 the nominal exposure); the camera's tone curve (a power law, gamma 2.2) turns it into 8-bit values.
 
 Camera effects
-    exposure and tone curve, auto-exposure with lag, sensor read and shot noise (spatially correlated by
-    demosaicing), vignetting, motion blur over the exposure time, rolling flicker from mains lighting (each row is
-    exposed at a different moment of the lamps' 100/120 Hz ripple), JPEG compression. Lens distortion is part of the
-    camera model (:class:`edge.camera.PinholeCamera`).
+    exposure and tone curve, auto-exposure with lag, colour crosstalk and white balance, fixed or automatic with a
+    lag (:mod:`edge.sim.colour`), sensor read and shot noise (spatially correlated by demosaicing), vignetting,
+    motion blur over the exposure time, rolling flicker from mains lighting (each row is exposed at a different
+    moment of the lamps' 100/120 Hz ripple), JPEG compression with subsampled chroma. Lens distortion is part of the
+    camera model (:class:`edge.camera.PinholeCamera`). :mod:`edge.sim.cameras` draws whole cameras from a family.
 Scene effects
     global illumination drift and lamps switching, a sunlit window patch that changes strength and colour
     temperature as clouds pass, a specular glare of the sun on the glossy floor, a person walking in and standing in
-    the view for a while. Rovers leaving and re-entering the view are trajectories (:mod:`edge.sim.world`).
+    the view for a while, boxes left standing in the area. Rovers leaving and re-entering the view are trajectories
+    (:mod:`edge.sim.world`).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.errors import SimulationError
+from edge.sim.colour import AutoWhiteBalance, ColourResponse
 
 FloatArray = NDArray[np.float64]
 Bgr = tuple[float, float, float]
@@ -99,11 +102,27 @@ class Flicker:
     phase: float = 0.0
 
 
+CHROMA_SAMPLING = {
+    "4:4:4": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444,
+    "4:2:2": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422,
+    "4:2:0": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420,
+}
+
+
 @dataclass(frozen=True)
 class Compression:
-    """JPEG compression as an MJPG webcam delivers it, at ``quality`` (0-100)."""
+    """JPEG compression as an MJPG webcam delivers it, at ``quality`` (0-100), with its chroma sampled at
+    ``chroma`` (``4:2:2``: half the horizontal resolution, as webcams that encode their YUYV stream send it;
+    ``4:2:0``: half in both directions, libjpeg's default; ``4:4:4``: full)."""
 
     quality: int = 85
+    chroma: str = "4:2:0"
+
+    def __post_init__(self) -> None:
+        if self.chroma not in CHROMA_SAMPLING:
+            raise SimulationError(f"compression: chroma must be one of {', '.join(CHROMA_SAMPLING)}")
+        if not 1 <= self.quality <= 100:
+            raise SimulationError("compression: quality must be 1-100")
 
 
 # -- scene effects ----------------------------------------------------------------------------------------------
@@ -219,11 +238,27 @@ class Occluder:
 
 
 @dataclass(frozen=True)
+class Prop:
+    """A box put down in the area (a grey or white carton, a red crate) at ``appears_s`` and left there:
+    ``size_cm`` (length along ``heading_rad``, width, height) at ``(x_cm, y_cm)``, diffuse ``albedo_bgr``. It hides
+    what is behind it; it is part of the empty scene only from ``appears_s`` on."""
+
+    x_cm: float
+    y_cm: float
+    size_cm: tuple[float, float, float] = (40.0, 30.0, 30.0)
+    heading_rad: float = 0.0
+    albedo_bgr: Bgr = (0.55, 0.55, 0.55)
+    appears_s: float = 0.0
+
+
+@dataclass(frozen=True)
 class Effects:
     """Every effect of a scenario. ``None`` switches an effect off."""
 
     exposure: Exposure = Exposure()
     auto_exposure: AutoExposure | None = AutoExposure()
+    colour: ColourResponse = field(default_factory=ColourResponse)
+    auto_white_balance: AutoWhiteBalance | None = None
     noise: SensorNoise | None = SensorNoise()
     vignetting: Vignetting | None = Vignetting()
     optics: Optics | None = Optics()
@@ -234,11 +269,13 @@ class Effects:
     sun: SunPatch | None = None
     glare: Glare | None = None
     occluders: tuple[Occluder, ...] = field(default_factory=tuple)
+    props: tuple[Prop, ...] = field(default_factory=tuple)
 
     def describe(self) -> list[str]:
         """One line per active effect with its parameters (for ``scenario.json`` and the docs)."""
         lines = []
-        for name in ("exposure", "auto_exposure", "noise", "optics", "vignetting", "flicker", "compression", "drift"):
+        names = ("exposure", "auto_exposure", "colour", "auto_white_balance", "noise", "optics", "vignetting")
+        for name in (*names, "flicker", "compression", "drift"):
             value = getattr(self, name)
             if value is not None:
                 lines.append(f"{name}: {value}")
@@ -249,6 +286,7 @@ class Effects:
             if value is not None:
                 lines.append(f"{name}: {value}")
         lines.extend(f"occluder: {o}" for o in self.occluders)
+        lines.extend(f"prop: {p}" for p in self.props)
         return lines
 
 
@@ -277,41 +315,6 @@ def sun_state(sun: SunPatch | None, t_s: float) -> tuple[float, FloatArray]:
     return sun.strength * clear, colour
 
 
-def auto_exposure_gains(levels: FloatArray, ae: AutoExposure | None) -> FloatArray:
-    """(N,) exposure gain per frame for the scene brightness ``levels`` (N,) (1.0 = nominal).
-
-    Starts converged on frame 0's light; then follows with the configured delay and rate (in log terms).
-    """
-    levels = np.asarray(levels, dtype=np.float64)
-    if ae is None:
-        return np.ones_like(levels)
-    target = np.clip(1.0 / np.maximum(levels, 1e-6), ae.min_gain, ae.max_gain)
-    gains = np.empty_like(levels)
-    g = float(target[0]) if len(levels) else 1.0
-    for i in range(len(levels)):
-        seen = target[max(i - ae.delay_frames, 0)]
-        g = g * (seen / g) ** ae.rate
-        gains[i] = g
-    return gains
-
-
-def flicker_amplitude(flicker: Flicker | None, exposure_s: float) -> float:
-    """Band amplitude (relative) seen by a rolling shutter exposing each row for ``exposure_s``."""
-    if flicker is None:
-        return 0.0
-    x = 2.0 * flicker.mains_hz * exposure_s
-    sinc = 1.0 if x == 0 else math.sin(math.pi * x) / (math.pi * x)
-    return flicker.modulation * abs(sinc)
-
-
-def flicker_phase_rows(flicker: Flicker, t_s: float) -> float:
-    """Row offset (in rows, modulo the band period) of the flicker pattern in the frame captured at ``t_s``."""
-    period_rows = 1.0 / (2.0 * flicker.mains_hz * flicker.line_time_s)
-    cycles = 2.0 * flicker.mains_hz * t_s + flicker.phase / (2.0 * math.pi)
-    return (cycles % 1.0) * period_rows
-
-
-# -- pure functions of images ----------------------------------------------------------------------------------
 def vignetting_map(camera_matrix: FloatArray, width_px: int, height_px: int, vig: Vignetting | None) -> FloatArray:
     """(H, W) relative illumination of each pixel (1 on the optical axis)."""
     if vig is None:
@@ -323,111 +326,3 @@ def vignetting_map(camera_matrix: FloatArray, width_px: int, height_px: int, vig
     r2 = v[:, None] ** 2 + u[None, :] ** 2
     cos4 = 1.0 / (1.0 + r2) ** 2
     return np.asarray(1.0 - vig.strength * (1.0 - cos4))
-
-
-def blur_kernel(displacement_px: FloatArray, psf_sigma_px: float) -> NDArray[np.float32] | None:
-    """The blur of a moving object: its motion during the exposure (``displacement_px`` (2,), x, y) convolved with
-    the optics' Gaussian point spread; normalised; None when both are negligible."""
-    motion = motion_kernel(displacement_px)
-    if psf_sigma_px < 0.05:
-        return motion
-    half = math.ceil(3.0 * psf_sigma_px)
-    g = cv2.getGaussianKernel(2 * half + 1, psf_sigma_px, cv2.CV_64F)
-    psf = g @ g.T
-    if motion is None:
-        return psf.astype(np.float32)
-    # the motion line spread by the point spread: a (m + 2 half) square kernel
-    full = cv2.filter2D(np.pad(motion.astype(np.float64), half), -1, psf, borderType=cv2.BORDER_CONSTANT)
-    return (full / full.sum()).astype(np.float32)
-
-
-def motion_kernel(displacement_px: FloatArray) -> NDArray[np.float32] | None:
-    """Normalised line kernel for a blur of ``displacement_px`` (2,) (x, y) during the exposure; None if tiny."""
-    dx, dy = float(displacement_px[0]), float(displacement_px[1])
-    length = math.hypot(dx, dy)
-    if length < 0.05:
-        return None
-    half = math.ceil(0.5 * max(abs(dx), abs(dy))) + 1
-    size = 2 * half + 1
-    n = max(8, int(6 * length))
-    s = (np.arange(n) + 0.5) / n - 0.5
-    xs, ys = half + s * dx, half + s * dy
-    x0, y0 = np.floor(xs).astype(int), np.floor(ys).astype(int)
-    fx, fy = xs - x0, ys - y0
-    index = np.concatenate([(y0 + oy) * size + x0 + ox for oy in (0, 1) for ox in (0, 1)])
-    weight = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
-    kernel = np.bincount(index, weights=weight, minlength=size * size).reshape(size, size)
-    return (kernel / kernel.sum()).astype(np.float32)
-
-
-def jpeg_roundtrip(image: NDArray[np.uint8], quality: int) -> NDArray[np.uint8]:
-    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
-    if not ok:
-        raise SimulationError("JPEG encoding failed")
-    return np.asarray(cv2.imdecode(buf, cv2.IMREAD_COLOR), dtype=np.uint8)
-
-
-class NoiseBank:
-    """Precomputed unit Gaussian noise for a frame of ``shape``, read at random offsets each frame.
-
-    Drawing a million Gaussians per frame costs more than the whole frame budget; instead a bank a little larger
-    than the frame is drawn once and each frame reads it at a random offset and sign. The noise is applied as
-    ``sigma(value) * z`` with ``sigma`` from a 256-entry table (signal-dependent shot noise), in saturating uint8
-    arithmetic split into positive and negative parts.
-    """
-
-    MARGIN = 64
-    Z_SCALE = 16.0  # z stored in 1/16 units: up to 6 sigma in a uint8
-    SIGMA_SCALE = 16.0  # sigma table in 1/16 DN: up to ~16 DN
-
-    def __init__(self, shape: tuple[int, int, int], correlation: float, seed: int) -> None:
-        h, w, c = shape
-        rng = np.random.default_rng(np.random.SeedSequence([seed, 0x0015E]))
-        z = rng.standard_normal((h + self.MARGIN, w + self.MARGIN, c)).astype(np.float32)
-        if correlation > 0:
-            smooth = cv2.GaussianBlur(z, (3, 3), 0.8)
-            z = (1.0 - correlation) * z + correlation * smooth
-            z /= float(np.std(z))
-        q = np.clip(np.rint(z * self.Z_SCALE), -6 * self.Z_SCALE, 6 * self.Z_SCALE)
-        self.positive = np.maximum(q, 0).astype(np.uint8)
-        self.negative = np.maximum(-q, 0).astype(np.uint8)
-        self.shape = shape
-
-    def draw(self, rng: np.random.Generator) -> tuple[int, int, bool]:
-        """This frame's read of the bank: row and column offsets and whether the sign is flipped."""
-        oy, ox = (int(v) for v in rng.integers(0, self.MARGIN, 2))
-        return oy, ox, bool(rng.random() < 0.5)
-
-    def add(
-        self, rows: NDArray[np.uint8], row0: int, sigma_lut: NDArray[np.uint8], draw: tuple[int, int, bool]
-    ) -> None:
-        """Add noise in place to ``rows`` (a band of the frame starting at row ``row0``); ``sigma_lut`` (1, 256)
-        uint8 gives sigma per value in 1/16 DN; ``draw`` from :meth:`draw` (the same for every band of a frame)."""
-        oy, ox, flip = draw
-        n, w = rows.shape[0], rows.shape[1]
-        pos = self.positive[oy + row0 : oy + row0 + n, ox : ox + w]
-        neg = self.negative[oy + row0 : oy + row0 + n, ox : ox + w]
-        if flip:
-            pos, neg = neg, pos
-        sigma = cv2.LUT(rows, sigma_lut)
-        scale = 1.0 / (self.Z_SCALE * self.SIGMA_SCALE)
-        up = cv2.multiply(sigma, pos, scale=scale)
-        down = cv2.multiply(sigma, neg, scale=scale)
-        cv2.add(rows, up, dst=rows)
-        cv2.subtract(rows, down, dst=rows)
-
-
-def noise_sigma_lut(noise: SensorNoise, gain: float, gamma: float) -> NDArray[np.uint8]:
-    """(1, 256) uint8: noise sigma (1/16 DN) of each output value for a camera at analogue ``gain``.
-
-    Output linear value ``l`` came from a sensor signal ``l / gain``; its noise ``gain * sqrt(read^2 +
-    (l / gain) / full_well)`` is carried through the tone curve by its slope (capped near black, where real
-    cameras' curves turn linear). Value 255 gets none: it stands for every clipped (saturated) pixel.
-    """
-    values = np.arange(256, dtype=np.float64) / 255.0
-    lin = values**gamma
-    sigma_lin = gain * np.sqrt(noise.read_noise**2 + (lin / max(gain, 1e-9)) / noise.full_well)
-    slope = np.minimum(255.0 / gamma * np.maximum(lin, 1e-12) ** (1.0 / gamma - 1.0), 1500.0)
-    sigma_dn = sigma_lin * slope
-    sigma_dn[255] = 0.0  # a clipped pixel is saturated: full well, no noise left to see
-    return np.clip(np.rint(sigma_dn * NoiseBank.SIGMA_SCALE), 0, 255).astype(np.uint8).reshape(1, 256)

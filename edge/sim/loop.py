@@ -328,15 +328,15 @@ def run(
     """Run one experiment end to end and return what it recorded (the callbacks: :class:`LoopHooks`)."""
     from edge.publisher import MqttPublisher
     from edge.sim.render import Renderer
-    from edge.sim.scenarios import _rng, lab_effects
     from edge.sim.scene import Scene
+    from edge.sim.setup import lab_effects, scenario_rng
 
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x100B]))
     ids = fleet_ids(config.rovers)
     configs = [rover_config(rid) for rid in ids]
     camera = paper_camera()
     scene = Scene(rover_looks(configs, config.heading))
-    effects = lab_effects(_rng("lab", config.seed))
+    effects = lab_effects(scenario_rng("lab", config.seed))
     plans: dict[str, Plan] | None = None
     n_frames = config.n_frames
     drive = fleet_drive_model(configs, config.physics)

@@ -13,7 +13,8 @@ Design for speed (a 1280x720 frame with three rovers in a few milliseconds on on
 * JPEG only when the scenario asks for it.
 
 Linear light (1.0 = sensor white at the nominal exposure) is what surfaces reflect; compositing happens in linear
-light inside each window, so partly covered pixels mix light as a real pixel does.
+light inside each window, so partly covered pixels mix light as a real pixel does. The camera's own processing of
+that light is :mod:`edge.sim.sensor`; the shapes drawn (rectangles, boxes, marker parts) are :mod:`edge.sim.shapes`.
 """
 
 from __future__ import annotations
@@ -28,58 +29,36 @@ from numpy.typing import NDArray
 from edge.camera import PinholeCamera
 from edge.errors import SimulationError
 from edge.sim.backdrop import Backdrop, encode_linear, prerender
-from edge.sim.effects import (
-    Effects,
-    NoiseBank,
-    Occluder,
-    auto_exposure_gains,
-    blur_kernel,
-    drift_factor,
-    flicker_amplitude,
-    flicker_phase_rows,
-    jpeg_roundtrip,
-    noise_sigma_lut,
-    sun_state,
-)
+from edge.sim.colour import tone_encode
+from edge.sim.effects import Effects, Occluder, Prop, drift_factor, sun_state
 from edge.sim.raster import coverage, polygon_area
 from edge.sim.scene import RoverLook, Scene, aruco_cells, rectangle_cm
+from edge.sim.sensor import HEADROOM, CameraProcessing, exposure_blur
+from edge.sim.shapes import (
+    Box,
+    Window,
+    area_cm,
+    box_faces,
+    changing_region,
+    fill,
+    local,
+    marker_parts,
+    person_boxes,
+    prop_box,
+    subdivide,
+    sun_shadow,
+    window_around,
+)
 from edge.sim.world import RoverState, WorldState
 
 FloatArray = NDArray[np.float64]
 F32 = NDArray[np.float32]
 Image = NDArray[np.uint8]
 
-HEADROOM = 1.6  # linear light kept above sensor white until the final gain (glare, sun, over-exposure)
 SHADOW_STRENGTH = 0.55  # ambient occlusion under and around a rover's body
 SHADOW_MARGIN_CM = 3.0
 SHADOW_SIGMA_CM = 2.0
 SIDE_LIGHT = 0.5  # vertical faces receive about half the irradiance of horizontal ones under ceiling lamps
-MIN_MOTION_PX = 0.25  # shorter motion blurs are left to the optics' point spread
-ROW_BAND = 32  # rows per band in the whole-frame camera stage (fits the caches)
-WHITE_BGR = np.array([0.80, 0.82, 0.82])
-INK_BGR = np.array([0.04, 0.04, 0.045])
-
-
-@dataclass(frozen=True)
-class Window:
-    """A rectangle of the image: top-left pixel ``(x0, y0)`` and size."""
-
-    x0: int
-    y0: int
-    width: int
-    height: int
-
-    @property
-    def slices(self) -> tuple[slice, slice]:
-        return slice(self.y0, self.y0 + self.height), slice(self.x0, self.x0 + self.width)
-
-    def intersect(self, other: Window) -> Window | None:
-        x0, y0 = max(self.x0, other.x0), max(self.y0, other.y0)
-        x1 = min(self.x0 + self.width, other.x0 + other.width)
-        y1 = min(self.y0 + self.height, other.y0 + other.height)
-        if x1 <= x0 or y1 <= y0:
-            return None
-        return Window(x0, y0, x1 - x0, y1 - y0)
 
 
 @dataclass
@@ -122,22 +101,19 @@ class Renderer:
         self._looks = {look.rover_id: look for look in scene.rovers}
         self._gamma = effects.exposure.gamma
         self._backdrop: Backdrop = prerender(camera, scene, effects, supersample)
-        self._bg = encode_linear(self._backdrop.room, self._gamma, HEADROOM)
+        # The camera's fixed colour response (crosstalk, white balance) acts on linear light: the static room once,
+        # everything drawn per frame in its window. Automatic white balance and the tone curve come last.
+        self._sensor = CameraProcessing(effects, self._backdrop, (self.height_px, self.width_px), seed, fps)
+        self._room = self._sensor.room
+        self._bg = encode_linear(self._room, self._gamma, HEADROOM)
         self._work = self._bg.copy()
         self._decode = ((np.arange(65536, dtype=np.float64) / 65535.0) ** self._gamma * HEADROOM).astype(np.float32)
         self._encode = encode_linear(np.linspace(0.0, HEADROOM, 65536, dtype=np.float32), self._gamma, HEADROOM)
         self._full = Window(0, 0, self.width_px, self.height_px)
-        self._sun_window = self._dynamic_window()
-        self._noise = (
-            NoiseBank((self.height_px, self.width_px, 3), effects.noise.correlation, seed)
-            if effects.noise is not None
-            else None
-        )
-        self._sigma_luts: dict[int, NDArray[np.uint8]] = {}
-        self._flicker_rows, self._flicker_period = self._flicker_table()
-        self._ae_gains = np.ones(0)
+        self._sun_window = changing_region(self._backdrop.sun, self._backdrop.glare)
         self._aruco = {look.rover_id: aruco_cells(look) for look in scene.rovers if look.heading == "aruco"}
         self._subdivide = 6 if camera.has_distortion else 1
+        self._size = (self.width_px, self.height_px)
         self.visibility: dict[str, float] = {}
         self._dirty: list[Window] = []
 
@@ -148,13 +124,14 @@ class Renderer:
             raise SimulationError(f"renderer: frame index must not be negative, got {frame_index}")
         t_s = frame_index / self.fps
         frame = self._compose(state.rovers, t_s)
-        return self._camera(frame, frame_index, t_s)
+        return self._capture(frame, frame_index, t_s)
 
     def background(self, frame_index: int = 0) -> Image:
-        """The empty scene (no rovers, no people) as the camera captures it at ``frame_index``."""
+        """The empty scene (no rovers, no people; the props already put down) as the camera captures it at
+        ``frame_index``."""
         t_s = frame_index / self.fps
         frame = self._compose((), t_s, people=False)
-        return self._camera(frame, frame_index, t_s, noise_stream=1)  # a capture of its own, not frame i's noise
+        return self._capture(frame, frame_index, t_s, noise_stream=1)  # a capture of its own, not frame i's noise
 
     def marker_outline_px(self, rover: RoverState) -> FloatArray:
         """(N, 2) the rover's marker outline in distorted pixels (edges subdivided when the lens distorts)."""
@@ -165,11 +142,17 @@ class Renderer:
     def nominal_marker_bgr(self, rover_id: str) -> tuple[int, int, int]:
         """The marker's colour as the camera sees it in the middle of the working area under the nominal light."""
         look = self._look(rover_id)
-        centre = self.camera.project(np.array([[195.75, 274.75, look.body_height_cm]]))[0]
+        return self.nominal_bgr(look.marker_bgr, look.body_height_cm)
+
+    def nominal_bgr(self, albedo_bgr: tuple[float, float, float], z_cm: float) -> tuple[int, int, int]:
+        """A horizontal surface of ``albedo_bgr`` at height ``z_cm`` in the middle of the working area as the camera
+        sees it under the nominal light (its colour response and first frame's white balance included)."""
+        centre = self.camera.project(np.array([[195.75, 274.75, z_cm]]))[0]
         u = int(np.clip(round(centre[0]), 0, self.width_px - 1))
         v = int(np.clip(round(centre[1]), 0, self.height_px - 1))
-        lin = np.asarray(look.marker_bgr) * float(self._backdrop.illumination[v, u])
-        enc = np.clip(lin, 0.0, 1.0) ** (1.0 / self._gamma) * 255.0
+        lin = np.asarray(albedo_bgr, dtype=np.float32) * float(self._backdrop.illumination[v, u])
+        lin = self._sensor.to_camera(lin.reshape(1, 1, 3)).reshape(3) * self._sensor.white_balance(0)
+        enc = tone_encode(lin, self.effects.colour.tone, self._gamma) * 255.0
         b, g, r = (round(float(c)) for c in enc)
         return b, g, r
 
@@ -184,11 +167,11 @@ class Renderer:
         if self._sun_window is not None and sun_rel > 0:
             win = self._sun_window
             sl = win.slices
-            lin = self._backdrop.room[sl] + self._sun_floor(sl, sun_rgb, sun_rel)
+            lin = self._room[sl] + self._sun_floor(sl, sun_rgb, sun_rel)
             work[sl] = self._encode_fast(lin)
             dirty.append(win)
         # Far to near, so nearer objects cover farther ones.
-        items: list[tuple[float, RoverState | Occluder]] = []
+        items: list[tuple[float, RoverState | Occluder | Prop]] = []
         cam = self.camera.position_cm
         for r in rovers:
             items.append((math.hypot(r.x_cm - cam[0], r.y_cm - cam[1]), r))
@@ -197,14 +180,19 @@ class Renderer:
                 pose = person.pose(t_s)
                 if pose is not None:
                     items.append((math.hypot(pose[0] - cam[0], pose[1] - cam[1]), person))
+        for prop in self.effects.props:
+            if prop.appears_s <= t_s:
+                items.append((math.hypot(prop.x_cm - cam[0], prop.y_cm - cam[1]), prop))
         items.sort(key=lambda item: -item[0])
         drawn: list[_Drawn] = []
         self.visibility = {r.rover_id: 0.0 for r in rovers}
         for _, item in items:
             if isinstance(item, RoverState):
                 result = self._draw_rover(work, item, sun_rgb, sun_rel)
+            elif isinstance(item, Prop):
+                result = self._draw_boxes(work, [prop_box(item)], sun_rgb=sun_rgb if sun_rel > 0 else None)
             else:
-                result = self._draw_person(work, item, t_s)
+                result = self._draw_person(work, item, t_s, sun_rgb if sun_rel > 0 else None)
             if result is None:
                 continue
             window, alpha, marker, marker_area = result
@@ -212,8 +200,8 @@ class Renderer:
             for earlier in drawn:  # what this object covers of markers drawn before it is hidden
                 overlap = earlier.window.intersect(window)
                 if overlap is not None:
-                    a = alpha[_local(overlap, window)]
-                    earlier.marker[_local(overlap, earlier.window)] *= 1.0 - a
+                    a = alpha[local(overlap, window)]
+                    earlier.marker[local(overlap, earlier.window)] *= 1.0 - a
             if marker is not None and isinstance(item, RoverState):
                 drawn.append(_Drawn(item.rover_id, window, marker, marker_area))
         for d in drawn:
@@ -221,44 +209,14 @@ class Renderer:
         self._dirty = dirty
         return work
 
-    def _camera(self, work: NDArray[np.uint16], frame_index: int, t_s: float, noise_stream: int = 0) -> Image:
-        """Exposure, tone, flicker, noise, compression: the camera's own processing of the composed light.
-
-        Done in bands of rows so each band's data stays in cache through all the steps (twice as fast as whole-frame
-        passes on this machine).
-        """
-        drift = drift_factor(self.effects.drift, t_s)
-        gain = float(self._auto_exposure(frame_index))
-        enc_gain = (drift * gain * HEADROOM) ** (1.0 / self._gamma) * 255.0 / 65535.0
-        band = None
-        if self._flicker_rows is not None and self.effects.flicker is not None:
-            offset = int(flicker_phase_rows(self.effects.flicker, t_s)) % self._flicker_period
-            band = self._flicker_rows[offset : offset + self.height_px]
-        rng = np.random.default_rng(np.random.SeedSequence([self.seed, frame_index, noise_stream, 0xF8A3E]))
-        noise = self._noise
-        lut = None
-        if noise is not None and self.effects.noise is not None:
-            key = round(gain * 1000)
-            lut = self._sigma_luts.get(key)
-            if lut is None:
-                lut = noise_sigma_lut(self.effects.noise, gain, self._gamma)
-                self._sigma_luts[key] = lut
-            draw = noise.draw(rng)
-        frame: Image = np.empty((self.height_px, self.width_px, 3), dtype=np.uint8)
-        for r0 in range(0, self.height_px, ROW_BAND):
-            r1 = min(r0 + ROW_BAND, self.height_px)
-            rows = frame[r0:r1]
-            cv2.convertScaleAbs(work[r0:r1], dst=rows, alpha=enc_gain)
-            if band is not None:
-                cv2.multiply(rows, band[r0:r1], dst=rows, scale=1.0 / 128.0)
-            if noise is not None and lut is not None:
-                noise.add(rows, r0, lut, draw)
+    def _capture(self, work: NDArray[np.uint16], frame_index: int, t_s: float, noise_stream: int = 0) -> Image:
+        """The camera's processing of the composed frame (``edge.sim.sensor``); the working image is then restored
+        where this frame drew."""
+        frame = self._sensor.capture(work, frame_index, t_s, noise_stream)
         for win in self._dirty:
             sl = win.slices
             work[sl] = self._bg[sl]
         self._dirty = []
-        if self.effects.compression is not None:
-            frame = jpeg_roundtrip(frame, self.effects.compression.quality)
         return frame
 
     def _encode_fast(self, lin: F32) -> NDArray[np.uint16]:
@@ -274,8 +232,8 @@ class Renderer:
             raise SimulationError(f"renderer: rover {rover_id!r} is not in the scene ({', '.join(self._looks)})")
         return look
 
-    def _project_outline(self, corners_xy: FloatArray, z_cm: float, subdivide: int) -> FloatArray:
-        pts = _subdivide(np.column_stack([corners_xy, np.full(len(corners_xy), z_cm)]), subdivide)
+    def _project_outline(self, corners_xy: FloatArray, z_cm: float, pieces: int) -> FloatArray:
+        pts = subdivide(np.column_stack([corners_xy, np.full(len(corners_xy), z_cm)]), pieces)
         return self.camera.project(pts)
 
     def _draw_rover(
@@ -302,7 +260,7 @@ class Renderer:
         groups = [0, 1]
         marker_index = 2
         shared_group = -1
-        for m, (part, albedo, shared) in enumerate(self._marker_parts(look, x, y, th)):
+        for m, (part, albedo, shared) in enumerate(marker_parts(look, x, y, th, self._aruco.get(look.rover_id))):
             # Part 0 is the whole marker over the body's top; later parts are albedo changes within it.
             quads.append(np.column_stack([part, np.full(4, hb)]))
             if shared and shared_group >= 0:
@@ -329,18 +287,19 @@ class Renderer:
         polys = [silhouette, projected[1], *projected[2 : 2 + len(quads) - 1]]
 
         # Windows: the body's (exact coverage) inside the shadow's (blurred, so a fixed-point fill is enough).
-        kernel, psf_sigma = self._blur_kernel(rover, hb)
+        kernel, psf_sigma = exposure_blur(self.effects, self.camera, rover, hb)
         blur_half = kernel.shape[0] // 2 if kernel is not None else math.ceil(3.0 * psf_sigma)
-        sigma_px = max(SHADOW_SIGMA_CM * math.sqrt(abs(polygon_area(shadow_px)) / _area_cm(shadow_cm)), 0.5)
+        sigma_px = max(SHADOW_SIGMA_CM * math.sqrt(abs(polygon_area(shadow_px)) / area_cm(shadow_cm)), 0.5)
         n_drawn = len(polys) - (1 if sun is not None else 0)
-        body_window = self._window_around(np.vstack(polys[:n_drawn]), blur_half + 1)
-        window = self._window_around(np.vstack([*polys[:n_drawn], shadow_px]), math.ceil(2.0 * sigma_px) + blur_half)
+        body_window = window_around(np.vstack(polys[:n_drawn]), blur_half + 1, self._size)
+        shadow_margin = math.ceil(2.0 * sigma_px) + blur_half
+        window = window_around(np.vstack([*polys[:n_drawn], shadow_px]), shadow_margin, self._size)
         if body_window is None or window is None:
             return None
         h, w = window.height, window.width
         layer = np.zeros((h, w, 7), dtype=np.float32)  # premultiplied colour (3), alpha, marker, shadow, sun shadow
         cov = coverage(polys, (body_window.x0, body_window.y0), (body_window.height, body_window.width), groups)
-        inner = _local(body_window, window)
+        inner = local(body_window, window)
         wmat = np.asarray(weights)
         layer[inner][..., :5] = (cov.reshape(len(weights), -1).T @ wmat).reshape(
             body_window.height, body_window.width, 5
@@ -353,12 +312,14 @@ class Renderer:
             vig = self._backdrop.vignetting[sl] * np.float32(self.effects.exposure.scale)
             light = np.asarray(light + (lit * vig)[..., None] * sun_rgb, dtype=np.float32)
         layer[..., :3] *= light
-        layer[..., 5] = self._fill(shadow_px, window) * np.float32(SHADOW_STRENGTH)
+        if self._sensor.has_colour_response:
+            layer[..., :3] = self._sensor.to_camera(layer[..., :3])
+        layer[..., 5] = fill(shadow_px, window) * np.float32(SHADOW_STRENGTH)
         layer[..., 5] = cv2.GaussianBlur(layer[..., 5], (0, 0), sigma_px)
         if sun is not None:
-            hull = _sun_shadow(body, hb, sun.travel)
+            hull = sun_shadow(body, hb, sun.travel)
             (hull_px,) = self._project_many([np.column_stack([hull, np.zeros(len(hull))])])
-            layer[..., 6] = self._fill(hull_px, window)
+            layer[..., 6] = fill(hull_px, window)
         # Visibility is geometric (the marker's area at mid-exposure), so keep alpha and marker before any blur.
         sharp_alpha, sharp_marker = layer[..., 3].astype(np.float64), layer[..., 4].astype(np.float64)
         if kernel is not None:
@@ -384,7 +345,7 @@ class Renderer:
 
     def _project_many(self, quads: list[FloatArray]) -> list[FloatArray]:
         """Project several world polygons in one call (edges subdivided when the lens distorts)."""
-        pts = [_subdivide(q, self._subdivide) for q in quads]
+        pts = [subdivide(q, self._subdivide) for q in quads]
         uv = self.camera.project(np.vstack(pts))
         out, start = [], 0
         for p in pts:
@@ -392,82 +353,7 @@ class Renderer:
             start += len(p)
         return out
 
-    @staticmethod
-    def _fill(poly_px: FloatArray, window: Window) -> F32:
-        """Anti-aliased fixed-point fill (1/16 px vertices) of a polygon in a window, 0..1 float32."""
-        canvas = np.zeros((window.height, window.width), dtype=np.uint8)
-        pts = np.rint((poly_px - [window.x0, window.y0]) * 16.0).astype(np.int32)
-        cv2.fillPoly(canvas, [pts], 255, lineType=cv2.LINE_AA, shift=4)
-        return canvas.astype(np.float32) * np.float32(1.0 / 255.0)
-
-    def _marker_parts(
-        self, look: RoverLook, x: float, y: float, th: float
-    ) -> list[tuple[FloatArray, FloatArray, bool]]:
-        """The marker as (world corners (4, 2), albedo, shared) parts: the first is the whole marker with its albedo,
-        the others albedo changes within it; ``shared`` parts (a tag's black cells) are disjoint and alike."""
-        albedo = np.asarray(look.marker_bgr)
-        whole = rectangle_cm(x, y, th, look.marker_length_cm, look.marker_width_cm)
-        parts = [(whole, albedo, False)]
-        if look.heading == "two_tone":
-            front_len = look.front_fraction * look.marker_length_cm
-            shift = 0.5 * (look.marker_length_cm - front_len)
-            cx, cy = x + shift * math.cos(th), y + shift * math.sin(th)
-            front = rectangle_cm(cx, cy, th, front_len, look.marker_width_cm)
-            parts.append((front, np.asarray(look.secondary_bgr) - albedo, False))
-        elif look.heading == "aruco":
-            side = look.aruco_side_cm
-            parts.append((rectangle_cm(x, y, th, side, side), WHITE_BGR - albedo, False))
-            c, s = math.cos(th), math.sin(th)
-            for cell in self._aruco[look.rover_id]:
-                world = np.column_stack([x + cell[:, 0] * c - cell[:, 1] * s, y + cell[:, 0] * s + cell[:, 1] * c])
-                parts.append((world, INK_BGR - WHITE_BGR, True))
-        return parts
-
-    def _blur_kernel(self, rover: RoverState, z_cm: float) -> tuple[NDArray[np.float32] | None, float]:
-        """How to blur a rover's layer: (kernel, 0) for motion during the exposure convolved with the optics' point
-        spread, or (None, sigma) for the point spread alone (separable, cheaper) when the motion is under
-        ``MIN_MOTION_PX`` (its variance, L^2 / 12, is then below 2 % of the point spread's)."""
-        psf = self.effects.optics.blur_sigma_px if self.effects.optics is not None else 0.0
-        if not self.effects.motion_blur or (rover.vx_cm_s == 0.0 and rover.vy_cm_s == 0.0):
-            return None, psf
-        half_t = 0.5 * self.effects.exposure.exposure_s
-        pts = np.array(
-            [
-                [rover.x_cm - rover.vx_cm_s * half_t, rover.y_cm - rover.vy_cm_s * half_t, z_cm],
-                [rover.x_cm + rover.vx_cm_s * half_t, rover.y_cm + rover.vy_cm_s * half_t, z_cm],
-            ]
-        )
-        uv = self.camera.project(pts)
-        if math.hypot(*(uv[1] - uv[0])) < MIN_MOTION_PX and psf > 0.0:
-            return None, psf
-        return blur_kernel(uv[1] - uv[0], psf), 0.0
-
-    def _window_around(self, points_px: FloatArray, margin: int) -> Window | None:
-        lo = np.floor(points_px.min(axis=0)).astype(int) - margin
-        hi = np.ceil(points_px.max(axis=0)).astype(int) + margin + 1
-        x0, y0 = max(int(lo[0]), 0), max(int(lo[1]), 0)
-        x1, y1 = min(int(hi[0]), self.width_px), min(int(hi[1]), self.height_px)
-        if x1 <= x0 or y1 <= y0:
-            return None
-        return Window(x0, y0, x1 - x0, y1 - y0)
-
     # -- sun ------------------------------------------------------------------------------------------------------
-    def _dynamic_window(self) -> Window | None:
-        b = self._backdrop
-        if b.sun is None and b.glare is None:
-            return None
-        mask = np.zeros((self.height_px, self.width_px), dtype=bool)
-        if b.sun is not None:
-            mask |= b.sun.max(axis=2) > 1e-4
-        if b.glare is not None:
-            mask |= b.glare > 1e-4
-        rows, cols = np.nonzero(mask)
-        if rows.size == 0:
-            return None
-        return Window(
-            int(cols.min()), int(rows.min()), int(cols.max() - cols.min() + 1), int(rows.max() - rows.min() + 1)
-        )
-
     def _sun_floor(self, sl: tuple[slice, slice], sun_rgb: F32, sun_rel: float) -> F32:
         """Linear light the sun (and its glare) adds to the floor in a window."""
         b = self._backdrop
@@ -477,30 +363,43 @@ class Renderer:
         if b.glare is not None and self.effects.glare is not None:
             strength = sun_rel / max(self.effects.sun.strength if self.effects.sun else 1.0, 1e-9)
             add += b.glare[sl][..., None] * np.asarray(self.effects.glare.bgr, dtype=np.float32) * strength
-        return add
+        return self._sensor.to_camera(add)
 
-    # -- people ---------------------------------------------------------------------------------------------------
+    # -- people and props -------------------------------------------------------------------------------------------
     def _draw_person(
-        self, work: NDArray[np.uint16], person: Occluder, t_s: float
+        self, work: NDArray[np.uint16], person: Occluder, t_s: float, sun_rgb: F32 | None = None
     ) -> tuple[Window, FloatArray, None, float] | None:
         pose = person.pose(t_s)
         if pose is None:
             return None
-        boxes = _person_boxes(person, *pose)
+        # A person walking is not in perfect focus, and moves: a little more blur than the lens's.
+        return self._draw_boxes(work, person_boxes(person, *pose), extra_blur_px=0.3, sun_rgb=sun_rgb)
+
+    def _draw_boxes(
+        self,
+        work: NDArray[np.uint16],
+        boxes: list[Box],
+        extra_blur_px: float = 0.0,
+        sun_rgb: F32 | None = None,
+    ) -> tuple[Window, FloatArray, None, float] | None:
+        """Draw boxes (centre, size (l, w, h), heading, albedo) with their camera-facing faces lit by the lamps, and
+        a top face in the sunlit patch by the sun too."""
         cam = self.camera.position_cm
         faces: list[tuple[float, FloatArray, FloatArray]] = []  # (depth, world quad, colour factor)
         for centre, size, heading, albedo in boxes:
-            for quad, normal in _box_faces(centre, size, heading):
+            for quad, normal in box_faces(centre, size, heading):
                 mid = quad.mean(axis=0)
                 if np.dot(normal, cam - mid) <= 0:
                     continue
-                light = 1.0 if normal[2] > 0.5 else SIDE_LIGHT
+                light = np.full(3, 1.0 if normal[2] > 0.5 else SIDE_LIGHT)
+                if normal[2] > 0.5 and sun_rgb is not None:
+                    light = light * self._sun_boost(mid, sun_rgb)
                 faces.append((float(np.linalg.norm(cam - mid)), quad, albedo * light))
         if not faces:
             return None
         faces.sort(key=lambda f: -f[0])
-        polys = [self.camera.project(_subdivide(q, self._subdivide)) for _, q, _ in faces]
-        window = self._window_around(np.vstack(polys), 3)
+        polys = [self.camera.project(subdivide(q, self._subdivide)) for _, q, _ in faces]
+        window = window_around(np.vstack(polys), 3, self._size)
         if window is None:
             return None
         label = np.zeros((window.height, window.width), dtype=np.uint8)
@@ -510,109 +409,32 @@ class Renderer:
         palette = np.vstack([np.zeros(3), np.array([f[2] for f in faces])])
         colour = palette[label]
         alpha = (label > 0).astype(np.float64)
-        # The lens's point spread (a little more: a person walking is not in perfect focus, and moves).
-        sigma = 0.3 + (self.effects.optics.blur_sigma_px if self.effects.optics is not None else 0.0)
-        colour = np.asarray(cv2.GaussianBlur(colour * alpha[..., None], (0, 0), sigma), dtype=np.float64)
-        alpha = np.asarray(cv2.GaussianBlur(alpha, (0, 0), sigma), dtype=np.float64)
+        sigma = extra_blur_px + (self.effects.optics.blur_sigma_px if self.effects.optics is not None else 0.0)
+        if sigma > 0.05:
+            colour = np.asarray(cv2.GaussianBlur(colour * alpha[..., None], (0, 0), sigma), dtype=np.float64)
+            alpha = np.asarray(cv2.GaussianBlur(alpha, (0, 0), sigma), dtype=np.float64)
         sl = window.slices
-        illum = self._backdrop.illumination[sl].astype(np.float64)
+        illum = self._backdrop.illumination[sl].astype(np.float32)
+        lit = self._sensor.to_camera((colour * illum[..., None]).astype(np.float32))
         floor = self._decode[work[sl]].astype(np.float64)
-        out = floor * (1.0 - alpha)[..., None] + colour * illum[..., None]
+        out = floor * (1.0 - alpha)[..., None] + lit
         work[sl] = self._encode_fast(out.astype(np.float32))
         return window, alpha, None, 0.0
 
-    # -- time-dependent camera state ---------------------------------------------------------------------------------
-    def _auto_exposure(self, frame_index: int) -> float:
-        if len(self._ae_gains) <= frame_index:
-            n = max(frame_index + 1, 2 * len(self._ae_gains), 64)
-            levels = np.array([self._scene_level(i / self.fps) for i in range(n)])
-            self._ae_gains = auto_exposure_gains(levels, self.effects.auto_exposure)
-        return float(self._ae_gains[frame_index])
-
-    def _scene_level(self, t_s: float) -> float:
-        """Mean scene brightness relative to nominal (what the auto-exposure meters)."""
-        strength, _ = sun_state(self.effects.sun, t_s)
-        return drift_factor(self.effects.drift, t_s) + self._backdrop.sun_mean_ratio * strength
-
-    def _flicker_table(self) -> tuple[NDArray[np.uint8] | None, int]:
-        flicker = self.effects.flicker
-        amp = flicker_amplitude(flicker, self.effects.exposure.exposure_s)
-        if flicker is None or amp < 1e-3:
-            return None, 1
-        period = 1.0 / (2.0 * flicker.mains_hz * flicker.line_time_s)
-        rows = np.arange(self.height_px + math.ceil(period) + 1)
-        gain_lin = 1.0 + amp * np.cos(2.0 * math.pi * rows / period)
-        gain_enc = np.rint(128.0 * gain_lin ** (1.0 / self._gamma)).astype(np.uint8)
-        table = np.repeat(np.repeat(gain_enc[:, None, None], self.width_px, axis=1), 3, axis=2)
-        return np.ascontiguousarray(table), max(round(period), 1)
-
-
-# -- geometry helpers -------------------------------------------------------------------------------------------
-def _local(inner: Window, outer: Window) -> tuple[slice, slice]:
-    return (
-        slice(inner.y0 - outer.y0, inner.y0 - outer.y0 + inner.height),
-        slice(inner.x0 - outer.x0, inner.x0 - outer.x0 + inner.width),
-    )
-
-
-def _subdivide(points: FloatArray, k: int) -> FloatArray:
-    """(N, D) closed polygon -> (N * k, D) with each edge split into ``k`` pieces (curved under lens distortion)."""
-    if k <= 1:
-        return points
-    nxt = np.roll(points, -1, axis=0)
-    f = (np.arange(k) / k)[None, :, None]
-    return (points[:, None, :] * (1 - f) + nxt[:, None, :] * f).reshape(-1, points.shape[1])
-
-
-def _area_cm(poly: FloatArray) -> float:
-    return abs(polygon_area(poly))
-
-
-def _sun_shadow(body: FloatArray, height_cm: float, travel: FloatArray) -> FloatArray:
-    """(M, 2) the body's shadow on the floor cast by the sun: hull of its corners projected along ``travel``."""
-    top = body + (-height_cm / travel[2]) * travel[:2]
-    pts = np.vstack([body, top]).astype(np.float32)
-    hull = cv2.convexHull(pts).reshape(-1, 2)
-    return np.asarray(hull, dtype=np.float64)
-
-
-def _box_faces(centre: FloatArray, size: FloatArray, heading: float) -> list[tuple[FloatArray, FloatArray]]:
-    """The six faces of a box (world quads and outward normals); ``size`` = (length, width, height)."""
-    c, s = math.cos(heading), math.sin(heading)
-    ex = np.array([c, s, 0.0]) * size[0] / 2
-    ey = np.array([-s, c, 0.0]) * size[1] / 2
-    ez = np.array([0.0, 0.0, 1.0]) * size[2] / 2
-    faces = []
-    for axis, (u, v) in ((ex, (ey, ez)), (ey, (ez, ex)), (ez, (ex, ey))):
-        for sign in (1.0, -1.0):
-            f = centre + sign * axis
-            quad = np.array([f - u - v, f + u - v, f + u + v, f - u + v])
-            faces.append((quad, sign * axis / np.linalg.norm(axis)))
-    return faces
-
-
-def _person_boxes(
-    person: Occluder, x_cm: float, y_cm: float, heading: float, walked_cm: float
-) -> list[tuple[FloatArray, FloatArray, float, FloatArray]]:
-    """A person as boxes (centre, size (l, w, h), heading, albedo): legs swinging with the distance walked."""
-    h = person.height_cm
-    c, s = math.cos(heading), math.sin(heading)
-    fwd, left = np.array([c, s, 0.0]), np.array([-s, c, 0.0])
-    base = np.array([x_cm, y_cm, 0.0])
-    swing = 12.0 * math.sin(walked_cm / 35.0 * math.pi)
-    leg_h, torso_h, head_h = 0.49 * h, 0.36 * h, 0.13 * h
-    trousers = np.asarray(person.trousers_bgr)
-    shirt = np.asarray(person.shirt_bgr)
-    skin = np.asarray(person.skin_bgr)
-    boxes = []
-    for side, phase in ((1.0, 1.0), (-1.0, -1.0)):
-        centre = base + left * side * 10.0 + fwd * swing * phase + np.array([0.0, 0.0, leg_h / 2])
-        boxes.append((centre, np.array([15.0, 14.0, leg_h]), heading, trousers))
-    boxes.append((base + np.array([0.0, 0.0, leg_h + torso_h / 2]), np.array([24.0, 42.0, torso_h]), heading, shirt))
-    for side, phase in ((1.0, -1.0), (-1.0, 1.0)):
-        centre = base + left * side * 26.0 + fwd * swing * 0.6 * phase + np.array([0.0, 0.0, leg_h + torso_h * 0.45])
-        boxes.append((centre, np.array([10.0, 9.0, torso_h * 0.9]), heading, shirt))
-    boxes.append(
-        (base + np.array([0.0, 0.0, leg_h + torso_h + head_h / 2]), np.array([20.0, 17.0, head_h]), heading, skin)
-    )
-    return boxes
+    def _sun_boost(self, point_cm: FloatArray, sun_rgb: F32) -> FloatArray:
+        """(3,) how much brighter than under the lamps alone a horizontal surface at ``point_cm`` (world, z its
+        height) is when it lies in the sunlit patch; ones outside it."""
+        sun = self.effects.sun
+        if sun is None:
+            return np.ones(3)
+        patch = sun.patch_cm(float(point_cm[2])).astype(np.float32)
+        if cv2.pointPolygonTest(patch.reshape(-1, 1, 2), (float(point_cm[0]), float(point_cm[1])), False) < 0:
+            return np.ones(3)
+        uv = self.camera.project(point_cm.reshape(1, 3))[0]
+        u = int(np.clip(round(uv[0]), 0, self.width_px - 1))
+        v = int(np.clip(round(uv[1]), 0, self.height_px - 1))
+        lamps = float(self._backdrop.illumination[v, u])
+        sun_light = (
+            np.asarray(sun_rgb, np.float64) * float(self._backdrop.vignetting[v, u]) * self.effects.exposure.scale
+        )
+        return np.asarray(1.0 + sun_light / max(lamps, 1e-6))

@@ -156,18 +156,36 @@ def marker_albedo_for_hue(hue_deg: float, saturation: float = 0.86, value: float
     return (round(b, 4), round(g, 4), round(r, 4))
 
 
+# The eight-hue palette (hue in degrees of HSV): eight printable colours a camera tells apart.
+EIGHT_HUES = (
+    ("red", 0.0),
+    ("orange", 28.0),
+    ("yellow", 55.0),
+    ("green", 125.0),
+    ("cyan", 185.0),
+    ("blue", 230.0),
+    ("purple", 270.0),
+    ("magenta", 315.0),
+)
+
+
 def fleet_looks(n_rovers: int, heading: Heading = "plain") -> tuple[RoverLook, ...]:
     """Looks for ``n_rovers`` rovers with distinct hues.
 
-    Up to three rovers: the paper's red, green and blue (ids ``red``, ``green``, ``blue``). More: hues spread evenly
-    round the colour wheel, named after the nearest of twelve hue names when they are distinct (up to twelve
-    rovers), else ``hue000``... by hue in degrees.
+    Up to three rovers: the paper's red, green and blue (ids ``red``, ``green``, ``blue``). Eight: the eight-hue
+    palette (:data:`EIGHT_HUES`). Otherwise hues spread evenly round the colour wheel, named after the nearest of
+    twelve hue names when they are distinct (up to twelve rovers), else ``hue000``... by hue in degrees.
     """
     if n_rovers < 1 or n_rovers > 64:
         raise SimulationError(f"a fleet has 1 to 64 rovers, got {n_rovers}")
     if n_rovers <= 3:
         base = (("red", RED_BGR), ("green", GREEN_BGR), ("blue", BLUE_BGR))[:n_rovers]
         return tuple(RoverLook(i, c, heading=heading, aruco_id=k) for k, (i, c) in enumerate(base))
+    if n_rovers == len(EIGHT_HUES):
+        return tuple(
+            RoverLook(name, marker_albedo_for_hue(h), heading=heading, aruco_id=k)
+            for k, (name, h) in enumerate(EIGHT_HUES)
+        )
     hues = [k * 360.0 / n_rovers for k in range(n_rovers)]
     names = [_nearest_hue_name(h) for h in hues]
     if len(set(names)) != len(names):

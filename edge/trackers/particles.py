@@ -84,7 +84,8 @@ class ParticleTracker:
         """
         if not particles:
             return []
-        pu, pv = window.predicted_uv
+        ox, oy = window.offset  # particles are measured in window pixels, the prediction is in image pixels
+        pu, pv = window.predicted_uv[0] - ox, window.predicted_uv[1] - oy
         radius_px = math.sqrt(max(expected_px, 1.0) / math.pi)
 
         def score(p: Particle) -> float:

@@ -48,13 +48,20 @@ def linear(image: NDArray[np.uint8], gamma: float = 2.2) -> NDArray[np.float64]:
 
 
 def min_body_gap_cm(setup: SimSetup, step_s: float = 0.05) -> float:
-    """Smallest distance between any two rover bodies over the scenario's run (negative if they ever overlap)."""
+    """Smallest distance between any two rover bodies, or a rover and a prop (a box standing in the area), over the
+    scenario's run (negative if they ever overlap)."""
     world = setup.world()
     looks = {look.rover_id: look for look in setup.scene.rovers}
+    props = [rectangle_cm(p.x_cm, p.y_cm, p.heading_rad, p.size_cm[0], p.size_cm[1]) for p in setup.effects.props]
     best = np.inf
     for t in np.arange(0.0, setup.frames / setup.fps + 1e-9, step_s):
         rovers = world.state_at(float(t)).rovers
         xy = np.array([[r.x_cm, r.y_cm] for r in rovers])
+        for r in rovers:
+            look = looks[r.rover_id]
+            body = rectangle_cm(r.x_cm, r.y_cm, r.theta_rad, look.body_length_cm, look.body_width_cm)
+            for prop in props:
+                best = min(best, box_gap_cm(body, prop))
         for i in range(len(rovers)):
             near = np.nonzero(np.hypot(*(xy[i + 1 :] - xy[i]).T) < 40.0)[0] + i + 1
             for j in near:

@@ -1,0 +1,270 @@
+"""Rendered runs and their scores, shared by the tracking benchmarks (``bench_tracking.py``).
+
+A :class:`Clip` is one scenario run rendered in memory (frames, ground truth, the camera and the rovers' colours as
+that camera sees them); :func:`run_clip` tracks it and scores every rover against the truth (marker centre on the
+markers' plane):
+
+* error: distance of every reported pose from its rover's true centre; bias: the mean error vector (x, y) of the
+  poses within 5 cm of the truth;
+* detection: share of frames with the marker wholly in view and unhidden (visible >= 0.99) that got a pose;
+* swap: a pose more than 5 cm off and nearer another rover's true centre than its own;
+* ghost: any other pose more than 5 cm off (something that is not this rover taken for it: a shirt, a box, a
+  reflection, or a rover reported where it is not);
+* heading: |error| of the rovers moving faster than 2 cm/s that got one (median, 95th percentile, coverage).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from edge.tracker_config import TrackerConfig
+from edge.trackers.base import CameraPlaneMapping
+from edge.trackers.factory import build_tracker
+from edge.tracking import Frame
+
+FAR_CM = 5.0  # a pose farther than this from its rover's true centre is a swap or a ghost
+
+
+@dataclass
+class Clip:
+    """Rendered frames of one scenario run with their ground truth (id -> x, y, theta, vx, vy, visible)."""
+
+    name: str
+    seed: int
+    fps: float
+    frames: list[np.ndarray]
+    truth: list[dict[str, tuple[float, float, float, float, float, float]]]
+    rovers: tuple
+    camera: object
+    background: np.ndarray
+    height_cm: float = 13.0
+    camera_name: str = "nominal"
+    bodies: str = ""
+
+
+def render_clip(
+    name: str,
+    seed: int,
+    frames: int | None = None,
+    rovers: int | None = None,
+    heading: str = "plain",
+    camera: str = "nominal",
+) -> Clip:
+    """Render scenario ``name`` for ``seed`` through the nominal camera or one of the family (``camera``)."""
+    from edge.sim.scenarios import build
+
+    setup = build(name, seed, rovers, frames, heading, camera)  # type: ignore[arg-type]
+    renderer = setup.renderer()
+    world = setup.world()
+    images, truth = [], []
+    for i in range(setup.frames):
+        state = world.state_at(i / setup.fps)
+        images.append(renderer.render(state, i))
+        truth.append(
+            {
+                r.rover_id: (
+                    r.x_cm,
+                    r.y_cm,
+                    r.theta_rad,
+                    r.vx_cm_s,
+                    r.vy_cm_s,
+                    renderer.visibility.get(r.rover_id, 0.0),
+                )
+                for r in state.rovers
+            }
+        )
+    configs = setup.rover_configs(renderer)
+    if heading == "two_tone":
+        looks = {look.rover_id: look for look in setup.scene.rovers}
+        configs = tuple(
+            c.model_copy(
+                update={"front_color_bgr": renderer.nominal_bgr(looks[c.id].secondary_bgr, looks[c.id].body_height_cm)}
+            )
+            for c in configs
+        )
+    bodies = ", ".join(sorted({_body_name(look.body_bgr) for look in setup.scene.rovers}))
+    return Clip(
+        name,
+        seed,
+        setup.fps,
+        images,
+        truth,
+        configs,
+        setup.camera,
+        renderer.background(0),
+        setup.marker_height_cm,
+        setup.camera_name,
+        f"{bodies} bodies {setup.marker_height_cm:.0f} cm",
+    )
+
+
+def _body_name(bgr: tuple[float, float, float]) -> str:
+    grey = sum(bgr) / 3.0
+    return "black" if grey < 0.07 else "dark grey" if grey < 0.3 else "white"
+
+
+def frame_of(image: np.ndarray, index: int, fps: float) -> Frame:
+    t = index / fps
+    return Frame(image=image, index=index, t_capture_s=t, t_mono_s=t)
+
+
+@dataclass
+class RoverScore:
+    """One rover's (or several runs' of one colour) tallies."""
+
+    errors: list[float] = field(default_factory=list)
+    offsets: list[tuple[float, float]] = field(default_factory=list)  # (dx, dy) of poses within FAR_CM
+    visible: int = 0
+    detected: int = 0
+    visible_half: int = 0
+    detected_half: int = 0
+    swaps: int = 0
+    ghosts: int = 0
+    heading_errors: list[float] = field(default_factory=list)
+    heading_errors_still: list[float] = field(default_factory=list)
+    still: int = 0
+    moving: int = 0
+
+    def add(self, other: RoverScore) -> None:
+        for name in self.__dataclass_fields__:
+            mine = getattr(self, name)
+            if isinstance(mine, list):
+                mine.extend(getattr(other, name))
+            else:
+                setattr(self, name, mine + getattr(other, name))
+
+
+@dataclass
+class Score:
+    """A run's (or several runs') scores: per rover id, and the processing time per frame."""
+
+    rovers: dict[str, RoverScore] = field(default_factory=dict)
+    ms: list[float] = field(default_factory=list)
+    stages: list[dict[str, float]] = field(default_factory=list)  # per frame: stage -> ms (absent: did not run)
+
+    def rover(self, rover_id: str) -> RoverScore:
+        return self.rovers.setdefault(rover_id, RoverScore())
+
+    def add(self, other: Score) -> None:
+        for rid, s in other.rovers.items():
+            self.rover(rid).add(s)
+        self.ms += other.ms
+        self.stages += other.stages
+
+    def total(self) -> RoverScore:
+        out = RoverScore()
+        for s in self.rovers.values():
+            out.add(s)
+        return out
+
+    def row(self) -> dict[str, float]:
+        """Summary over every rover (plus the worst colour's bias and the median time per frame)."""
+        r = summary(self.total())
+        r["worst_bias"] = max((summary(s)["bias"] for s in self.rovers.values()), default=math.nan)
+        r["ms"] = float(np.median(self.ms)) if self.ms else math.nan
+        return r
+
+
+def summary(s: RoverScore) -> dict[str, float]:
+    e = np.asarray(s.errors) if s.errors else np.array([math.nan])
+    off = np.asarray(s.offsets) if s.offsets else np.full((1, 2), math.nan)
+    h = np.asarray(s.heading_errors) if s.heading_errors else np.array([math.nan])
+    bx, by = (float(v) for v in off.mean(axis=0))
+    return {
+        "mean": float(e.mean()),
+        "p95": float(np.percentile(e, 95)),
+        "max": float(e.max()),
+        "bias_x": bx,
+        "bias_y": by,
+        "bias": math.hypot(bx, by),
+        "det": s.detected / s.visible if s.visible else math.nan,
+        "det50": s.detected_half / s.visible_half if s.visible_half else math.nan,
+        "swaps": float(s.swaps),
+        "ghosts": float(s.ghosts),
+        "head": float(np.median(h)),
+        "head_p95": float(np.percentile(h, 95)),
+        "head_cov": len(s.heading_errors) / s.moving if s.moving else math.nan,
+        "head_still": float(np.median(s.heading_errors_still)) if s.heading_errors_still else math.nan,
+        "head_still_cov": len(s.heading_errors_still) / s.still if s.still else math.nan,
+    }
+
+
+def plane_mapping(clip: Clip, calibration: str) -> object:
+    """``camera``: the scene camera itself at the markers' height (the tracker's error alone). ``points``: a
+    calibration fitted with ``edge.calibration`` to 34 points surveyed at the markers' height with 0.5 px measuring
+    noise (the whole system's error), with the lens intrinsics given when the camera has distortion (as
+    ``edge-ips calibrate intrinsics`` would provide)."""
+    if calibration == "camera":
+        return CameraPlaneMapping(clip.camera, clip.height_cm)  # type: ignore[arg-type]
+    from edge.calibration import Intrinsics, calibrate_points
+    from edge.calibration.points import point_table
+    from edge.sim.targets import survey_points
+
+    cam = clip.camera
+    survey = survey_points(cam, height_cm=clip.height_cm, rng=1000 + clip.seed)  # type: ignore[arg-type]
+    intrinsics = (
+        Intrinsics(cam.camera_matrix, cam.dist_coeffs, cam.width_px, cam.height_px)  # type: ignore[attr-defined]
+        if cam.has_distortion  # type: ignore[attr-defined]
+        else None
+    )
+    table = point_table(survey.uv_px, survey.xy_world_cm)
+    return calibrate_points(table, (1280, 720), height_cm=clip.height_cm, intrinsics=intrinsics).calibration
+
+
+def run_clip(
+    clip: Clip, method: str, use_background: bool | None = None, calibration: str = "camera", outline_fit: bool = False
+) -> Score:
+    """Track ``clip`` with ``method`` (the paper baseline gets the empty-scene reference; the others learn it
+    unless ``use_background``; ``outline_fit``: the tracker setting of that name) and score it."""
+    config = TrackerConfig(rovers=clip.rovers, method=method, fps=clip.fps, outline_fit=outline_fit)  # type: ignore[arg-type]
+    mapping = plane_mapping(clip, calibration)
+    with_bg = (method == "paper") if use_background is None else use_background
+    tracker = build_tracker(config, mapping, clip.background if with_bg else None)  # type: ignore[arg-type]
+    score = Score()
+    for i, image in enumerate(clip.frames):
+        t0 = time.perf_counter()
+        result = tracker.process(frame_of(image, i, clip.fps))
+        score.ms.append((time.perf_counter() - t0) * 1e3)
+        score.stages.append(dict(result.stage_ms))
+        _score_frame(score, clip.truth[i], {e.rover_id: e for e in result.estimates})
+    return score
+
+
+def _score_frame(score: Score, truth: dict[str, tuple[float, ...]], got: dict[str, object]) -> None:
+    for rid, (x, y, th, vx, vy, vis) in truth.items():
+        s = score.rover(rid)
+        if vis >= 0.99:
+            s.visible += 1
+            s.detected += rid in got
+        if vis >= 0.5:
+            s.visible_half += 1
+            s.detected_half += rid in got
+        e = got.get(rid)
+        if e is None:
+            continue
+        ex, ey = e.x_cm - x, e.y_cm - y  # type: ignore[attr-defined]
+        err = math.hypot(ex, ey)
+        s.errors.append(err)
+        if err > FAR_CM:
+            others = [math.hypot(e.x_cm - o[0], e.y_cm - o[1]) for oid, o in truth.items() if oid != rid]  # type: ignore[attr-defined]
+            if others and min(others) < err:
+                s.swaps += 1
+            else:
+                s.ghosts += 1
+            continue
+        if vis >= 0.99:
+            s.offsets.append((ex, ey))
+        theta = e.theta_rad  # type: ignore[attr-defined]
+        heading_error = None if theta is None else abs(math.degrees(math.remainder(theta - th, math.tau)))
+        if math.hypot(vx, vy) > 2.0:
+            s.moving += 1
+            if heading_error is not None:
+                s.heading_errors.append(heading_error)
+        else:
+            s.still += 1
+            if heading_error is not None:
+                s.heading_errors_still.append(heading_error)

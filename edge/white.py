@@ -1,0 +1,116 @@
+"""Colour relative to the local light: each window seen as if lit by the room's usual white.
+
+A marker's colour in the image is its paper's colour times the light where it stands. Under a warm sunlit patch a
+blue marker turns grey-violet, under a cold skylight a red one turns pink, and an automatic white balance moves every
+colour as the scene changes; judged against the colours configured under the lamps, such a marker can fall out of
+its hue's tolerance and be lost. The floor around it is lit by the same light, and the background model knows the
+floor: its reference is a local white reference at every pixel.
+
+:class:`LocalWhite` keeps
+
+* ``white``: the floor's mean colour (linear light) over the whole view when tracking started: the light the marker
+  colours were configured under;
+* a coarse map of the reference's colour (blocks of 32 pixels, a tile or more of floor: the floor's own pattern,
+  grout and tape average out, the light's slow variation across the room, a sunlit patch, stays), refreshed as the
+  reference is; a block whose colour no light has (a poster of a marker's hue on the floor) counts as the white.
+
+For a window, the light there now is the coarse map's colour there, corrected by how the floor just around the
+window has changed since the reference was taken (median ratio of the window's border pixels to the reference's:
+the automatic white balance and passing clouds act between refreshes). The window's pixels are then divided by that
+light's colour and multiplied by ``white`` (a von Kries correction, per channel in linear light, brightness kept):
+the marker shows the colour it had under the lamps, and a grey or white object stays grey.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from edge.segmentation import LINEAR, U8, BoolArray, linear_bgr
+
+FloatArray = NDArray[np.float64]
+BLOCK_PX = 32
+MAX_GAIN = 2.5  # no channel is corrected more than this (a saturated or black floor says little about the light)
+# Lamps, daylight and sunlight (2700 K to 6500 K) differ in chromaticity by under 0.15 in any channel: a block of the
+# reference farther than this from the configured white is a coloured thing lying on the floor (a poster, a rug, a
+# parked object of a marker's hue), not the light's colour.
+MAX_LIGHT_SHIFT = 0.2
+_ENCODE = np.asarray(np.interp(np.linspace(0.0, 1.0, 4096), LINEAR, np.arange(256)).round(), dtype=np.uint8)
+
+
+def encode_linear(linear: NDArray[np.float32]) -> U8:
+    """Linear light (0..1) back to 8-bit values through the sRGB tone curve (inverse of ``LINEAR``)."""
+    index = np.clip(linear * 4095.0 + 0.5, 0, 4095).astype(np.intp)
+    return np.asarray(_ENCODE[index], dtype=np.uint8)
+
+
+class LocalWhite:
+    """The light's colour across the view, from the background reference (see the module's docstring)."""
+
+    def __init__(self, reference: U8, valid: BoolArray) -> None:
+        """``reference``: the background reference (its valid pixels: the empty floor); the configured white is
+        the whole view's mean colour (a few rovers in it change it little)."""
+        self.white = _chromaticity(_mean_colour(reference, np.ones(valid.shape, bool)))
+        self.coarse = np.zeros((1, 1, 3))
+        self.update(reference, valid)
+
+    def update(self, reference: U8, valid: BoolArray) -> None:
+        """Recompute the coarse map from the current reference (where it is valid; elsewhere the global white)."""
+        h, w = reference.shape[:2]
+        size = (max(1, w // BLOCK_PX), max(1, h // BLOCK_PX))
+        # averaged in 8-bit values, then linearised: a block's colour is what matters, and this is 20 times cheaper
+        lin = linear_bgr(np.asarray(cv2.resize(reference, size, interpolation=cv2.INTER_AREA), np.uint8))
+        share = cv2.resize(valid.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+        chroma = lin / np.maximum(lin.sum(axis=2, keepdims=True), 1e-6)
+        chroma[share < 0.95] = self.white  # a block with a rover (or its unrefreshed ghost) in it says nothing
+        chroma[np.abs(chroma - self.white).max(axis=2) > MAX_LIGHT_SHIFT] = self.white  # nor a coloured object
+        self.coarse = chroma.astype(np.float64)
+
+    def gains(
+        self, box: tuple[int, int, int, int], crop: U8, reference: U8 | None, valid: BoolArray | None
+    ) -> FloatArray:
+        """(3,) per-channel gains that show the window ``box`` (``crop``, and the reference's crop with its
+        validity) under the configured white."""
+        x0, y0, x1, y1 = box
+        cy = min(self.coarse.shape[0] - 1, ((y0 + y1) // 2) // BLOCK_PX)
+        cx = min(self.coarse.shape[1] - 1, ((x0 + x1) // 2) // BLOCK_PX)
+        light = self.coarse[cy, cx].copy()
+        if reference is not None and valid is not None:
+            border = np.zeros(crop.shape[:2], bool)
+            border[:2, :] = border[-2:, :] = border[:, :2] = border[:, -2:] = True
+            border &= valid
+            if int(border.sum()) >= 8:
+                now = LINEAR[crop[border]].astype(np.float64) + 1e-4
+                then = LINEAR[reference[border]].astype(np.float64) + 1e-4
+                light *= np.median(now / then, axis=0)
+        light = _chromaticity(light)
+        gains = self.white / np.maximum(light, 1e-6)
+        return np.clip(gains / gains.mean(), 1.0 / MAX_GAIN, MAX_GAIN)
+
+    def frame_gains(self, shape_hw: tuple[int, int]) -> NDArray[np.float32]:
+        """(h, w, 3) gains over a whole (downscaled) frame from the coarse map alone (the acquisition pass)."""
+        gains = self.white / np.maximum(self.coarse, 1e-6)
+        gains /= gains.mean(axis=2, keepdims=True)
+        gains = np.clip(gains, 1.0 / MAX_GAIN, MAX_GAIN).astype(np.float32)
+        return np.asarray(cv2.resize(gains, (shape_hw[1], shape_hw[0]), interpolation=cv2.INTER_LINEAR))
+
+    @staticmethod
+    def correct(crop: U8, gains: FloatArray | NDArray[np.float32]) -> U8:
+        """``crop`` with each channel multiplied by ``gains`` ((3,) or per pixel) in linear light."""
+        if np.ndim(gains) == 1 and np.allclose(gains, 1.0, atol=2e-3):
+            return crop
+        return encode_linear(linear_bgr(crop) * gains.astype(np.float32))
+
+
+def _mean_colour(image: U8, valid: BoolArray) -> FloatArray:
+    lin = linear_bgr(image)
+    sel = valid & (image.max(axis=2) < 250)  # clipped pixels have lost their colour
+    if not sel.any():
+        return np.ones(3)
+    return np.asarray(lin[sel].mean(axis=0), dtype=np.float64)
+
+
+def _chromaticity(colour: FloatArray) -> FloatArray:
+    c = np.asarray(colour, dtype=np.float64)
+    return c / max(float(c.sum()), 1e-9)
