@@ -407,21 +407,11 @@ class Pipeline:
             vel = tr.filter.velocity
             theta = self._heading(tr, vel, m)
             x, y = tr.filter.position
-            out.append(
-                RoverEstimate(
-                    tr.config.id,
-                    x,
-                    y,
-                    theta,
-                    vel[0] if vel else None,
-                    vel[1] if vel else None,
-                    round(self._quality(tr, m), 2),
-                    m.uv_px,
-                    tr.box,
-                    m.xy_cm,
-                    (float(obs.r_cm2[0, 0]), float(obs.r_cm2[0, 1]), float(obs.r_cm2[1, 1])),
-                )
-            )
+            vx, vy = vel if vel else (None, None)
+            r = obs.r_cm2
+            covariance = (float(r[0, 0]), float(r[0, 1]), float(r[1, 1]))
+            quality = round(self._quality(tr, m), 2)
+            out.append(RoverEstimate(tr.config.id, x, y, theta, vx, vy, quality, m.uv_px, tr.box, m.xy_cm, covariance))
         clock.add("filter", time.perf_counter() - t0)
         return tuple(out)
 
