@@ -54,7 +54,7 @@ def _wait(page: Any, script: str, arg: Any = None) -> Any:
 
 def test_the_formation_buttons_move_the_fleet_and_stop_stops_it(page: Any, tmp_path: Path) -> None:
     _wait(page, ALL_SEEN, ROVERS)
-    assert not page.locator("#sim-panel").is_hidden()
+    _wait(page, "() => !document.getElementById('sim-panel').hidden")  # the lab's panel, once its route answers
     _wait(page, "() => Object.values((" + HALTS + ")()).every(h => h === 'stop')")  # the stop at start, reported
     page.click("button[data-kind=triangle]")
     _wait(page, "() => document.getElementById('formation-result').dataset.status === '200'")

@@ -45,7 +45,10 @@ async function pollSim() {
     for (const b of document.querySelectorAll("#sim-form button")) b.disabled = !info.controls_enabled;
     renderSim(info);
   } else if (res && res.status === 404) {
-    return;  // not a simulated lab: no panel, no more polling
+    // Not a simulated lab, or not yet: the page can load while the appliance is still starting (start prints the
+    // address first), before the panel's route exists. Ask again now and then; the panel stays hidden meanwhile.
+    setTimeout(pollSim, 5000);
+    return;
   }
   setTimeout(pollSim, 1000);
 }
