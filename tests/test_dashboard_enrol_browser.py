@@ -83,7 +83,12 @@ def enroll(page: Any, ids: str, status: str = "200") -> None:
     page.fill("#enroll-ids", ids)
     page.evaluate("() => { document.getElementById('enroll-message').dataset.status = ''; }")
     page.click("#enroll-run")
-    page.wait_for_function(MESSAGE_STATUS, arg=status, timeout=WAIT_MS)
+    # Wait for the answer, whatever it is, then say what it was (a 400 waited for as a 200 would only time out).
+    page.wait_for_function(  # '' before the click, '0' while the enrolment runs
+        "() => !['', '0'].includes(document.getElementById('enroll-message').dataset.status)", timeout=WAIT_MS
+    )
+    got = page.evaluate("() => document.getElementById('enroll-message').dataset.status")
+    assert got == status, page.locator("#enroll-message").text_content()
 
 
 def enroll_tracked(page: Any, ids: str, attempts: int = 5) -> None:
