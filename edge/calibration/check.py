@@ -16,13 +16,9 @@ from edge.errors import CalibrationError
 FloatArray = NDArray[np.float64]
 
 
-@dataclass(frozen=True)
-class CheckResult:
-    """``mapped_cm``: (N, 2) where the calibration puts each check point's pixel; ``error_cm``: (N,) distance to
-    its surveyed position."""
+class ErrorStats:
+    """Count, mean, max and RMS of ``error_cm`` (N,) distances in cm; NaN when there are none."""
 
-    table: PointTable
-    mapped_cm: FloatArray
     error_cm: FloatArray
 
     @property
@@ -31,15 +27,25 @@ class CheckResult:
 
     @property
     def mean_cm(self) -> float:
-        return float(self.error_cm.mean())
+        return float(self.error_cm.mean()) if self.n else float("nan")
 
     @property
     def max_cm(self) -> float:
-        return float(self.error_cm.max())
+        return float(self.error_cm.max()) if self.n else float("nan")
 
     @property
     def rms_cm(self) -> float:
-        return float(np.sqrt(np.mean(self.error_cm**2)))
+        return float(np.sqrt(np.mean(self.error_cm**2))) if self.n else float("nan")
+
+
+@dataclass(frozen=True)
+class CheckResult(ErrorStats):
+    """``mapped_cm``: (N, 2) where the calibration puts each check point's pixel; ``error_cm``: (N,) distance to
+    its surveyed position."""
+
+    table: PointTable
+    mapped_cm: FloatArray
+    error_cm: FloatArray
 
 
 def check_calibration(cal: Calibration, table: PointTable) -> CheckResult:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.calibration.check import CheckResult, check_calibration
+from edge.calibration.check import CheckResult, ErrorStats, check_calibration
 from edge.calibration.files import Calibration
 from edge.calibration.points import PointTable
 
@@ -36,7 +36,7 @@ class BoardCheck:
 
 
 @dataclass(frozen=True)
-class Seam:
+class Seam(ErrorStats):
     """Two boards compared on the points both see: ``xy_world_cm`` (N, 2) surveyed, ``error_cm`` (N,) distance
     between where board ``a`` and board ``b`` put each."""
 
@@ -44,22 +44,6 @@ class Seam:
     b: str
     xy_world_cm: FloatArray
     error_cm: FloatArray
-
-    @property
-    def n(self) -> int:
-        return int(self.error_cm.size)
-
-    @property
-    def mean_cm(self) -> float:
-        return float(self.error_cm.mean()) if self.n else float("nan")
-
-    @property
-    def max_cm(self) -> float:
-        return float(self.error_cm.max()) if self.n else float("nan")
-
-    @property
-    def rms_cm(self) -> float:
-        return float(np.sqrt(np.mean(self.error_cm**2))) if self.n else float("nan")
 
 
 def board_name(calibration_path: Path) -> str:
