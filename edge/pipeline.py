@@ -47,6 +47,7 @@ FloatArray = NDArray[np.float64]
 
 
 WHITE_REFRESH_FRAMES = 15  # the light's map follows the background reference this often
+SIDEWAYS_MIN_SPEED_CM_S = 10.0  # motion that checks a two-tone marker's axis (edge.two_tone.TwoToneHeading.update)
 
 
 class Pipeline:
@@ -279,7 +280,7 @@ class Pipeline:
             area_cm2=self.maps.area_cm2[y0:y1, x0:x1],
         )
         view = view_marker(pixels, m.xy_cm, jacobian, geometry)
-        heading = tr.two_tone.update(view)
+        heading = tr.two_tone.update(view, self._time_s, self._motion_rad(tr))
         if heading is None:
             return None
         part = m.xy_cm
@@ -291,6 +292,13 @@ class Pipeline:
         shift = geometry.centre_offset_cm
         centre = (part[0] + shift * math.cos(heading), part[1] + shift * math.sin(heading))
         return replace(m, xy_cm=centre)
+
+    def _motion_rad(self, tr: RoverTrack) -> float | None:
+        """The direction the rover moves, when it moves clearly (a check on a two-tone marker's axis)."""
+        vel = tr.filter.velocity if tr.filter is not None else None
+        if vel is None or math.hypot(*vel) < SIDEWAYS_MIN_SPEED_CM_S:
+            return None
+        return math.atan2(vel[1], vel[0])
 
     def _plausible(self, m: Measurement, expected_area_cm2: float, learned: bool, tr: RoverTrack) -> bool:
         """Is this blob the whole marker? Its area on the plane, its shape, its colour's strength, and not cut off

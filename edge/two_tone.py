@@ -48,6 +48,10 @@ REPORT_EVIDENCE = 0.2  # evidence needed to report the heading: one clear frame
 FLIP_EVIDENCE = -0.3  # evidence against the tracked end that turns the heading round
 AXIS_PRIOR = 0.15  # weight of the coloured part's shape when a front is chosen anew
 HOLD_FRAMES = 5  # frames a heading is carried without a view of the marker's edges (turns < 30 deg at 30 fps)
+SIDEWAYS_RAD = math.radians(60.0)  # motion this far off the tracked axis (modulo 180 degrees) contradicts it...
+STEADY_TURN_RAD = math.radians(2.0)  # ...while the tracked heading turns less than this a frame (60 deg/s)...
+SIDEWAYS_FRAMES = 5  # ...for this many frames: the axis is the other one
+FRAME_S = 1.0 / 30.0  # the frame interval the frame counts above are for
 _KERNEL = np.ones((3, 3), np.uint8)
 CAMERA_GAMMA = 2.2  # webcams encode light with the sRGB tone curve, close to this power law
 _LINEAR = (np.arange(256, dtype=np.float64) / 255.0) ** CAMERA_GAMMA  # 8-bit value -> linear light
@@ -309,6 +313,8 @@ class TwoToneHeading:
         self.heading_rad: float | None = None
         self.evidence = 0.0
         self.age = 0  # frames since the edges were last seen
+        self.sideways = 0  # frames in a row the rover moved across its tracked axis without turning
+        self._at_s: float | None = None  # the stream time of the last frame taken
 
     @property
     def confident(self) -> bool:
@@ -318,6 +324,8 @@ class TwoToneHeading:
         self.heading_rad = None
         self.evidence = 0.0
         self.age = 0
+        self.sideways = 0
+        self._at_s = None
 
     def held(self) -> float | None:
         """The heading carried through a frame without a usable view (a few frames at most), else None."""
@@ -326,14 +334,41 @@ class TwoToneHeading:
             return None
         return self.heading_rad
 
-    def update(self, view: TwoToneView | None) -> float | None:
-        """Take one frame's view; return the heading to place the centre with (None: unknown this frame)."""
+    def update(
+        self, view: TwoToneView | None, at_s: float | None = None, motion_rad: float | None = None
+    ) -> float | None:
+        """Take one frame's view; return the heading to place the centre with (None: unknown this frame).
+
+        ``at_s``: the frame's time in the stream (s; None: the frame after the last one). The frames between this
+        one and the last one taken (dropped by the camera or by a computer that fell behind, or frames in which
+        the rover was not measured) count as frames without a view: after more than ``HOLD_FRAMES`` the rover
+        may have turned by more than 45 degrees, so continuity says nothing and the front is found anew.
+
+        ``motion_rad``: the direction the rover's centre moves on the floor, when it moves clearly (else None). A
+        differential drive moves along its axis; its centre moves across it only while the body turns (a marker
+        off the wheel axle). Moving across the tracked axis for ``SIDEWAYS_FRAMES`` frames while the tracked
+        heading holds still therefore means the axis was taken wrong (continuity across a gap it could not
+        bridge): the axis becomes the motion's, and its strips say which end is the front.
+        """
+        frames = 1
+        if at_s is not None:
+            if self._at_s is not None:
+                frames = max(1, round((at_s - self._at_s) / FRAME_S))
+            self._at_s = at_s
+        self.age += frames - 1
         if view is None or view.axis_strength < MIN_AXIS_STRENGTH:
             return self.held()
         scores = [s if math.isfinite(s) else -math.inf for s in view.scores]
         if self.heading_rad is not None and self.age <= HOLD_FRAMES:
             last = self.heading_rad
             k = min(range(4), key=lambda j: abs(math.remainder(view.candidate(j) - last, math.tau)))
+            if self._moved_sideways(view.candidate(k), last, frames, motion_rad):
+                assert motion_rad is not None
+                along = [j for j in range(4) if abs(math.remainder(view.candidate(j) - motion_rad, math.pi)) < QUARTER]
+                k = max(
+                    along, key=lambda j: (scores[j], -abs(math.remainder(view.candidate(j) - motion_rad, math.tau)))
+                )
+                self.evidence = 0.0
             step = _evidence(scores[k] - scores[(k + 2) % 4])
         else:
             prior = [AXIS_PRIOR * view.axis_prior * (1 if j % 2 == 0 else -1) for j in range(4)]
@@ -344,6 +379,7 @@ class TwoToneHeading:
             rivals = [t for j, t in enumerate(total) if j != k and t > -math.inf]
             step = _evidence(total[k] - max(rivals)) if rivals else 0.0
             self.evidence = 0.0
+            self.sideways = 0
         self.evidence = min(EVIDENCE_CAP, max(-EVIDENCE_CAP, self.evidence + step))
         if self.evidence <= FLIP_EVIDENCE:
             k = (k + 2) % 4
@@ -351,6 +387,16 @@ class TwoToneHeading:
         self.heading_rad = view.candidate(k)
         self.age = 0
         return self.heading_rad
+
+    def _moved_sideways(self, heading: float, last: float, frames: int, motion_rad: float | None) -> bool:
+        """Count the frames the rover moved across ``heading`` without turning; True once they are enough."""
+        steady = abs(math.remainder(heading - last, math.tau)) <= frames * STEADY_TURN_RAD
+        across = motion_rad is not None and abs(math.remainder(heading - motion_rad, math.pi)) > SIDEWAYS_RAD
+        self.sideways = self.sideways + frames if steady and across else 0
+        if self.sideways < SIDEWAYS_FRAMES:
+            return False
+        self.sideways = 0
+        return True
 
 
 def _evidence(margin: float) -> float:

@@ -13,14 +13,16 @@ import pytest
 from edge.sim.scenarios import build
 from edge.two_tone import (
     EVIDENCE_CAP,
+    FRAME_S,
     HOLD_FRAMES,
+    SIDEWAYS_FRAMES,
     TwoToneGeometry,
     TwoToneHeading,
     TwoToneView,
     edge_axis,
     end_strip_scores,
 )
-from tests.support.two_tone import appearing, brightest_floor_cm, crossing, spinning, track_one
+from tests.support.two_tone import appearing, brightest_floor_cm, crossing, spinning, track_one, turning_unseen
 
 GEOMETRY = TwoToneGeometry(21.5, 16.8, 0.3)
 
@@ -160,6 +162,60 @@ def test_the_heading_is_held_a_few_frames_without_edges_then_dropped() -> None:
     assert not h.confident
 
 
+def test_frames_the_tracker_never_saw_end_the_continuity() -> None:
+    """Twenty frames dropped (a computer that fell behind): the rover may have turned by any angle meanwhile, so
+    the candidate nearest the last heading means nothing; the front is found anew from the strips."""
+    h = TwoToneHeading()
+    h.update(view(0, 0.8, axis_deg=10.0), at_s=0.0)
+    turned = view(0, 0.8, axis_deg=77.0 - 90.0)  # candidate 0 at -13 deg is the nearest to 10, but 1 (77) is the front
+    turned = TwoToneView(turned.axis_rad, 0.8, (0.2, 1.0, 0.2, 0.2))
+    assert math.degrees(h.update(turned, at_s=20 * FRAME_S) or 0.0) == pytest.approx(77.0)
+    assert h.confident
+
+
+def test_a_frame_after_the_last_one_keeps_the_continuity() -> None:
+    h = TwoToneHeading()
+    h.update(view(0, 0.8, axis_deg=10.0), at_s=0.0)
+    same = TwoToneView(math.radians(-13.0), 0.8, (0.2, 1.0, 0.2, 0.2))  # a side strip looks like a front: legs
+    assert math.degrees(h.update(same, at_s=FRAME_S) or 0.0) == pytest.approx(-13.0)
+
+
+def sideways(h: TwoToneHeading, motion_deg: float, turn_deg_per_frame: float, frames: int) -> float:
+    """Feed ``frames`` frames of a rover moving towards ``motion_deg`` whose edges' axis turns by
+    ``turn_deg_per_frame``; the strips cannot tell the tracked end from the opposite one, the perpendicular
+    ones favour the end nearest the motion; returns the last heading (deg)."""
+    heading = 0.0
+    for k in range(frames):
+        axis = 10.0 + turn_deg_per_frame * (k + 1)
+        # candidate 1 (axis + 90) is the front by the strips; 0 and 2 (the tracked axis) are alike
+        heading = math.degrees(
+            h.update(
+                TwoToneView(math.radians(axis), 0.8, (0.3, 0.9, 0.3, 0.2)),
+                None,
+                math.radians(motion_deg + turn_deg_per_frame * (k + 1)),
+            )
+            or 0.0
+        )
+    return heading
+
+
+def test_moving_across_the_tracked_axis_without_turning_turns_the_axis() -> None:
+    """A differential drive moves along its axis: steady motion across the tracked one says the axis is wrong (a
+    heading carried across a gap it could not bridge). The motion gives the axis, the strips the end."""
+    h = TwoToneHeading()
+    h.update(view(0, 0.8, axis_deg=10.0))
+    assert sideways(h, 100.0, 0.0, SIDEWAYS_FRAMES - 1) == pytest.approx(10.0)  # not yet: a few frames are noise
+    assert sideways(h, 100.0, 0.0, 1) == pytest.approx(100.0)
+
+
+def test_turning_on_the_spot_moves_the_centre_sideways_without_turning_the_axis() -> None:
+    """A marker off the wheel axle moves across the rover while it turns on the spot: that is no contradiction."""
+    h = TwoToneHeading()
+    h.update(view(0, 0.8, axis_deg=10.0))
+    heading = sideways(h, 100.0, 4.0, 3 * SIDEWAYS_FRAMES)
+    assert heading == pytest.approx(10.0 + 4.0 * 3 * SIDEWAYS_FRAMES)
+
+
 # -- the tracker on rendered frames ---------------------------------------------------------------------------------
 SPOTS = {
     "lab": lambda setup: brightest_floor_cm(setup),  # the brightest lamp reflection inside the area
@@ -187,3 +243,17 @@ def test_two_tone_heading_and_centre_hold_over_glare_and_sunlight(spot: str, pat
     assert len(headings) >= 0.8 * len(errors.centre_cm)
     assert max(headings) < 3.0  # never a confident wrong heading
     assert float(np.median(headings)) < 1.0
+
+
+@pytest.mark.parametrize("turn_deg", [65.0, -80.0, 150.0])
+def test_a_rover_that_turned_while_frames_were_dropped_keeps_its_true_heading(turn_deg: float) -> None:
+    """The twin's overloaded computer dropped 20 frames while a rover turned by 65 degrees: the tracker took the
+    candidate nearest its last heading, 90 degrees off, and kept it for seconds as the rover drove (its centre 3 cm
+    off with it). Frames the tracker never saw end the continuity; the heading is right again at once."""
+    setup = build("lab", seed=0, rovers=1, heading="two_tone")
+    gap = range(30, 50)
+    errors = track_one(setup, turning_unseen(150.0, 200.0, 0.2, math.radians(turn_deg), gap, 40.0), dropped=gap)
+    headings = errors.heading_deg
+    assert len(headings) >= 0.9 * len(errors.centre_cm)
+    assert max(headings) < 5.0  # never a confident wrong heading
+    assert max(errors.centre_cm) < 1.0

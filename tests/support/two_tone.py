@@ -4,7 +4,7 @@ and the tracker's errors on the rendered frames."""
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Container, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,6 +56,19 @@ def crossing(x: float, y: float, theta: float, speed_cm_s: float, frames: int) -
         yield x + s * math.cos(theta), y + s * math.sin(theta), theta
 
 
+def turning_unseen(x: float, y: float, theta0: float, turn_rad: float, gap: range, speed_cm_s: float) -> Iterator[Pose]:
+    """A rover standing at (x, y) heading ``theta0`` that turns by ``turn_rad`` during the frames of ``gap`` and
+    then drives straight on at ``speed_cm_s``; ``gap.stop + 90`` frames in all."""
+    theta = theta0
+    for k in range(gap.stop + 90):
+        if k in gap:
+            theta = theta0 + turn_rad * (k - gap.start + 1) / len(gap)
+        elif k >= gap.stop:
+            x += speed_cm_s / FPS * math.cos(theta)
+            y += speed_cm_s / FPS * math.sin(theta)
+        yield x, y, theta
+
+
 def appearing(x: float, y: float, headings: int, shown: int = 8, hidden: int = 4) -> Iterator[Pose | None]:
     """A rover standing at (x, y) at ``headings`` evenly spaced headings in turn, each for ``shown`` frames, out of
     view (None) for ``hidden`` frames in between: the tracker loses it and must find its front from scratch."""
@@ -86,10 +99,11 @@ class Errors:
         return [f[1] for f in self.frames if f is not None and f[1] is not None]
 
 
-def track_one(setup: SimSetup, path: Iterator[Pose | None], seed: int = 0) -> Errors:
+def track_one(setup: SimSetup, path: Iterator[Pose | None], seed: int = 0, dropped: Container[int] = ()) -> Errors:
     """Render the setup's first rover (two-tone) along ``path`` (x, y, theta per frame, with the velocity that
     implies; None: out of view), track it with the pipeline as the loop builds it, and score every frame in view
-    against the truth."""
+    against the truth. Frames numbered in ``dropped`` never reach the tracker (a camera or a computer that fell
+    behind dropped them) and are not scored."""
     rid = setup.scene.rovers[0].rover_id
     renderer = setup.renderer()
     main, front = marker_colors(setup.camera, setup.scene, setup.effects, seed)[rid]
@@ -106,6 +120,8 @@ def track_one(setup: SimSetup, path: Iterator[Pose | None], seed: int = 0) -> Er
             vx, vy = (0.0, 0.0) if last is None else ((x - last[0]) * FPS, (y - last[1]) * FPS)
             state = WorldState(k / FPS, (RoverState(rid, x, y, theta, vx, vy),))
         last = pose
+        if k in dropped:
+            continue
         image = renderer.render(state, k)
         result = tracker.process(Frame(image=image, index=k, t_capture_s=k / FPS, t_mono_s=k / FPS))
         if pose is None:
