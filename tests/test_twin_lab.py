@@ -167,17 +167,15 @@ def test_a_short_wifi_fault_holds_the_poses_back_and_the_connection_survives(
     sent: list[int] = []
     with Publisher(broker_port) as publish:
         # A pose is QoS 0: one sent while green is still (re)connecting after the test before is lost, so send it
-        # again until green has it (each wait is for the event; the count bounds the whole at about WAIT_S).
-        assert any(
-            publish("green", 0) or green.host.pump(lambda: green.host.last_seq("green") == 0, timeout_s=0.5)
-            for _ in range(int(WAIT_S / 0.5))
-        )
+        # again until green has it (each wait is for the firmware's own thread to take it; the count bounds the
+        # whole at about WAIT_S).
+        assert any(publish("green", 0) or green.wait_own_pose(0, 0.5) for _ in range(int(WAIT_S / 0.5)))
         assert LabClient(path).fault("wifi", 0.4, "green") == "green's Wi-Fi gone for 0.4 s"
         for seq in range(1, 5):  # into the outage: TCP keeps them, they arrive when it is over
             publish("green", seq)
             sent.append(seq)
         events.wait_for("green", "fault over: green's Wi-Fi gone for 0.4 s", after=mark)
-        assert green.host.pump(lambda: green.host.last_seq("green") == sent[-1], timeout_s=WAIT_S)
+        assert green.wait_own_pose(sent[-1], WAIT_S)
     assert max(green.pose_delays_s()) > 0.1  # held back by the outage, not lost
     assert not [e for e in events.recent(mark) if "link down" in e["text"]]  # the association held
 

@@ -338,11 +338,17 @@ class TwinLab:
                 "connected": rid in on and on[rid].connected,
                 "moving": rid not in still,
                 "speed_cm_s": round(math.hypot(state[rid].vx_cm_s, state[rid].vy_cm_s), 1),
+                "truth": {
+                    "x": round(state[rid].x_cm, 2),
+                    "y": round(state[rid].y_cm, 2),
+                    "theta": round(state[rid].theta_rad, 4),
+                },
                 "pose_delay_ms": _delay_figures(on[rid].pose_delays_s()) if rid in on else None,
             }
             for rid in self.ids
         ]
         return {
+            "t": round(time.time(), 3),
             "cpu_s": self.cpu_s(),
             "link": "wire" if self.settings.link.is_wire else str(self.settings.link),
             "rovers": rovers,

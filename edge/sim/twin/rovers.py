@@ -109,6 +109,7 @@ class TwinRover:
         self.steps = 0
         self.last_fresh_s: float | None = None  # when the firmware last got a new pose of its own (clock, s)
         self._own_seq: int | None = None
+        self._own_changed = threading.Condition()
         self._said: tuple[str, str, str | None, int | None] | None = None
         self._thread: threading.Thread | None = None
 
@@ -146,6 +147,12 @@ class TwinRover:
         """The access point out of reach for ``seconds`` from now (see the module docstring)."""
         return self.model.force(self.link_time_s(), seconds)
 
+    def wait_own_pose(self, seq: int, timeout_s: float) -> bool:
+        """Until the firmware, on its own thread, has taken its own pose number ``seq`` (False after
+        ``timeout_s``). The firmware is not touched from the caller's thread: it runs on its own."""
+        with self._own_changed:
+            return self._own_changed.wait_for(lambda: self._own_seq == seq, timeout_s)
+
     def pose_delays_s(self) -> list[float]:
         """Air delays of the newest poses this rover received (broker to firmware, s)."""
         delays = self.relay.log.pose_delays_s
@@ -169,7 +176,9 @@ class TwinRover:
             self.steps += 1
             seq = self.host.last_seq(self.id)
             if seq != self._own_seq:
-                self._own_seq, self.last_fresh_s = seq, self.clock()
+                with self._own_changed:
+                    self._own_seq, self.last_fresh_s = seq, self.clock()
+                    self._own_changed.notify_all()
             due += self.period_s
             late = self.clock() - due
             if late > self.period_s:  # fell behind (a loaded computer): carry on from now, as the board's loop would
