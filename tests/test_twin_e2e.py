@@ -12,6 +12,7 @@ poses from then on move less than the tracker's noise), on the poses and on the 
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import threading
@@ -40,6 +41,7 @@ FRAMES = 300  # observed per formation; the bar must hold from frame 240 on
 AT_REST_AFTER_S = 0.5
 REST_WINDOW_S = 1.0
 REST_CM = 1.0  # a standing rover's poses move by the tracker's noise (p95 0.22 cm), far less than this
+TRUTH_CM = 1.0  # a standing rover's pose from its true place: the tracker's error (p95 0.3 cm in the closed loop)
 
 
 @pytest.fixture(params=["embedded", "mosquitto"])
@@ -136,6 +138,10 @@ def test_the_dashboards_formations_meet_the_closed_loop_bars_and_stop_leaves_eve
         assert all(v < REST_CM for v in moved.values()), moved
         truth = twin.lab.status()["rovers"]
         assert not [r["id"] for r in truth if r["moving"]], truth  # the lab's ground truth agrees
+        # ...and the poses the rovers act on are where the rovers stand (at rest: no latency in the comparison)
+        last = {p.id: p for p in twin.poses.since(t_stop)}
+        off = {r["id"]: math.hypot(last[r["id"]].x - r["truth"]["x"], last[r["id"]].y - r["truth"]["y"]) for r in truth}
+        assert max(off.values()) < TRUTH_CM, off
     record_property("broker", twin.broker)
     record_property("formations", results)
     record_property("stops", stops)
