@@ -225,6 +225,8 @@ def _formation(t: Twin, kind: str) -> tuple[dict[str, Any], dict[str, Any]]:
 def run(out: Path, repeat: int) -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
     record = out / "recording"
+    if record.is_dir() and any(record.iterdir()):  # the plot reads every recording file there: one run's only
+        raise SystemExit(f"{record} holds an earlier run's recording: give another --out or remove it")
     results: dict[str, Any] = {"formations": [], "stops": []}
     with tempfile.TemporaryDirectory(prefix="twin-") as tmp, twin(Path(tmp), 3, record) as t:
         t0 = time.time()
