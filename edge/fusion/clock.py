@@ -19,7 +19,8 @@ Two sources, combined by weighted least squares over all boards (:meth:`ClockAli
   on a LAN). It anchors every board to the fuser's clock, and is the only source for a board without overlap. A
   delayed message (a bridge that queued it through an outage) only lowers that difference, so it never moves the
   maximum; the maximum itself falls no faster than a clock can drift (``drift_rate``), so a board whose clock is
-  stepped back is followed at that pace (5 ms in 10 s).
+  stepped back is followed at that pace (5 ms in 10 s). It is also a hard floor: a board's offset is never
+  estimated below it (:func:`_at_least_the_arrival_bound`), so no capture is dated after its own arrival.
 
 Without the seam term, a 3 mm disagreement crossed one way at 25 cm/s reads as a 12 ms offset.
 """
@@ -274,7 +275,7 @@ class ClockAligner:
             sources[a].add("overlap")
             sources[b].add("overlap")
         cov = np.linalg.inv(info)
-        offsets = cov @ rhs
+        offsets = _at_least_the_arrival_bound(info, rhs, cov @ rhs, self._floors(index))
         out = {}
         for b, i in index.items():
             src = sources[b]
@@ -284,6 +285,37 @@ class ClockAligner:
             out[b] = OffsetEstimate(b, float(offsets[i]), float(math.sqrt(max(cov[i, i], 0.0))), name)
         self._estimates, self._dirty = out, False
         return out
+
+    def _floors(self, index: dict[str, int]) -> dict[int, float]:
+        """Each board's least possible offset: ``ts - arrival`` is the offset less a latency, never more."""
+        return {index[b]: a.bound for b, a in self._arrivals.items() if a.bound is not None and b in index}
+
+
+def _at_least_the_arrival_bound(
+    info: FloatArray, rhs: FloatArray, offsets: FloatArray, floors: dict[int, float]
+) -> FloatArray:
+    """The least-squares offsets with each board's offset held at or above its arrival bound.
+
+    A message cannot arrive before it was sent: a board's offset is at least its largest ``ts - arrival``. The
+    overlaps may say otherwise (a board whose tracker leads the others' looks like a clock behind), but an
+    estimate below the bound would date that board's captures after they reached the fuser. Boards below their
+    bound are held at it and the others solved again with them fixed, until none is below (at most one pass per
+    board)."""
+    held: dict[int, float] = {}
+    for _ in range(len(floors)):
+        below = {i: f for i, f in floors.items() if i not in held and offsets[i] < f - 1e-9}
+        if not below:
+            break
+        held |= below
+        free = [i for i in range(len(rhs)) if i not in held]
+        fixed = np.array(sorted(held))
+        offsets = offsets.copy()
+        offsets[fixed] = [held[i] for i in fixed]
+        if free:
+            a = info[np.ix_(free, free)]
+            b = rhs[free] - info[np.ix_(free, fixed)] @ offsets[fixed]
+            offsets[free] = np.linalg.solve(a, b)
+    return offsets
 
 
 def _velocity(samples: list[_Sample]) -> FloatArray | None:

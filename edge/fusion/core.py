@@ -19,7 +19,10 @@
   estimated velocity, its covariance grown by the velocity's uncertainty over the gap; a later one (a slower board)
   is put in its place and the last ``replay_s`` are filtered again.
 * **Output**: the first detection of a rover in frame ``k`` of the shared clock (``k = round(t * fps)``) gives that
-  rover's pose for frame ``k``: the filter's state moved to ``k / fps``, except that a correction (a better board
+  rover's pose for frame ``k``. Live (``pose_time = "measured"``) the pose is the filter's state at its newest
+  measurement's capture instant (on the fuser's clock, to the millisecond below): never dated later than anything
+  measured, so ``arrival - t`` is a true grab-to-pose latency and a rover's idea of its pose's age is right; for a
+  recording (``"frame"``) the state is moved to ``k / fps``. Either way a correction (a better board
   joins, a worse one leaves) moves the published pose by at most ``max_correction_cm`` a frame beyond the rover's
   estimated motion: the rovers' controllers see no step at a handover. A rover not measured for ``timeout_s`` is
   missing: no pose is published for it (the rovers' own staleness stops them).
@@ -30,6 +33,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -70,11 +74,15 @@ class FusionSettings:
     claim_radius_cm: float = 20.0  # two markers' centres are never closer: a body is 20 cm wide
     initial_speed_sigma_cm_s: float = 50.0
     max_correction_cm: float = 0.3  # per frame beyond the estimated motion: a handover moves a rover smoothly
+    # "measured": a pose is the state at its newest measurement's capture instant (live: never dated after what was
+    # measured, so a rover's pose age is true); "frame": at the shared clock's frame instant (a recording's series)
+    pose_time: Literal["measured", "frame"] = "measured"
 
 
 @dataclass(frozen=True)
 class FusedPose:
-    """One rover's fused state for frame ``tick`` of the shared clock (``t_s = tick / fps``, reference clock).
+    """One rover's fused state for frame ``tick`` of the shared clock (``tick = round(t_s * fps)``), at ``t_s`` on
+    the reference clock (:attr:`FusionSettings.pose_time`).
     ``boards``: the boards whose detections the filter took in this frame's period."""
 
     rover_id: str
@@ -110,7 +118,7 @@ class _Track:
     checkpoint_t_s: float
     log: deque[_Measurement] = field(default_factory=deque)
     last_tick: int = -1
-    shown: tuple[int, float, float] | None = None  # the last published (tick, x, y): corrections are spread from it
+    shown: tuple[float, float, float] | None = None  # the last published (t, x, y): corrections are spread from it
     last_measured_s: float = -math.inf
     refused_since_s: float | None = None
     theta_rad: float | None = None
@@ -250,11 +258,16 @@ class Fuser:
         track.boards_now[edge_id] = t_s
         if r.theta_rad is not None and t_s >= track.theta_t_s:
             track.theta_rad, track.theta_t_s = r.theta_rad, t_s
-        tick = round(t_s * s.fps)
+        if s.pose_time == "frame":
+            tick = round(t_s * s.fps)
+            t_pose = tick / s.fps
+        else:  # the newest capture instant, to the wire's millisecond and never later
+            t_pose = math.floor(track.t_s * 1e3 + 1e-6) / 1e3
+            tick = round(t_pose * s.fps)
         if tick <= track.last_tick:
             return None  # this frame's pose is out; the detection is in the filter for the next one
         track.last_tick = tick
-        return self._pose(r.rover_id, track, tick, r.quality)
+        return self._pose(r.rover_id, track, tick, t_pose, r.quality)
 
     def _start(self, rover_id: str, m: _Measurement) -> _Track:
         f = CvState.start(m.x, m.y, m.rxx, m.rxy, m.ryy, self.settings.initial_speed_sigma_cm_s)
@@ -318,25 +331,24 @@ class Fuser:
             f.predict(m.t_s - t_s, self.settings.accel_sigma_cm_s2)
         f.update(m.x, m.y, m.rxx, m.rxy, m.ryy, self.settings.fade_nis)
 
-    def _pose(self, rover_id: str, track: _Track, tick: int, quality: float) -> FusedPose:
+    def _pose(self, rover_id: str, track: _Track, tick: int, t_pose: float, quality: float) -> FusedPose:
         s = self.settings
-        t_tick = tick / s.fps
         f = track.filter
         vel = f.velocity
         x, y = f.x, f.y
         if vel is not None:
-            x += vel[0] * (t_tick - track.t_s)
-            y += vel[1] * (t_tick - track.t_s)
-        if track.shown is not None and vel is not None and 0 < tick - track.shown[0] <= 3:
+            x += vel[0] * (t_pose - track.t_s)
+            y += vel[1] * (t_pose - track.t_s)
+        if track.shown is not None and vel is not None and 0.0 < t_pose - track.shown[0] <= 3.5 / s.fps:
             # a correction (a better board joins, a worse one leaves) is spread over frames, not jumped
-            k, sx, sy = track.shown
-            px, py = sx + vel[0] * (tick - k) / s.fps, sy + vel[1] * (tick - k) / s.fps
+            st, sx, sy = track.shown
+            px, py = sx + vel[0] * (t_pose - st), sy + vel[1] * (t_pose - st)
             dx, dy = x - px, y - py
             step = math.hypot(dx, dy)
-            limit = s.max_correction_cm * (tick - k)
+            limit = s.max_correction_cm * (t_pose - st) * s.fps
             if step > limit:
                 x, y = px + dx * limit / step, py + dy * limit / step
-        track.shown = (tick, x, y)
+        track.shown = (t_pose, x, y)
         theta = track.theta_rad if track.t_s - track.theta_t_s <= s.heading_s else None
         if theta is None and vel is not None and math.hypot(*vel) >= s.heading_min_speed_cm_s:
             theta = math.atan2(vel[1], vel[0])
@@ -344,7 +356,7 @@ class Fuser:
         return FusedPose(
             rover_id,
             tick,
-            t_tick,
+            t_pose,
             x,
             y,
             theta,
