@@ -280,10 +280,21 @@ def start_mosquitto(conf: Path, workdir: Path, ports: dict[int, int]) -> subproc
     raise RuntimeError(f"mosquitto did not start: {(workdir / 'log').read_text()}")
 
 
-def replay_board(url: str, edge_id: str, det_path: Path, times_path: Path) -> None:
-    """A board: its recorded detections in real time, each frame grabbed at ``k / 30`` of the wall clock (phase 0,
-    a correct clock: the pose's ``t`` is then the grab time of the frame that made it), published after the
-    tracking time that frame took in the accuracy run."""
+def replay_index(k: int, k0: int, frames: int) -> int:
+    """The recorded frame a board shows at grab tick ``k`` when every board started at tick ``k0``: the same for
+    every board (one world instant at one grab time), played forwards then backwards (no rover teleports at the
+    loop's end: a board counting its own frames from its own start would show each board another instant)."""
+    if frames < 2:
+        return 0
+    j = (k - k0) % (2 * frames - 2)
+    return j if j < frames else 2 * frames - 2 - j
+
+
+def replay_board(url: str, edge_id: str, det_path: Path, times_path: Path, k0: int, phase_s: float) -> None:
+    """A board: its recorded detections in real time. Frame ``k`` of the shared clock is grabbed at ``k / 30 +
+    phase_s`` of the wall clock (the camera's exposure phase in the recording; a correct clock, so the pose's ``t``
+    is a grab time on the subscriber's clock), shows recorded frame :func:`replay_index` ``(k, k0)``, and is
+    published after the tracking time that frame took in the accuracy run."""
     from urllib.parse import urlsplit
 
     import paho.mqtt.client as mqtt
@@ -304,11 +315,11 @@ def replay_board(url: str, edge_id: str, det_path: Path, times_path: Path) -> No
     client.loop_start()
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda s, f: stop.set())
-    k = math.ceil(time.time() * 30.0)
+    k = max(k0, math.ceil((time.time() - phase_s) * 30.0))
     n = 0
     while not stop.is_set():
-        grab = k / 30.0
-        i = n % len(frames)
+        grab = k / 30.0 + phase_s
+        i = replay_index(k, k0, len(frames))
         due = grab + track_ms[i] / 1e3
         wait = due - time.time()
         if wait > 0:
@@ -322,7 +333,7 @@ def replay_board(url: str, edge_id: str, det_path: Path, times_path: Path) -> No
             )
             client.publish(edge_status_topic(edge_id), dumps(online), qos=1, retain=True)
         n += 1
-        k = max(k + 1, math.floor(time.time() * 30.0))
+        k = max(k + 1, math.floor((time.time() - phase_s) * 30.0))  # a board that falls behind skips frames
     client.disconnect()
     client.loop_stop()
 
@@ -361,6 +372,37 @@ def _poses(messages: list[tuple[float, str, bytes]]) -> list[tuple[float, Any]]:
     from edge.messages import parse_pose
 
     return [(t, parse_pose(p)) for t, topic, p in messages if topic.endswith("/pose")]
+
+
+def _detection_ages(messages: list[tuple[float, str, bytes]], edge_id: str | None) -> list[float]:
+    """Receive time minus grab time (ms) of the detections of ``edge_id`` (None: every board's)."""
+    from edge.board_messages import detections_topic, parse_detections
+
+    wanted = detections_topic(edge_id) if edge_id is not None else None
+    return [
+        1e3 * (t - parse_detections(p).t)
+        for t, topic, p in messages
+        if topic.endswith("/detections") and (wanted is None or topic == wanted)
+    ]
+
+
+def latency_stats(latencies_ms: list[float]) -> dict[str, float]:
+    """p50 / p99 / max of receive-minus-grab times. A negative one is not fast but wrong: the times it subtracts are
+    on two clocks (a board replaying another instant than the others, a pose dated after it left); counted."""
+    if not latencies_ms:
+        return {"n": 0}
+    a = np.asarray(latencies_ms)
+    negative = int((a < 0.0).sum())
+    if negative:
+        print(f"WARNING: {negative} of {a.size} latencies negative (min {a.min():.1f} ms): two clocks", flush=True)
+    return {
+        "n": int(a.size),
+        "p50": float(np.percentile(a, 50)),
+        "p99": float(np.percentile(a, 99)),
+        "max": float(a.max()),
+        "min": float(a.min()),
+        "negative": negative,
+    }
 
 
 def _fuser_state(messages: list[tuple[float, str, bytes]]) -> dict[str, str]:
@@ -420,6 +462,8 @@ def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) 
         board1 = logins(brokers / names[0])
         at_board = Subscriber(board_ports[names[0]][1884], "edge", board1["edge"]["edge"])
         boards = {}
+        k0 = math.ceil((time.time() + 3.0) * 30.0)  # every board's first frame: one world instant, one grab time
+        phases = {c["name"]: c["phase_s"] for c in layout["cameras"]}
         for name in names:
             url = f"mqtt://edge:{logins(brokers / name)['edge']['edge']}@127.0.0.1:{board_ports[name][1884]}"
             boards[name] = subprocess.Popen(
@@ -431,6 +475,8 @@ def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) 
                     name,
                     str(work / name / "det.jsonl"),
                     str(work / name / "track_ms.json") if tracking_delay else "none",
+                    str(k0),
+                    repr(phases[name]),
                 ],
                 cwd=REPO,
             )
@@ -459,20 +505,14 @@ def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) 
         cpu1 = proc.cpu_times()
         t1 = time.time()
         cpu = (cpu1.user + cpu1.system - cpu0.user - cpu0.system) / (t1 - t0)
-        lat_c = [1e3 * (t - p.t) for t, p in _poses(at_central.since(t0)) if t <= t1]
-        lat_b = [1e3 * (t - p.t) for t, p in _poses(at_board.since(t0)) if t <= t1]
-        results["latency_central_ms"] = {
-            "n": len(lat_c),
-            "p50": float(np.percentile(lat_c, 50)),
-            "p99": float(np.percentile(lat_c, 99)),
-            "max": float(max(lat_c)),
-        }
-        results["latency_board_ms"] = {
-            "n": len(lat_b),
-            "p50": float(np.percentile(lat_b, 50)),
-            "p99": float(np.percentile(lat_b, 99)),
-            "max": float(max(lat_b)),
-        }
+        central = [m for m in at_central.since(t0) if m[0] <= t1]
+        board = [m for m in at_board.since(t0) if m[0] <= t1]
+        lat_c = [1e3 * (t - p.t) for t, p in _poses(central)]
+        results["latency_central_ms"] = latency_stats(lat_c)
+        results["latency_board_ms"] = latency_stats([1e3 * (t - p.t) for t, p in _poses(board)])
+        # where the time goes: a grab to its detections on the board's broker, and through the bridge to the central
+        results["detections_at_board_ms"] = latency_stats(_detection_ages(board, names[0]))
+        results["detections_at_central_ms"] = latency_stats(_detection_ages(central, None))
         results["fuser_cpu_percent"] = 100.0 * cpu
         results["poses_per_s"] = len(lat_c) / (t1 - t0)
         # -- takeover -------------------------------------------------------------------------------------------
@@ -582,11 +622,11 @@ def main() -> None:
         help="Publish each frame at its grab time: the latency of the brokers, bridges and fuser alone.",
     )
     board = sub.add_parser("_board")
-    board.add_argument("args", nargs=4)
+    board.add_argument("args", nargs=6)
     a = parser.parse_args()
     if a.what == "_board":
-        url, edge_id, det, times = a.args
-        replay_board(url, edge_id, Path(det), Path(times))
+        url, edge_id, det, times, k0, phase = a.args
+        replay_board(url, edge_id, Path(det), Path(times), int(k0), float(phase))
         return
     print(f"# {platform.node()} {platform.machine()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M')}")
     if a.what == "accuracy":

@@ -97,3 +97,35 @@ def test_a_recording_is_fused_onto_the_frames_of_the_shared_clock() -> None:
     fuser = Fuser(replace(FusionSettings(), pose_time="frame"))
     poses = [p for d in rec.frames["a"] for p in fuser.add(d)]
     assert poses and all(p.t_s == pytest.approx(p.tick / 30.0) for p in poses)
+
+
+# -- the live benchmark's boards ---------------------------------------------------------------------------------
+def _bench():  # type: ignore[no-untyped-def]
+    import importlib.util
+
+    from tests.conftest import REPO
+
+    spec = importlib.util.spec_from_file_location("bench_fusion", REPO / "benchmarks" / "bench_fusion.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_benchmarks_boards_show_one_world_instant_at_one_grab_time_wherever_they_started() -> None:
+    """The replayed boards of the live benchmark: a board that started (or fell behind and skipped) later shows, at
+    grab tick k, the same recorded frame as every other; the recording plays forwards and back without a jump.
+    (Each board once counted its own frames from its own start: boards started a second apart showed the fuser
+    rovers 30 frames apart at one grab time, and the latencies came out negative.)"""
+    bench = _bench()
+    k0, frames = 1000, 300
+    for k in range(k0, k0 + 2000):
+        i = bench.replay_index(k, k0, frames)
+        assert 0 <= i < frames
+        assert abs(i - bench.replay_index(k + 1, k0, frames)) == 1  # forwards or back, never a teleport
+    assert [bench.replay_index(k, k0, frames) for k in (k0, k0 + 299, k0 + 300, k0 + 598)] == [0, 299, 298, 0]
+
+
+def test_the_benchmark_counts_a_negative_latency_as_a_clock_error() -> None:
+    stats = _bench().latency_stats([3.0, 5.0, -2.0])
+    assert stats["negative"] == 1 and stats["min"] == -2.0

@@ -53,6 +53,9 @@ class ClockSettings:
     drift_rate: float = 5e-4  # how fast the arrival bound may fall: NTP slews a clock by at most 500 ppm
     arrival_sigma_s: float = 0.002  # how well the arrival bound pins a board to the fuser's clock
     prior_sigma_s: float = 1.0  # a board with no evidence at all: offset 0, this unsure
+    # live, the offsets are solved again at most this often (data time): a clock moves microseconds in that time,
+    # and solving on every message is a third of the fuser's work between a board's frame and its rovers' poses
+    solve_every_s: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -136,6 +139,8 @@ class ClockAligner:
         self._boards: list[str] = []
         self._estimates: dict[str, OffsetEstimate] = {}
         self._dirty = True
+        self._data_s = -math.inf  # the newest time in the evidence
+        self._solved_s = -math.inf  # the data time of the last solve
 
     # -- evidence ---------------------------------------------------------------------------------------------------
     def observe(self, d: Detections) -> None:
@@ -167,6 +172,7 @@ class ClockAligner:
         self._board(edge_id)
         arrivals = self._arrivals.setdefault(edge_id, _Arrivals())
         arrivals.add(t_sent_board_s - t_arrival_s, t_arrival_s, self.settings.drift_rate)
+        self._data_s = max(self._data_s, t_arrival_s)
         self._dirty = True
 
     def _board(self, edge_id: str) -> None:
@@ -214,15 +220,23 @@ class ClockAligner:
         pair.rhs = pair.rhs * fade + design.T @ w @ y
         pair.samples += 1
         pair.t_s = max(pair.t_s, t_s)
+        self._data_s = max(self._data_s, t_s)
         self._dirty = True
 
     # -- estimates --------------------------------------------------------------------------------------------------
     def offset_s(self, edge_id: str) -> float:
-        """The current estimate of the board's offset (0 for a board never seen)."""
-        if self._dirty:
+        """The current estimate of the board's offset (0 for a board never seen), solved again when
+        ``solve_every_s`` of new evidence is in; never below the board's arrival bound as it is now."""
+        if self._dirty and (
+            self._data_s - self._solved_s >= self.settings.solve_every_s or edge_id not in self._estimates
+        ):
             self.solve()
         est = self._estimates.get(edge_id)
-        return est.offset_s if est is not None else 0.0
+        offset = est.offset_s if est is not None else 0.0
+        arrivals = self._arrivals.get(edge_id)
+        if arrivals is not None and arrivals.bound is not None:
+            offset = max(offset, arrivals.bound)
+        return offset
 
     def estimates(self) -> dict[str, OffsetEstimate]:
         if self._dirty:
@@ -283,7 +297,7 @@ class ClockAligner:
                 "reference" if "reference" in src else "+".join(x for x in ("overlap", "arrival") if x in src) or "none"
             )
             out[b] = OffsetEstimate(b, float(offsets[i]), float(math.sqrt(max(cov[i, i], 0.0))), name)
-        self._estimates, self._dirty = out, False
+        self._estimates, self._dirty, self._solved_s = out, False, self._data_s
         return out
 
     def _floors(self, index: dict[str, int]) -> dict[int, float]:

@@ -81,7 +81,7 @@ def read_detections(path: Path) -> list[Detections]:
 def estimate_offsets(boards: Sequence[Sequence[Detections]], settings: FusionSettings, passes: int = 2) -> ClockAligner:
     """A :class:`ClockAligner` trained over the whole recording, the first board's clock the reference."""
     reference = boards[0][0].edge_id
-    clock = replace(settings.clock, compare_every_s=0.0)  # offline there is time to compare every frame
+    clock = replace(settings.clock, compare_every_s=0.0, solve_every_s=0.0)  # offline there is time for all of it
     aligner = ClockAligner(clock, reference)
     for k in range(passes):
         previous = {b: e.offset_s for b, e in aligner.estimates().items()}

@@ -182,7 +182,7 @@ class FuserService:
         d = from_message(parse_detections(payload))
         with self._lock:
             self.stats.detections += 1
-            poses = self.fuser.add(d, now_s=self._wall())
+            poses = self.fuser.add(d, now_s=self._wall(), learn=False)
             for pose in poses:
                 self._latest[pose.rover_id] = pose
                 n = self.stats.seq.get(pose.rover_id, 0)
@@ -196,6 +196,7 @@ class FuserService:
                         self.on_pose(pose, line)
                 else:
                     self.stats.poses_withheld += 1
+            self.fuser.learn_pending()  # the clocks' evidence, once the poses are on their way
 
     # -- the lease and the status (own thread) ------------------------------------------------------------------
     def _lease_loop(self) -> None:
