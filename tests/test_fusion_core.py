@@ -245,7 +245,13 @@ def test_fuse_refuses_bad_input_in_one_line(tmp_path: Path, what: str, files, me
         (["--broker", "embedded"], "the fuser connects to the central Mosquitto"),
         (["--broker", "mqtt://127.0.0.1:1", "x.jsonl"], "--broker fuses live: give no detections files"),
         (["--broker", "mqtt://127.0.0.1:1", "--id", "Fuser A"], "--id 'Fuser A'"),
-        (["x.jsonl", "--out", "p.jsonl", "--http-port", "8090"], "--http-port serves the live fused map"),
+        (["x.jsonl", "--out", "p.jsonl", "--http-port", "8090"], "--http-port and --board-dashboard serve the live"),
+        (["x.jsonl", "--out", "p.jsonl", "--board-dashboard", "a=http://a:1"], "--board-dashboard serve the live"),
+        (["--broker", "mqtt://127.0.0.1:1", "--board-dashboard", "a=http://a:1"], "give --http-port too"),
+        (
+            ["--broker", "mqtt://127.0.0.1:1", "--http-port", "0", "--board-dashboard", "cam1:8080"],
+            "--board-dashboard 'cam1:8080': give EDGE=URL",
+        ),
         (["x.jsonl"], "--out is required"),
     ],
 )
