@@ -167,10 +167,11 @@ def test_detections_that_arrive_late_are_fused_in_their_place(recording: Recordi
 def test_detections_older_than_the_age_limit_are_dropped(recording: Recording) -> None:
     fuser = Fuser(SETTINGS)
     d = recording.frames["a"][100]
-    assert fuser.add(d, now_s=d.t_capture_s + 0.05)  # fresh: fused
+    fuser.add(d, now_s=d.t_capture_s + 0.05)  # fresh: fused
+    assert fuser.boards["a"].frames == 1 and set(fuser.tracks) == {r.rover_id for r in d.rovers}
     late = recording.frames["a"][101]
     assert fuser.add(late, now_s=late.t_capture_s + SETTINGS.max_age_s + 0.5) == []  # queued by a bridge: stale
-    assert fuser.boards["a"].stale == 1
+    assert fuser.boards["a"].stale == 1 and fuser.boards["a"].frames == 1
 
 
 def test_a_rover_nobody_sees_is_missing_and_gets_no_pose() -> None:
