@@ -368,6 +368,30 @@ class Subscriber:
         self.client.loop_stop()
 
 
+class CSubscriber:
+    """``mosquitto_sub`` on a broker, every pose and detections message with its receive time (``%U``) in a file."""
+
+    def __init__(self, port: int, user: str, password: str, out: Path) -> None:
+        self.out = out
+        with out.open("wb") as f:
+            self.proc = subprocess.Popen(
+                [
+                    "mosquitto_sub", "-h", "127.0.0.1", "-p", str(port), "-u", user, "-P", password,
+                    "-t", "ips/v1/rovers/+/pose", "-t", "ips/v1/edge/+/detections", "-F", "%U %t %p",
+                ],
+                stdout=f,
+            )  # fmt: skip
+
+    def stop(self) -> list[tuple[float, str, bytes]]:
+        self.proc.terminate()
+        self.proc.wait(10)
+        out = []
+        for line in self.out.read_bytes().splitlines():
+            t, topic, payload = line.split(b" ", 2)
+            out.append((float(t), topic.decode(), payload))
+        return out
+
+
 def _poses(messages: list[tuple[float, str, bytes]]) -> list[tuple[float, Any]]:
     from edge.messages import parse_pose
 
@@ -499,20 +523,28 @@ def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) 
         # -- latency and CPU ------------------------------------------------------------------------------------
         active = next(f for f, s in _fuser_state(at_central.since(0)).items() if s == "active")
         proc = psutil.Process(fusers[active].pid)
+        # the latency is timed by mosquitto_sub (C): the Python subscribers' own queue is not the system's
+        timers = {
+            "central": CSubscriber(central_ports[1884], "edge", central_logins["edge"]["edge"], work / "run" / "c.txt"),
+            "board": CSubscriber(board_ports[names[0]][1884], "edge", board1["edge"]["edge"], work / "run" / "b.txt"),
+        }
+        time.sleep(1.0)
         t0 = time.time()
         cpu0 = proc.cpu_times()
         time.sleep(seconds)
         cpu1 = proc.cpu_times()
         t1 = time.time()
         cpu = (cpu1.user + cpu1.system - cpu0.user - cpu0.system) / (t1 - t0)
-        central = [m for m in at_central.since(t0) if m[0] <= t1]
-        board = [m for m in at_board.since(t0) if m[0] <= t1]
+        central = [m for m in timers["central"].stop() if t0 <= m[0] <= t1]
+        board = [m for m in timers["board"].stop() if t0 <= m[0] <= t1]
         lat_c = [1e3 * (t - p.t) for t, p in _poses(central)]
         results["latency_central_ms"] = latency_stats(lat_c)
         results["latency_board_ms"] = latency_stats([1e3 * (t - p.t) for t, p in _poses(board)])
         # where the time goes: a grab to its detections on the board's broker, and through the bridge to the central
         results["detections_at_board_ms"] = latency_stats(_detection_ages(board, names[0]))
         results["detections_at_central_ms"] = latency_stats(_detection_ages(central, None))
+        py = [m for m in at_central.since(t0) if m[0] <= t1]
+        results["latency_central_python_subscriber_ms"] = latency_stats([1e3 * (t - p.t) for t, p in _poses(py)])
         results["fuser_cpu_percent"] = 100.0 * cpu
         results["poses_per_s"] = len(lat_c) / (t1 - t0)
         # -- takeover -------------------------------------------------------------------------------------------

@@ -76,7 +76,8 @@ def test_a_tracker_that_leads_the_others_moves_no_capture_past_its_arrival(lead_
     offsets = {k: e.offset_s for k, e in fuser.status(now_s=6.0).offsets.items()}
     behind, ahead = ("b", "a") if lead_ms > 0 else ("a", "b")
     assert offsets[behind] == pytest.approx(-0.001, abs=1e-6)  # ts - arrival: the floor
-    assert offsets[ahead] - offsets[behind] == pytest.approx(abs(lead_ms) / 1e3, abs=0.003)
+    # the other board takes up the difference (against its own arrival bound's pull: most of the 10 ms)
+    assert 0.005 < offsets[ahead] - offsets[behind] < 0.013
 
 
 def test_a_live_pose_is_dated_at_its_newest_capture_not_rounded_to_the_frame() -> None:
