@@ -3,6 +3,7 @@
 
     .venv/bin/python benchmarks/bench_fusion.py accuracy --work runs/fusion      # 4 cameras, 50 rovers, 300 frames
     .venv/bin/python benchmarks/bench_fusion.py live --work runs/fusion          # bridged brokers, real processes
+    .venv/bin/python benchmarks/bench_fusion.py one-broker --work runs/fusion    # where the time goes, no bridges
 
 ``accuracy``: ``sim render wide`` (4 cameras, 50 rovers with one hue each: the simulator's palette spreads 50 hues
 7.2 deg apart), every board calibrated from its own survey points (34, 0.5 px click noise), every video tracked
@@ -640,6 +641,66 @@ def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) 
     return results
 
 
+def one_broker(work: Path, seconds: float) -> dict[str, Any]:
+    """Where the time goes, without bridges: the four replayed boards (no tracking delay) on one Mosquitto and the
+    fuser in this process, timed at its publish (the pose's age then), per detections message (parse, fuse,
+    publish), and at ``mosquitto_sub``."""
+    from edge.config import parse_broker_url
+    from edge.fusion.service import FuserService
+
+    layout = json.loads((work / "wide.json").read_text())
+    run = work / "run" / "one-broker"
+    run.mkdir(parents=True, exist_ok=True)
+    port = free_port()
+    (run / "mosquitto.conf").write_text(
+        f"listener {port} 127.0.0.1\nallow_anonymous true\nset_tcp_nodelay true\npersistence false\n"
+    )
+    broker = subprocess.Popen(["/usr/sbin/mosquitto", "-c", str(run / "mosquitto.conf")], stderr=subprocess.DEVNULL)
+    ages: list[float] = []
+    per_message: list[float] = []
+    service = FuserService(
+        parse_broker_url(f"mqtt://127.0.0.1:{port}"), "f1", on_pose=lambda p, line: ages.append(time.time() - p.t_s)
+    )
+    fuse = service._fuse
+
+    def timed(payload: bytes) -> None:
+        t = time.perf_counter()
+        fuse(payload)
+        per_message.append(time.perf_counter() - t)
+
+    service._fuse = timed  # type: ignore[method-assign]
+    boards: list[subprocess.Popen[bytes]] = []
+    try:
+        _wait(lambda: socket.socket().connect_ex(("127.0.0.1", port)) == 0, 10)
+        service.start()
+        service.wait_connected(10)
+        k0 = math.ceil((time.time() + 2.0) * 30.0)
+        for cam in layout["cameras"]:
+            det = str(work / cam["name"] / "det.jsonl")
+            args = [PY, __file__, "_board", f"mqtt://x:y@127.0.0.1:{port}", cam["name"], det, "none", str(k0)]
+            boards.append(subprocess.Popen([*args, repr(cam["phase_s"])], cwd=REPO))
+        time.sleep(6.0)
+        timer = CSubscriber(port, "x", "y", run / "sub.txt")
+        time.sleep(1.0)
+        ages.clear()
+        per_message.clear()
+        t0 = time.time()
+        time.sleep(seconds)
+        t1 = time.time()
+        got = [m for m in timer.stop() if t0 <= m[0] <= t1]
+        return {
+            "pose_age_at_publish_ms": latency_stats([1e3 * a for a in ages]),
+            "fuser_per_message_ms": latency_stats([1e3 * a for a in per_message]),
+            "latency_ms": latency_stats([1e3 * (t - p.t) for t, p in _poses(got)]),
+            "detections_at_broker_ms": latency_stats(_detection_ages(got, None)),
+        }
+    finally:
+        for b in boards:
+            b.terminate()
+        service.stop()
+        broker.terminate()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
     sub = parser.add_subparsers(dest="what", required=True)
@@ -659,6 +720,9 @@ def main() -> None:
         action="store_false",
         help="Publish each frame at its grab time: the latency of the brokers, bridges and fuser alone.",
     )
+    one = sub.add_parser("one-broker")
+    one.add_argument("--work", type=Path, required=True)
+    one.add_argument("--seconds", type=float, default=20.0)
     board = sub.add_parser("_board")
     board.add_argument("args", nargs=6)
     a = parser.parse_args()
@@ -672,6 +736,9 @@ def main() -> None:
         extra = render_and_track(a.work, a.cameras, a.rovers, a.frames, a.seed)
         result = evaluate(a.work) | extra
         (a.work / "accuracy.json").write_text(json.dumps(result, indent=2))
+    elif a.what == "one-broker":
+        result = one_broker(a.work, a.seconds)
+        (a.work / "one-broker.json").write_text(json.dumps(result, indent=2))
     else:
         result = live(a.work, a.seconds, a.repeats, a.tracking_delay) | {"tracking_delay": a.tracking_delay}
         name = "live.json" if a.tracking_delay else "live-transport.json"
