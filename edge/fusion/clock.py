@@ -321,11 +321,11 @@ def _at_least_the_arrival_bound(
         if not below:
             break
         held |= below
-        free = [i for i in range(len(rhs)) if i not in held]
-        fixed = np.array(sorted(held))
+        free = np.array([i for i in range(len(rhs)) if i not in held], dtype=np.intp)
+        fixed = np.array(sorted(held), dtype=np.intp)
         offsets = offsets.copy()
         offsets[fixed] = [held[i] for i in fixed]
-        if free:
+        if free.size:
             a = info[np.ix_(free, free)]
             b = rhs[free] - info[np.ix_(free, fixed)] @ offsets[fixed]
             offsets[free] = np.linalg.solve(a, b)

@@ -372,10 +372,12 @@ class Fuser:
             # the filter's velocity is not shown at once), plus at most max_correction_cm a frame
             st, sx, sy, ux, uy = track.shown
             dt = t_pose - st
+            vx, vy = vel
             if t_pose - track.born_s > s.shown_warmup_s:
                 a = dt / (s.shown_velocity_s + dt)
-                shown_v = (ux + a * (vel[0] - ux), uy + a * (vel[1] - uy))
-            px, py = sx + shown_v[0] * dt, sy + shown_v[1] * dt
+                vx, vy = ux + a * (vx - ux), uy + a * (vy - uy)
+            shown_v = (vx, vy)
+            px, py = sx + vx * dt, sy + vy * dt
             dx, dy = x - px, y - py
             step = math.hypot(dx, dy)
             limit = s.max_correction_cm * dt * s.fps
