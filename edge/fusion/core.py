@@ -78,7 +78,7 @@ class FusionSettings:
     claim_radius_cm: float = 20.0  # two markers' centres are never closer: a body is 20 cm wide
     initial_speed_sigma_cm_s: float = 50.0
     max_correction_cm: float = 0.25  # per frame beyond the shown motion: a handover moves a rover smoothly
-    shown_velocity_s: float = 0.1  # the shown motion's velocity: the filter's, smoothed over this time
+    shown_velocity_s: float = 0.15  # the shown motion's velocity: the filter's, smoothed over this time
     shown_warmup_s: float = 0.5  # a new track shows the filter's velocity as it is for this long
     # "measured": a pose is the state at its newest measurement's capture instant (live: never dated after what was
     # measured, so a rover's pose age is true); "frame": at the shared clock's frame instant (a recording's series)
