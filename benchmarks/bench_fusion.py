@@ -3,6 +3,7 @@
 
     .venv/bin/python benchmarks/bench_fusion.py accuracy --work runs/fusion      # 4 cameras, 50 rovers, 300 frames
     .venv/bin/python benchmarks/bench_fusion.py live --work runs/fusion          # bridged brokers, real processes
+    .venv/bin/python benchmarks/bench_fusion.py one-broker --work runs/fusion    # where the time goes, no bridges
 
 ``accuracy``: ``sim render wide`` (4 cameras, 50 rovers with one hue each: the simulator's palette spreads 50 hues
 7.2 deg apart), every board calibrated from its own survey points (34, 0.5 px click noise), every video tracked
@@ -15,10 +16,13 @@ estimates against their true exposure offsets; the seams between the boards' cal
 ``live``: the same detections replayed in real time by four board processes, each with its own Mosquitto bridged to
 a central one as ``edge-ips broker-config --bridge`` writes them (the boards wait, before publishing each frame,
 the time the tracker took for it in the accuracy run: so grab-to-pose covers tracking, the board's broker, the
-bridge, the fuser and the central broker); two fusers (``edge-ips fuse --broker``); a subscriber on the central
-broker and one on a board's broker. Measured: grab-to-fused-pose latency p50/p99 (receive time minus the frame's
-grab time, one clock), the active fuser's CPU, the takeover time when the active fuser is killed (and when it is
-paused), what happens when one board dies.
+bridge, the fuser and the central broker); two fusers (``edge-ips fuse --broker``); ``mosquitto_sub`` on the
+central broker and on a board's broker. Every board shows, at grab tick k, the same recorded instant
+(:func:`replay_index`), stamped with its true grab time (its camera's exposure phase, a correct clock). Measured:
+grab-to-fused-pose latency p50/p99 (receive time minus the pose's ``t``, the grab of the newest detection in it;
+one clock, so a negative one is an error and counted), and the same for the detections at the board's broker and
+at the central one (the bridge's share); the active fuser's CPU, the takeover time when the active fuser is killed
+(and when it is paused), what happens when one board dies.
 
 Timing figures (latency, CPU) measured on a loaded machine are not valid: re-run on a quiet one.
 """
@@ -280,10 +284,21 @@ def start_mosquitto(conf: Path, workdir: Path, ports: dict[int, int]) -> subproc
     raise RuntimeError(f"mosquitto did not start: {(workdir / 'log').read_text()}")
 
 
-def replay_board(url: str, edge_id: str, det_path: Path, times_path: Path) -> None:
-    """A board: its recorded detections in real time, each frame grabbed at ``k / 30`` of the wall clock (phase 0,
-    a correct clock: the pose's ``t`` is then the grab time of the frame that made it), published after the
-    tracking time that frame took in the accuracy run."""
+def replay_index(k: int, k0: int, frames: int) -> int:
+    """The recorded frame a board shows at grab tick ``k`` when every board started at tick ``k0``: the same for
+    every board (one world instant at one grab time), played forwards then backwards (no rover teleports at the
+    loop's end: a board counting its own frames from its own start would show each board another instant)."""
+    if frames < 2:
+        return 0
+    j = (k - k0) % (2 * frames - 2)
+    return j if j < frames else 2 * frames - 2 - j
+
+
+def replay_board(url: str, edge_id: str, det_path: Path, times_path: Path, k0: int, phase_s: float) -> None:
+    """A board: its recorded detections in real time. Frame ``k`` of the shared clock is grabbed at ``k / 30 +
+    phase_s`` of the wall clock (the camera's exposure phase in the recording; a correct clock, so the pose's ``t``
+    is a grab time on the subscriber's clock), shows recorded frame :func:`replay_index` ``(k, k0)``, and is
+    published after the tracking time that frame took in the accuracy run."""
     from urllib.parse import urlsplit
 
     import paho.mqtt.client as mqtt
@@ -304,11 +319,11 @@ def replay_board(url: str, edge_id: str, det_path: Path, times_path: Path) -> No
     client.loop_start()
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda s, f: stop.set())
-    k = math.ceil(time.time() * 30.0)
+    k = max(k0, math.ceil((time.time() - phase_s) * 30.0))
     n = 0
     while not stop.is_set():
-        grab = k / 30.0
-        i = n % len(frames)
+        grab = k / 30.0 + phase_s
+        i = replay_index(k, k0, len(frames))
         due = grab + track_ms[i] / 1e3
         wait = due - time.time()
         if wait > 0:
@@ -322,13 +337,13 @@ def replay_board(url: str, edge_id: str, det_path: Path, times_path: Path) -> No
             )
             client.publish(edge_status_topic(edge_id), dumps(online), qos=1, retain=True)
         n += 1
-        k = max(k + 1, math.floor(time.time() * 30.0))
+        k = max(k + 1, math.floor((time.time() - phase_s) * 30.0))  # a board that falls behind skips frames
     client.disconnect()
     client.loop_stop()
 
 
 class Subscriber:
-    """Receive times of everything on a broker."""
+    """Receive times of the fusers' and boards' statuses on a broker, and of what :meth:`add` asks for later."""
 
     def __init__(self, port: int, user: str, password: str) -> None:
         import paho.mqtt.client as mqtt
@@ -337,7 +352,9 @@ class Subscriber:
         self.lock = threading.Lock()
         self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"edge-ips-bench-{port}")
         self.client.username_pw_set(user, password)
-        self.client.on_connect = lambda c, u, f, rc, p: c.subscribe("ips/v1/#", qos=0)
+        # statuses first; the poses once the latency is timed (1500 a second into Python load the machine timed)
+        self.topics = ["ips/v1/fuser/#", "ips/v1/edge/+/status"]
+        self.client.on_connect = lambda c, u, f, rc, p: c.subscribe([(t, 0) for t in self.topics])
         self.client.on_message = self._on_message
         self.client.on_socket_open = lambda c, u, s: s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.client.connect("127.0.0.1", port)
@@ -348,6 +365,10 @@ class Subscriber:
         with self.lock:
             self.messages.append((now, m.topic, bytes(m.payload)))
 
+    def add(self, topic: str) -> None:
+        self.topics.append(topic)
+        self.client.subscribe(topic, qos=0)
+
     def since(self, t: float) -> list[tuple[float, str, bytes]]:
         with self.lock:
             return [m for m in self.messages if m[0] >= t]
@@ -357,10 +378,65 @@ class Subscriber:
         self.client.loop_stop()
 
 
+class CSubscriber:
+    """``mosquitto_sub`` on a broker, every pose and detections message with its receive time (``%U``) in a file."""
+
+    def __init__(self, port: int, user: str, password: str, out: Path) -> None:
+        self.out = out
+        with out.open("wb") as f:
+            self.proc = subprocess.Popen(
+                [
+                    "mosquitto_sub", "-h", "127.0.0.1", "-p", str(port), "-u", user, "-P", password,
+                    "-t", "ips/v1/rovers/+/pose", "-t", "ips/v1/edge/+/detections", "-F", "%U %t %p",
+                ],
+                stdout=f,
+            )  # fmt: skip
+
+    def stop(self) -> list[tuple[float, str, bytes]]:
+        self.proc.terminate()
+        self.proc.wait(10)
+        out = []
+        for line in self.out.read_bytes().splitlines():
+            t, topic, payload = line.split(b" ", 2)
+            out.append((float(t), topic.decode(), payload))
+        return out
+
+
 def _poses(messages: list[tuple[float, str, bytes]]) -> list[tuple[float, Any]]:
     from edge.messages import parse_pose
 
     return [(t, parse_pose(p)) for t, topic, p in messages if topic.endswith("/pose")]
+
+
+def _detection_ages(messages: list[tuple[float, str, bytes]], edge_id: str | None) -> list[float]:
+    """Receive time minus grab time (ms) of the detections of ``edge_id`` (None: every board's)."""
+    from edge.board_messages import detections_topic, parse_detections
+
+    wanted = detections_topic(edge_id) if edge_id is not None else None
+    return [
+        1e3 * (t - parse_detections(p).t)
+        for t, topic, p in messages
+        if topic.endswith("/detections") and (wanted is None or topic == wanted)
+    ]
+
+
+def latency_stats(latencies_ms: list[float]) -> dict[str, float]:
+    """p50 / p99 / max of receive-minus-grab times. A negative one is not fast but wrong: the times it subtracts are
+    on two clocks (a board replaying another instant than the others, a pose dated after it left); counted."""
+    if not latencies_ms:
+        return {"n": 0}
+    a = np.asarray(latencies_ms)
+    negative = int((a < 0.0).sum())
+    if negative:
+        print(f"WARNING: {negative} of {a.size} latencies negative (min {a.min():.1f} ms): two clocks", flush=True)
+    return {
+        "n": int(a.size),
+        "p50": float(np.percentile(a, 50)),
+        "p99": float(np.percentile(a, 99)),
+        "max": float(a.max()),
+        "min": float(a.min()),
+        "negative": negative,
+    }
 
 
 def _fuser_state(messages: list[tuple[float, str, bytes]]) -> dict[str, str]:
@@ -418,8 +494,9 @@ def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) 
     try:
         at_central = Subscriber(central_ports[1884], "edge", central_logins["edge"]["edge"])
         board1 = logins(brokers / names[0])
-        at_board = Subscriber(board_ports[names[0]][1884], "edge", board1["edge"]["edge"])
         boards = {}
+        k0 = math.ceil((time.time() + 3.0) * 30.0)  # every board's first frame: one world instant, one grab time
+        phases = {c["name"]: c["phase_s"] for c in layout["cameras"]}
         for name in names:
             url = f"mqtt://edge:{logins(brokers / name)['edge']['edge']}@127.0.0.1:{board_ports[name][1884]}"
             boards[name] = subprocess.Popen(
@@ -431,6 +508,8 @@ def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) 
                     name,
                     str(work / name / "det.jsonl"),
                     str(work / name / "track_ms.json") if tracking_delay else "none",
+                    str(k0),
+                    repr(phases[name]),
                 ],
                 cwd=REPO,
             )
@@ -453,28 +532,29 @@ def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) 
         # -- latency and CPU ------------------------------------------------------------------------------------
         active = next(f for f, s in _fuser_state(at_central.since(0)).items() if s == "active")
         proc = psutil.Process(fusers[active].pid)
+        # the latency is timed by mosquitto_sub (C): the Python subscribers' own queue is not the system's
+        timers = {
+            "central": CSubscriber(central_ports[1884], "edge", central_logins["edge"]["edge"], work / "run" / "c.txt"),
+            "board": CSubscriber(board_ports[names[0]][1884], "edge", board1["edge"]["edge"], work / "run" / "b.txt"),
+        }
+        time.sleep(1.0)
         t0 = time.time()
         cpu0 = proc.cpu_times()
         time.sleep(seconds)
         cpu1 = proc.cpu_times()
         t1 = time.time()
         cpu = (cpu1.user + cpu1.system - cpu0.user - cpu0.system) / (t1 - t0)
-        lat_c = [1e3 * (t - p.t) for t, p in _poses(at_central.since(t0)) if t <= t1]
-        lat_b = [1e3 * (t - p.t) for t, p in _poses(at_board.since(t0)) if t <= t1]
-        results["latency_central_ms"] = {
-            "n": len(lat_c),
-            "p50": float(np.percentile(lat_c, 50)),
-            "p99": float(np.percentile(lat_c, 99)),
-            "max": float(max(lat_c)),
-        }
-        results["latency_board_ms"] = {
-            "n": len(lat_b),
-            "p50": float(np.percentile(lat_b, 50)),
-            "p99": float(np.percentile(lat_b, 99)),
-            "max": float(max(lat_b)),
-        }
+        central = [m for m in timers["central"].stop() if t0 <= m[0] <= t1]
+        board = [m for m in timers["board"].stop() if t0 <= m[0] <= t1]
+        lat_c = [1e3 * (t - p.t) for t, p in _poses(central)]
+        results["latency_central_ms"] = latency_stats(lat_c)
+        results["latency_board_ms"] = latency_stats([1e3 * (t - p.t) for t, p in _poses(board)])
+        # where the time goes: a grab to its detections on the board's broker, and through the bridge to the central
+        results["detections_at_board_ms"] = latency_stats(_detection_ages(board, names[0]))
+        results["detections_at_central_ms"] = latency_stats(_detection_ages(central, None))
         results["fuser_cpu_percent"] = 100.0 * cpu
         results["poses_per_s"] = len(lat_c) / (t1 - t0)
+        at_central.add("ips/v1/rovers/+/pose")
         # -- takeover -------------------------------------------------------------------------------------------
         takeovers: dict[str, list[float]] = {"killed": [], "paused": []}
         for how in ("killed", "paused"):
@@ -550,7 +630,6 @@ def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) 
             "missing": status.missing,
         }
         at_central.stop()
-        at_board.stop()
         for p in [*boards.values(), *fusers.values()]:
             if p.poll() is None:
                 p.terminate()
@@ -560,6 +639,66 @@ def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) 
             p.terminate()
             p.wait(10)
     return results
+
+
+def one_broker(work: Path, seconds: float) -> dict[str, Any]:
+    """Where the time goes, without bridges: the four replayed boards (no tracking delay) on one Mosquitto and the
+    fuser in this process, timed at its publish (the pose's age then), per detections message (parse, fuse,
+    publish), and at ``mosquitto_sub``."""
+    from edge.config import parse_broker_url
+    from edge.fusion.service import FuserService
+
+    layout = json.loads((work / "wide.json").read_text())
+    run = work / "run" / "one-broker"
+    run.mkdir(parents=True, exist_ok=True)
+    port = free_port()
+    (run / "mosquitto.conf").write_text(
+        f"listener {port} 127.0.0.1\nallow_anonymous true\nset_tcp_nodelay true\npersistence false\n"
+    )
+    broker = subprocess.Popen(["/usr/sbin/mosquitto", "-c", str(run / "mosquitto.conf")], stderr=subprocess.DEVNULL)
+    ages: list[float] = []
+    per_message: list[float] = []
+    service = FuserService(
+        parse_broker_url(f"mqtt://127.0.0.1:{port}"), "f1", on_pose=lambda p, line: ages.append(time.time() - p.t_s)
+    )
+    fuse = service._fuse
+
+    def timed(payload: bytes) -> None:
+        t = time.perf_counter()
+        fuse(payload)
+        per_message.append(time.perf_counter() - t)
+
+    service._fuse = timed  # type: ignore[method-assign]
+    boards: list[subprocess.Popen[bytes]] = []
+    try:
+        _wait(lambda: socket.socket().connect_ex(("127.0.0.1", port)) == 0, 10)
+        service.start()
+        service.wait_connected(10)
+        k0 = math.ceil((time.time() + 2.0) * 30.0)
+        for cam in layout["cameras"]:
+            det = str(work / cam["name"] / "det.jsonl")
+            args = [PY, __file__, "_board", f"mqtt://x:y@127.0.0.1:{port}", cam["name"], det, "none", str(k0)]
+            boards.append(subprocess.Popen([*args, repr(cam["phase_s"])], cwd=REPO))
+        time.sleep(6.0)
+        timer = CSubscriber(port, "x", "y", run / "sub.txt")
+        time.sleep(1.0)
+        ages.clear()
+        per_message.clear()
+        t0 = time.time()
+        time.sleep(seconds)
+        t1 = time.time()
+        got = [m for m in timer.stop() if t0 <= m[0] <= t1]
+        return {
+            "pose_age_at_publish_ms": latency_stats([1e3 * a for a in ages]),
+            "fuser_per_message_ms": latency_stats([1e3 * a for a in per_message]),
+            "latency_ms": latency_stats([1e3 * (t - p.t) for t, p in _poses(got)]),
+            "detections_at_broker_ms": latency_stats(_detection_ages(got, None)),
+        }
+    finally:
+        for b in boards:
+            b.terminate()
+        service.stop()
+        broker.terminate()
 
 
 def main() -> None:
@@ -581,12 +720,15 @@ def main() -> None:
         action="store_false",
         help="Publish each frame at its grab time: the latency of the brokers, bridges and fuser alone.",
     )
+    one = sub.add_parser("one-broker")
+    one.add_argument("--work", type=Path, required=True)
+    one.add_argument("--seconds", type=float, default=20.0)
     board = sub.add_parser("_board")
-    board.add_argument("args", nargs=4)
+    board.add_argument("args", nargs=6)
     a = parser.parse_args()
     if a.what == "_board":
-        url, edge_id, det, times = a.args
-        replay_board(url, edge_id, Path(det), Path(times))
+        url, edge_id, det, times, k0, phase = a.args
+        replay_board(url, edge_id, Path(det), Path(times), int(k0), float(phase))
         return
     print(f"# {platform.node()} {platform.machine()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M')}")
     if a.what == "accuracy":
@@ -594,6 +736,9 @@ def main() -> None:
         extra = render_and_track(a.work, a.cameras, a.rovers, a.frames, a.seed)
         result = evaluate(a.work) | extra
         (a.work / "accuracy.json").write_text(json.dumps(result, indent=2))
+    elif a.what == "one-broker":
+        result = one_broker(a.work, a.seconds)
+        (a.work / "one-broker.json").write_text(json.dumps(result, indent=2))
     else:
         result = live(a.work, a.seconds, a.repeats, a.tracking_delay) | {"tracking_delay": a.tracking_delay}
         name = "live.json" if a.tracking_delay else "live-transport.json"

@@ -19,6 +19,7 @@ from edge.messages import parse_pose
 from tests.support.fusion import Board, Recording, circle, line, record
 
 SETTINGS = FusionSettings()
+OFFLINE = replace(SETTINGS, pose_time="frame")  # as `edge-ips fuse FILES` runs it: a series on the frames
 # Three boards over an 800 x 1000 cm floor, overlapping by 100 cm; clocks off by up to 12 ms, exposures out of
 # phase, and calibrations that disagree by 3-5 mm (as two independent surveys do).
 BOARDS = [
@@ -40,8 +41,8 @@ def recording() -> Recording:
 
 
 def fuse_offline(rec: Recording) -> list[FusedPose]:
-    aligner = estimate_offsets([rec.frames[b.edge_id] for b in rec.boards], SETTINGS)
-    fuser = Fuser(SETTINGS, aligner=aligner, learn_offsets=False)
+    aligner = estimate_offsets([rec.frames[b.edge_id] for b in rec.boards], OFFLINE)
+    fuser = Fuser(OFFLINE, aligner=aligner, learn_offsets=False)
     offsets = aligner.estimates()
     frames = sorted(
         (d for f in rec.frames.values() for d in f), key=lambda d: d.t_capture_s - offsets[d.edge_id].offset_s
@@ -166,10 +167,11 @@ def test_detections_that_arrive_late_are_fused_in_their_place(recording: Recordi
 def test_detections_older_than_the_age_limit_are_dropped(recording: Recording) -> None:
     fuser = Fuser(SETTINGS)
     d = recording.frames["a"][100]
-    assert fuser.add(d, now_s=d.t_capture_s + 0.05)  # fresh: fused
+    fuser.add(d, now_s=d.t_capture_s + 0.05)  # fresh: fused
+    assert fuser.boards["a"].frames == 1 and set(fuser.tracks) == {r.rover_id for r in d.rovers}
     late = recording.frames["a"][101]
     assert fuser.add(late, now_s=late.t_capture_s + SETTINGS.max_age_s + 0.5) == []  # queued by a bridge: stale
-    assert fuser.boards["a"].stale == 1
+    assert fuser.boards["a"].stale == 1 and fuser.boards["a"].frames == 1
 
 
 def test_a_rover_nobody_sees_is_missing_and_gets_no_pose() -> None:
@@ -244,7 +246,13 @@ def test_fuse_refuses_bad_input_in_one_line(tmp_path: Path, what: str, files, me
         (["--broker", "embedded"], "the fuser connects to the central Mosquitto"),
         (["--broker", "mqtt://127.0.0.1:1", "x.jsonl"], "--broker fuses live: give no detections files"),
         (["--broker", "mqtt://127.0.0.1:1", "--id", "Fuser A"], "--id 'Fuser A'"),
-        (["x.jsonl", "--out", "p.jsonl", "--http-port", "8090"], "--http-port serves the live fused map"),
+        (["x.jsonl", "--out", "p.jsonl", "--http-port", "8090"], "--http-port and --board-dashboard serve the live"),
+        (["x.jsonl", "--out", "p.jsonl", "--board-dashboard", "a=http://a:1"], "--board-dashboard serve the live"),
+        (["--broker", "mqtt://127.0.0.1:1", "--board-dashboard", "a=http://a:1"], "give --http-port too"),
+        (
+            ["--broker", "mqtt://127.0.0.1:1", "--http-port", "0", "--board-dashboard", "cam1:8080"],
+            "--board-dashboard 'cam1:8080': give EDGE=URL",
+        ),
         (["x.jsonl"], "--out is required"),
     ],
 )
@@ -294,8 +302,9 @@ def test_a_better_board_joining_moves_the_rover_by_small_steps_to_where_it_is() 
     steps = []
     for prev, cur in itertools.pairwise(poses):
         assert cur.tick == prev.tick + 1 and cur.vx_cm_s is not None and cur.vy_cm_s is not None
-        predicted = (prev.x_cm + cur.vx_cm_s / 30.0, prev.y_cm + cur.vy_cm_s / 30.0)
-        steps.append(math.dist((cur.x_cm, cur.y_cm), predicted))
+        dt = cur.t_s - prev.t_s  # a frame, to the millisecond the pose's time is given in
+        predicted = (prev.x_cm + cur.vx_cm_s * dt, prev.y_cm + cur.vy_cm_s * dt)
+        steps.append(math.dist((cur.x_cm, cur.y_cm), predicted) / (30.0 * dt))  # per 1/30 s
     assert max(steps) <= settings.max_correction_cm + 1e-9
     assert max(steps[44:]) == pytest.approx(settings.max_correction_cm)  # the correction was spread, not skipped
     assert abs(poses[-1].y_cm - 200.0) < 0.3  # and it arrived: the precise board is believed

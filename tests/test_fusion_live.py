@@ -111,8 +111,10 @@ def test_one_fuser_publishes_each_rovers_pose_once_per_frame_where_the_rover_is(
     poses = pose_list(recorder.messages, start)
     assert {p.id for _, p in poses} == {"r1", "r2", "r3"}  # type: ignore[attr-defined]
     errors = []
-    for _, p in poses:
+    for t_recv, p in poses:
         assert p.frame == round(p.t * 30.0) % 1_000_000_000  # type: ignore[attr-defined]
+        # one machine, one clock: a pose's t (the grab, on the fuser's clock) is before anyone received it
+        assert t_recv >= p.t, (t_recv, p)  # type: ignore[attr-defined]
         x, y = truth(p.id, p.t)  # type: ignore[attr-defined]
         errors.append(math.hypot(p.x - x, p.y - y))  # type: ignore[attr-defined]
     # both boards' clocks are wrong (+3 ms, -5 ms): the fuser found out, or r1 would be off by 0.1-0.2 cm more

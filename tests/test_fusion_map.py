@@ -63,9 +63,28 @@ def test_the_map_says_which_boards_measured_each_rover_and_where_nobody_watches(
     assert state["rovers"][0]["age_ms"] == pytest.approx(20.0)
 
 
+def camera_of_board_a() -> HttpServer:
+    """Board a's dashboard as far as the map uses it: ``/api/frame.jpg`` behind the same viewer token, on the
+    project's HTTP server, a JPEG of a rendered camera frame of the wide arena."""
+    from edge.dashboard.frames import encode_jpeg
+    from edge.httpserver import Response
+    from edge.sim.wide_source import WideCameraSource
+
+    source = WideCameraSource("wide:cam1:2", realtime=False)
+    source.open()
+    frame = source.read()
+    source.close()
+    assert frame is not None
+    jpeg, _, _ = encode_jpeg(frame.image, max_width_px=640, quality=70)
+    http = HttpServer("127.0.0.1", 0, hosts=HostAllowList.for_this_board(), tokens=Tokens(None, "seen"))
+    http.route("/api/frame.jpg", lambda request: Response(200, jpeg, "image/jpeg"), access="read")
+    return http.start()
+
+
 @pytest.fixture(scope="module")
 def fused(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[int, dict[str, threading.Event]]]:
-    """A fuser with its map on a free port, fed by boards ``a`` and ``b``; events set when r2 and r3 were fused."""
+    """A fuser with its map on a free port, fed by boards ``a`` and ``b`` (a's dashboard, with its camera image,
+    given; b's not); events set when r2 and r3 were fused."""
     work: Path = tmp_path_factory.mktemp("fusedmap")
     fused_once = {rover: threading.Event() for rover in ("r2", "r3")}
 
@@ -73,8 +92,10 @@ def fused(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[int, dict[
         if pose.rover_id in fused_once:
             fused_once[pose.rover_id].set()
 
+    camera = camera_of_board_a()
     with Mosquitto(work) as broker:
-        service = FuserService(parse_broker_url(broker.url), "f1", on_pose=on_pose)
+        dashboards = {"a": f"http://127.0.0.1:{camera.port}"}
+        service = FuserService(parse_broker_url(broker.url), "f1", on_pose=on_pose, dashboards=dashboards)
         http = HttpServer("127.0.0.1", 0, hosts=HostAllowList.for_this_board(), tokens=Tokens(None, "seen")).start()
         serve_map(http, service.map_state)
         service.start()
@@ -84,6 +105,7 @@ def fused(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[int, dict[
         finally:
             service.stop()
             http.stop()
+            camera.stop()
 
 
 @pytest.mark.slow
@@ -96,6 +118,8 @@ def test_the_map_serves_each_rover_with_the_board_that_saw_it(fused: tuple[int, 
     assert seen_by["r2"] == ["a"] and seen_by["r3"] == ["b"]  # r2 circles in a's half only, r3 in b's
     views = {b["edge"]: b["view"] for b in state["boards"]}
     assert views == {"a": VIEW_A, "b": VIEW_B}
+    dashboards = {b["edge"]: b["dashboard"] for b in state["boards"]}
+    assert dashboards["a"].startswith("http://127.0.0.1:") and dashboards["b"] is None
     assert state["fuser"] == "f1" and state["unwatched"] == []
 
 
@@ -114,3 +138,31 @@ def test_the_page_draws_both_views_and_marks_who_saw_each_rover(
         assert sorted(page.eval_on_selector_all("polygon.view", "ps => ps.map(p => p.dataset.board)")) == ["a", "b"]
         assert "r2 · a" in (page.text_content("#map") or "")
         assert page.url.endswith("/")  # the token is taken out of the address
+
+
+@pytest.mark.slow
+def test_the_page_shows_each_boards_camera_and_the_rovers_it_sees(
+    fused: tuple[int, dict[str, threading.Event]],
+) -> None:
+    """Board a's camera image comes from its dashboard, asked again and again with the page's viewer token; board b
+    (no dashboard given) says how to give it; each caption lists the rovers that board sees."""
+    port, fused_once = fused
+    assert all(event.wait(60.0) for event in fused_once.values())
+    with chromium() as browser:
+        page = browser.new_page()
+        page.goto(f"http://127.0.0.1:{port}/?token=seen")
+        page.wait_for_function(
+            """() => { const f = document.querySelector('figure.camera[data-board="a"]');
+                       return f && Number(f.dataset.frames || 0) >= 3; }""",
+            timeout=30_000,
+        )
+        width = page.eval_on_selector('figure.camera[data-board="a"] img', "img => img.naturalWidth")
+        assert width == 640  # the board's JPEG, decoded: the token went with it
+        page.wait_for_function(
+            """() => /r3/.test(document.querySelector('figure.camera[data-board="b"] figcaption').textContent)"""
+        )
+        caption_a = page.text_content('figure.camera[data-board="a"] figcaption') or ""
+        caption_b = page.text_content('figure.camera[data-board="b"] figcaption') or ""
+        assert "r2" in caption_a and "r3" not in caption_a  # r2 circles in a's half only, r3 in b's
+        assert page.query_selector('figure.camera[data-board="b"] img') is None
+        assert "--board-dashboard b=URL" in caption_b

@@ -35,6 +35,14 @@ if TYPE_CHECKING:
     default=None,
     help="Live: serve the fused map (every board's view, the rovers, which boards saw each) on this port (0: any).",
 )
+@click.option(
+    "--board-dashboard",
+    "board_dashboards",
+    multiple=True,
+    metavar="EDGE=URL",
+    help="Live, with --http-port: the fused map shows this board's camera image from its dashboard (repeat per "
+    "board; the map's viewer token is passed on, so give the boards the same one).",
+)
 def fuse(
     detections: tuple[Path, ...],
     out_path: Path | None,
@@ -45,6 +53,7 @@ def fuse(
     fuser_id: str,
     max_age_s: float,
     http_port: int | None,
+    board_dashboards: tuple[str, ...],
 ) -> None:
     """Fuse several boards' detections into one pose v1 line per rover per frame of the shared clock.
 
@@ -58,7 +67,8 @@ def fuse(
 
     \b
         edge-ips fuse cam1.jsonl cam2.jsonl cam3.jsonl cam4.jsonl --out poses.jsonl
-        edge-ips fuse --broker mqtt://fuser:PASSWORD@central.lab:1883 --id fuser-a --http-port 8090
+        edge-ips fuse --broker mqtt://fuser:PASSWORD@central.lab:1883 --id fuser-a --http-port 8090 \\
+            --board-dashboard cam1=http://cam1.lab:8080 --board-dashboard cam2=http://cam2.lab:8080
     """
     import json
     import re
@@ -72,12 +82,14 @@ def fuse(
             raise UserError("--broker fuses live: give no detections files and no --out")
         if not re.match(ID_PATTERN, fuser_id):
             raise UserError(f"--id {fuser_id!r}: use 1-16 characters of a-z, 0-9, _ and -")
-        _fuse_live(config_path, broker_url, fuser_id, settings, http_port)
+        if board_dashboards and http_port is None:
+            raise UserError("--board-dashboard puts a board's camera on the fused map: give --http-port too")
+        _fuse_live(config_path, broker_url, fuser_id, settings, http_port, _dashboards(board_dashboards))
         return
     from edge.fusion.offline import fuse_files
 
-    if http_port is not None:
-        raise UserError("--http-port serves the live fused map: use it with --broker")
+    if http_port is not None or board_dashboards:
+        raise UserError("--http-port and --board-dashboard serve the live fused map: use them with --broker")
     if not detections:
         raise UserError("give the detections files to fuse (one per board), or --broker URL to fuse live")
     if out_path is None:
@@ -94,8 +106,30 @@ def fuse(
     click.echo(f"wrote {out_path}")
 
 
+def _dashboards(given: tuple[str, ...]) -> dict[str, str]:
+    """``EDGE=URL`` options as {edge id: the dashboard's address without a trailing slash}."""
+    import re
+    from urllib.parse import urlsplit
+
+    from edge.messages import ID_PATTERN
+
+    out = {}
+    for item in given:
+        edge_id, _, url = item.partition("=")
+        parts = urlsplit(url)
+        if not re.match(ID_PATTERN, edge_id) or parts.scheme not in ("http", "https") or not parts.hostname:
+            raise UserError(f"--board-dashboard {item!r}: give EDGE=URL, e.g. cam1=http://cam1.lab:8080")
+        out[edge_id] = url.rstrip("/")
+    return out
+
+
 def _fuse_live(
-    config_path: Path | None, broker_url: str, fuser_id: str, settings: FusionSettings, http_port: int | None
+    config_path: Path | None,
+    broker_url: str,
+    fuser_id: str,
+    settings: FusionSettings,
+    http_port: int | None,
+    dashboards: dict[str, str],
 ) -> None:
     import signal
     import threading
@@ -105,7 +139,7 @@ def _fuse_live(
 
     loaded = load(config_path, **{"broker.url": broker_url, "http.port": http_port})
     setup_logging(loaded.config.edge.log_level)
-    service = fuser_for(loaded.config, fuser_id, settings)
+    service = fuser_for(loaded.config, fuser_id, settings, dashboards)
     http = None
     if http_port is not None:
         http = HttpServer.from_config(loaded.config.http, loaded.config.dashboard).start()

@@ -19,7 +19,8 @@ Two sources, combined by weighted least squares over all boards (:meth:`ClockAli
   on a LAN). It anchors every board to the fuser's clock, and is the only source for a board without overlap. A
   delayed message (a bridge that queued it through an outage) only lowers that difference, so it never moves the
   maximum; the maximum itself falls no faster than a clock can drift (``drift_rate``), so a board whose clock is
-  stepped back is followed at that pace (5 ms in 10 s).
+  stepped back is followed at that pace (5 ms in 10 s). It is also a hard floor: a board's offset is never
+  estimated below it (:func:`_at_least_the_arrival_bound`), so no capture is dated after its own arrival.
 
 Without the seam term, a 3 mm disagreement crossed one way at 25 cm/s reads as a 12 ms offset.
 """
@@ -45,13 +46,16 @@ class ClockSettings:
     max_gap_s: float = 0.1  # board b's two samples around the instant must be this close
     max_residual_cm: float = 5.0  # larger residuals are an association mistake, not a clock
     velocity_window_s: float = 0.2  # a rover's velocity is fitted over this much of a board's track
-    compare_every_s: float = 0.25  # each rover's track is compared this often per board (the evidence is ample)
+    compare_every_s: float = 0.5  # each rover's track is compared this often per board (the evidence is ample)
     seam_sigma_cm: float = 1.0  # prior: two boards' calibrations agree to about this in their overlap
     memory_s: float = 60.0  # time constant of forgetting old evidence
     history_s: float = 1.0  # how much of each board's track of each rover is kept for interpolation
     drift_rate: float = 5e-4  # how fast the arrival bound may fall: NTP slews a clock by at most 500 ppm
     arrival_sigma_s: float = 0.002  # how well the arrival bound pins a board to the fuser's clock
     prior_sigma_s: float = 1.0  # a board with no evidence at all: offset 0, this unsure
+    # live, the offsets are solved again at most this often (data time): a clock moves microseconds in that time,
+    # and solving on every message is a third of the fuser's work between a board's frame and its rovers' poses
+    solve_every_s: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -135,6 +139,8 @@ class ClockAligner:
         self._boards: list[str] = []
         self._estimates: dict[str, OffsetEstimate] = {}
         self._dirty = True
+        self._data_s = -math.inf  # the newest time in the evidence
+        self._solved_s = -math.inf  # the data time of the last solve
 
     # -- evidence ---------------------------------------------------------------------------------------------------
     def observe(self, d: Detections) -> None:
@@ -166,6 +172,7 @@ class ClockAligner:
         self._board(edge_id)
         arrivals = self._arrivals.setdefault(edge_id, _Arrivals())
         arrivals.add(t_sent_board_s - t_arrival_s, t_arrival_s, self.settings.drift_rate)
+        self._data_s = max(self._data_s, t_arrival_s)
         self._dirty = True
 
     def _board(self, edge_id: str) -> None:
@@ -213,15 +220,23 @@ class ClockAligner:
         pair.rhs = pair.rhs * fade + design.T @ w @ y
         pair.samples += 1
         pair.t_s = max(pair.t_s, t_s)
+        self._data_s = max(self._data_s, t_s)
         self._dirty = True
 
     # -- estimates --------------------------------------------------------------------------------------------------
     def offset_s(self, edge_id: str) -> float:
-        """The current estimate of the board's offset (0 for a board never seen)."""
-        if self._dirty:
+        """The current estimate of the board's offset (0 for a board never seen), solved again when
+        ``solve_every_s`` of new evidence is in; never below the board's arrival bound as it is now."""
+        if self._dirty and (
+            self._data_s - self._solved_s >= self.settings.solve_every_s or edge_id not in self._estimates
+        ):
             self.solve()
         est = self._estimates.get(edge_id)
-        return est.offset_s if est is not None else 0.0
+        offset = est.offset_s if est is not None else 0.0
+        arrivals = self._arrivals.get(edge_id)
+        if arrivals is not None and arrivals.bound is not None:
+            offset = max(offset, arrivals.bound)
+        return offset
 
     def estimates(self) -> dict[str, OffsetEstimate]:
         if self._dirty:
@@ -274,7 +289,7 @@ class ClockAligner:
             sources[a].add("overlap")
             sources[b].add("overlap")
         cov = np.linalg.inv(info)
-        offsets = cov @ rhs
+        offsets = _at_least_the_arrival_bound(info, rhs, cov @ rhs, self._floors(index))
         out = {}
         for b, i in index.items():
             src = sources[b]
@@ -282,18 +297,56 @@ class ClockAligner:
                 "reference" if "reference" in src else "+".join(x for x in ("overlap", "arrival") if x in src) or "none"
             )
             out[b] = OffsetEstimate(b, float(offsets[i]), float(math.sqrt(max(cov[i, i], 0.0))), name)
-        self._estimates, self._dirty = out, False
+        self._estimates, self._dirty, self._solved_s = out, False, self._data_s
         return out
+
+    def _floors(self, index: dict[str, int]) -> dict[int, float]:
+        """Each board's least possible offset: ``ts - arrival`` is the offset less a latency, never more."""
+        return {index[b]: a.bound for b, a in self._arrivals.items() if a.bound is not None and b in index}
+
+
+def _at_least_the_arrival_bound(
+    info: FloatArray, rhs: FloatArray, offsets: FloatArray, floors: dict[int, float]
+) -> FloatArray:
+    """The least-squares offsets with each board's offset held at or above its arrival bound.
+
+    A message cannot arrive before it was sent: a board's offset is at least its largest ``ts - arrival``. The
+    overlaps may say otherwise (a board whose tracker leads the others' looks like a clock behind), but an
+    estimate below the bound would date that board's captures after they reached the fuser. Boards below their
+    bound are held at it and the others solved again with them fixed, until none is below (at most one pass per
+    board)."""
+    held: dict[int, float] = {}
+    for _ in range(len(floors)):
+        below = {i: f for i, f in floors.items() if i not in held and offsets[i] < f - 1e-9}
+        if not below:
+            break
+        held |= below
+        free = np.array([i for i in range(len(rhs)) if i not in held], dtype=np.intp)
+        fixed = np.array(sorted(held), dtype=np.intp)
+        offsets = offsets.copy()
+        offsets[fixed] = [held[i] for i in fixed]
+        if free.size:
+            a = info[np.ix_(free, free)]
+            b = rhs[free] - info[np.ix_(free, fixed)] @ offsets[fixed]
+            offsets[free] = np.linalg.solve(a, b)
+    return offsets
 
 
 def _velocity(samples: list[_Sample]) -> FloatArray | None:
-    """(2,) cm/s: the least-squares slope of a track's positions over time; None with fewer than 4 samples."""
-    if len(samples) < 4:
+    """(2,) cm/s: the least-squares slope of a track's positions over time; None with fewer than 4 samples.
+    (Plain floats: numpy's overhead on half a dozen samples was a fifth of the fuser's time.)"""
+    n = len(samples)
+    if n < 4:
         return None
-    t = np.array([q.t_local_s for q in samples])
-    xy = np.array([q.xy_cm for q in samples])
-    tc = t - t.mean()
-    denom = float(tc @ tc)
+    t_mean = sum(q.t_local_s for q in samples) / n
+    x_mean = sum(float(q.xy_cm[0]) for q in samples) / n
+    y_mean = sum(float(q.xy_cm[1]) for q in samples) / n
+    denom = sx = sy = 0.0
+    for q in samples:
+        dt = q.t_local_s - t_mean
+        denom += dt * dt
+        sx += dt * (float(q.xy_cm[0]) - x_mean)
+        sy += dt * (float(q.xy_cm[1]) - y_mean)
     if denom <= 0.0:
         return None
-    return np.asarray(tc @ (xy - xy.mean(axis=0)) / denom, dtype=np.float64)
+    return np.array([sx / denom, sy / denom])

@@ -7,7 +7,9 @@
   whose normalised innovation against the rover's filter exceeds ``gate_nis`` is refused (a board that mistook one
   rover for another cannot drag the fused track); if only refused detections arrive for ``reacquire_s`` the rover
   is re-initialised where they say it is (it really moved: there is no other evidence), unless another rover's
-  live track is there (``claim_radius_cm``): then the board took that rover for this one. Each board's
+  live track is there (``claim_radius_cm``): then the board took that rover for this one. A track of one
+  measurement is a guess and gives no pose; another board's detection a rover's width from it replaces it at once
+  (the first board to speak at the start may have taken another rover for this one). Each board's
   covariances are scaled by the robust level of its innovations (:meth:`BoardState.saw_nis`): a board more wrong
   than its model says is trusted less, not refused.
 * **One filter per rover** (:class:`edge.fusion.track.CvState`, constant velocity, the detections' covariances as
@@ -19,17 +21,23 @@
   estimated velocity, its covariance grown by the velocity's uncertainty over the gap; a later one (a slower board)
   is put in its place and the last ``replay_s`` are filtered again.
 * **Output**: the first detection of a rover in frame ``k`` of the shared clock (``k = round(t * fps)``) gives that
-  rover's pose for frame ``k``: the filter's state moved to ``k / fps``, except that a correction (a better board
-  joins, a worse one leaves) moves the published pose by at most ``max_correction_cm`` a frame beyond the rover's
-  estimated motion: the rovers' controllers see no step at a handover. A rover not measured for ``timeout_s`` is
-  missing: no pose is published for it (the rovers' own staleness stops them).
+  rover's pose for frame ``k``. Live (``pose_time = "measured"``) the pose is the filter's state at its newest
+  measurement's capture instant (on the fuser's clock, to the millisecond below): never dated later than anything
+  measured, so ``arrival - t`` is a true grab-to-pose latency and a rover's idea of its pose's age is right; for a
+  recording (``"frame"``) the state is moved to ``k / fps``. Either way the published pose moves along the
+  filter's velocity smoothed over ``shown_velocity_s`` (the kick a correction gives the filter's velocity is not
+  shown at once), plus at most ``max_correction_cm`` a frame towards the filter: a better board joining or a worse
+  one leaving moves the rover smoothly, and the controllers see no step at a handover. A rover not measured for
+  ``timeout_s`` is missing: no pose is published for it (the rovers' own staleness stops them).
 """
 
 from __future__ import annotations
 
 import math
+import statistics
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -69,12 +77,18 @@ class FusionSettings:
     late_direct_s: float = 0.035  # about one frame
     claim_radius_cm: float = 20.0  # two markers' centres are never closer: a body is 20 cm wide
     initial_speed_sigma_cm_s: float = 50.0
-    max_correction_cm: float = 0.3  # per frame beyond the estimated motion: a handover moves a rover smoothly
+    max_correction_cm: float = 0.25  # per frame beyond the shown motion: a handover moves a rover smoothly
+    shown_velocity_s: float = 0.15  # the shown motion's velocity: the filter's, smoothed over this time
+    shown_warmup_s: float = 0.5  # a new track shows the filter's velocity as it is for this long
+    # "measured": a pose is the state at its newest measurement's capture instant (live: never dated after what was
+    # measured, so a rover's pose age is true); "frame": at the shared clock's frame instant (a recording's series)
+    pose_time: Literal["measured", "frame"] = "measured"
 
 
 @dataclass(frozen=True)
 class FusedPose:
-    """One rover's fused state for frame ``tick`` of the shared clock (``t_s = tick / fps``, reference clock).
+    """One rover's fused state for frame ``tick`` of the shared clock (``tick = round(t_s * fps)``), at ``t_s`` on
+    the reference clock (:attr:`FusionSettings.pose_time`).
     ``boards``: the boards whose detections the filter took in this frame's period."""
 
     rover_id: str
@@ -110,7 +124,9 @@ class _Track:
     checkpoint_t_s: float
     log: deque[_Measurement] = field(default_factory=deque)
     last_tick: int = -1
-    shown: tuple[int, float, float] | None = None  # the last published (tick, x, y): corrections are spread from it
+    # the last published (t, x, y) and the velocity it moved along: corrections are spread from it
+    shown: tuple[float, float, float, float, float] | None = None
+    born_s: float = -math.inf
     last_measured_s: float = -math.inf
     refused_since_s: float | None = None
     theta_rad: float | None = None
@@ -146,7 +162,7 @@ class BoardState:
         self._nis.append(min(nis, 1e6))
         self._nis_count += 1
         if len(self._nis) >= NOISE_MIN_SAMPLES and self._nis_count % 32 == 0:
-            level = float(np.median(self._nis)) / CHI2_2_MEDIAN
+            level = statistics.median(self._nis) / CHI2_2_MEDIAN  # np.median of a deque: 10x the time
             self.noise_scale = min(max(level * self.noise_scale, 1.0), MAX_NOISE_SCALE)
 
 
@@ -183,10 +199,14 @@ class Fuser:
         self.boards: dict[str, BoardState] = {}
         self.tracks: dict[str, _Track] = {}
         self._latest_s = -math.inf
+        self._unlearned: list[Detections] = []
 
     # -- input ------------------------------------------------------------------------------------------------------
-    def add(self, d: Detections, now_s: float | None = None) -> list[FusedPose]:
-        """Fuse one board's frame; returns the poses due now. ``now_s``: the fuser's clock at arrival (live)."""
+    def add(self, d: Detections, now_s: float | None = None, learn: bool = True) -> list[FusedPose]:
+        """Fuse one board's frame; returns the poses due now. ``now_s``: the fuser's clock at arrival (live).
+
+        ``learn=False``: the frame's evidence on the clocks is kept for :meth:`learn_pending` (live, after the
+        poses are out: a third of the work, none of which the poses of this frame need)."""
         board = self.boards.get(d.edge_id)
         if board is None:
             board = self.boards[d.edge_id] = BoardState(d.edge_id)
@@ -202,7 +222,7 @@ class Fuser:
             board.stale += 1
             return []
         if self.learn_offsets:
-            self.aligner.observe(d)
+            self._unlearned.append(d)
         board.frames += 1
         board.last_capture_s = t_ref if board.last_capture_s is None else max(board.last_capture_s, t_ref)
         board.rovers = {r.rover_id for r in d.rovers}
@@ -212,7 +232,15 @@ class Fuser:
             pose = self._fuse(r, d.edge_id, t_ref, board)
             if pose is not None:
                 out.append(pose)
+        if learn:
+            self.learn_pending()
         return out
+
+    def learn_pending(self) -> None:
+        """Give the clock aligner the frames fused since it last learned."""
+        for d in self._unlearned:
+            self.aligner.observe(d)
+        self._unlearned.clear()
 
     def board_offline(self, edge_id: str) -> None:
         """The board's retained status says it is offline (its last will): its view is reported missing at once."""
@@ -240,7 +268,11 @@ class Fuser:
             board.refused += 1
             if track.refused_since_s is None:
                 track.refused_since_s = t_s
-            if t_s - track.refused_since_s < s.reacquire_s or self._claimed(r.rover_id, m):
+            # a track of one measurement is a guess: a board may have taken another rover for this one at the
+            # start. A second board's word a rover's width away replaces it at once; an established track waits
+            f = track.filter
+            guess = f.updates < 2 and math.hypot(f.x - m.x, f.y - m.y) > s.claim_radius_cm
+            if (not guess and t_s - track.refused_since_s < s.reacquire_s) or self._claimed(r.rover_id, m):
                 return None
             track = self._start(r.rover_id, m)  # only refused detections for a while: the rover is there
         else:
@@ -250,15 +282,22 @@ class Fuser:
         track.boards_now[edge_id] = t_s
         if r.theta_rad is not None and t_s >= track.theta_t_s:
             track.theta_rad, track.theta_t_s = r.theta_rad, t_s
-        tick = round(t_s * s.fps)
+        if track.filter.updates < 2:
+            return None  # no pose from one measurement: it is published once a second one agrees
+        if s.pose_time == "frame":
+            tick = round(t_s * s.fps)
+            t_pose = tick / s.fps
+        else:  # the newest capture instant, to the wire's millisecond and never later
+            t_pose = math.floor(track.t_s * 1e3 + 1e-6) / 1e3
+            tick = round(t_pose * s.fps)
         if tick <= track.last_tick:
             return None  # this frame's pose is out; the detection is in the filter for the next one
         track.last_tick = tick
-        return self._pose(r.rover_id, track, tick, r.quality)
+        return self._pose(r.rover_id, track, tick, t_pose, r.quality)
 
     def _start(self, rover_id: str, m: _Measurement) -> _Track:
         f = CvState.start(m.x, m.y, m.rxx, m.rxy, m.ryy, self.settings.initial_speed_sigma_cm_s)
-        track = _Track(filter=f, t_s=m.t_s, checkpoint=f.copy(), checkpoint_t_s=m.t_s)
+        track = _Track(filter=f, t_s=m.t_s, checkpoint=f.copy(), checkpoint_t_s=m.t_s, born_s=m.t_s)
         track.log.append(m)
         old = self.tracks.get(rover_id)
         if old is not None:
@@ -318,25 +357,33 @@ class Fuser:
             f.predict(m.t_s - t_s, self.settings.accel_sigma_cm_s2)
         f.update(m.x, m.y, m.rxx, m.rxy, m.ryy, self.settings.fade_nis)
 
-    def _pose(self, rover_id: str, track: _Track, tick: int, quality: float) -> FusedPose:
+    def _pose(self, rover_id: str, track: _Track, tick: int, t_pose: float, quality: float) -> FusedPose:
         s = self.settings
-        t_tick = tick / s.fps
         f = track.filter
         vel = f.velocity
         x, y = f.x, f.y
         if vel is not None:
-            x += vel[0] * (t_tick - track.t_s)
-            y += vel[1] * (t_tick - track.t_s)
-        if track.shown is not None and vel is not None and 0 < tick - track.shown[0] <= 3:
-            # a correction (a better board joins, a worse one leaves) is spread over frames, not jumped
-            k, sx, sy = track.shown
-            px, py = sx + vel[0] * (tick - k) / s.fps, sy + vel[1] * (tick - k) / s.fps
+            x += vel[0] * (t_pose - track.t_s)
+            y += vel[1] * (t_pose - track.t_s)
+        shown_v = vel
+        if track.shown is not None and vel is not None and 0.0 < t_pose - track.shown[0] <= 3.5 / s.fps:
+            # a correction (a better board joins, a worse one leaves) is spread over frames, not jumped: the shown
+            # pose moves along the filter's velocity smoothed over shown_velocity_s (the kick a correction gives
+            # the filter's velocity is not shown at once), plus at most max_correction_cm a frame
+            st, sx, sy, ux, uy = track.shown
+            dt = t_pose - st
+            vx, vy = vel
+            if t_pose - track.born_s > s.shown_warmup_s:
+                a = dt / (s.shown_velocity_s + dt)
+                vx, vy = ux + a * (vx - ux), uy + a * (vy - uy)
+            shown_v = (vx, vy)
+            px, py = sx + vx * dt, sy + vy * dt
             dx, dy = x - px, y - py
             step = math.hypot(dx, dy)
-            limit = s.max_correction_cm * (tick - k)
+            limit = s.max_correction_cm * dt * s.fps
             if step > limit:
                 x, y = px + dx * limit / step, py + dy * limit / step
-        track.shown = (tick, x, y)
+        track.shown = None if shown_v is None else (t_pose, x, y, shown_v[0], shown_v[1])
         theta = track.theta_rad if track.t_s - track.theta_t_s <= s.heading_s else None
         if theta is None and vel is not None and math.hypot(*vel) >= s.heading_min_speed_cm_s:
             theta = math.atan2(vel[1], vel[0])
@@ -344,12 +391,12 @@ class Fuser:
         return FusedPose(
             rover_id,
             tick,
-            t_tick,
+            t_pose,
             x,
             y,
             theta,
-            None if vel is None else vel[0],
-            None if vel is None else vel[1],
+            None if shown_v is None else shown_v[0],
+            None if shown_v is None else shown_v[1],
             quality,
             recent,
         )

@@ -1,5 +1,6 @@
 """The fused map on a page (``edge-ips fuse --broker URL --http-port P``): every board's view on the floor, every
-rover's fused position, and which boards measured it.
+rover's fused position, which boards measured it, and each board's camera image (its own dashboard's
+``/api/frame.jpg``, fetched by the browser from the board: ``--board-dashboard EDGE=URL``).
 
 :func:`map_state` is a pure function of the fuser's status and its newest fused poses; :func:`serve_map` puts it
 and the page (``edge/fusion/static/map.html``) on an :class:`edge.httpserver.HttpServer`: ``/`` (open, like the
@@ -19,10 +20,18 @@ if TYPE_CHECKING:
     from edge.httpserver import HttpServer, Request, Response
 
 
-def map_state(status: FuserStatusV1, poses: Mapping[str, FusedPose], now_s: float, timeout_s: float) -> dict[str, Any]:
+def map_state(
+    status: FuserStatusV1,
+    poses: Mapping[str, FusedPose],
+    now_s: float,
+    timeout_s: float,
+    dashboards: Mapping[str, str] | None = None,
+) -> dict[str, Any]:
     """What the page draws: the boards (state, view polygon in floor cm, clock offset, the rovers in their latest
-    detections), each rover fused within ``timeout_s`` (position, heading, the boards that measured it, age), the
-    rovers missing, and the views of the boards that are down (where nobody looks)."""
+    detections, the address of their dashboard where it was given: the page shows its camera image), each rover
+    fused within ``timeout_s`` (position, heading, the boards that measured it, age), the rovers missing, and the
+    views of the boards that are down (where nobody looks)."""
+    dashboards = dashboards or {}
     boards = [
         {
             "edge": b.edge,
@@ -30,6 +39,7 @@ def map_state(status: FuserStatusV1, poses: Mapping[str, FusedPose], now_s: floa
             "view": b.view,
             "offset_ms": b.offset_ms,
             "rovers": b.rovers,
+            "dashboard": dashboards.get(b.edge),
         }
         for b in status.boards
     ]

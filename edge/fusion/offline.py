@@ -4,8 +4,8 @@ Each file is one board's detections v1 lines (``edge-ips track --detections``, o
 first file's clock is the reference. The boards' clock offsets are estimated over the whole recording first (two
 passes, the second interpolating with the first's estimates), then every frame is fused in the order of its
 corrected capture time, as the live fuser does on arrival. The output is one pose v1 line per rover per frame of
-the shared clock (``frame`` = ``round(t * fps)`` of the reference clock), byte for byte what the live fuser would
-publish.
+the shared clock (``frame`` = ``round(t * fps)`` of the reference clock, ``t`` the frame's instant: the live fuser
+dates its poses at their newest capture instant instead).
 """
 
 from __future__ import annotations
@@ -81,7 +81,7 @@ def read_detections(path: Path) -> list[Detections]:
 def estimate_offsets(boards: Sequence[Sequence[Detections]], settings: FusionSettings, passes: int = 2) -> ClockAligner:
     """A :class:`ClockAligner` trained over the whole recording, the first board's clock the reference."""
     reference = boards[0][0].edge_id
-    clock = replace(settings.clock, compare_every_s=0.0)  # offline there is time to compare every frame
+    clock = replace(settings.clock, compare_every_s=0.0, solve_every_s=0.0)  # offline there is time for all of it
     aligner = ClockAligner(clock, reference)
     for k in range(passes):
         previous = {b: e.offset_s for b, e in aligner.estimates().items()}
@@ -106,7 +106,8 @@ def fuse_files(
     on_pose: Callable[[FusedPose], None] | None = None,
 ) -> FuseSummary:
     """Fuse the detections in ``paths`` (one board each) into pose v1 lines in ``out``."""
-    settings = settings or FusionSettings()
+    # a recording's poses are a series on the shared clock's frames (live ones are at their capture instants)
+    settings = replace(settings or FusionSettings(), pose_time="frame")
     if not paths:
         raise ConfigError("give at least one detections file")
     boards = [read_detections(p) for p in paths]

@@ -70,6 +70,7 @@ class FuserService:
         mono: Callable[[], float] = time.monotonic,
         wall: Callable[[], float] = time.time,
         on_pose: Callable[[FusedPose, bytes], None] | None = None,
+        dashboards: dict[str, str] | None = None,
     ) -> None:
         self.target = target
         self.fuser_id = fuser_id
@@ -80,6 +81,7 @@ class FuserService:
         self.status_interval_s = status_interval_s
         self.keepalive_s = keepalive_s
         self.on_pose = on_pose
+        self.dashboards = dashboards or {}  # board -> its dashboard's address (the map shows its camera image)
         self._mono, self._wall = mono, wall
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -182,7 +184,7 @@ class FuserService:
         d = from_message(parse_detections(payload))
         with self._lock:
             self.stats.detections += 1
-            poses = self.fuser.add(d, now_s=self._wall())
+            poses = self.fuser.add(d, now_s=self._wall(), learn=False)
             for pose in poses:
                 self._latest[pose.rover_id] = pose
                 n = self.stats.seq.get(pose.rover_id, 0)
@@ -196,6 +198,7 @@ class FuserService:
                         self.on_pose(pose, line)
                 else:
                     self.stats.poses_withheld += 1
+            self.fuser.learn_pending()  # the clocks' evidence, once the poses are on their way
 
     # -- the lease and the status (own thread) ------------------------------------------------------------------
     def _lease_loop(self) -> None:
@@ -225,7 +228,7 @@ class FuserService:
         with self._lock:
             status = self._status("active" if self.lease.is_holder else "standby")
             poses = dict(self._latest)
-        return map_state(status, poses, status.t, self.fuser.settings.timeout_s)
+        return map_state(status, poses, status.t, self.fuser.settings.timeout_s, self.dashboards)
 
     def _status(self, state: str) -> FuserStatusV1:
         """The retained status (call with the lock held)."""
@@ -272,10 +275,12 @@ def central_broker(config: EdgeConfig, who: str) -> tuple[BrokerTarget, TlsFiles
     return target, tls
 
 
-def fuser_for(config: EdgeConfig, fuser_id: str, settings: FusionSettings) -> FuserService:
+def fuser_for(
+    config: EdgeConfig, fuser_id: str, settings: FusionSettings, dashboards: dict[str, str] | None = None
+) -> FuserService:
     """The fuser ``edge-ips fuse --broker`` runs, on the central broker the configuration's ``[broker]`` names."""
     target, tls = central_broker(config, "the fuser")
-    return FuserService(target, fuser_id, settings=settings, tls=tls)
+    return FuserService(target, fuser_id, settings=settings, tls=tls, dashboards=dashboards)
 
 
 def run_fuser(service: FuserService, stop: threading.Event, http: HttpServer | None = None) -> None:

@@ -1,0 +1,132 @@
+"""What a fused pose's time means: the capture instant, on the fuser's clock, of the newest measurement in it.
+
+A pose published live can never be dated after it was published: whatever the boards' clocks, exposure phases,
+latencies and trackers (one that leads the motion looks like a clock behind), ``arrival - t`` is a latency, and a
+latency is never negative. A benchmark that reads a negative one has two clocks in it, not a fast system.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from edge.fusion.core import Fuser, FusionSettings
+from tests.support.fusion import Board, Path2D, Recording, circle, line, record
+
+PATHS = {"r1": circle((400, 275), 120, 30), "r2": line((150, 150), (25, 8))}
+
+
+def leading(paths: dict[str, Path2D], lead_s: float) -> dict[str, Path2D]:
+    """The rovers as a tracker sees them that leads their motion by ``lead_s`` (negative: trails it)."""
+    return {k: (lambda t, p=p: p(t + lead_s)) for k, p in paths.items()}
+
+
+def two_boards(a: Board, b: Board, lead_s: float, seconds: float = 2.5) -> Recording:
+    rec = record([a], PATHS, seconds)
+    other = record([b], leading(PATHS, lead_s), seconds, seed=1)
+    rec.boards.append(b)
+    rec.frames |= other.frames
+    rec.arrivals |= other.arrivals
+    return rec
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    offsets_ms=st.tuples(st.floats(-50, 50), st.floats(-50, 50)),
+    phases_ms=st.tuples(st.floats(0, 33), st.floats(0, 33)),
+    latencies_ms=st.tuples(st.floats(1, 40), st.floats(1, 40)),
+    lead_ms=st.floats(-10, 10),
+)
+def test_a_live_pose_is_never_dated_after_it_is_published(
+    offsets_ms: tuple[float, float], phases_ms: tuple[float, float], latencies_ms: tuple[float, float], lead_ms: float
+) -> None:
+    a = Board("a", (0, 0, 450, 550), offsets_ms[0] / 1e3, phases_ms[0] / 1e3, latency_s=latencies_ms[0] / 1e3)
+    b = Board("b", (350, 0, 800, 550), offsets_ms[1] / 1e3, phases_ms[1] / 1e3, latency_s=latencies_ms[1] / 1e3)
+    rec = two_boards(a, b, lead_ms / 1e3)
+    fuser = Fuser(FusionSettings())
+    published = 0
+    for arrival, d in rec.in_arrival_order():
+        for pose in fuser.add(d, now_s=arrival):
+            # the fuser's clock is the true one here: the pose leaves at `arrival`
+            assert arrival - pose.t_s >= -1e-9, (pose, arrival)
+            assert pose.tick == round(pose.t_s * 30.0)
+            published += 1
+    assert published > 120
+
+
+@pytest.mark.parametrize("lead_ms", [-10.0, 10.0])
+def test_a_tracker_that_leads_the_others_moves_no_capture_past_its_arrival(lead_ms: float) -> None:
+    """Seven rovers circling in the overlap: ample evidence that b's measurements lead a's by 10 ms (or trail
+    them), which the overlaps read as b's clock 10 ms behind a's. The arrival times say both clocks are right to a
+    millisecond; the board the overlaps would put behind is held at its arrival bound, the other moves."""
+    paths = {f"r{i}": circle((400, 60 + 70 * i), 30, 25, phase=i) for i in range(7)}
+    a = Board("a", (0, 0, 450, 550), latency_s=0.002)
+    b = Board("b", (350, 0, 800, 550), latency_s=0.002)
+    rec = record([a], paths, 6.0)
+    other = record([b], leading(paths, lead_ms / 1e3), 6.0, seed=1)
+    rec.boards.append(b)
+    rec.frames |= other.frames
+    rec.arrivals |= other.arrivals
+    fuser = Fuser(FusionSettings())
+    ages = [arrival - p.t_s for arrival, d in rec.in_arrival_order() for p in fuser.add(d, now_s=arrival)]
+    assert min(ages) >= -1e-9
+    offsets = {k: e.offset_s for k, e in fuser.status(now_s=6.0).offsets.items()}
+    behind, ahead = ("b", "a") if lead_ms > 0 else ("a", "b")
+    assert offsets[behind] == pytest.approx(-0.001, abs=1e-6)  # ts - arrival: the floor
+    # the other board takes up the difference (against its own arrival bound's pull: most of the 10 ms)
+    assert 0.005 < offsets[ahead] - offsets[behind] < 0.013
+
+
+def test_a_live_pose_is_dated_at_its_newest_capture_not_rounded_to_the_frame() -> None:
+    """A board exposing 20 ms after the frame instants: its poses carry its capture instants (the latency a rover
+    sees is the real one), not the next frame's instant 13 ms in the future."""
+    board = Board("a", (0, 0, 800, 550), clock_offset_s=0.0, phase_s=0.020, latency_s=0.004)
+    rec = record([board], PATHS, 2.0)
+    fuser = Fuser(FusionSettings())
+    ages = [arrival - p.t_s for arrival, d in rec.in_arrival_order() for p in fuser.add(d, now_s=arrival)]
+    assert len(ages) > 100
+    # the arrival bound puts the board's clock 1 ms ahead (its send stamp is 1 ms before arrival): 4 ms to 3 ms
+    assert min(ages) == pytest.approx(0.003, abs=0.0011) and max(ages) == pytest.approx(0.004, abs=0.0011)
+
+
+def test_a_recording_is_fused_onto_the_frames_of_the_shared_clock() -> None:
+    board = Board("a", (0, 0, 800, 550), phase_s=0.010)
+    rec = record([board], PATHS, 1.0)
+    fuser = Fuser(replace(FusionSettings(), pose_time="frame"))
+    poses = [p for d in rec.frames["a"] for p in fuser.add(d)]
+    assert poses and all(p.t_s == pytest.approx(p.tick / 30.0) for p in poses)
+
+
+# -- the live benchmark's boards ---------------------------------------------------------------------------------
+def _bench():  # type: ignore[no-untyped-def]
+    import importlib.util
+
+    from tests.conftest import REPO
+
+    spec = importlib.util.spec_from_file_location("bench_fusion", REPO / "benchmarks" / "bench_fusion.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_benchmarks_boards_show_one_world_instant_at_one_grab_time_wherever_they_started() -> None:
+    """The replayed boards of the live benchmark: a board that started (or fell behind and skipped) later shows, at
+    grab tick k, the same recorded frame as every other; the recording plays forwards and back without a jump.
+    (Each board once counted its own frames from its own start: boards started a second apart showed the fuser
+    rovers 30 frames apart at one grab time, and the latencies came out negative.)"""
+    bench = _bench()
+    k0, frames = 1000, 300
+    for k in range(k0, k0 + 2000):
+        i = bench.replay_index(k, k0, frames)
+        assert 0 <= i < frames
+        assert abs(i - bench.replay_index(k + 1, k0, frames)) == 1  # forwards or back, never a teleport
+    assert [bench.replay_index(k, k0, frames) for k in (k0, k0 + 299, k0 + 300, k0 + 598)] == [0, 299, 298, 0]
+
+
+def test_the_benchmark_counts_a_negative_latency_as_a_clock_error() -> None:
+    stats = _bench().latency_stats([3.0, 5.0, -2.0])
+    assert stats["negative"] == 1 and stats["min"] == -2.0
