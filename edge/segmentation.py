@@ -38,6 +38,11 @@ _INV_SQRT2 = 1.0 / math.sqrt(2.0)
 _INV_SQRT6 = 1.0 / math.sqrt(6.0)
 HUE_BINS = 720  # 0.5 degree resolution of the hue look-up table
 NO_ROVER = -1
+# BGR -> (c1, c2, luminance), the rows of :func:`opponent_planes`
+_OPPONENT = np.array(
+    [[0.0, -_INV_SQRT2, _INV_SQRT2], [-2.0 * _INV_SQRT6, _INV_SQRT6, _INV_SQRT6], [1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0]],
+    np.float32,
+)
 
 
 # -- linear light ------------------------------------------------------------------------------------------------
@@ -69,11 +74,8 @@ def opponent_planes(bgr: U8) -> tuple[F32, F32, F32]:
     ``c1 = (R - G) / sqrt 2``, ``c2 = (R + G - 2B) / sqrt 6`` span the plane orthogonal to grey, so a grey or
     black surface has zero chroma whatever its brightness.
     """
-    f = bgr.astype(np.float32)
-    b, g, r = f[..., 0], f[..., 1], f[..., 2]
-    c1 = (r - g) * np.float32(_INV_SQRT2)
-    c2 = (r + g - 2.0 * b) * np.float32(_INV_SQRT6)
-    lum = (b + g + r) * np.float32(1.0 / 3.0)
+    planes = cv2.transform(bgr.astype(np.float32), _OPPONENT)  # one pass over the pixels for all three
+    c1, c2, lum = cv2.split(planes)
     return c1, c2, lum
 
 
@@ -286,7 +288,7 @@ def reconstruct(marker: BoolArray, mask: BoolArray, connectivity: int = 8) -> Bo
     if n <= 1:
         return np.zeros_like(mask)
     hit = np.zeros(n, bool)
-    hit[np.unique(labels[marker & mask])] = True
+    hit[labels[marker & mask]] = True
     hit[0] = False
     return hit[labels]
 
@@ -376,11 +378,11 @@ def marker_level(plane_roi: F32, core: BoolArray) -> float:
 
 def coverage_weights(
     bgr_roi: U8,
-    lum_roi: F32,
     core: BoolArray,
     ring_px: int,
     exclude: BoolArray | None = None,
     pure: BoolArray | None = None,
+    linear: F32 | None = None,
 ) -> F32:
     """(h, w) float32 share of each pixel covered by the marker whose filled binary mask is ``core``.
 
@@ -391,7 +393,8 @@ def coverage_weights(
     marker's share ``a`` by least squares (linear unmixing). ``M`` is the mean of the interior's ``pure`` pixels
     (glare excluded), ``D`` and ``F`` the means of the darker and brighter halves of a band just outside the ring.
     Shares below 0 are kept (down to -0.5) so noise on background pixels averages out instead of biasing.
-    ``exclude``: pixels of something else (another rover's marker). ``lum_roi`` is not used (kept for callers).
+    ``exclude``: pixels of something else (another rover's marker); ``linear``: ``linear_bgr(bgr_roi)`` when the
+    caller has it already.
 
     Unmixed in the camera's 8-bit values instead, a pixel half covered by the black body looked 73 % marker: the
     edge moved out on the dark side (towards the camera, where the body's side shows), by 0.4 cm with a 1.2 px blur.
@@ -408,15 +411,15 @@ def coverage_weights(
         interior = core
     if int(outer.sum()) < 4:
         return weights
-    lin = linear_bgr(bgr_roi)
-    lum = lin.sum(axis=2)
+    lin = linear_bgr(bgr_roi) if linear is None else linear
     sample = interior & pure if pure is not None else interior
     marker = _mean(lin, sample if sample.any() else interior)
-    lum_outer = lum[outer]
+    lin_outer = lin[outer]
+    lum_outer = lin_outer.sum(axis=1)
     half = lum_outer.size // 2
-    cut = np.float32(np.partition(lum_outer, half)[half])
-    dark = _mean(lin, outer & (lum <= cut))
-    bright = _mean(lin, outer & (lum >= cut))
+    cut = np.partition(lum_outer, half)[half]
+    dark = lin_outer[lum_outer <= cut].mean(axis=0, dtype=np.float64)
+    bright = lin_outer[lum_outer >= cut].mean(axis=0, dtype=np.float64)
     a_vec, b_vec = marker - dark, bright - dark
     aa, ab = float(a_vec @ a_vec), float(a_vec @ b_vec)
     bb = float(b_vec @ b_vec) + 1e-3 * aa  # ridge: floor and body alike (no floor in view) is not singular
@@ -433,7 +436,9 @@ def coverage_weights(
 
 def _mean(values: F32, mask: BoolArray) -> NDArray[np.float64]:
     """(3,) mean of the masked pixels of an (h, w, 3) image."""
-    return np.asarray(values[mask].mean(axis=0), dtype=np.float64) if mask.any() else np.zeros(3)
+    if not mask.any():
+        return np.zeros(3)
+    return np.asarray(cv2.mean(values, mask=mask.view(np.uint8))[:3], dtype=np.float64)
 
 
 def _mean_bgr(bgr_roi: U8, mask: BoolArray) -> NDArray[np.float64]:

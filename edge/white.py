@@ -98,8 +98,13 @@ class LocalWhite:
     @staticmethod
     def correct(crop: U8, gains: FloatArray | NDArray[np.float32]) -> U8:
         """``crop`` with each channel multiplied by ``gains`` ((3,) or per pixel) in linear light."""
-        if np.ndim(gains) == 1 and np.allclose(gains, 1.0, atol=2e-3):
-            return crop
+        if np.ndim(gains) == 1:
+            g = [float(v) for v in gains]
+            if max(abs(v - 1.0) for v in g) <= 2e-3:
+                return crop
+            # One gain per channel: each output value depends on its input value alone, so a table per channel.
+            table = encode_linear(LINEAR[:, None] * np.asarray(g, np.float32)[None, :])
+            return np.asarray(cv2.LUT(crop, table.reshape(1, 256, 3)), dtype=np.uint8)
         return encode_linear(linear_bgr(crop) * gains.astype(np.float32))
 
 

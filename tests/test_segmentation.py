@@ -216,7 +216,7 @@ def test_coverage_weights_give_the_sub_pixel_centroid_and_area(rect, jpeg):
     interval = auto_threshold(plane, cls == 0, 0.5)
     mask = (cls == 0) & threshold(plane, interval)
     core = fill_holes(open_by_reconstruction(mask))
-    w = coverage_weights(image, lum, core, ring_px=2, pure=mask)
+    w = coverage_weights(image, core, ring_px=2, pure=mask)
     vs, us = np.mgrid[0 : w.shape[0], 0 : w.shape[1]]
     x0, y0, x1, y1 = rect
     true_centre = ((x0 + x1) / 2, (y0 + y1) / 2)

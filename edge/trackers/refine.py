@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from edge.outline import fit_outline, marker_signal
-from edge.segmentation import BoolArray, dilate, erode, linear_bgr
+from edge.segmentation import BoolArray, dilate, erode
 from edge.trackers.base import Measurement, Window
 from edge.two_tone import edge_axis, footprint_cm
 
@@ -81,7 +81,7 @@ def _edge_signal(
     sample = erode(m.weights >= 1.0, 1)
     if not sample.any():
         return None
-    signal = marker_signal(linear_bgr(window.bgr), sample)
+    signal = marker_signal(window.linear, sample)
     if signal is None:
         return None
     usable = ~((window.classes >= 0) & (window.classes != rover_index))
