@@ -38,6 +38,7 @@ _INV_SQRT2 = 1.0 / math.sqrt(2.0)
 _INV_SQRT6 = 1.0 / math.sqrt(6.0)
 HUE_BINS = 720  # 0.5 degree resolution of the hue look-up table
 NO_ROVER = -1
+_CHANNEL_SUM = np.ones((1, 3), np.float32)
 # BGR -> (c1, c2, luminance), the rows of :func:`opponent_planes`
 _OPPONENT = np.array(
     [[0.0, -_INV_SQRT2, _INV_SQRT2], [-2.0 * _INV_SQRT6, _INV_SQRT6, _INV_SQRT6], [1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0]],
@@ -344,10 +345,13 @@ class Particle:
         return self.total_px / self.hull_px if self.hull_px > 0 else 1.0
 
 
-def label_particles(mask: BoolArray, min_area_px: int = 1) -> tuple[NDArray[np.int32], list[Particle]]:
+def label_particles(
+    mask: BoolArray, min_area_px: int = 1, filled: bool = False
+) -> tuple[NDArray[np.int32], list[Particle]]:
     """Label the 8-connected particles of ``mask``; measure each as in Table II (holes, hull, bounding box).
 
-    Returns the (H, W) int32 label image and the particles with at least ``min_area_px`` pixels.
+    Returns the (H, W) int32 label image and the particles with at least ``min_area_px`` pixels. ``filled``: the
+    mask's holes are filled already (:func:`fill_holes`): no particle has any.
     """
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(mask.view(np.uint8), connectivity=8)
     out: list[Particle] = []
@@ -357,9 +361,9 @@ def label_particles(mask: BoolArray, min_area_px: int = 1) -> tuple[NDArray[np.i
             continue
         x, y, w, h = (int(stats[i, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, 3))
         sub = labels[y : y + h, x : x + w] == i
-        filled = fill_holes(sub)
-        holes = int(filled.sum()) - area
-        contours, _ = cv2.findContours(filled.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        whole = sub if filled else fill_holes(sub)
+        holes = 0 if filled else int(whole.sum()) - area
+        contours, _ = cv2.findContours(whole.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         hull = float(cv2.contourArea(cv2.convexHull(np.vstack(contours)))) if contours else float(area)
         hull = max(hull, float(area + holes))  # contourArea runs through pixel centres: never below the count
         out.append(
@@ -400,7 +404,30 @@ def coverage_weights(
     edge moved out on the dark side (towards the camera, where the body's side shows), by 0.4 cm with a 1.2 px blur.
     The outline fit (``edge.outline``) refines the centre further; these shares give the area and its start.
     """
-    weights = core.astype(np.float32)
+    full = core.astype(np.float32)
+    # Everything below happens within the outer band's reach of the core: its bounding box, grown by that much.
+    x, y, w, h = cv2.boundingRect(core.view(np.uint8))
+    if w == 0 or h == 0:
+        return full
+    reach = ring_px + 3
+    rows = slice(max(0, y - reach), min(core.shape[0], y + h + reach))
+    cols = slice(max(0, x - reach), min(core.shape[1], x + w + reach))
+    lin = (linear_bgr(bgr_roi) if linear is None else linear)[rows, cols]
+    weights = _unmix(
+        lin,
+        core[rows, cols],
+        ring_px,
+        None if exclude is None else exclude[rows, cols],
+        None if pure is None else pure[rows, cols],
+    )
+    if weights is not None:
+        full[rows, cols] = weights
+    return full
+
+
+def _unmix(lin: F32, core: BoolArray, ring_px: int, exclude: BoolArray | None, pure: BoolArray | None) -> F32 | None:
+    """:func:`coverage_weights` on a crop that holds the core's outer band (``lin``: the crop in linear light);
+    None where the marker cannot be told from its surround (the binary core stands)."""
     region = dilate(core, ring_px)
     outer = dilate(core, ring_px + 3) & ~region
     if exclude is not None:
@@ -409,29 +436,28 @@ def coverage_weights(
     interior = erode(core, 1)
     if not interior.any():
         interior = core
-    if int(outer.sum()) < 4:
-        return weights
-    lin = linear_bgr(bgr_roi) if linear is None else linear
+    if int(np.count_nonzero(outer)) < 4:
+        return None
     sample = interior & pure if pure is not None else interior
     marker = _mean(lin, sample if sample.any() else interior)
-    lin_outer = lin[outer]
-    lum_outer = lin_outer.sum(axis=1)
+    lum = cv2.transform(lin, _CHANNEL_SUM)
+    lum_outer = lum[outer]
     half = lum_outer.size // 2
     cut = np.partition(lum_outer, half)[half]
-    dark = lin_outer[lum_outer <= cut].mean(axis=0, dtype=np.float64)
-    bright = lin_outer[lum_outer >= cut].mean(axis=0, dtype=np.float64)
+    dark = _mean(lin, outer & (lum <= cut))
+    bright = _mean(lin, outer & (lum >= cut))
     a_vec, b_vec = marker - dark, bright - dark
     aa, ab = float(a_vec @ a_vec), float(a_vec @ b_vec)
     bb = float(b_vec @ b_vec) + 1e-3 * aa  # ridge: floor and body alike (no floor in view) is not singular
     det = aa * bb - ab * ab
     if aa <= 1e-6 or det <= 1e-14:
-        return weights
+        return None
+    # share = (p - D) . (a bb - b ab) / det for every pixel at once: one affine map of the three channels
+    row = (a_vec * bb - b_vec * ab) / det
+    affine = np.append(row, -float(dark @ row)).astype(np.float32).reshape(1, 4)
+    share = np.clip(cv2.transform(lin, affine), -0.5, 1.0)
     ring = region & ~interior
-    p = lin[ring].astype(np.float64) - dark
-    share = ((p @ a_vec) * bb - (p @ b_vec) * ab) / det
-    weights[ring] = np.clip(share, -0.5, 1.0)
-    weights[interior] = 1.0
-    return weights
+    return np.where(ring, share, interior.astype(np.float32)).astype(np.float32)
 
 
 def _mean(values: F32, mask: BoolArray) -> NDArray[np.float64]:

@@ -75,18 +75,17 @@ class LocalWhite:
         x0, y0, x1, y1 = box
         cy = min(self.coarse.shape[0] - 1, ((y0 + y1) // 2) // BLOCK_PX)
         cx = min(self.coarse.shape[1] - 1, ((x0 + x1) // 2) // BLOCK_PX)
-        light = self.coarse[cy, cx].copy()
+        light = [float(v) for v in self.coarse[cy, cx]]  # three numbers: plain floats are quicker than arrays
         if reference is not None and valid is not None:
-            border = np.zeros(crop.shape[:2], bool)
-            border[:2, :] = border[-2:, :] = border[:, :2] = border[:, -2:] = True
-            border &= valid
-            if int(border.sum()) >= 8:
-                now = LINEAR[crop[border]].astype(np.float64) + 1e-4
-                then = LINEAR[reference[border]].astype(np.float64) + 1e-4
-                light *= np.median(now / then, axis=0)
-        light = _chromaticity(light)
-        gains = self.white / np.maximum(light, 1e-6)
-        return np.clip(gains / gains.mean(), 1.0 / MAX_GAIN, MAX_GAIN)
+            usable = _border(valid)
+            if int(np.count_nonzero(usable)) >= 8:
+                now = cv2.LUT(_border(crop), LINEAR)[usable] + np.float32(1e-4)
+                then = cv2.LUT(_border(reference), LINEAR)[usable] + np.float32(1e-4)
+                light = [a * float(b) for a, b in zip(light, _column_medians(now / then), strict=True)]
+        total = max(sum(light), 1e-9)
+        gains = [float(w) / max(v / total, 1e-6) for w, v in zip(self.white, light, strict=True)]
+        scale = 3.0 / sum(gains)
+        return np.array([min(max(g * scale, 1.0 / MAX_GAIN), MAX_GAIN) for g in gains])
 
     def frame_gains(self, shape_hw: tuple[int, int]) -> NDArray[np.float32]:
         """(h, w, 3) gains over a whole (downscaled) frame from the coarse map alone (the acquisition pass)."""
@@ -106,6 +105,32 @@ class LocalWhite:
             table = encode_linear(LINEAR[:, None] * np.asarray(g, np.float32)[None, :])
             return np.asarray(cv2.LUT(crop, table.reshape(1, 256, 3)), dtype=np.uint8)
         return encode_linear(linear_bgr(crop) * gains.astype(np.float32))
+
+
+def _border(image: NDArray[np.generic], width: int = 2) -> NDArray[np.generic]:
+    """The pixels of the ``width``-pixel frame round ``image`` (each once), as an (n,) or (n, channels) array."""
+    h, w = image.shape[:2]
+    if h <= 2 * width or w <= 2 * width:
+        return image.reshape(h * w, *image.shape[2:])
+    tail = image.shape[2:]
+    return np.concatenate(
+        [
+            image[:width].reshape(-1, *tail),
+            image[h - width :].reshape(-1, *tail),
+            image[width : h - width, :width].reshape(-1, *tail),
+            image[width : h - width, w - width :].reshape(-1, *tail),
+        ]
+    )
+
+
+def _column_medians(values: FloatArray) -> FloatArray:
+    """``np.median(values, axis=0)`` of an (n, 3) array, by partitioning each channel's row (5x quicker)."""
+    rows = np.ascontiguousarray(values.T)
+    k = rows.shape[1] // 2
+    if rows.shape[1] % 2:
+        return np.asarray(np.partition(rows, k, axis=1)[:, k])
+    part = np.partition(rows, (k - 1, k), axis=1)
+    return np.asarray(0.5 * (part[:, k - 1] + part[:, k]))
 
 
 def _mean_colour(image: U8, valid: BoolArray) -> FloatArray:
