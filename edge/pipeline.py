@@ -46,9 +46,6 @@ from edge.white import LocalWhite
 FloatArray = NDArray[np.float64]
 
 
-WHITE_REFRESH_FRAMES = 15  # the light's map follows the background reference this often
-
-
 class Pipeline:
     """The tracker of ``docs/tracking.md``: windowed trackers, low-resolution reacquisition, filters, identity.
 
@@ -145,11 +142,11 @@ class Pipeline:
 
         t0 = time.perf_counter()
         exclude = [self._exclusion_box(tr.box, image.shape) for tr in self.tracks if tr.box is not None]
-        self.background.refresh(image, exclude)
+        rows = self.background.refresh(image, exclude)
         if self.white is None:
             self.white = LocalWhite(self.background.reference, self.background.valid)
-        elif self._frames % WHITE_REFRESH_FRAMES == 0:
-            self.white.update(self.background.reference, self.background.valid)
+        else:
+            self.white.update(self.background.reference, self.background.valid, rows)  # the light follows it
         clock.add("reference", time.perf_counter() - t0)
 
         self._frames += 1

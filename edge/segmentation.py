@@ -191,8 +191,9 @@ class BackgroundModel:
     def shape_hw(self) -> tuple[int, int]:
         return self.reference.shape[0], self.reference.shape[1]
 
-    def refresh(self, frame: U8, exclude: Sequence[tuple[int, int, int, int]]) -> None:
-        """Copy the next band of rows of ``frame`` into the reference, except inside ``exclude`` boxes.
+    def refresh(self, frame: U8, exclude: Sequence[tuple[int, int, int, int]]) -> slice:
+        """Copy the next band of rows of ``frame`` into the reference, except inside ``exclude`` boxes; returns the
+        rows it refreshed.
 
         ``exclude``: ``(x0, y0, x1, y1)`` pixel boxes (exclusive ends). The first call with no empty scene copies
         the whole frame (so the reference is never black) but marks nothing valid under the boxes.
@@ -215,6 +216,7 @@ class BackgroundModel:
         else:
             np.copyto(self.reference[rows], frame[rows], where=keep[..., None])
         self.valid[rows] |= keep
+        return rows
 
     def foreground(self, frame_roi: U8, roi: tuple[int, int, int, int], threshold: float) -> BoolArray:
         """eq. 2 inside ``roi`` = ``(x0, y0, x1, y1)``: True where the frame differs from a *valid* reference."""

@@ -52,20 +52,33 @@ class LocalWhite:
         """``reference``: the background reference (its valid pixels: the empty floor); the configured white is
         the whole view's mean colour (a few rovers in it change it little)."""
         self.white = _chromaticity(_mean_colour(reference, np.ones(valid.shape, bool)))
-        self.coarse = np.zeros((1, 1, 3))
+        self.coarse = np.zeros((0, 0, 3))
         self.update(reference, valid)
 
-    def update(self, reference: U8, valid: BoolArray) -> None:
-        """Recompute the coarse map from the current reference (where it is valid; elsewhere the global white)."""
+    def update(self, reference: U8, valid: BoolArray, rows: slice | None = None) -> None:
+        """Recompute the coarse map from the current reference (where it is valid; elsewhere the global white): all
+        of it, or only the rows of blocks whose last image row ``rows`` just refreshed (the background reference
+        renews a band of rows per frame: a block row is recomputed once, when the band has passed all of it)."""
         h, w = reference.shape[:2]
-        size = (max(1, w // BLOCK_PX), max(1, h // BLOCK_PX))
+        nh, nw = max(1, h // BLOCK_PX), max(1, w // BLOCK_PX)
+        edges = np.linspace(0, h, nh + 1).round().astype(int)
+        if rows is None or self.coarse.shape[:2] != (nh, nw):
+            self.coarse = np.empty((nh, nw, 3))
+            blocks = range(nh)
+        else:
+            blocks = [i for i in range(nh) if rows.start < edges[i + 1] <= rows.stop]
+        for i in blocks:
+            self.coarse[i] = self._block_row(reference[edges[i] : edges[i + 1]], valid[edges[i] : edges[i + 1]], nw)
+
+    def _block_row(self, strip: U8, valid: BoolArray, blocks: int) -> FloatArray:
+        """(blocks, 3) the light's chromaticity in each block of a strip of the reference."""
         # averaged in 8-bit values, then linearised: a block's colour is what matters, and this is 20 times cheaper
-        lin = linear_bgr(np.asarray(cv2.resize(reference, size, interpolation=cv2.INTER_AREA), np.uint8))
-        share = cv2.resize(valid.astype(np.float32), size, interpolation=cv2.INTER_AREA)
-        chroma = lin / np.maximum(lin.sum(axis=2, keepdims=True), 1e-6)
+        lin = linear_bgr(np.asarray(cv2.resize(strip, (blocks, 1), interpolation=cv2.INTER_AREA), np.uint8))[0]
+        share = cv2.resize(valid.astype(np.float32), (blocks, 1), interpolation=cv2.INTER_AREA).reshape(blocks)
+        chroma = (lin / np.maximum(lin.sum(axis=1, keepdims=True), 1e-6)).astype(np.float64)
         chroma[share < 0.95] = self.white  # a block with a rover (or its unrefreshed ghost) in it says nothing
-        chroma[np.abs(chroma - self.white).max(axis=2) > MAX_LIGHT_SHIFT] = self.white  # nor a coloured object
-        self.coarse = chroma.astype(np.float64)
+        chroma[np.abs(chroma - self.white).max(axis=1) > MAX_LIGHT_SHIFT] = self.white  # nor a coloured object
+        return chroma
 
     def gains(
         self, box: tuple[int, int, int, int], crop: U8, reference: U8 | None, valid: BoolArray | None
