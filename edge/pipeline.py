@@ -44,6 +44,7 @@ from edge.two_tone import MarkerPixels, TwoToneGeometry, inner_edge_weights, vie
 from edge.white import LocalWhite
 
 FloatArray = NDArray[np.float64]
+_FLOOR_CM2 = np.eye(2) * 1e-4  # the measurement covariance's floor (a perfectly sharp pixel is not exact)
 
 
 class Pipeline:
@@ -240,7 +241,7 @@ class Pipeline:
         # Measurement covariance: the pixel noise seen through the local scale of the plane mapping.
         jac = window.local.jacobian(*m.uv_px)
         sigma = self.config.measurement_sigma_px
-        return Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + np.eye(2) * 1e-4)
+        return Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + _FLOOR_CM2)
 
     def _two_tone(self, window: Window, m: Measurement, tr: RoverTrack) -> Measurement | None:
         """A two-tone marker (``edge.two_tone``): the heading from the coloured part's edges and the light end, and

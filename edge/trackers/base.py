@@ -143,7 +143,8 @@ def measure_core(
     t0 = time.perf_counter()
     level = marker_level(window.plane, core)
     others = (window.classes >= 0) & ~candidates
-    weights = coverage_weights(window.bgr, core, ring_px, exclude=others, pure=mask, linear=window.linear)
+    exclude = others if others.any() else None
+    weights = coverage_weights(window.bgr, core, ring_px, exclude=exclude, pure=mask, linear=window.linear)
     t1 = time.perf_counter()
     clock.add("measure", t1 - t0)
     blob = world_blob(weights, window.offset, window.grid)
