@@ -253,3 +253,15 @@ def test_reconstruction_of_a_mask_by_itself_is_the_mask(mask):
     assert np.array_equal(reconstruct(mask, mask), mask)
     opened = open_by_reconstruction(mask)
     assert np.all(mask[opened])
+
+
+def test_particles_of_a_filled_mask_are_measured_alike_when_told_so():
+    mask = np.zeros((60, 80), bool)
+    mask[10:30, 10:40] = True
+    mask[15:20, 20:25] = False  # a hole
+    mask[40:50, 50:70] = True
+    filled = fill_holes(mask)
+    labels, particles = label_particles(filled)
+    labels_told, particles_told = label_particles(filled, filled=True)
+    assert np.array_equal(labels, labels_told) and particles == particles_told
+    assert [p.holes_px for p in label_particles(mask)[1]] == [25, 0]
