@@ -77,7 +77,7 @@ def opponent_planes(bgr: U8) -> tuple[F32, F32, F32]:
     """
     planes = cv2.transform(bgr.astype(np.float32), _OPPONENT)  # one pass over the pixels for all three
     c1, c2, lum = cv2.split(planes)
-    return c1, c2, lum
+    return np.asarray(c1, np.float32), np.asarray(c2, np.float32), np.asarray(lum, np.float32)
 
 
 @dataclass(frozen=True)
@@ -124,11 +124,9 @@ class ColorModel:
 
     def classify(self, c1: F32, c2: F32, lum: F32) -> NDArray[np.int16]:
         """(H, W) chroma planes -> (H, W) int16 rover index per pixel (NO_ROVER for grey/dark/other hues)."""
-        hue = cv2.phase(c1, c2)  # 0..2pi, float32
+        saturation, hue = cv2.cartToPolar(c1, c2)  # |c| and the hue angle 0..2pi, float32, in one pass
         cls = self.hue_lut[(hue * np.float32(HUE_BINS / (2.0 * math.pi))).astype(np.intp)]
-        sat2 = c1 * c1 + c2 * c2
-        thr = np.float32(self.min_relative_saturation) * np.maximum(lum, np.float32(4.0))
-        cls[sat2 < thr * thr] = NO_ROVER
+        cls[saturation < np.float32(self.min_relative_saturation) * np.maximum(lum, np.float32(4.0))] = NO_ROVER
         return cls
 
     def plane(self, index: int, c1: F32, c2: F32) -> F32:

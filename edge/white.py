@@ -23,6 +23,8 @@ the marker shows the colour it had under the lamps, and a grey or white object s
 
 from __future__ import annotations
 
+from typing import Any
+
 import cv2
 import numpy as np
 from numpy.typing import NDArray
@@ -64,7 +66,7 @@ class LocalWhite:
         edges = np.linspace(0, h, nh + 1).round().astype(int)
         if rows is None or self.coarse.shape[:2] != (nh, nw):
             self.coarse = np.empty((nh, nw, 3))
-            blocks = range(nh)
+            blocks = list(range(nh))
         else:
             blocks = [i for i in range(nh) if rows.start < edges[i + 1] <= rows.stop]
         for i in blocks:
@@ -120,7 +122,7 @@ class LocalWhite:
         return encode_linear(linear_bgr(crop) * gains.astype(np.float32))
 
 
-def _border(image: NDArray[np.generic], width: int = 2) -> NDArray[np.generic]:
+def _border(image: NDArray[Any], width: int = 2) -> NDArray[Any]:
     """The pixels of the ``width``-pixel frame round ``image`` (each once), as an (n,) or (n, channels) array."""
     h, w = image.shape[:2]
     if h <= 2 * width or w <= 2 * width:

@@ -81,17 +81,17 @@ def _edge_planes(window: Window, m: Measurement, rover_index: int, exclude: Bool
         yield edges[0]
 
 
-def _usable(window: Window, rover_index: int, exclude: BoolArray | None) -> BoolArray:
-    """The window's pixels not of other things: other rovers' hues, ``exclude``."""
-    usable = ~((window.classes >= 0) & (window.classes != rover_index))
+def _usable(window: Window, rover_index: int, exclude: BoolArray | None) -> BoolArray | None:
+    """The window's pixels not of other things: other rovers' hues, ``exclude``; None where that is all of them."""
+    others = (window.classes >= 0) & (window.classes != rover_index)
     if exclude is not None:
-        usable &= ~exclude
-    return usable
+        others |= exclude
+    return ~others if others.any() else None
 
 
 def _edge_signal(
     window: Window, m: Measurement, rover_index: int, exclude: BoolArray | None
-) -> tuple[np.ndarray, BoolArray] | None:
+) -> tuple[np.ndarray, BoolArray | None] | None:
     """The marker's chroma signal in linear light (``edge.outline.marker_signal``) and the window's usable pixels
     (:func:`_usable`); None without a marker interior to measure it from."""
     if m.weights is None:
@@ -106,7 +106,11 @@ def _edge_signal(
 
 
 def marker_axis(
-    planes: Iterable[F32], m: Measurement, jacobian: np.ndarray, usable: BoolArray, size_cm: tuple[float, float]
+    planes: Iterable[F32],
+    m: Measurement,
+    jacobian: np.ndarray,
+    usable: BoolArray | None,
+    size_cm: tuple[float, float],
 ) -> float:
     """The marker's long axis (modulo pi) on the plane: the directions of its edges (modulo pi/2, sharp) in the first
     of ``planes`` that shows them coherently, resolved by the blob's elongation (which of the two is the long one).
@@ -119,7 +123,9 @@ def marker_axis(
     if m.weights is None or abs(size_cm[0] - size_cm[1]) < 0.05 * max(size_cm):
         return m.axis_rad
     core = np.asarray(m.weights >= 0.5)
-    band = dilate(core, 1) & ~erode(core, 1) & usable
+    band = dilate(core, 1) & ~erode(core, 1)
+    if usable is not None:
+        band &= usable
     for plane in planes:
         axis4, strength = edge_axis(plane, band, jacobian)
         if strength >= MIN_EDGE_COHERENCE:
