@@ -279,6 +279,13 @@ def dilate(mask: BoolArray, iterations: int = 1) -> BoolArray:
     return cv2.dilate(mask.view(np.uint8), _square(iterations)).view(bool)
 
 
+def edge_band(mask: BoolArray) -> BoolArray:
+    """The pixels within one of the boundary of ``mask``, inside and out (the 3x3 morphological gradient)."""
+    return cv2.morphologyEx(mask.view(np.uint8), cv2.MORPH_GRADIENT, _square(1), borderType=cv2.BORDER_REPLICATE).view(
+        bool
+    )
+
+
 def reconstruct(marker: BoolArray, mask: BoolArray, connectivity: int = 8) -> BoolArray:
     """Binary morphological reconstruction ``R_mask(marker)``: the components of ``mask`` that ``marker`` touches.
 
@@ -415,10 +422,10 @@ def coverage_weights(
     reach = ring_px + 3
     rows = slice(max(0, y - reach), min(core.shape[0], y + h + reach))
     cols = slice(max(0, x - reach), min(core.shape[1], x + w + reach))
-    lin = (linear_bgr(bgr_roi) if linear is None else linear)[rows, cols]
+    lin = np.ascontiguousarray((linear_bgr(bgr_roi) if linear is None else linear)[rows, cols])  # cv2 would copy it
     weights = _unmix(
         lin,
-        core[rows, cols],
+        np.ascontiguousarray(core[rows, cols]),
         ring_px,
         None if exclude is None else exclude[rows, cols],
         None if pure is None else pure[rows, cols],
@@ -457,7 +464,7 @@ def _unmix(lin: F32, core: BoolArray, ring_px: int, exclude: BoolArray | None, p
         return None
     # share = (p - D) . (a bb - b ab) / det for every pixel at once: one affine map of the three channels
     row = (a_vec * bb - b_vec * ab) / det
-    affine = np.append(row, -float(dark @ row)).astype(np.float32).reshape(1, 4)
+    affine = np.array([[row[0], row[1], row[2], -float(dark @ row)]], np.float32)
     share = np.clip(cv2.transform(lin, affine), -0.5, 1.0)
     ring = region & ~interior
     return np.where(ring, share, interior.astype(np.float32)).astype(np.float32)

@@ -19,7 +19,7 @@ from dataclasses import replace
 import numpy as np
 
 from edge.outline import fit_outline, marker_signal
-from edge.segmentation import F32, BoolArray, dilate, erode
+from edge.segmentation import F32, BoolArray, edge_band, erode
 from edge.trackers.base import Measurement, Window
 from edge.two_tone import edge_axis, footprint_cm
 
@@ -122,8 +122,7 @@ def marker_axis(
     rovers were turned by 20 degrees."""
     if m.weights is None or abs(size_cm[0] - size_cm[1]) < 0.05 * max(size_cm):
         return m.axis_rad
-    core = np.asarray(m.weights >= 0.5)
-    band = dilate(core, 1) & ~erode(core, 1)
+    band = edge_band(np.asarray(m.weights >= 0.5))
     if usable is not None:
         band &= usable
     for plane in planes:
