@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis.extra import numpy as hnp
 
+from edge.coverage import coverage_weights
 from edge.segmentation import (
     LINEAR,
     NO_ROVER,
@@ -15,7 +16,6 @@ from edge.segmentation import (
     ColorModel,
     auto_threshold,
     color_planes,
-    coverage_weights,
     erode,
     fill_holes,
     label_particles,

@@ -12,7 +12,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from edge.segmentation import F32, BoolArray, auto_threshold, coverage_weights, marker_level, threshold
+from edge.coverage import coverage_weights, marker_level
+from edge.segmentation import F32, BoolArray, auto_threshold, threshold
 from edge.trackers.plane import (
     CameraPlaneMapping,
     FloatArray,
