@@ -53,11 +53,23 @@ def render_clip(
     rovers: int | None = None,
     heading: str = "plain",
     camera: str = "nominal",
+    chroma: str | None = None,
 ) -> Clip:
-    """Render scenario ``name`` for ``seed`` through the nominal camera or one of the family (``camera``)."""
+    """Render scenario ``name`` for ``seed`` through the nominal camera or one of the family (``camera``);
+    ``chroma``: that camera's JPEG chroma sampling replaced (``4:4:4``, ``4:2:2``, ``4:2:0``), all else kept."""
+    from dataclasses import replace
+
+    from edge.sim.effects import Compression
     from edge.sim.scenarios import build
 
     setup = build(name, seed, rovers, frames, heading, camera)  # type: ignore[arg-type]
+    if chroma is not None:
+        drawn = setup.effects.compression or Compression()
+        setup = replace(
+            setup,
+            effects=replace(setup.effects, compression=replace(drawn, chroma=chroma)),
+            camera_name=setup.camera_name.replace(drawn.chroma, chroma, 1),
+        )
     renderer = setup.renderer()
     world = setup.world()
     images, truth = [], []

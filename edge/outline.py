@@ -36,6 +36,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -78,13 +79,15 @@ def marker_signal(linear: F32, sample: BoolArray, white: FloatArray | None = Non
     (3,) or (h, w, 3), to judge colours against (None: the camera's grey). None when the sample has no chroma."""
     if not sample.any():
         return None
-    lin = linear if white is None else linear / np.maximum(white, 1e-6)
-    chroma = lin - lin.mean(axis=2, keepdims=True)
-    direction = chroma[sample].mean(axis=0).astype(np.float64)
+    lin = np.asarray(linear if white is None else linear / np.maximum(white, 1e-6), dtype=np.float32)
+    mean = np.asarray(cv2.mean(lin, mask=sample.view(np.uint8))[:3], dtype=np.float64)
+    direction = mean - mean.mean()  # the sample's mean chroma
     norm = float(np.linalg.norm(direction))
     if norm < 1e-6:
         return None
-    return np.asarray(chroma @ (direction / norm).astype(np.float32), dtype=np.float32)
+    # A chroma direction sums to zero over the channels, so projecting the colour is projecting its chroma.
+    unit = (direction / norm).astype(np.float32).reshape(1, 3)
+    return np.asarray(cv2.transform(lin, unit), dtype=np.float32).reshape(lin.shape[:2])
 
 
 def fit_outline(

@@ -44,10 +44,8 @@ from edge.two_tone import MarkerPixels, TwoToneGeometry, inner_edge_weights, vie
 from edge.white import LocalWhite
 
 FloatArray = NDArray[np.float64]
-
-
-WHITE_REFRESH_FRAMES = 15  # the light's map follows the background reference this often
 SIDEWAYS_MIN_SPEED_CM_S = 10.0  # motion that checks a two-tone marker's axis (edge.two_tone.TwoToneHeading.update)
+_FLOOR_CM2 = np.eye(2) * 1e-4  # the measurement covariance's floor (a perfectly sharp pixel is not exact)
 
 
 class Pipeline:
@@ -146,11 +144,11 @@ class Pipeline:
 
         t0 = time.perf_counter()
         exclude = [self._exclusion_box(tr.box, image.shape) for tr in self.tracks if tr.box is not None]
-        self.background.refresh(image, exclude)
+        rows = self.background.refresh(image, exclude)
         if self.white is None:
             self.white = LocalWhite(self.background.reference, self.background.valid)
-        elif self._frames % WHITE_REFRESH_FRAMES == 0:
-            self.white.update(self.background.reference, self.background.valid)
+        else:
+            self.white.update(self.background.reference, self.background.valid, rows)  # the light follows it
         clock.add("reference", time.perf_counter() - t0)
 
         self._frames += 1
@@ -244,7 +242,7 @@ class Pipeline:
         # Measurement covariance: the pixel noise seen through the local scale of the plane mapping.
         jac = window.local.jacobian(*m.uv_px)
         sigma = self.config.measurement_sigma_px
-        return Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + np.eye(2) * 1e-4)
+        return Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + _FLOOR_CM2)
 
     def _two_tone(self, window: Window, m: Measurement, tr: RoverTrack) -> Measurement | None:
         """A two-tone marker (``edge.two_tone``): the heading from the coloured part's edges and the light end, and

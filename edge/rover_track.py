@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import statistics
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -54,7 +55,7 @@ class RoverTrack:
         """The marker area to expect: the median of this rover's recent areas once learned, within half to twice
         the nominal one."""
         if self.learned:
-            learned = float(np.median(self.areas))
+            learned = float(statistics.median(self.areas))  # 31 floats: plain Python is quicker
             return min(max(learned, 0.5 * nominal_cm2), 2.0 * nominal_cm2)
         return nominal_cm2
 
@@ -63,7 +64,7 @@ class RoverTrack:
         three robust standard deviations of this rover's own recent areas (a compressed stream's far-side areas
         scatter by 10 %; a marker a leg hides loses far more); the scatter widens the lower end to 0.75 at most,
         ``min_fraction`` below that lowers it further."""
-        spread = 1.4826 * float(np.median(np.abs(np.asarray(self.areas) - expected_cm2))) / expected_cm2
+        spread = 1.4826 * float(statistics.median(abs(a - expected_cm2) for a in self.areas)) / expected_cm2
         low = min(min_fraction, max(1.0 - 3.0 * spread, 0.75))
         return low, max(max_fraction, 1.0 + 3.0 * spread)
 

@@ -104,24 +104,33 @@ def edge_axis(plane: F32, mask: BoolArray, jacobian_cm_per_px: FloatArray) -> tu
     of a rectangle agree modulo pi/2, and a square pixel grid's own preference for 0 and 90 degrees cancels in
     Scharr's near-isotropic derivative.
     """
-    gu = cv2.Scharr(plane, cv2.CV_32F, 1, 0)[mask].astype(np.float64)
-    gv = cv2.Scharr(plane, cv2.CV_32F, 0, 1)[mask].astype(np.float64)
-    if gu.size == 0:
+    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+    if w == 0 or h == 0:
         return 0.0, 0.0
-    try:
-        inv_t = np.linalg.inv(jacobian_cm_per_px).T
-    except np.linalg.LinAlgError:
+    # The derivative needs one pixel round the mask (the window's own border is treated as before, unpadded).
+    rows = slice(max(0, y - 1), min(plane.shape[0], y + h + 1))
+    cols = slice(max(0, x - 1), min(plane.shape[1], x + w + 1))
+    sub, inside = plane[rows, cols], mask[rows, cols]
+    gu = cv2.Scharr(sub, cv2.CV_32F, 1, 0)[inside].astype(np.float64)
+    gv = cv2.Scharr(sub, cv2.CV_32F, 0, 1)[inside].astype(np.float64)
+    (a, b), (c, d) = np.asarray(jacobian_cm_per_px, dtype=np.float64)
+    if not (math.isfinite(a * d - b * c) and a * d - b * c != 0.0):
         return 0.0, 0.0
-    gx = inv_t[0, 0] * gu + inv_t[0, 1] * gv
-    gy = inv_t[1, 0] * gu + inv_t[1, 1] * gv
+    # Plane gradients are the inverse transpose of the Jacobian times the image's; its 1/det scales every gradient
+    # alike (its sign turns each by pi, nothing modulo pi/2), so the adjugate does.
+    gx = d * gu - c * gv
+    gy = a * gv - b * gu
     mag2 = gx * gx + gy * gy
     total = float(mag2.sum())
     if total <= 0.0:
         return 0.0, 0.0
-    # exp(4 i alpha) * |g|^2 = (gx + i gy)^4 / |g|^2
-    z = (gx + 1j * gy) ** 4 / np.maximum(mag2, 1e-30)
-    s = complex(z.sum())
-    return math.atan2(s.imag, s.real) / 4.0, abs(s) / total
+    # exp(4 i alpha) * |g|^2 = (gx + i gy)^4 / |g|^2, in real arithmetic: (gx + i gy)^2 = c2 + i s2
+    c2 = gx * gx - gy * gy
+    s2 = 2.0 * gx * gy
+    inv = 1.0 / np.maximum(mag2, 1e-30)
+    re = float(((c2 * c2 - s2 * s2) * inv).sum())
+    im = float((2.0 * c2 * s2 * inv).sum())
+    return math.atan2(im, re) / 4.0, math.hypot(re, im) / total
 
 
 def end_strip_scores(

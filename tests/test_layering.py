@@ -18,6 +18,7 @@ EDGE = Path(__file__).resolve().parent.parent / "edge"
 # The vision core: pure functions and small types over numpy arrays, the tracker's interface and configuration.
 CORE = (
     "edge.segmentation",
+    "edge.coverage",
     "edge.filtering",
     "edge.two_tone",
     "edge.trackers",

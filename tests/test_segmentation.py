@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis.extra import numpy as hnp
 
+from edge.coverage import coverage_weights
 from edge.segmentation import (
     LINEAR,
     NO_ROVER,
@@ -15,7 +16,6 @@ from edge.segmentation import (
     ColorModel,
     auto_threshold,
     color_planes,
-    coverage_weights,
     erode,
     fill_holes,
     label_particles,
@@ -216,7 +216,7 @@ def test_coverage_weights_give_the_sub_pixel_centroid_and_area(rect, jpeg):
     interval = auto_threshold(plane, cls == 0, 0.5)
     mask = (cls == 0) & threshold(plane, interval)
     core = fill_holes(open_by_reconstruction(mask))
-    w = coverage_weights(image, lum, core, ring_px=2, pure=mask)
+    w = coverage_weights(image, core, ring_px=2, pure=mask)
     vs, us = np.mgrid[0 : w.shape[0], 0 : w.shape[1]]
     x0, y0, x1, y1 = rect
     true_centre = ((x0 + x1) / 2, (y0 + y1) / 2)
@@ -253,3 +253,15 @@ def test_reconstruction_of_a_mask_by_itself_is_the_mask(mask):
     assert np.array_equal(reconstruct(mask, mask), mask)
     opened = open_by_reconstruction(mask)
     assert np.all(mask[opened])
+
+
+def test_particles_of_a_filled_mask_are_measured_alike_when_told_so():
+    mask = np.zeros((60, 80), bool)
+    mask[10:30, 10:40] = True
+    mask[15:20, 20:25] = False  # a hole
+    mask[40:50, 50:70] = True
+    filled = fill_holes(mask)
+    labels, particles = label_particles(filled)
+    labels_told, particles_told = label_particles(filled, filled=True)
+    assert np.array_equal(labels, labels_told) and particles == particles_told
+    assert [p.holes_px for p in label_particles(mask)[1]] == [25, 0]

@@ -133,3 +133,23 @@ def test_a_poster_of_a_markers_colour_on_the_floor_is_not_taken_for_the_light():
         box, poster[80:176, 112:208], poster[80:176, 112:208], valid[80:176, 112:208]
     )
     assert np.allclose(with_poster, plain, atol=0.02)
+
+
+def test_the_lights_map_follows_the_reference_band_by_band():
+    """The background reference renews a band of rows per frame; each row of 32-pixel blocks of the light's map is
+    recomputed once the band has passed all of it, and after a whole cycle the map is the one computed at once."""
+    floor = np.full((160, 256, 3), 150, np.uint8)
+    valid = np.ones(floor.shape[:2], bool)
+    warm = floor.copy()
+    warm[64:128] = (130, 150, 172)  # a warm patch over block rows 2 and 3 (rows 64-127)
+    white = LocalWhite(floor, valid)
+    before = white.coarse.copy()
+    white.update(warm, valid, slice(0, 70))  # block rows 0 and 1 (ending at rows 32 and 64) complete
+    assert np.array_equal(white.coarse[2:], before[2:])
+    white.update(warm, valid, slice(70, 100))  # block row 2 (ending at row 96) complete
+    assert not np.allclose(white.coarse[2], before[2]) and np.array_equal(white.coarse[3], before[3])
+    for start in range(100, 160, 30):
+        white.update(warm, valid, slice(start, start + 30))
+    at_once = LocalWhite(floor, valid)
+    at_once.update(warm, valid)
+    assert np.array_equal(white.coarse, at_once.coarse)

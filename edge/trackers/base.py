@@ -12,7 +12,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from edge.segmentation import F32, BoolArray, auto_threshold, coverage_weights, marker_level, threshold
+from edge.coverage import coverage_weights, marker_level
+from edge.segmentation import F32, BoolArray, auto_threshold, threshold
 from edge.trackers.plane import (
     CameraPlaneMapping,
     FloatArray,
@@ -143,7 +144,8 @@ def measure_core(
     t0 = time.perf_counter()
     level = marker_level(window.plane, core)
     others = (window.classes >= 0) & ~candidates
-    weights = coverage_weights(window.bgr, window.lum, core, ring_px, exclude=others, pure=mask)
+    exclude = others if others.any() else None
+    weights = coverage_weights(window.bgr, core, ring_px, exclude=exclude, pure=mask, linear=window.linear)
     t1 = time.perf_counter()
     clock.add("measure", t1 - t0)
     blob = world_blob(weights, window.offset, window.grid)

@@ -53,7 +53,9 @@ class ParticleTracker:
         t3 = time.perf_counter()
         clock.add("holes", t3 - t2)
         expected_px = self._expected_px(window, rover)
-        labels, particles = label_particles(filled, min_area_px=max(2, int(self.min_area_fraction * expected_px)))
+        labels, particles = label_particles(
+            filled, min_area_px=max(2, int(self.min_area_fraction * expected_px)), filled=True
+        )
         chosen = self._choose(particles, labels, window, expected_px, clock)
         clock.add("measure", time.perf_counter() - t3)
         if not chosen:

@@ -236,23 +236,23 @@ def world_blob(weights: F32, offset_xy: tuple[int, int], grid: PlaneGrid) -> Wor
     x0, y0 = offset_xy[0] + bx, offset_xy[1] + by
     rows, cols = slice(y0, y0 + h), slice(x0, x0 + w)
     wt = weights.astype(np.float64)
-    jw = wt * grid.area_cm2[rows, cols]  # zero off the plane
+    jw = (wt * grid.area_cm2[rows, cols]).ravel()  # zero off the plane
     total = float(jw.sum())
     wsum = float(wt.sum())
     if total <= 1e-9 or wsum <= 1e-9:
         return None
     x = grid.x_cm[rows, cols]
     y = grid.y_cm[rows, cols]
-    # Moments about a point inside the window keep the sums well conditioned.
+    # Moments about a point inside the window keep the sums well conditioned (a blob spans a few tens of cm).
     ox, oy = float(x[h // 2, w // 2]), float(y[h // 2, w // 2])
-    dx, dy = x - ox, y - oy
-    mx, my = float((jw * dx).sum()) / total, float((jw * dy).sum()) / total
-    dx -= mx
-    dy -= my
+    dx = (x - ox).ravel()
+    dy = (y - oy).ravel()
+    jdx, jdy = jw * dx, jw * dy
+    mx, my = float(jdx.sum()) / total, float(jdy.sum()) / total
     cov = (
-        float((jw * dx * dx).sum()) / total,
-        float((jw * dx * dy).sum()) / total,
-        float((jw * dy * dy).sum()) / total,
+        float(jdx @ dx) / total - mx * mx,
+        float(jdx @ dy) / total - mx * my,
+        float(jdy @ dy) / total - my * my,
     )
     u_px = float(wt.sum(axis=0) @ np.arange(x0, x0 + w)) / wsum
     v_px = float(wt.sum(axis=1) @ np.arange(y0, y0 + h)) / wsum

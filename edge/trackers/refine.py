@@ -13,17 +13,19 @@ without it the pipeline takes only the axis from the edges (:func:`refine_axis`)
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Iterator
 from dataclasses import replace
 
 import numpy as np
 
 from edge.outline import fit_outline, marker_signal
-from edge.segmentation import BoolArray, dilate, erode, linear_bgr
+from edge.segmentation import F32, BoolArray, edge_band, erode
 from edge.trackers.base import Measurement, Window
 from edge.two_tone import edge_axis, footprint_cm
 
 MAX_SHIFT_PX = 1.0  # the outline may move the area centroid by this much, else it fitted something else
 MAX_SIZE_ERROR = 0.08  # the fitted length and width must be the marker's within this share
+MIN_EDGE_COHERENCE = 0.3  # below, the edges do not show a rectangle (edge.two_tone.edge_axis)
 MAX_RESIDUAL = 0.3  # the fit's RMS residual over the marker's level: above, the edges are not a clean rectangle
 
 
@@ -46,7 +48,7 @@ def refine_outline(
     x_cm = window.grid.x_cm[y0:y1, x0:x1]
     y_cm = window.grid.y_cm[y0:y1, x0:x1]
     jacobian = window.local.jacobian(*m.uv_px)
-    axis = marker_axis(signal, window.lum, m, jacobian, usable, size_cm)
+    axis = marker_axis((window.lum, signal), m, jacobian, usable, size_cm)
     cm_per_px = footprint_cm(jacobian, axis)
     fit = fit_outline(signal, x_cm, y_cm, m.xy_cm, axis, size_cm, cm_per_px, usable)
     if fit is None or fit.residual > MAX_RESIDUAL:
@@ -62,55 +64,72 @@ def refine_axis(
     window: Window, m: Measurement, size_cm: tuple[float, float], rover_index: int, exclude: BoolArray | None = None
 ) -> Measurement:
     """``m`` with its long axis (``axis_rad``) from the marker's edges (:func:`marker_axis`), its centre unchanged:
-    the heading's part of :func:`refine_outline`, at a tenth of its cost."""
-    edges = _edge_signal(window, m, rover_index, exclude)
-    if edges is None:
+    the heading's part of :func:`refine_outline`, at a small part of its cost."""
+    if m.weights is None:
         return m
-    signal, usable = edges
     jacobian = window.local.jacobian(*m.uv_px)
-    return replace(m, axis_rad=marker_axis(signal, window.lum, m, jacobian, usable, size_cm))
+    usable = _usable(window, rover_index, exclude)
+    return replace(m, axis_rad=marker_axis(_edge_planes(window, m, rover_index, exclude), m, jacobian, usable, size_cm))
+
+
+def _edge_planes(window: Window, m: Measurement, rover_index: int, exclude: BoolArray | None) -> Iterator[F32]:
+    """The planes whose edges show the marker's outline, best first: the luminance (full resolution in every
+    stream; the chroma of a 4:2:0 stream has half), then the marker's chroma (a marker as bright as its surround)."""
+    yield window.lum
+    edges = _edge_signal(window, m, rover_index, exclude)
+    if edges is not None:
+        yield edges[0]
+
+
+def _usable(window: Window, rover_index: int, exclude: BoolArray | None) -> BoolArray | None:
+    """The window's pixels not of other things: other rovers' hues, ``exclude``; None where that is all of them."""
+    others = (window.classes >= 0) & (window.classes != rover_index)
+    if exclude is not None:
+        others |= exclude
+    return ~others if others.any() else None
 
 
 def _edge_signal(
     window: Window, m: Measurement, rover_index: int, exclude: BoolArray | None
-) -> tuple[np.ndarray, BoolArray] | None:
-    """The marker's chroma signal in linear light (``edge.outline.marker_signal``) and the window's pixels not of
-    other things (other rovers' hues, ``exclude``); None without a marker interior to measure it from."""
+) -> tuple[np.ndarray, BoolArray | None] | None:
+    """The marker's chroma signal in linear light (``edge.outline.marker_signal``) and the window's usable pixels
+    (:func:`_usable`); None without a marker interior to measure it from."""
     if m.weights is None:
         return None
     sample = erode(m.weights >= 1.0, 1)
     if not sample.any():
         return None
-    signal = marker_signal(linear_bgr(window.bgr), sample)
+    signal = marker_signal(window.linear, sample)
     if signal is None:
         return None
-    usable = ~((window.classes >= 0) & (window.classes != rover_index))
-    if exclude is not None:
-        usable &= ~exclude
-    return signal, usable
+    return signal, _usable(window, rover_index, exclude)
 
 
 def marker_axis(
-    signal: np.ndarray,
-    lum: np.ndarray,
+    planes: Iterable[F32],
     m: Measurement,
     jacobian: np.ndarray,
-    usable: BoolArray,
+    usable: BoolArray | None,
     size_cm: tuple[float, float],
 ) -> float:
-    """The marker's long axis (modulo pi) on the plane: its edges' directions (modulo pi/2, sharp) resolved by the
-    blob's elongation (which of the two is the long one). The edges are those of the marker's chroma, or of the
-    luminance when they show a rectangle more coherently (a compressed stream's chroma is coarse; the body's own
-    outline, parallel to the marker's, helps there). Where the marker is square, the blob axis alone."""
+    """The marker's long axis (modulo pi) on the plane: the directions of its edges (modulo pi/2, sharp) in the first
+    of ``planes`` that shows them coherently, resolved by the blob's elongation (which of the two is the long one).
+    Where the marker is square, or no plane shows a rectangle, the blob axis alone.
+
+    Only the marker's own edge counts: the band of pixels within one of the boundary of its coverage (``m.weights``
+    at one half). Farther out the body's outline shows too, and where the camera sees a rover from the side, the
+    edges of the body's visible side are not on the marker plane: taken with them, the lens scenario's far-field
+    rovers were turned by 20 degrees."""
     if m.weights is None or abs(size_cm[0] - size_cm[1]) < 0.05 * max(size_cm):
         return m.axis_rad
-    edges = dilate(np.asarray(m.weights > 0.02), 2) & usable  # the edges' gradients reach past the blob
-    axis4, strength = max(
-        edge_axis(signal, edges, jacobian), edge_axis(lum, edges, jacobian), key=lambda found: found[1]
-    )
-    if strength < 0.3:
-        return m.axis_rad
-    candidates = (axis4, axis4 + 0.5 * math.pi)
-    long_axis = m.axis_rad if size_cm[0] >= size_cm[1] else m.axis_rad + 0.5 * math.pi
-    best = min(candidates, key=lambda a: abs(math.remainder(a - long_axis, math.pi)))
-    return math.remainder(best, math.pi)
+    band = edge_band(np.asarray(m.weights >= 0.5))
+    if usable is not None:
+        band &= usable
+    for plane in planes:
+        axis4, strength = edge_axis(plane, band, jacobian)
+        if strength >= MIN_EDGE_COHERENCE:
+            candidates = (axis4, axis4 + 0.5 * math.pi)
+            long_axis = m.axis_rad if size_cm[0] >= size_cm[1] else m.axis_rad + 0.5 * math.pi
+            best = min(candidates, key=lambda a: abs(math.remainder(a - long_axis, math.pi)))
+            return math.remainder(best, math.pi)
+    return m.axis_rad

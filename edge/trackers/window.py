@@ -10,11 +10,21 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.segmentation import F32, U8, BackgroundModel, BoolArray, ColorModel, opponent_planes, subtract_background
+from edge.segmentation import (
+    F32,
+    U8,
+    BackgroundModel,
+    BoolArray,
+    ColorModel,
+    linear_bgr,
+    opponent_planes,
+    subtract_background,
+)
 from edge.trackers.plane import LocalPlaneMap, PlaneGrid, PlaneMapping
 from edge.tracking import StageClock
 from edge.white import LocalWhite
@@ -56,6 +66,11 @@ class Window:
     @property
     def offset(self) -> tuple[int, int]:
         return self.box[0], self.box[1]
+
+    @cached_property
+    def linear(self) -> F32:
+        """``bgr`` in linear light (``edge.segmentation.linear_bgr``), computed once for the window's stages."""
+        return linear_bgr(self.bgr)
 
     def foreground_fraction(self, mask: BoolArray) -> float:
         """Share of the ``mask`` pixels that differ from a valid background reference (eq. 2 in normalised
