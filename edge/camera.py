@@ -256,8 +256,11 @@ PAPER_CAMERA_SETBACK_CM = 200.0  # behind the near (y = 0) edge: the closest tha
 PAPER_CAMERA_AIM_Y_CM = 200.0
 
 
-def paper_camera(dist_coeffs: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)) -> PinholeCamera:
-    """The default camera: the paper's geometry, whole working area (floor and marker plane) in view."""
+def paper_camera(
+    dist_coeffs: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0), principal_offset_px: tuple[float, float] = (0.0, 0.0)
+) -> PinholeCamera:
+    """The default camera: the paper's geometry, whole working area (floor and marker plane) in view; a real lens's
+    distortion and principal point off the image centre when given."""
     return PinholeCamera.look_at(
         (AREA_WIDTH_CM / 2.0, -PAPER_CAMERA_SETBACK_CM, PAPER_CAMERA_HEIGHT_CM),
         (AREA_WIDTH_CM / 2.0, PAPER_CAMERA_AIM_Y_CM, 0.0),
@@ -265,4 +268,5 @@ def paper_camera(dist_coeffs: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)) -> 
         height_px=720,
         hfov_deg=70.0,
         dist_coeffs=dist_coeffs,
+        principal_offset_px=principal_offset_px,
     )

@@ -10,9 +10,6 @@ import numpy as np
 from edge.camera import (
     AREA_LENGTH_CM,
     AREA_WIDTH_CM,
-    PAPER_CAMERA_AIM_Y_CM,
-    PAPER_CAMERA_HEIGHT_CM,
-    PAPER_CAMERA_SETBACK_CM,
     PinholeCamera,
     paper_camera,
 )
@@ -235,15 +232,8 @@ def build_occlusion(seed: int, n: int, frames: int) -> SimSetup:
 
 
 def lens_camera() -> PinholeCamera:
-    return PinholeCamera.look_at(
-        (AREA_WIDTH_CM / 2.0, -PAPER_CAMERA_SETBACK_CM, PAPER_CAMERA_HEIGHT_CM),
-        (AREA_WIDTH_CM / 2.0, PAPER_CAMERA_AIM_Y_CM, 0.0),
-        width_px=1280,
-        height_px=720,
-        hfov_deg=70.0,
-        dist_coeffs=LENS_DIST_COEFFS,
-        principal_offset_px=LENS_PRINCIPAL_OFFSET_PX,
-    )
+    """The paper's camera through a real lens: distortion and the principal point off the centre."""
+    return paper_camera(LENS_DIST_COEFFS, LENS_PRINCIPAL_OFFSET_PX)
 
 
 def build_lens(seed: int, n: int, frames: int) -> SimSetup:
