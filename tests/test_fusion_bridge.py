@@ -61,9 +61,7 @@ def write_brokers(out: Path, *extra: str) -> None:
 
 def point_bridge(conf: Path, board: str, port: int) -> None:
     """The central's bridge to ``board`` goes to ``port`` on loopback (the test moved every listener)."""
-    text = re.sub(
-        rf"^(connection board-{board}\naddress ).*$", rf"\g<1>127.0.0.1:{port}", conf.read_text(), flags=re.M
-    )
+    text = re.sub(rf"^(connection board-{board}\naddress ).*$", rf"\g<1>127.0.0.1:{port}", conf.read_text(), flags=re.M)
     conf.write_text(text)
 
 
@@ -233,9 +231,7 @@ def test_the_central_opens_each_bridge_and_the_detections_leave_the_board_withou
         process(board_args(d, "cam2"), tmp_path),
     ):
         assert at_central.wait_for(lambda msgs: bridge_states(msgs).get("cam2") == b"1", 30.0)
-        assert at_central.wait_for(
-            lambda msgs: sum(m.topic == "ips/v1/edge/cam2/detections" for m in msgs) >= 10, 30.0
-        )
+        assert at_central.wait_for(lambda msgs: sum(m.topic == "ips/v1/edge/cam2/detections" for m in msgs) >= 10, 30.0)
         assert at_central.wait_subscribed()
         at_central.client.publish("ips/v1/formation", b'{"v":1,"seq":7,"kind":"stop","ids":[]}', qos=1, retain=True)
         assert at_board.wait_for(lambda msgs: any(m.topic == "ips/v1/formation" for m in msgs), 30.0)
