@@ -18,11 +18,11 @@ central Mosquitto that opens a bridge to each, as ``edge-ips broker-config --bri
 before publishing each frame, the time the tracker took for it in the accuracy run: so grab-to-pose covers tracking,
 the board's broker, the bridge, the fuser and the central broker); two fusers (``edge-ips fuse --broker``);
 ``mosquitto_sub`` on the central broker and on a board's broker. Every board shows, at grab tick k, the same
-recorded instant (:func:`replay_index`), stamped with its true grab time (its camera's exposure phase, a correct clock). Measured:
-grab-to-fused-pose latency p50/p99 (receive time minus the pose's ``t``, the grab of the newest detection in it;
-one clock, so a negative one is an error and counted), and the same for the detections at the board's broker and
-at the central one (the bridge's share); the active fuser's CPU, the takeover time when the active fuser is killed
-(and when it is paused), what happens when one board dies.
+recorded instant (:func:`replay_index`), stamped with its true grab time (its camera's exposure phase, a correct
+clock). Measured: grab-to-fused-pose latency p50/p99 (receive time minus the pose's ``t``, the grab of the newest
+detection in it; one clock, so a negative one is an error and counted), and the same for the detections at the
+board's broker and at the central one (the bridge's share); the active fuser's CPU, the takeover time when the
+active fuser is killed (and when it is paused), what happens when one board dies.
 
 Timing figures (latency, CPU) measured on a loaded machine are not valid: re-run on a quiet one.
 """
