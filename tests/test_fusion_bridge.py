@@ -8,6 +8,7 @@ import ctypes
 import os
 import re
 import socket
+import subprocess
 import time
 import tomllib
 from collections.abc import Iterator
@@ -22,7 +23,7 @@ from edge.cli import main
 from tests.support.mosquitto import Mosquitto
 from tests.support.proxy import Proxy
 from tests.support.runtime import MqttRecorder, Received
-from tests.test_fusion_live import BOARDS, PY, fuser_states, pose_list, poses_after, process
+from tests.test_fusion_live import BOARDS, PY, _env, fuser_states, pose_list, poses_after, process
 
 pytestmark = pytest.mark.slow  # real processes and Mosquittos, seconds each
 
@@ -106,12 +107,16 @@ def bridge_states(messages: list[Received]) -> dict[str, bytes]:
 
 
 @pytest.mark.parametrize(
-    ("deployment", "qos"),
-    [("as written", 0), ("queueing", 1)],  # as written: QoS 0 detections, nothing queued; else QoS 1, queued
+    ("deployment", "qos", "how"),
+    [
+        ("as written", 0, "cut"),  # QoS 0 detections, nothing queued; the link ends (both ends see it)
+        ("queueing", 1, "cut"),  # QoS 1, and a bridge that keeps its session: the board queues for it
+        ("as written", 0, "stall"),  # the link holds everything for seconds, then delivers it late
+    ],
     indirect=["deployment"],
 )
 def test_through_bridges_a_dropped_link_gives_no_stale_pose_and_replays_nothing_stale(
-    deployment: Deployment, tmp_path: Path, qos: int
+    deployment: Deployment, tmp_path: Path, qos: int, how: str
 ) -> None:
     d = deployment
     central_edge = (d.central.port, "edge", d.logins["central"]["edge"]["edge"])  # the loopback listener
@@ -141,17 +146,27 @@ def test_through_bridges_a_dropped_link_gives_no_stale_pose_and_replays_nothing_
         # the canonical poses come back into each board's broker, for rovers and dashboards there
         assert at_board.wait_for(lambda msgs: len(pose_list(msgs)) >= 30, 30.0)
 
-        t_down = time.time()
-        d.proxy.down()
-        assert at_central.wait_for(lambda msgs: bridge_states(msgs).get("cam1") == b"0", 30.0)  # its last will
+        t_down, links = time.time(), d.proxy.connections
+        if how == "cut":
+            d.proxy.down()
+            # the central broker's bridge saw its socket end and says so itself
+            assert at_central.wait_for(lambda msgs: bridge_states(msgs).get("cam1") == b"0", 30.0)
+        else:
+            d.proxy.stall()
         # r2 circles in cam1's half only: without cam1 nobody sees it, and it gets no pose (no stale one either)
         assert at_central.wait_for(
             lambda msgs: "r2" in _latest_fuser_status(msgs).missing and _board(msgs, "cam1").state == "silent", 30.0
         )
+        if how == "cut":
+            doctor = [PY, "-m", "edge.cli", "doctor", "--fusion", "--broker", d.central_url("edge", "edge")]
+            report = subprocess.run(doctor, capture_output=True, text=True, cwd=tmp_path, env=_env(), timeout=60)
+            (cam1,) = [line for line in report.stdout.splitlines() if "board cam1" in line]
+            assert report.returncode == 1 and cam1.startswith("FAIL") and "bridge down" in cam1, report.stdout
         assert poses_after(at_central, at_central.messages[-1].t_recv, 200)  # r1, r3 go on through cam2 (3 s+)
         t_up = time.time()
         d.proxy.up()
         assert at_central.wait_for(lambda msgs: bridge_states(msgs).get("cam1") == b"1", 60.0)
+        resumed = d.proxy.connections == links  # a stall shorter than the keepalive: the same connection goes on
         assert at_central.wait_for(lambda msgs: "r2" in {p.id for _, p in pose_list(msgs, t_up)}, 30.0)  # type: ignore[attr-defined]
         assert poses_after(at_central, t_up, 60)
         # What cam1's broker queued for the bridge during the cut (QoS 1 and a bridge that keeps its session:
@@ -168,8 +183,10 @@ def test_through_bridges_a_dropped_link_gives_no_stale_pose_and_replays_nothing_
     assert t_up - t_down > 3 * MAX_AGE_S
     # the fuser dropped every replayed detection, fused none
     assert stale >= len(replayed)
-    if qos == 0:
+    if how == "cut" and qos == 0:
         assert not replayed
+    if how == "stall" and resumed:  # what the link held arrived late, and was dropped
+        assert replayed
     # no pose made from the cut-off board's data: r2 had none while cam1 was cut off (but for frames captured within
     # MAX_AGE_S before the link returned: delivered as it comes back, they are young, not stale), and no rover's
     # poses ever went back in time (a replay would)
