@@ -33,7 +33,8 @@ from edge.cli.common import UserError, config_option, id_list, load
     "--tls-name",
     "tls_names",
     multiple=True,
-    help="Name or address the clients use to reach the broker (repeat; default: this host's name and localhost).",
+    help="Name or address the clients use to reach the broker (repeat; default: this host's name and localhost). "
+    "With --bridge: the central broker's; each board's certificate names the HOST of its --board.",
 )
 @click.option(
     "--install-dir",
