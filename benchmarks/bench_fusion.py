@@ -13,16 +13,16 @@ handover (the frame-to-frame change of the error when the set of boards that saw
 same measure at other frames; swaps (a pose nearer another rover's truth than its own); the boards' clock
 estimates against their true exposure offsets; the seams between the boards' calibrations; the fuser's CPU.
 
-``live``: the same detections replayed in real time by four board processes, each with its own Mosquitto bridged to
-a central one as ``edge-ips broker-config --bridge`` writes them (the boards wait, before publishing each frame,
-the time the tracker took for it in the accuracy run: so grab-to-pose covers tracking, the board's broker, the
-bridge, the fuser and the central broker); two fusers (``edge-ips fuse --broker``); ``mosquitto_sub`` on the
-central broker and on a board's broker. Every board shows, at grab tick k, the same recorded instant
-(:func:`replay_index`), stamped with its true grab time (its camera's exposure phase, a correct clock). Measured:
-grab-to-fused-pose latency p50/p99 (receive time minus the pose's ``t``, the grab of the newest detection in it;
-one clock, so a negative one is an error and counted), and the same for the detections at the board's broker and
-at the central one (the bridge's share); the active fuser's CPU, the takeover time when the active fuser is killed
-(and when it is paused), what happens when one board dies.
+``live``: the same detections replayed in real time by four board processes, each with its own Mosquitto, and a
+central Mosquitto that opens a bridge to each, as ``edge-ips broker-config --bridge`` writes them (the boards wait,
+before publishing each frame, the time the tracker took for it in the accuracy run: so grab-to-pose covers tracking,
+the board's broker, the bridge, the fuser and the central broker); two fusers (``edge-ips fuse --broker``);
+``mosquitto_sub`` on the central broker and on a board's broker. Every board shows, at grab tick k, the same
+recorded instant (:func:`replay_index`), stamped with its true grab time (its camera's exposure phase, a correct
+clock). Measured: grab-to-fused-pose latency p50/p99 (receive time minus the pose's ``t``, the grab of the newest
+detection in it; one clock, so a negative one is an error and counted), and the same for the detections at the
+board's broker and at the central one (the bridge's share); the active fuser's CPU, the takeover time when the
+active fuser is killed (and when it is paused), what happens when one board dies.
 
 Timing figures (latency, CPU) measured on a loaded machine are not valid: re-run on a quiet one.
 """
@@ -462,7 +462,7 @@ def _wait(predicate: Any, timeout_s: float) -> bool:
 def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) -> dict[str, Any]:
     import psutil
 
-    from edge.broker.bridge import write_bridge_configs
+    from edge.broker.bridge import BoardAddress, write_bridge_configs
 
     layout = json.loads((work / "wide.json").read_text())
     names = [c["name"] for c in layout["cameras"]]
@@ -471,7 +471,14 @@ def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) 
         import shutil
 
         shutil.rmtree(brokers)
-    write_bridge_configs(brokers, boards=names, rovers=[], central_host="127.0.0.1", fusers=["fuser-a", "fuser-b"])
+    # every listener on a free loopback port; the central broker opens a bridge to each board's network listener
+    board_ports = {name: {1884: free_port(), 1883: free_port()} for name in names}
+    write_bridge_configs(
+        brokers,
+        boards={name: BoardAddress("127.0.0.1", board_ports[name][1883]) for name in names},
+        rovers=[],
+        fusers=["fuser-a", "fuser-b"],
+    )
 
     def logins(where: Path) -> dict[str, dict[str, str]]:
         import tomllib
@@ -482,14 +489,9 @@ def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) 
     central_logins = logins(brokers / "central")
     central_ports = {1884: free_port(), 1883: free_port()}
     procs: list[subprocess.Popen[Any]] = [
-        start_mosquitto(brokers / "central" / "mosquitto.conf", work / "run" / "central", central_ports)
+        start_mosquitto(brokers / name / "mosquitto.conf", work / "run" / name, board_ports[name]) for name in names
     ]
-    board_ports = {}
-    for name in names:
-        conf = brokers / name / "mosquitto.conf"
-        conf.write_text(conf.read_text().replace("address 127.0.0.1:1883", f"address 127.0.0.1:{central_ports[1883]}"))
-        board_ports[name] = {1884: free_port(), 1883: free_port()}
-        procs.append(start_mosquitto(conf, work / "run" / name, board_ports[name]))
+    procs.append(start_mosquitto(brokers / "central" / "mosquitto.conf", work / "run" / "central", central_ports))
     results: dict[str, Any] = {}
     try:
         at_central = Subscriber(central_ports[1884], "edge", central_logins["edge"]["edge"])

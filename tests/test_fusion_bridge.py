@@ -1,9 +1,14 @@
 """Three real Mosquitto processes bridged on loopback as `edge-ips broker-config --bridge` writes them: two boards'
-brokers and the central one with the fuser. A bridge that drops: no stale poses, nothing stale replayed."""
+brokers and the central one, which opens a bridge to each board, with the fuser. The detections leave each board on
+a socket its broker accepted (TCP_NODELAY); a bridge that drops: no stale poses, nothing stale replayed."""
 
 from __future__ import annotations
 
+import ctypes
+import os
 import re
+import socket
+import subprocess
 import time
 import tomllib
 from collections.abc import Iterator
@@ -18,7 +23,7 @@ from edge.cli import main
 from tests.support.mosquitto import Mosquitto
 from tests.support.proxy import Proxy
 from tests.support.runtime import MqttRecorder, Received
-from tests.test_fusion_live import BOARDS, PY, fuser_states, pose_list, poses_after, process
+from tests.test_fusion_live import BOARDS, PY, _env, fuser_states, pose_list, poses_after, process
 
 pytestmark = pytest.mark.slow  # real processes and Mosquittos, seconds each
 
@@ -29,7 +34,7 @@ MAX_AGE_S = 1.0  # the fuser's age limit here (a busy machine); the outage below
 class Deployment:
     central: Mosquitto
     boards: dict[str, Mosquitto]
-    proxy: Proxy  # between cam1's bridge and the central broker
+    proxy: Proxy  # between the central broker's bridge and cam1's broker
     logins: dict[str, dict[str, dict[str, str]]]
 
     def central_url(self, table: str, user: str) -> str:
@@ -49,44 +54,41 @@ def _logins(path: Path) -> dict[str, dict[str, str]]:
     return {table: {u: v["password"] for u, v in users.items()} for table, users in data.items()}
 
 
+def write_brokers(out: Path, *extra: str) -> None:
+    args = ["broker-config", "--bridge", "--board", "cam1=127.0.0.1", "--board", "cam2=127.0.0.1", *extra]
+    result = CliRunner().invoke(main, [*args, "--rovers", "r1,r2,r3", "--out", str(out)], catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+
+
+def point_bridge(conf: Path, board: str, port: int) -> None:
+    """The central's bridge to ``board`` goes to ``port`` on loopback (the test moved every listener)."""
+    text = re.sub(rf"^(connection board-{board}\naddress ).*$", rf"\g<1>127.0.0.1:{port}", conf.read_text(), flags=re.M)
+    conf.write_text(text)
+
+
 @pytest.fixture
 def deployment(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[Deployment]:
     out = tmp_path / "brokers"
-    result = CliRunner().invoke(
-        main,
-        [
-            "broker-config",
-            "--bridge",
-            "--boards",
-            "cam1,cam2",
-            "--central-host",
-            "127.0.0.1",
-            "--rovers",
-            "r1,r2,r3",
-            "--out",
-            str(out),
-        ],
-        catch_exceptions=False,
-    )
-    assert result.exit_code == 0, result.output
+    write_brokers(out)
     logins = {name: _logins(out / name / "credentials.toml") for name in ("central", "cam1", "cam2")}
-    with Mosquitto(tmp_path / "run-central", conf_path=out / "central" / "mosquitto.conf") as central:
-        proxy = Proxy(central.ports[1883]).start()
-        boards = {}
-        try:
-            for board in ("cam1", "cam2"):
-                # the bridge's address: the central broker's network listener (cam1's through the cuttable link)
-                port = proxy.port if board == "cam1" else central.ports[1883]
-                conf = out / board / "mosquitto.conf"
-                text = re.sub(r"^address .*$", f"address 127.0.0.1:{port}", conf.read_text(), flags=re.M)
-                if getattr(request, "param", None) == "queueing":  # a bridge set up to keep what it could not send
-                    text = text.replace("cleansession true", "cleansession false")
-                conf.write_text(text)
-                boards[board] = Mosquitto(tmp_path / f"run-{board}", conf_path=conf).start()
+    boards: dict[str, Mosquitto] = {}
+    proxy: Proxy | None = None
+    try:
+        for board in ("cam1", "cam2"):
+            boards[board] = Mosquitto(tmp_path / f"run-{board}", conf_path=out / board / "mosquitto.conf").start()
+        # the central's bridges: to each board's network listener (cam1's through the cuttable link)
+        proxy = Proxy(boards["cam1"].ports[1883]).start()
+        conf = out / "central" / "mosquitto.conf"
+        point_bridge(conf, "cam1", proxy.port)
+        point_bridge(conf, "cam2", boards["cam2"].ports[1883])
+        if getattr(request, "param", None) == "queueing":  # bridges set up to keep what they could not send
+            conf.write_text(conf.read_text().replace("cleansession true", "cleansession false"))
+        with Mosquitto(tmp_path / "run-central", conf_path=conf) as central:
             yield Deployment(central, boards, proxy, logins)
-        finally:
-            for broker in boards.values():
-                broker.stop()
+    finally:
+        for broker in boards.values():
+            broker.stop()
+        if proxy is not None:
             proxy.stop()
 
 
@@ -105,12 +107,16 @@ def bridge_states(messages: list[Received]) -> dict[str, bytes]:
 
 
 @pytest.mark.parametrize(
-    ("deployment", "qos"),
-    [("as written", 0), ("queueing", 1)],  # as written: QoS 0 detections, nothing queued; else QoS 1, queued
+    ("deployment", "qos", "how"),
+    [
+        ("as written", 0, "cut"),  # QoS 0 detections, nothing queued; the link ends (both ends see it)
+        ("queueing", 1, "cut"),  # QoS 1, and a bridge that keeps its session: the board queues for it
+        ("as written", 0, "stall"),  # the link holds everything for seconds, then delivers it late
+    ],
     indirect=["deployment"],
 )
 def test_through_bridges_a_dropped_link_gives_no_stale_pose_and_replays_nothing_stale(
-    deployment: Deployment, tmp_path: Path, qos: int
+    deployment: Deployment, tmp_path: Path, qos: int, how: str
 ) -> None:
     d = deployment
     central_edge = (d.central.port, "edge", d.logins["central"]["edge"]["edge"])  # the loopback listener
@@ -140,17 +146,27 @@ def test_through_bridges_a_dropped_link_gives_no_stale_pose_and_replays_nothing_
         # the canonical poses come back into each board's broker, for rovers and dashboards there
         assert at_board.wait_for(lambda msgs: len(pose_list(msgs)) >= 30, 30.0)
 
-        t_down = time.time()
-        d.proxy.down()
-        assert at_central.wait_for(lambda msgs: bridge_states(msgs).get("cam1") == b"0", 30.0)  # its last will
+        t_down, links = time.time(), d.proxy.connections
+        if how == "cut":
+            d.proxy.down()
+            # the central broker's bridge saw its socket end and says so itself
+            assert at_central.wait_for(lambda msgs: bridge_states(msgs).get("cam1") == b"0", 30.0)
+        else:
+            d.proxy.stall()
         # r2 circles in cam1's half only: without cam1 nobody sees it, and it gets no pose (no stale one either)
         assert at_central.wait_for(
             lambda msgs: "r2" in _latest_fuser_status(msgs).missing and _board(msgs, "cam1").state == "silent", 30.0
         )
+        if how == "cut":
+            doctor = [PY, "-m", "edge.cli", "doctor", "--fusion", "--broker", d.central_url("edge", "edge")]
+            report = subprocess.run(doctor, capture_output=True, text=True, cwd=tmp_path, env=_env(), timeout=60)
+            (cam1,) = [line for line in report.stdout.splitlines() if "board cam1" in line]
+            assert report.returncode == 1 and cam1.startswith("FAIL") and "bridge down" in cam1, report.stdout
         assert poses_after(at_central, at_central.messages[-1].t_recv, 200)  # r1, r3 go on through cam2 (3 s+)
         t_up = time.time()
         d.proxy.up()
         assert at_central.wait_for(lambda msgs: bridge_states(msgs).get("cam1") == b"1", 60.0)
+        resumed = d.proxy.connections == links  # a stall shorter than the keepalive: the same connection goes on
         assert at_central.wait_for(lambda msgs: "r2" in {p.id for _, p in pose_list(msgs, t_up)}, 30.0)  # type: ignore[attr-defined]
         assert poses_after(at_central, t_up, 60)
         # What cam1's broker queued for the bridge during the cut (QoS 1 and a bridge that keeps its session:
@@ -167,8 +183,10 @@ def test_through_bridges_a_dropped_link_gives_no_stale_pose_and_replays_nothing_
     assert t_up - t_down > 3 * MAX_AGE_S
     # the fuser dropped every replayed detection, fused none
     assert stale >= len(replayed)
-    if qos == 0:
+    if how == "cut" and qos == 0:
         assert not replayed
+    if how == "stall" and resumed:  # what the link held arrived late, and was dropped
+        assert replayed
     # no pose made from the cut-off board's data: r2 had none while cam1 was cut off (but for frames captured within
     # MAX_AGE_S before the link returned: delivered as it comes back, they are young, not stale), and no rover's
     # poses ever went back in time (a replay would)
@@ -189,11 +207,90 @@ def _board(messages: list[Received], edge: str):  # type: ignore[no-untyped-def]
     return next(b for b in _latest_fuser_status(messages).boards if b.edge == edge)
 
 
+PIDFD_GETFD = 438  # the Linux syscall number (the same on x86-64 and arm64)
+
+
+def tcp_sockets(pid: int) -> list[socket.socket]:
+    """Copies of a process's connected TCP sockets (pidfd_getfd: the test started the process, so may read it)."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    pidfd = os.pidfd_open(pid)
+    out = []
+    try:
+        for fd in os.listdir(f"/proc/{pid}/fd"):
+            if not os.readlink(f"/proc/{pid}/fd/{fd}").startswith("socket:"):
+                continue
+            copy = libc.syscall(PIDFD_GETFD, pidfd, int(fd), 0)
+            assert copy >= 0, os.strerror(ctypes.get_errno())
+            sock = socket.socket(fileno=copy)
+            try:
+                sock.getpeername()
+            except OSError:  # a listener, or not TCP
+                sock.close()
+                continue
+            if sock.type == socket.SOCK_STREAM and sock.family in (socket.AF_INET, socket.AF_INET6):
+                out.append(sock)
+            else:
+                sock.close()
+    finally:
+        os.close(pidfd)
+    return out
+
+
+def test_the_central_opens_each_bridge_and_the_detections_leave_the_board_without_nagle(
+    deployment: Deployment, tmp_path: Path
+) -> None:
+    d = deployment
+    central_edge = (d.central.port, "edge", d.logins["central"]["edge"]["edge"])
+    board_edge = (d.boards["cam2"].port, "edge", d.logins["cam2"]["edge"]["edge"])
+    with (
+        recorder(central_edge) as at_central,
+        recorder(board_edge) as at_board,
+        process(board_args(d, "cam2"), tmp_path),
+    ):
+        assert at_central.wait_for(lambda msgs: bridge_states(msgs).get("cam2") == b"1", 30.0)
+        assert at_central.wait_for(lambda msgs: sum(m.topic == "ips/v1/edge/cam2/detections" for m in msgs) >= 10, 30.0)
+        assert at_central.wait_subscribed()
+        at_central.client.publish("ips/v1/formation", b'{"v":1,"seq":7,"kind":"stop","ids":[]}', qos=1, retain=True)
+        assert at_board.wait_for(lambda msgs: any(m.topic == "ips/v1/formation" for m in msgs), 30.0)
+        listener = d.boards["cam2"].ports[1883]
+        assert d.central.proc is not None and d.boards["cam2"].proc is not None
+        central_side = [s for s in tcp_sockets(d.central.proc.pid) if s.getpeername()[1] == listener]
+        board_side = [s for s in tcp_sockets(d.boards["cam2"].proc.pid) if s.getsockname()[1] == listener]
+        try:
+            # the central broker connected to the board's listener: the board's broker accepted the socket
+            assert len(central_side) == 1 and len(board_side) == 1
+            assert board_side[0].getpeername() == central_side[0].getsockname()
+            # the board's end, which sends the detections, has Nagle's algorithm off
+            assert board_side[0].getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) != 0
+        finally:
+            for sock in central_side + board_side:
+                sock.close()
+
+
+def test_over_tls_the_central_reaches_each_board_with_the_boards_client_certificate(tmp_path: Path) -> None:
+    out = tmp_path / "brokers"
+    write_brokers(out, "--tls")
+    logins = {name: _logins(out / name / "credentials.toml") for name in ("central", "cam1")}
+    conf = out / "central" / "mosquitto.conf"
+    with Mosquitto(tmp_path / "run-cam1", conf_path=out / "cam1" / "mosquitto.conf") as cam1:
+        point_bridge(conf, "cam1", cam1.ports[8883])  # the board's TLS listener, not its plain one
+        point_bridge(conf, "cam2", cam1.ports[8883])  # an impostor for cam2: its certificate is cam1's CA's
+        with (
+            Mosquitto(tmp_path / "run-central", conf_path=conf) as central,
+            recorder((central.port, "edge", logins["central"]["edge"]["edge"])) as at_central,
+            recorder((cam1.port, "edge", logins["cam1"]["edge"]["edge"])) as at_board,
+        ):
+            assert at_central.wait_for(lambda msgs: bridge_states(msgs).get("cam1") == b"1", 30.0)
+            assert at_board.wait_subscribed()
+            at_board.client.publish("ips/v1/edge/cam1/detections", b"over tls", qos=1)
+            assert at_central.wait_for(lambda msgs: any(m.payload == b"over tls" for m in msgs), 30.0)
+            # cam2's bridge, started with cam1's, trusts only cam2's CA: it refused the impostor and never came up
+            assert bridge_states(at_central.messages).get("cam2") == b"0"
+
+
 def test_broker_config_bridge_refuses_what_it_cannot_write(tmp_path: Path) -> None:
     runner = CliRunner()
     no_boards = runner.invoke(main, ["broker-config", "--bridge", "--out", str(tmp_path / "a")])
-    assert no_boards.exit_code == 2 and "--boards" in no_boards.output
-    bad = runner.invoke(
-        main, ["broker-config", "--bridge", "--boards", "Cam 1", "--central-host", "c", "--out", str(tmp_path / "b")]
-    )
-    assert bad.exit_code == 2 and "Cam 1" in bad.output
+    assert no_boards.exit_code == 2 and "--board" in no_boards.output
+    bad = runner.invoke(main, ["broker-config", "--bridge", "--board", "Cam1=c", "--out", str(tmp_path / "b")])
+    assert bad.exit_code == 2 and "Cam1" in bad.output

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from edge.broker.access import MAX_PACKET_BYTES, MAX_PAYLOAD_BYTES, hashed_users
 from edge.broker.credentials import Credentials, generate
-from edge.broker.tls import TLS_FILES, TlsPaths, write_tls_files
+from edge.broker.tls import TLS_FILES, TlsPaths, tls_listener_lines, write_tls_files
 from edge.errors import BrokerError
 from edge.private_files import private_dir, write_private
 
@@ -90,13 +90,7 @@ def _conf_text(
         lines += [
             "# TLS for the edge and laptops on other machines: only clients with client.crt (signed by ca.crt)",
             "# connect. ESP8266 rovers stay on the plain listener (docs/deploy.md).",
-            f"listener {tls_port} {bind}",
-            f"cafile {where / 'ca.crt'}",
-            f"certfile {where / 'server.crt'}",
-            f"keyfile {where / 'server.key'}",
-            "require_certificate true",
-            "tls_version tlsv1.2",
-            "",
+            *tls_listener_lines(tls_port, bind, where),
         ]
     return "\n".join(lines)
 

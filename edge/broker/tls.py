@@ -115,3 +115,19 @@ def write_tls_files(out_dir: Path, names: Sequence[str], *, valid_days: int = VA
     write_private(paths.client_cert, client_cert, mode=0o644)
     write_private(paths.client_key, client_key)
     return paths
+
+
+def tls_listener_lines(port: int, bind: str, where: Path, *, clientid_from_username: bool = False) -> list[str]:
+    """Mosquitto lines of a TLS listener that only clients holding a certificate signed by ``where/ca.crt`` reach
+    (:func:`write_tls_files` wrote the files into ``where``); ``clientid_from_username``: a client's id is its
+    user name there."""
+    return [
+        f"listener {port} {bind}",
+        *(["use_username_as_clientid true"] if clientid_from_username else []),
+        f"cafile {where / 'ca.crt'}",
+        f"certfile {where / 'server.crt'}",
+        f"keyfile {where / 'server.key'}",
+        "require_certificate true",
+        "tls_version tlsv1.2",
+        "",
+    ]

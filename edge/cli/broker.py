@@ -33,7 +33,8 @@ from edge.cli.common import UserError, config_option, id_list, load
     "--tls-name",
     "tls_names",
     multiple=True,
-    help="Name or address the clients use to reach the broker (repeat; default: this host's name and localhost).",
+    help="Name or address the clients use to reach the broker (repeat; default: this host's name and localhost). "
+    "With --bridge: the central broker's; each board's certificate names the HOST of its --board.",
 )
 @click.option(
     "--install-dir",
@@ -47,8 +48,14 @@ from edge.cli.common import UserError, config_option, id_list, load
     is_flag=True,
     help="Several boards: a central broker (OUT/central) and one bridged broker per board (OUT/<board>).",
 )
-@click.option("--boards", default=None, help="--bridge: comma-separated board ids (each board's edge.id).")
-@click.option("--central-host", default=None, help="--bridge: the name or address the boards reach the central by.")
+@click.option(
+    "--board",
+    "board_specs",
+    multiple=True,
+    metavar="ID=HOST[:PORT]",
+    help="--bridge: a board's id (its edge.id) and how the central broker reaches the board's broker (repeat; "
+    "PORT defaults to --port, or --tls-port with --tls).",
+)
 @click.option(
     "--fusers", default="fuser-a,fuser-b", show_default=True, help="--bridge: the fusers' logins at the central."
 )
@@ -65,8 +72,7 @@ def broker_config(
     install_dir: Path | None,
     force: bool,
     bridge: bool,
-    boards: str | None,
-    central_host: str | None,
+    board_specs: tuple[str, ...],
     fusers: str,
     config_path: Path | None,
 ) -> None:
@@ -78,14 +84,15 @@ def broker_config(
     credentials.toml; passwords and private keys are written with mode 600.
 
     With --bridge (several boards), OUT/central is the central broker (the fusers and the rovers connect there)
-    and OUT/<board> each board's own Mosquitto, bridged to the central one: detections and statuses out, poses in,
-    the formation both ways, over TLS with --tls (the link that leaves the board).
+    and OUT/<board> each board's own Mosquitto. The central broker opens a bridge to each board (so the boards'
+    detections leave on sockets the boards accepted, sent at once): detections and statuses from the boards,
+    poses, the fusers' statuses and the formation to them; over TLS with --tls (each board gets a TLS listener).
 
     Example:
 
     \b
         edge-ips broker-config --out /etc/mosquitto/edge-ips --rovers red,green,blue --tls --tls-name pi.lab
-        edge-ips broker-config --bridge --boards cam1,cam2 --central-host central.lab --tls --out brokers
+        edge-ips broker-config --bridge --board cam1=cam1.lab --board cam2=cam2.lab --tls --out brokers
     """
     import socket
 
@@ -93,28 +100,29 @@ def broker_config(
 
     config = load(config_path).config
     ids = id_list(rovers)
+    if board_specs and not bridge:
+        raise UserError("--board goes with --bridge (several boards)")
     if bridge:
-        from edge.broker.bridge import write_bridge_configs
+        from edge.broker.bridge import parse_board, write_bridge_configs
 
-        board_ids = id_list(boards)
-        if board_ids is None or central_host is None:
-            raise UserError("--bridge needs --boards (the boards' ids) and --central-host (how they reach it)")
+        boards = dict(parse_board(spec) for spec in board_specs)
+        if len(boards) != len(board_specs):
+            raise UserError("--board: each board id once")
         written = write_bridge_configs(
             out_dir,
-            boards=board_ids,
+            boards=boards,
             rovers=ids if ids is not None else [r.id for r in config.rovers],
-            central_host=central_host,
             fusers=id_list(fusers) or [],
             port=port,
             local_port=local_port,
             tls_port=tls_port if tls else None,
-            tls_names=list(tls_names) or [central_host],
+            tls_names=list(tls_names) or [socket.gethostname(), "localhost", "127.0.0.1"],
             install_dir=install_dir,
             force=force,
         )
         for path in written.all():
             click.echo(f"wrote {path}")
-        click.echo(f"central broker: {written.central}; one bridged broker per board: {', '.join(board_ids)}")
+        click.echo(f"central broker: {written.central}, with a bridge to each board's broker: {', '.join(boards)}")
         return
     files = write_mosquitto_config(
         out_dir,

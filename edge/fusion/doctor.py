@@ -124,12 +124,14 @@ def fusion_checks(snap: Snapshot, now_s: float | None = None) -> list[Check]:
             detail += f"; camera {own.camera}, {own.fps:.0f} fps"
         if b.state != "ok" or bridge == b"0":
             hint = (
-                "its bridge is down: check the link to the central broker"
+                "its bridge is down: check the network between the central broker and the board"
                 if bridge == b"0"
                 else (
                     "the board is offline: start edge-ips on it"
                     if b.state == "offline"
-                    else 'no detections arrive: check edge-ips start on the board and edge.publish = "detections"'
+                    # Mosquitto before 2.0.15 keeps saying "up" for a link that died silently (no TCP reset)
+                    else 'no detections arrive: check edge-ips start on the board, edge.publish = "detections" and'
+                    " the network between the central broker and the board"
                 )
             )
             checks.append(Check(f"board {b.edge}", "fail", detail, hint))
