@@ -7,6 +7,7 @@ simulator's camera family.
                                                  [--calibration camera|points] [--heading plain|two_tone]
     python benchmarks/bench_tracking.py family   [--scenarios lab,...,crowd8] [--seeds 0,1] [--frames N]
                                                  [--calibration camera|points] [--detail] [--chroma 4:4:4]
+                                                 [--quality 95]
     python benchmarks/bench_tracking.py all
 
 Frames come from the simulator (``edge.sim``) rendered in memory first, so only the tracker is timed. Timing runs on
@@ -196,14 +197,16 @@ def bench_accuracy(
         )
 
 
-def family_clip(name: str, seed: int, frames: int | None, chroma: str | None = None) -> object:
+def family_clip(
+    name: str, seed: int, frames: int | None, chroma: str | None = None, quality: int | None = None
+) -> object:
     """Scenario ``name`` (``crowd8``: the crowd with the eight-hue palette) through the family's camera for ``seed``
-    (``chroma``: with that chroma sampling instead of the camera's own)."""
+    (``chroma``, ``quality``: with that JPEG chroma sampling or quality instead of the camera's own)."""
     if name == "crowd8":
-        clip = render_clip("crowd", seed, frames, rovers=8, camera="family", chroma=chroma)
+        clip = render_clip("crowd", seed, frames, rovers=8, camera="family", chroma=chroma, quality=quality)
         clip.name = "crowd8"
         return clip
-    return render_clip(name, seed, frames, camera="family", chroma=chroma)
+    return render_clip(name, seed, frames, camera="family", chroma=chroma, quality=quality)
 
 
 def bars_hold(r: dict[str, float], per_colour: list[dict[str, float]]) -> list[str]:
@@ -232,13 +235,14 @@ def bench_family(
     detail: bool,
     outline_fit: bool = False,
     chroma: str | None = None,
+    quality: int | None = None,
 ) -> None:
     """Render each scenario and seed once through the family's camera, track it with each calibration, print a
     table per calibration."""
     runs: dict[str, list[tuple[object, Score]]] = {c: [] for c in calibrations}
     for name in scenarios:
         for seed in seeds:
-            clip = family_clip(name, seed, frames, chroma)
+            clip = family_clip(name, seed, frames, chroma, quality)
             about = SimpleNamespace(name=name, seed=seed, camera_name=clip.camera_name, bodies=clip.bodies)  # type: ignore[attr-defined]
             for c in calibrations:
                 runs[c].append((about, run_clip(clip, "particles", calibration=c, outline_fit=outline_fit)))  # type: ignore[arg-type]
@@ -338,6 +342,14 @@ def main() -> None:
         default=None,
         help="family: every camera with this JPEG chroma sampling instead of its own (all else kept)",
     )
+    parser.add_argument(
+        "--quality",
+        type=int,
+        choices=range(1, 101),
+        metavar="1-100",
+        default=None,
+        help="family: every camera with this JPEG quality instead of its own (all else kept)",
+    )
     args = parser.parse_args()
     print(f"# edge-ips tracking benchmark, {time.strftime('%Y-%m-%d %H:%M')}\n")
     if args.what in ("stages", "all"):
@@ -357,7 +369,9 @@ def main() -> None:
         seeds = [int(s) for s in args.seeds.split(",")]
         scenarios = args.scenarios.split(",") if args.scenarios != ",".join(SCENARIOS) else list(FAMILY_SCENARIOS)
         calibrations = ["camera", "points"] if args.calibration == "both" else [args.calibration]
-        bench_family(scenarios, seeds, args.frames, calibrations, args.detail, args.outline_fit, args.chroma)
+        bench_family(
+            scenarios, seeds, args.frames, calibrations, args.detail, args.outline_fit, args.chroma, args.quality
+        )
 
 
 if __name__ == "__main__":

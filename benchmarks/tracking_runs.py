@@ -54,21 +54,26 @@ def render_clip(
     heading: str = "plain",
     camera: str = "nominal",
     chroma: str | None = None,
+    quality: int | None = None,
 ) -> Clip:
     """Render scenario ``name`` for ``seed`` through the nominal camera or one of the family (``camera``);
-    ``chroma``: that camera's JPEG chroma sampling replaced (``4:4:4``, ``4:2:2``, ``4:2:0``), all else kept."""
+    ``chroma``, ``quality``: that camera's JPEG chroma sampling (``4:4:4``, ``4:2:2``, ``4:2:0``) or quality
+    replaced, all else kept."""
     from dataclasses import replace
 
     from edge.sim.effects import Compression
     from edge.sim.scenarios import build
 
     setup = build(name, seed, rovers, frames, heading, camera)  # type: ignore[arg-type]
-    if chroma is not None:
+    if chroma is not None or quality is not None:
         drawn = setup.effects.compression or Compression()
+        stream = replace(drawn, chroma=chroma or drawn.chroma, quality=quality or drawn.quality)
         setup = replace(
             setup,
-            effects=replace(setup.effects, compression=replace(drawn, chroma=chroma)),
-            camera_name=setup.camera_name.replace(drawn.chroma, chroma, 1),
+            effects=replace(setup.effects, compression=stream),
+            camera_name=setup.camera_name.replace(drawn.chroma, stream.chroma, 1).replace(
+                f"q{drawn.quality}", f"q{stream.quality}", 1
+            ),
         )
     renderer = setup.renderer()
     world = setup.world()
