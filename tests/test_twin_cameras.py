@@ -11,14 +11,13 @@ and the fused poses of the standing rovers are where the lab's ground truth has 
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
 import subprocess
 import time
 import tomllib
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +37,7 @@ from tests.support.command import EDGE_IPS, Edge, arrival
 from tests.support.dashboard import clean_env
 from tests.support.mosquitto import Mosquitto
 from tests.support.runtime import MqttRecorder, stop_process
-from tests.support.twin import TOPICS, Poses, TwinLabProcess, formation_run, stop_run, wait_tracked
+from tests.support.twin import TOPICS, Poses, TwinLabProcess, formation_run, rest_events, stop_run, wait_tracked
 
 IDS = ["red", "green", "blue"]
 WAIT_S = 120.0  # a failure guard only
@@ -165,11 +164,13 @@ def test_a_scatter_uses_the_whole_wide_arena(lab: tuple[TwinLab, Path]) -> None:
 TOKEN = "twin-cameras-dashboard-token"
 SEAM = (350.0, 450.0)  # the overlap of the two cameras' regions (x, cm)
 FRAMES = 900  # observed after the command: 30 s of the shared clock; the line must hold at the end
-AT_REST_AFTER_S = 0.5
+AT_REST_AFTER_S = 0.5  # every rover at rest (ground truth) within this of the STOP
+# The fused pose settles after the rover: the fuser spreads a correction over frames (at most 0.25 cm a frame beyond
+# the shown motion), and while a rover brakes or speeds up its pose lags what the boards measure by a few cm.
+POSES_SETTLED_S = 1.0
 REST_WINDOW_S = 1.0
 REST_CM = 1.0
 TRUTH_CM = 1.5  # a standing rover's fused pose from its true place (one board's error, or two fused at the seam)
-MAX_SPEED_CM_S = 45.0  # the rovers' max_speed_cm_s (firmware/esp8266/configs)
 
 
 @dataclass
@@ -262,6 +263,9 @@ def boards(tmp_path: Path) -> Iterator[Boards]:
             yield Boards(LabClient(state / "twin.sock"), state / "twin.sock", edges, rec, Poses(rec))
         finally:
             rec.stop()
+            with (tmp_path / "messages.jsonl").open("w") as out:  # what the observer got, for a failure's reader
+                for m in list(rec.messages):
+                    out.write(json.dumps({"t_recv": m.t_recv, "topic": m.topic, "payload": m.payload.decode()}) + "\n")
             for edge in edges.values():
                 edge.stop()
             stop_process(fuser_proc)
@@ -313,6 +317,29 @@ def _why(b: Boards, after: float) -> dict[str, object]:
     }
 
 
+def _against_measurements(b: Boards, after: float) -> tuple[dict[str, float], list[tuple[str, str, float]]]:
+    """The fused poses since ``after`` against what the boards measured at the same capture instant (within 3 ms):
+    each rover's largest distance from its own measurements (how far the pose the rovers act on strays), and the
+    poses that lie nearer another rover's measurement than their own (id, the other, time): swapped identities."""
+    measured: dict[int, list[tuple[str, float, float]]] = {}
+    for m in list(b.rec.messages):
+        if m.topic.endswith("/detections") and m.payload:
+            doc = json.loads(m.payload)
+            measured.setdefault(round(doc["t"] * 1000), []).extend((d["id"], d["x"], d["y"]) for d in doc["rovers"])
+    worst = dict.fromkeys(IDS, 0.0)
+    swaps = []
+    for p in b.poses.since(after):
+        near = [row for ms in range(round(p.t * 1000) - 3, round(p.t * 1000) + 4) for row in measured.get(ms, [])]
+        own = [math.hypot(p.x - x, p.y - y) for rid, x, y in near if rid == p.id]
+        if not own:
+            continue
+        worst[p.id] = max(worst[p.id], min(own))
+        nearest = min(near, key=lambda row: math.hypot(p.x - row[1], p.y - row[2]))
+        if nearest[0] != p.id:
+            swaps.append((p.id, nearest[0], p.t))
+    return {r: round(v, 2) for r, v in worst.items()}, swaps
+
+
 def _seen_by(rec: MqttRecorder, board: str, rover: str, after: float) -> bool:
     return any(
         any(d["id"] == rover for d in json.loads(m.payload)["rovers"])
@@ -321,12 +348,21 @@ def _seen_by(rec: MqttRecorder, board: str, rover: str, after: float) -> bool:
     )
 
 
-@pytest.mark.slow
-def test_a_line_forms_across_the_seam_of_two_boards_and_stop_leaves_every_rover_where_the_poses_say(
-    boards: Boards, record_property: Callable[[str, object], None]
-) -> None:
-    b = boards
-    cameras = _cameras(b.path)
+@dataclass(frozen=True)
+class HandOver:
+    """One formation across the seam: where the rovers started, the rovers one board alone measured then (by
+    board), those of them the other board measures at the end, the bar's score."""
+
+    placed: dict[str, tuple[float, float]]
+    alone: dict[str, list[str]]
+    crossed: list[str]
+    score: dict[str, object]
+    lag_cm: dict[str, float]
+
+
+def _handed_over(b: Boards, kind: str, cameras: dict[str, PinholeCamera]) -> HandOver:
+    """Scatter across the seam, command ``kind`` through cam1's dashboard, wait for it to converge; the rovers that
+    one board alone measured at the start and the other measures at the end."""
     placed = _straddling_scatter(b.lab, cameras)
     t_scatter = time.time()
     wait_tracked(b.poses, IDS, t_scatter)
@@ -338,32 +374,34 @@ def test_a_line_forms_across_the_seam_of_two_boards_and_stop_leaves_every_rover_
     }
     assert alone[("cam1", "cam2")] and alone[("cam2", "cam1")], (placed, alone)
 
-    sent = b.edges["cam1"].command("line", TOKEN, IDS)
-    t_command = arrival(b.rec, "line", sent["seq"], t_scatter)
-    run = formation_run(b.poses, IDS, "line", t_command, FRAMES)
+    sent = b.edges["cam1"].command(kind, TOKEN, IDS)
+    t_command = arrival(b.rec, kind, sent["seq"], t_scatter)
+    run = formation_run(b.poses, IDS, kind, t_command, FRAMES)
     truth = {r["id"]: r["truth"] for r in b.lab.status()["rovers"]}
-    record_property("line", {"placed": placed, "score": run.__dict__, "truth": truth})
     assert run.converged_frame is not None, (run, truth, _why(b, t_command))
-    # the rovers crossed into the other camera's view, and the other board measured them there
     t_end = time.time() - 1.0
-    for (_, other), rovers in alone.items():
-        for rid in rovers:
-            assert _seen_by(b.rec, other, rid, t_end), f"{rid}: {other} does not measure it ({truth[rid]})"
-    # through the handover each rover's fused pose moved as a rover can: no jump, no swap of identities
-    for rid in IDS:
-        track = [p for p in b.poses.since(t_command) if p.id == rid]
-        steps = [math.hypot(q.x - p.x, q.y - p.y) - MAX_SPEED_CM_S * (q.t - p.t) for p, q in itertools.pairwise(track)]
-        assert max(steps) < 2.0, (rid, max(steps))
+    crossed = [rid for (_, other), rovers in alone.items() for rid in rovers if _seen_by(b.rec, other, rid, t_end)]
+    # through the handover each rover's fused pose stays with what the boards measure of that rover: no swap
+    lag, swaps = _against_measurements(b, t_command)
+    assert not swaps, (swaps[:10], lag)
+    return HandOver(placed, {board: r for (board, _), r in alone.items()}, crossed, asdict(run), lag)
 
-    # STOP while they drive (scattered again, the retained line brings them back): every rover at rest
+
+def _stop(b: Boards, cameras: dict[str, PinholeCamera]) -> dict[str, object]:
+    """Scattered again, the retained formation brings the rovers back; STOP (through cam2's dashboard) while they
+    drive: every rover at rest within the bound (the lab's ground truth), then the fused poses at rest too and where
+    the rovers stand."""
     t_scatter = time.time()
     _straddling_scatter(b.lab, cameras)
     wait_tracked(b.poses, IDS, t_scatter)
     b.poses.wait(lambda ps: any(p.speed > 10.0 for p in b.poses.since(t_scatter)), "a rover driving")
+    mark = b.lab.status()["events"][-1]["n"]
+    b.lab.note("STOP pressed")  # the lab times each rover from now until it is at rest
     t_stop = time.time()
     b.edges["cam2"].command("stop", TOKEN)
-    moved = stop_run(b.poses, IDS, t_stop, AT_REST_AFTER_S, REST_WINDOW_S)
-    record_property("stop_moved_cm", moved)
+    rest = {r: e["after_fault_s"] for r, e in rest_events(b.lab, "STOP pressed", mark, IDS).items() if e is not None}
+    assert rest and max(rest.values()) < AT_REST_AFTER_S, rest
+    moved = stop_run(b.poses, IDS, t_stop, POSES_SETTLED_S, REST_WINDOW_S)
     assert all(v < REST_CM for v in moved.values()), moved
     lab_rovers = b.lab.status()["rovers"]
     assert not [r["id"] for r in lab_rovers if r["moving"]], lab_rovers
@@ -371,5 +409,22 @@ def test_a_line_forms_across_the_seam_of_two_boards_and_stop_leaves_every_rover_
     off = {
         r["id"]: math.hypot(last[r["id"]].x - r["truth"]["x"], last[r["id"]].y - r["truth"]["y"]) for r in lab_rovers
     }
-    record_property("stop_off_truth_cm", off)
     assert max(off.values()) < TRUTH_CM, off
+    return {"at_rest_after_s": rest, "moved_cm": moved, "off_truth_cm": off}
+
+
+@pytest.mark.slow
+def test_formations_form_across_the_seam_of_two_boards_and_stop_leaves_every_rover_where_the_poses_say(
+    boards: Boards, record_property: Callable[[str, object], None]
+) -> None:
+    cameras = _cameras(boards.path)
+    for kind in ("line", "rendezvous", "triangle"):
+        run = _handed_over(boards, kind, cameras)
+        record_property(kind, asdict(run))
+        # rovers crossed from one camera's view into the other's, and the other board measured them there: every
+        # one for a line (it forms at about their mean x, in the seam), at least one for the others
+        lone = [r for rovers in run.alone.values() for r in rovers]
+        assert run.crossed == lone if kind == "line" else run.crossed, run
+        record_property(f"stop after {kind}", _stop(boards, cameras))
+    status = boards.lab.status()
+    record_property("cameras", {"figures": status["cameras"], "cpu_s": status["cpu_s"]})
