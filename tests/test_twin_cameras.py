@@ -37,7 +37,16 @@ from tests.support.command import EDGE_IPS, Edge, arrival
 from tests.support.dashboard import clean_env
 from tests.support.mosquitto import Mosquitto
 from tests.support.runtime import MqttRecorder, stop_process
-from tests.support.twin import TOPICS, Poses, TwinLabProcess, formation_run, rest_events, stop_run, wait_tracked
+from tests.support.twin import (
+    TOPICS,
+    Poses,
+    TwinLabProcess,
+    formation_run,
+    rest_events,
+    stop_run,
+    wait_driving,
+    wait_tracked,
+)
 
 IDS = ["red", "green", "blue"]
 WAIT_S = 120.0  # a failure guard only
@@ -166,8 +175,9 @@ SEAM = (350.0, 450.0)  # the overlap of the two cameras' regions (x, cm)
 FRAMES = 900  # observed after the command: 30 s of the shared clock; the line must hold at the end
 AT_REST_AFTER_S = 0.5  # every rover at rest (ground truth) within this of the STOP
 # The fused pose settles after the rover: the fuser spreads a correction over frames (at most 0.25 cm a frame beyond
-# the shown motion), and while a rover brakes or speeds up its pose lags what the boards measure by a few cm.
-POSES_SETTLED_S = 1.0
+# the shown motion, 7.5 cm/s), and while a rover turns, brakes or speeds up its pose lags what the boards measure by
+# up to 13 cm here (this loaded machine skips frames): 2.5 s lets the largest lag close before the poses are judged.
+POSES_SETTLED_S = 2.5
 REST_WINDOW_S = 1.0
 REST_CM = 1.0
 TRUTH_CM = 1.5  # a standing rover's fused pose from its true place (one board's error, or two fused at the seam)
@@ -394,7 +404,7 @@ def _stop(b: Boards, cameras: dict[str, PinholeCamera]) -> dict[str, object]:
     t_scatter = time.time()
     _straddling_scatter(b.lab, cameras)
     wait_tracked(b.poses, IDS, t_scatter)
-    b.poses.wait(lambda ps: any(p.speed > 10.0 for p in b.poses.since(t_scatter)), "a rover driving")
+    wait_driving(b.lab)
     mark = b.lab.status()["events"][-1]["n"]
     b.lab.note("STOP pressed")  # the lab times each rover from now until it is at rest
     t_stop = time.time()

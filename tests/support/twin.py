@@ -120,6 +120,16 @@ def rest_events(lab: LabClient, label: str, after: int, rovers: Sequence[str]) -
     raise AssertionError(f"the lab did not time every rover after {label}: {found}")
 
 
+def wait_driving(lab: LabClient, speed_cm_s: float = 10.0) -> None:
+    """Until a rover drives at ``speed_cm_s`` or more by the lab's ground truth (a rover's poses jump when the lab
+    scatters it, which is no driving)."""
+    for _ in range(int(TIMEOUT_S / 0.2)):  # the lab's status, polled
+        if any(r["speed_cm_s"] >= speed_cm_s for r in lab.status()["rovers"]):
+            return
+        threading.Event().wait(0.2)
+    raise AssertionError(f"no rover drove at {speed_cm_s:g} cm/s within {TIMEOUT_S:g} s")
+
+
 @dataclass
 class TwinLabProcess:
     """``edge-ips sim twin`` started by hand (for an external broker, with the rovers' logins)."""
