@@ -34,7 +34,7 @@ from edge.sim.twin.server import LabServer
 from edge.sim.twin.source import LabClient, TwinSource, parse_twin
 from edge.sim.twin.wire import socket_path
 from tests.support.command import EDGE_IPS, Edge, arrival
-from tests.support.dashboard import clean_env
+from tests.support.dashboard import call, clean_env
 from tests.support.mosquitto import Mosquitto
 from tests.support.runtime import MqttRecorder, stop_process
 from tests.support.twin import (
@@ -438,3 +438,12 @@ def test_formations_form_across_the_seam_of_two_boards_and_stop_leaves_every_rov
         record_property(f"stop after {kind}", _stop(boards, cameras))
     status = boards.lab.status()
     record_property("cameras", {"figures": status["cameras"], "cpu_s": status["cpu_s"]})
+
+    # each board's dashboard shows the lab's cameras, its own first; a camera fault there hangs its own camera only
+    auth = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}
+    fault = json.dumps({"kind": "camera", "seconds": 3}).encode()
+    reply = call(boards.edges["cam2"].http_port, "POST", "/api/sim/fault", fault, auth)
+    assert reply.status == 200 and reply.json()["done"] == "cam2 hung for 3 s", reply.body
+    seen = call(boards.edges["cam1"].http_port, "GET", "/api/sim", headers=auth).json()
+    assert seen["camera"]["name"] == "cam1" and not seen["camera"]["stalled"]
+    assert [(c["name"], c["stalled"]) for c in seen["cameras"]] == [("cam1", False), ("cam2", True)]
