@@ -161,6 +161,19 @@ def test_a_hung_camera_hangs_alone_and_the_status_lists_every_camera(lab: tuple[
         LabClient(path).fault("camera", 1.0, camera="cam7")
 
 
+@pytest.mark.parametrize(
+    ("camera", "code", "said"),
+    [("cam2", 0, "cam2 hung for 0.5 s"), (None, 0, "cam1 hung for 0.5 s"), ("cam9", 2, "no camera 'cam9'")],
+)
+def test_sim_fault_hangs_the_camera_it_names(
+    lab: tuple[TwinLab, Path], camera: str | None, code: int, said: str
+) -> None:
+    _, path = lab
+    args = ["sim", "fault", "camera", "--for", "0.5", "--socket", str(path)]
+    result = CliRunner().invoke(main, [*args, "--camera", camera] if camera else args)
+    assert result.exit_code == code and said in result.output, result.output
+
+
 def test_a_scatter_uses_the_whole_wide_arena(lab: tuple[TwinLab, Path]) -> None:
     _, path = lab
     client = LabClient(path)
@@ -176,7 +189,7 @@ FRAMES = 900  # observed after the command: 30 s of the shared clock; the line m
 AT_REST_AFTER_S = 0.5  # every rover at rest (ground truth) within this of the STOP
 # The fused pose settles after the rover: the fuser spreads a correction over frames (at most 0.25 cm a frame beyond
 # the shown motion, 7.5 cm/s), and while a rover turns, brakes or speeds up its pose lags what the boards measure by
-# up to 13 cm here (this loaded machine skips frames): 2.5 s lets the largest lag close before the poses are judged.
+# up to 15 cm here (this loaded machine skips frames): 2.5 s lets the largest lag close before the poses are judged.
 POSES_SETTLED_S = 2.5
 REST_WINDOW_S = 1.0
 REST_CM = 1.0
@@ -195,26 +208,9 @@ class Boards:
 @pytest.fixture
 def boards(tmp_path: Path) -> Iterator[Boards]:
     conf = tmp_path / "brokers"
-    made = subprocess.run(
-        [
-            *EDGE_IPS,
-            "broker-config",
-            "--bridge",
-            "--boards",
-            "cam1,cam2",
-            "--central-host",
-            "127.0.0.1",
-            "--rovers",
-            ",".join(IDS),
-            "--out",
-            str(conf),
-        ],
-        cwd=tmp_path,
-        env=clean_env(),
-        capture_output=True,
-        text=True,
-    )
-    assert made.returncode == 0, made.stderr
+    bridged = ["--bridge", "--boards", "cam1,cam2", "--central-host", "127.0.0.1"]
+    made = CliRunner().invoke(main, ["broker-config", *bridged, "--rovers", ",".join(IDS), "--out", str(conf)])
+    assert made.exit_code == 0, made.output
     central = conf / "central"
     logins = tomllib.loads((central / "credentials.toml").read_text())
     state = tmp_path / "s"  # the boards find the lab's socket in their state directory
