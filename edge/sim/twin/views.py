@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.camera import PinholeCamera
+from edge.camera import MARKER_HEIGHT_CM, PinholeCamera
 from edge.errors import ConfigError
 from edge.sim.render import Renderer
 from edge.sim.scene import RoverLook
@@ -26,6 +26,7 @@ from edge.sim.world import WorldState
 from edge.tracker_config import RoverConfig
 
 CAMERA_COUNTS = (1, 2, 3, 4)  # 1: the paper's lab; 2-4: the wide arena's layouts
+SEES_MARGIN_PX = 20.0  # a marker's centre this far inside the picture: the marker is whole in it
 
 
 @dataclass(frozen=True)
@@ -43,8 +44,10 @@ class LabView:
         return self.renderer.render(state, frame)
 
     def sees(self, x_cm: float, y_cm: float) -> bool:
-        x0, y0, x1, y1 = self.region_cm
-        return x0 <= x_cm <= x1 and y0 <= y_cm <= y1
+        """Whether a marker centred at (x, y) is in this camera's picture (its far rows reach beyond its region)."""
+        u, v = self.camera.project(np.array([[x_cm, y_cm, MARKER_HEIGHT_CM]]))[0]
+        m = SEES_MARGIN_PX
+        return bool(m <= u <= self.camera.width_px - m and m <= v <= self.camera.height_px - m)
 
 
 @dataclass(frozen=True)
