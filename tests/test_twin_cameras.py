@@ -185,7 +185,7 @@ def test_a_scatter_uses_the_whole_wide_arena(lab: tuple[TwinLab, Path]) -> None:
 # -- end to end: lab + two boards + fuser + firmware on one Mosquitto ------------------------------------------------
 TOKEN = "twin-cameras-dashboard-token"
 SEAM = (350.0, 450.0)  # the overlap of the two cameras' regions (x, cm)
-FRAMES = 900  # observed after the command: 30 s of the shared clock; the line must hold at the end
+FRAMES = 900  # observed after the command: 30 s of the shared clock; the bar must hold at the end
 AT_REST_AFTER_S = 0.5  # every rover at rest (ground truth) within this of the STOP
 # The fused pose settles after the rover: the fuser spreads a correction over frames (at most 0.25 cm a frame beyond
 # the shown motion, 7.5 cm/s), and while a rover turns, brakes or speeds up its pose lags what the boards measure by
