@@ -393,6 +393,21 @@ def _handed_over(b: Boards, kind: str, cameras: dict[str, PinholeCamera]) -> Han
     return HandOver(placed, {board: r for (board, _), r in alone.items()}, crossed, asdict(run), lag)
 
 
+def _note_while_driving(lab: LabClient) -> tuple[int, str]:
+    """Tell the lab a STOP is coming (it times each rover from now until it is at rest) at a moment a rover drives
+    by its ground truth; on this loaded machine the rovers stop and go (stale poses), so the lab's word that every
+    rover stood already makes it wait for the next moment. Returns the event number before the note, its label."""
+    for attempt in range(50):  # a retained formation keeps them driving back: a try or two at most
+        wait_driving(lab)
+        mark = lab.status()["events"][-1]["n"]
+        label = f"STOP pressed (try {attempt + 1})"
+        lab.note(label)
+        standing = {e["who"] for e in lab.status(mark)["events"] if (e.get("rest") or {}).get("already")}
+        if set(IDS) - standing:
+            return mark, label
+    raise AssertionError("the rovers stood whenever the lab was told a STOP was coming")
+
+
 def _stop(b: Boards, cameras: dict[str, PinholeCamera]) -> dict[str, object]:
     """Scattered again, the retained formation brings the rovers back; STOP (through cam2's dashboard) while they
     drive: every rover at rest within the bound (the lab's ground truth), then the fused poses at rest too and where
@@ -400,12 +415,10 @@ def _stop(b: Boards, cameras: dict[str, PinholeCamera]) -> dict[str, object]:
     t_scatter = time.time()
     _straddling_scatter(b.lab, cameras)
     wait_tracked(b.poses, IDS, t_scatter)
-    wait_driving(b.lab)
-    mark = b.lab.status()["events"][-1]["n"]
-    b.lab.note("STOP pressed")  # the lab times each rover from now until it is at rest
+    mark, label = _note_while_driving(b.lab)
     t_stop = time.time()
     b.edges["cam2"].command("stop", TOKEN)
-    rest = {r: e["after_fault_s"] for r, e in rest_events(b.lab, "STOP pressed", mark, IDS).items() if e is not None}
+    rest = {r: e["after_fault_s"] for r, e in rest_events(b.lab, label, mark, IDS).items() if e is not None}
     assert rest and max(rest.values()) < AT_REST_AFTER_S, rest
     moved = stop_run(b.poses, IDS, t_stop, POSES_SETTLED_S, REST_WINDOW_S)
     assert all(v < REST_CM for v in moved.values()), moved
