@@ -10,11 +10,15 @@ Two measurements:
   the recording. ``--out DIR`` keeps the recording, ``run.json`` and ``twin_run.png``.
 * ``cpu``: for each fleet size (``--rovers 3,6,9,12``), the CPU time of the lab and of the edge over ``--seconds``
   while the rovers drive a rendezvous (scattered every 8 s), and the cost of one more rover (the slope).
+  ``--cameras N`` (2-4): the lab over the wide arena with N cameras, one ``edge-ips start --source sim:twin:camK``
+  per camera publishing detections and ``edge-ips fuse``, on a private Mosquitto: the CPU of each camera's
+  rendering, each board and the fuser, each camera's frame rate, the fused poses' latency.
 
 Timing figures (latency, CPU) are only meaningful on a quiet machine. Example::
 
     python benchmarks/bench_twin.py run --out runs/twin [--repeat 5]
     python benchmarks/bench_twin.py cpu --rovers 3,6,9,12 --seconds 30
+    python benchmarks/bench_twin.py cpu --cameras 2 --rovers 3 --seconds 30
 """
 
 from __future__ import annotations
@@ -41,7 +45,7 @@ import paho.mqtt.client as mqtt
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from benchmarks._common import free_port  # noqa: E402
+from benchmarks._common import MOSQUITTO_BENCH, free_port, private_mosquitto  # noqa: E402
 from edge.messages import FORMATION_TOPIC, POSE_WILDCARD  # noqa: E402
 from edge.sim.twin.bars import largest_moves_cm, score_formation  # noqa: E402
 from edge.sim.twin.source import LabClient  # noqa: E402
@@ -102,11 +106,11 @@ class Observer:
 
 
 @dataclass
-class Twin:
+class Fleet:
+    """A lab's controls, the dashboard that commands its rovers, the observer of their poses."""
+
     lab: LabClient
     http_port: int
-    edge: subprocess.Popen[bytes]
-    lab_process: subprocess.Popen[bytes] | None
     observer: Observer
     ids: list[str]
 
@@ -131,6 +135,14 @@ class Twin:
 
         _wait("every rover tracked after a scatter", tracked)
         return t
+
+
+@dataclass
+class Twin(Fleet):
+    """One camera: the edge, and the lab when it was started by hand."""
+
+    edge: subprocess.Popen[bytes]
+    lab_process: subprocess.Popen[bytes] | None = None
 
 
 def _healthy(port: int) -> bool:
@@ -166,7 +178,7 @@ def twin(workdir: Path, rovers: int, record: Path | None) -> Iterator[Twin]:
         ids = [r["id"] for r in lab.status()["rovers"]]
         observer = Observer(broker)
         try:
-            yield Twin(lab, http, edge, lab_process, observer, ids)
+            yield Twin(lab, http, observer, ids, edge, lab_process)
         finally:
             observer.close()
     finally:
@@ -286,15 +298,15 @@ def cpu(sizes: list[int], seconds: float) -> list[dict[str, Any]]:
             )
             print(rows[-1], file=sys.stderr)
     if len(rows) > 1:
-        n = np.array([r["rovers"] for r in rows], dtype=float)
+        fleet = np.array([r["rovers"] for r in rows], dtype=float)
         total = np.array([r["lab_cpu_pct"] + r["edge_cpu_pct"] for r in rows])
         lab = np.array([r["lab_cpu_pct"] for r in rows])
         edge = np.array([r["edge_cpu_pct"] for r in rows])
         for row in rows:
             row["per_rover_pct"] = {
-                "total": round(float(np.polyfit(n, total, 1)[0]), 2),
-                "lab": round(float(np.polyfit(n, lab, 1)[0]), 2),
-                "edge": round(float(np.polyfit(n, edge, 1)[0]), 2),
+                "total": round(float(np.polyfit(fleet, total, 1)[0]), 2),
+                "lab": round(float(np.polyfit(fleet, lab, 1)[0]), 2),
+                "edge": round(float(np.polyfit(fleet, edge, 1)[0]), 2),
             }
     return rows
 
@@ -331,6 +343,110 @@ def _child_lab(edge_pid: int) -> int:
     raise SystemExit("the edge's lab process was not found")
 
 
+@dataclass
+class Boards:
+    """A lab of several cameras, one board per camera and a fuser on one broker."""
+
+    lab: LabClient
+    lab_pid: int
+    boards: dict[str, int]  # camera -> its edge's pid
+    fuser_pid: int
+    http_port: int  # the first board's dashboard
+    observer: Observer
+    ids: list[str]
+
+
+@contextmanager
+def boards(workdir: Path, cameras: int, rovers: int) -> Iterator[Boards]:
+    state = workdir / "s"
+    env = _env(state, EDGE_IPS_DASHBOARD__TOKEN=TOKEN)
+    procs: list[subprocess.Popen[bytes]] = []
+
+    def spawn(name: str, args: list[str], **extra: str) -> subprocess.Popen[bytes]:
+        with (workdir / f"{name}.log").open("wb") as out:
+            proc = subprocess.Popen([*EDGE_IPS, *args], env={**env, **extra}, stdout=out, stderr=out, cwd=workdir)
+        procs.append(proc)
+        return proc
+
+    with private_mosquitto(workdir / "mosquitto", MOSQUITTO_BENCH) as broker:
+        try:
+            lab_proc = spawn(
+                "lab", ["sim", "twin", "--cameras", str(cameras), "--rovers", str(rovers), "--broker", broker.url]
+            )
+            lab = LabClient(state / "twin.sock")
+            _wait("the lab", lambda: _answers(lab))
+            names = [c["name"] for c in lab.status()["cameras"]]
+            ports = {name: free_port() for name in names}
+            board_args = ["start", "--broker", broker.url, "--edge-id"]
+            edges = {
+                name: spawn(
+                    name,
+                    [*board_args, name, "--source", f"sim:twin:{name}", "--http-port", str(ports[name])],
+                    EDGE_IPS_EDGE__PUBLISH="detections",
+                )
+                for name in names
+            }
+            fuser = spawn("fuser", ["fuse", "--broker", broker.url, "--id", "fuser-a", "--max-age", "1.0"])
+            for name in names:
+                _wait(f"board {name} online", lambda name=name: _healthy(ports[name]))
+            ids = [r["id"] for r in lab.status()["rovers"]]
+            observer = Observer(broker.port)
+            try:
+                yield Boards(
+                    lab, lab_proc.pid, {n: p.pid for n, p in edges.items()}, fuser.pid, ports[names[0]], observer, ids
+                )
+            finally:
+                observer.close()
+        finally:
+            for proc in reversed(procs):
+                proc.send_signal(signal.SIGTERM)
+                proc.wait(60)
+
+
+def cpu_cameras(cameras: int, rovers: int, seconds: float) -> dict[str, Any]:
+    """The lab of ``cameras`` cameras with a board each and a fuser, the rovers driving a rendezvous (scattered every
+    8 s): CPU % of a core of each part over ``seconds``, each camera's frame rate, the fused poses' latency."""
+    with tempfile.TemporaryDirectory(prefix=f"twin-cams{cameras}-") as tmp, boards(Path(tmp), cameras, rovers) as b:
+        t = Fleet(b.lab, b.http_port, b.observer, b.ids)
+        t.command("rendezvous")
+        t.scatter_and_track()
+        pids = {"lab": b.lab_pid, **{f"board {n}": p for n, p in b.boards.items()}, "fuser": b.fuser_pid}
+        c0, before, w0 = {k: _cpu_s(p) for k, p in pids.items()}, t.lab.status(), time.monotonic()
+        last_scatter = w0
+        while time.monotonic() - w0 < seconds:
+            time.sleep(0.5)
+            if time.monotonic() - last_scatter > 8.0:
+                t.lab.scatter()
+                last_scatter = time.monotonic()
+        wall = time.monotonic() - w0
+        after = t.lab.status()
+        processes = {k: round(100 * (_cpu_s(p) - c0[k]) / wall, 1) for k, p in pids.items()}
+        cams = []
+        for c1, c0_ in zip(after["cameras"], before["cameras"], strict=True):
+            name = c1["name"]
+            render = after["cpu_s"]["cameras"][name] - before["cpu_s"]["cameras"][name]
+            cams.append(
+                {
+                    "camera": name,
+                    "render_cpu_pct": round(100 * render / wall, 1),
+                    "fps": round((c1["frames"] - c0_["frames"]) / wall, 1),
+                    "skipped": c1["skipped"] - c0_["skipped"],
+                    "board_cpu_pct": processes[f"board {name}"],
+                }
+            )
+        return {
+            "cameras": cameras,
+            "rovers": rovers,
+            "seconds": round(wall, 1),
+            "cpu_pct": processes,
+            "total_cpu_pct": round(sum(processes.values()), 1),
+            "per_camera": cams,
+            "lab_parts_pct": _parts_pct(before["cpu_s"], after["cpu_s"], wall),
+            "fused_pose_latency_ms": _latency(t.observer.since(time.time() - wall)),
+            "load_average": os.getloadavg(),
+        }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="what", required=True)
@@ -340,9 +456,12 @@ def main() -> None:
     c = sub.add_parser("cpu", help="CPU of the lab and the edge by fleet size")
     c.add_argument("--rovers", default="3,6,9,12")
     c.add_argument("--seconds", type=float, default=30.0)
+    c.add_argument("--cameras", type=int, default=1, help="2-4: boards over the wide arena, a fuser (one --rovers)")
     args = parser.parse_args()
     if args.what == "run":
         print(json.dumps(run(args.out, args.repeat), indent=2))
+    elif args.cameras > 1:
+        print(json.dumps(cpu_cameras(args.cameras, int(args.rovers.split(",")[0]), args.seconds), indent=2))
     else:
         print(json.dumps(cpu([int(x) for x in args.rovers.split(",")], args.seconds), indent=2))
 

@@ -73,10 +73,10 @@ def default_sim_factory(config: EdgeConfig) -> SimFactory:
     """The simulator's source, paced in real time, for ``--source sim[:SCENARIO]``."""
 
     def make(scenario: str) -> FrameSource:
-        if scenario == "twin":  # the live twin: a lab process with the rovers' firmware, seen through its camera
+        if scenario.split(":")[0] == "twin":  # the live twin: a lab with the rovers' firmware, seen by its camera(s)
             from edge.sim.twin.source import twin_source
 
-            return twin_source(config)
+            return twin_source(config, scenario)
         from edge.sim.source import SimSource
 
         if scenario.startswith("wide"):  # one camera of the wide arena (a board of several)

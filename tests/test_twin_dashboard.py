@@ -51,6 +51,7 @@ class MemoryLab:
             "faults": [{"kind": "camera", "rover": None, "label": "camera hung for 3 s", "left_s": 2.5}],
             "events": [{"n": 7, "t": 1.0, "who": "lab", "text": "fault: camera hung for 3 s"}][after:],
             "camera": {"frames": 10, "skipped": 0, "readers": 1, "stalled": True},
+            "cameras": [{"name": "cam1", "frames": 10, "skipped": 0, "readers": 1, "stalled": True}],
         }
 
 
@@ -101,6 +102,7 @@ def test_the_panel_shows_the_labs_rovers_faults_and_events_to_a_viewer_with_the_
     assert info["offered"] == ["wifi", "camera", "broker"]  # no edge kill: not started by `edge-ips start`
     assert info["active"][0]["label"] == "camera hung for 3 s"
     assert info["rovers"][0]["id"] == "red" and info["events"][0]["n"] == 7
+    assert [c["name"] for c in info["cameras"]] == ["cam1"] and info["camera"]["stalled"]
     assert call(http.port, "GET", "/api/sim?after=1", headers=AUTH).json()["events"] == []
 
 

@@ -15,7 +15,6 @@ import json
 import math
 import os
 import subprocess
-import threading
 import time
 import tomllib
 from collections.abc import Callable, Iterator
@@ -29,7 +28,16 @@ from tests.support.command import EDGE_IPS, Edge, arrival, wait_reports
 from tests.support.dashboard import call, clean_env
 from tests.support.mosquitto import Mosquitto, free_port
 from tests.support.runtime import MqttRecorder
-from tests.support.twin import TOPICS, Poses, Twin, TwinLabProcess, formation_run, stop_run, wait_tracked
+from tests.support.twin import (
+    TOPICS,
+    Poses,
+    Twin,
+    TwinLabProcess,
+    formation_run,
+    rest_events,
+    stop_run,
+    wait_tracked,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -152,20 +160,11 @@ BOUND_S = 0.5  # every rover at rest within this of its last fresh pose (docs/fi
 
 
 def _rest_times(twin: Twin, label: str, after: int, rovers: list[str]) -> dict[str, float]:
-    """Wait for the lab's word on each of ``rovers`` after the fault ``label``; returns, for those that were driving,
-    the time from its last fresh pose to rest (at least one must have been driving)."""
-    found: dict[str, float | None] = {}
-    for _ in range(int(180 / 0.5)):  # the lab's events, polled (they come within a second of the fault)
-        for e in twin.lab.status(after)["events"]:
-            rest = e.get("rest")
-            if e["who"] in rovers and rest is not None and rest["fault"] == label:
-                found[e["who"]] = None if rest.get("already") else rest["after_pose_s"]
-        if all(r in found for r in rovers):
-            driving = {r: t for r, t in found.items() if t is not None}
-            assert driving, f"no rover was driving when {label}"
-            return driving
-        threading.Event().wait(0.5)
-    raise AssertionError(f"the lab did not time every rover after {label}: {found}")
+    """For the rovers that were driving when ``label`` happened: the time from each one's last fresh pose to rest
+    (at least one must have been driving)."""
+    driving = {r: rest["after_pose_s"] for r, rest in rest_events(twin.lab, label, after, rovers).items() if rest}
+    assert driving, f"no rover was driving when {label}"
+    return driving
 
 
 def _fault(twin: Twin, body: dict[str, object]) -> str:

@@ -39,6 +39,14 @@ def _lab_socket(config_path: Path | None, socket_file: Path | None) -> Path:
 @click.option("--rovers", type=click.IntRange(1, 12), default=3, show_default=True, help="Rovers on the floor.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed: layouts, motors, camera noise.")
 @click.option(
+    "--cameras",
+    type=click.IntRange(1, 4),
+    default=1,
+    show_default=True,
+    help="1: the paper's lab; 2-4: camera boards over the 8 x 5.5 m wide arena, one edge each "
+    "(edge-ips start --source sim:twin:camK).",
+)
+@click.option(
     "--broker",
     "broker_url",
     default=None,
@@ -92,6 +100,7 @@ def _lab_socket(config_path: Path | None, socket_file: Path | None) -> Path:
 def sim_twin(
     rovers: int,
     seed: int,
+    cameras: int,
     broker_url: str | None,
     credentials: Path | None,
     config_dir: Path | None,
@@ -113,11 +122,16 @@ def sim_twin(
     running; run it yourself for more rovers, a poorer link, or an external broker with its logins. Prints what the
     rovers do.
 
+    With --cameras 2 to 4 the floor is the wide arena, seen by that many cameras with overlapping views: run one
+    `edge-ips start --source sim:twin:camK` per camera (edge.publish = "detections", each its own --edge-id and
+    --http-port) and `edge-ips fuse --broker URL`, all on one external broker.
+
     Example:
 
     \b
         edge-ips sim twin --rovers 6 --link poor & edge-ips start --source sim:twin
         edge-ips sim twin --broker mqtt://localhost:1883 --credentials broker/credentials.toml
+        edge-ips sim twin --cameras 2 --broker mqtt://localhost:1883 --credentials broker/credentials.toml
     """
     import signal
     import threading
@@ -143,6 +157,7 @@ def sim_twin(
         LabSettings(
             rovers=rovers,
             seed=seed,
+            cameras=cameras,
             heading=cast("Any", heading),
             camera_latency_ms=camera_latency_ms,
             link=LinkSettings.parse(link),
@@ -180,6 +195,7 @@ def sim_scatter(socket_file: Path | None, config_path: Path | None) -> None:
 @click.command("fault")
 @click.argument("kind", type=click.Choice(["wifi", "camera", "broker", "edge"]))
 @click.option("--rover", default=None, help="wifi: the rover whose Wi-Fi goes.")
+@click.option("--camera", default=None, help="camera: the one that hangs, of a lab of several (cam1 ...) [the first].")
 @click.option(
     "--for", "seconds", type=click.FloatRange(0.1, 300.0), default=5.0, show_default=True, help="How long, s."
 )
@@ -189,25 +205,33 @@ def sim_scatter(socket_file: Path | None, config_path: Path | None) -> None:
 @_socket_option
 @config_option
 def sim_fault(
-    kind: str, rover: str | None, seconds: float, url: str | None, socket_file: Path | None, config_path: Path | None
+    kind: str,
+    rover: str | None,
+    camera: str | None,
+    seconds: float,
+    url: str | None,
+    socket_file: Path | None,
+    config_path: Path | None,
 ) -> None:
     """Cause a fault in the twin and watch on the dashboard what the rovers do (they stop, and come back).
 
     wifi: one rover's access point gone (the firmware sees Wi-Fi lost); camera: the camera hangs (no frames, the
-    stream open); broker: the embedded broker stopped and started again; edge: the appliance killed (no clean-up)
-    and started again, as a service manager would. wifi and camera go to the lab; broker and edge to the edge's
-    dashboard, with its token (dashboard.token, or the one start made in the state directory).
+    stream open; --camera camK for one of a lab of several); broker: the embedded broker stopped and started
+    again; edge: the appliance killed (no clean-up) and started again, as a service manager would. wifi and camera
+    go to the lab; broker and edge to the edge's dashboard, with its token (dashboard.token, or the one start made
+    in the state directory).
 
     Example:
 
     \b
         edge-ips sim fault wifi --rover green --for 5
         edge-ips sim fault edge --for 3
+        edge-ips sim fault camera --camera cam2 --for 5
     """
     if kind in ("wifi", "camera"):
         from edge.sim.twin.source import LabClient
 
-        click.echo(LabClient(_lab_socket(config_path, socket_file)).fault(kind, seconds, rover))
+        click.echo(LabClient(_lab_socket(config_path, socket_file)).fault(kind, seconds, rover, camera))
         return
     from edge.sim.twin.remote import post_fault
 

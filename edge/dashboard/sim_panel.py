@@ -5,7 +5,8 @@ Routes (access levels of :mod:`edge.httpguard`):
 
 - ``GET /api/sim`` (read): the faults on offer (``offered``), the lab's rovers (switched on, connected, moving: the
   lab's ground truth), the faults in effect (``active``) and what happened lately (``events``: each fault, and how
-  long each rover took to come to rest after it; ``?after=N``: only those after event N), from the lab.
+  long each rover took to come to rest after it; ``?after=N``: only those after event N), this edge's camera
+  (``camera``) and every camera of the lab (``cameras``: name, floor region, frames, skipped, readers, stalled).
 - ``POST /api/sim/scatter`` (control): every rover picked up and put down at a random free spot.
 - ``POST /api/sim/fault`` (control): JSON ``{kind, seconds, rover}``: ``wifi`` (that rover's Wi-Fi gone) and
   ``camera`` (the camera hangs) happen in the lab; ``broker`` (the embedded broker stopped and started again) and
@@ -176,6 +177,7 @@ class SimPanel:
                 "rovers": lab.get("rovers", []),
                 "events": lab.get("events", []),
                 "camera": lab.get("camera", {}),
+                "cameras": lab.get("cameras", []),
             },
         )
 

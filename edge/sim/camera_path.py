@@ -80,15 +80,20 @@ def build_tracker(camera: PinholeCamera, scene: Scene, effects: Effects, seed: i
 
 
 def marker_colors(
-    camera: PinholeCamera, scene: Scene, effects: Effects, seed: int, fps: float = 30.0
+    camera: PinholeCamera,
+    scene: Scene,
+    effects: Effects,
+    seed: int,
+    fps: float = 30.0,
+    at_cm: tuple[float, float] = (AREA_WIDTH_CM / 2, AREA_LENGTH_CM / 2),
 ) -> dict[str, tuple[Bgr, Bgr | None]]:
     """Each rover's marker colour, and its front colour (two-tone), as the camera sees them: measured on a frame of
-    the rovers standing in the middle of the area, the way an installer picks them from a live picture."""
+    the rovers standing at ``at_cm`` (the middle of the paper's area by default; the middle of the camera's view for
+    one of several), the way an installer picks them from a live picture."""
     renderer = Renderer(camera, scene, effects, seed=seed + 7919, fps=fps)
     out: dict[str, tuple[Bgr, Bgr | None]] = {}
     for k, look in enumerate(scene.rovers):
-        x = AREA_WIDTH_CM / 2
-        y = AREA_LENGTH_CM / 2
+        x, y = at_cm
         state = WorldState(0.0, (RoverState(look.rover_id, x, y, 0.0, 0.0, 0.0),))
         image = renderer.render(state, k)
         main = _sample(image, camera, [x - 0.25 * look.marker_length_cm * look.front_fraction, y], look.body_height_cm)

@@ -9,24 +9,27 @@ from numpy.typing import NDArray
 
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
 from edge.errors import ConfigError, SimulationError
+from edge.sim.targets import PAPER_AREA, AreaCm
 from edge.sim.world import Plan, Pose
 
 
 def random_layout(
-    n: int, rng: np.random.Generator, min_gap_cm: float = 150.0, margin_cm: float = 40.0, tries: int = 10000
+    n: int,
+    rng: np.random.Generator,
+    min_gap_cm: float = 150.0,
+    margin_cm: float = 40.0,
+    tries: int = 10000,
+    area_cm: AreaCm = PAPER_AREA,
 ) -> list[Pose]:
-    """``n`` starts uniformly in the working area (``margin_cm`` from its edge), pairwise at least ``min_gap_cm``
-    apart, with random headings. All ``n`` are drawn at once and redrawn until they are apart; when that keeps
-    failing (a crowded area), they are placed one by one, each where it is clear of those already placed."""
-    lo = np.array([margin_cm, margin_cm])
-    hi = np.array([AREA_WIDTH_CM - margin_cm, AREA_LENGTH_CM - margin_cm])
+    """``n`` starts uniformly in the working area ``area_cm`` (x0, y0, x1, y1: the paper's by default; the wide
+    arena's for a lab of several cameras), ``margin_cm`` from its edge, pairwise at least ``min_gap_cm`` apart, with
+    random headings. All ``n`` are drawn at once and redrawn until they are apart; when that keeps failing (a crowded
+    area), they are placed one by one, each where it is clear of those already placed."""
+    x0, y0, x1, y1 = area_cm
+    lo = np.array([x0 + margin_cm, y0 + margin_cm])
+    hi = np.array([x1 - margin_cm, y1 - margin_cm])
     for _ in range(tries if n <= 6 else 200):
-        xy = np.column_stack(
-            [
-                rng.uniform(margin_cm, AREA_WIDTH_CM - margin_cm, n),
-                rng.uniform(margin_cm, AREA_LENGTH_CM - margin_cm, n),
-            ]
-        )
+        xy = np.column_stack([rng.uniform(lo[0], hi[0], n), rng.uniform(lo[1], hi[1], n)])
         d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
         d[np.diag_indices(n)] = np.inf
         if n < 2 or d.min() >= min_gap_cm:

@@ -27,7 +27,7 @@ from edge.camera import MARKER_HEIGHT_CM, PinholeCamera
 from edge.errors import SimulationError
 from edge.sim.effects import AutoExposure, Effects, Exposure, Flicker
 from edge.sim.render import Renderer
-from edge.sim.scene import Lamp, Scene, TapeLook, fleet_looks
+from edge.sim.scene import Lamp, RoverLook, Scene, TapeLook, fleet_looks
 from edge.sim.trajectories import grid_circles
 from edge.sim.world import DriveModel, Plan, World
 from edge.tracker_config import RoverConfig
@@ -179,8 +179,6 @@ def build_wide(
     arena_cm: tuple[float, float, float, float] = (0.0, 0.0, ARENA_WIDTH_CM, ARENA_LENGTH_CM),
 ) -> WideSetup:
     """The wide arena seen by ``cameras`` boards (2, 3 or 4), ``rovers`` rovers circling (1 to 64)."""
-    if cameras not in LAYOUTS:
-        raise SimulationError(f"wide arena: --cameras must be one of {', '.join(map(str, LAYOUTS))}, got {cameras}")
     n = DEFAULT_ROVERS if rovers is None else rovers
     f = DEFAULT_FRAMES if frames is None else frames
     if not 1 <= n <= 64:
@@ -188,6 +186,21 @@ def build_wide(
     if f < 1:
         raise SimulationError(f"wide arena: --frames must be at least 1, got {f}")
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x31DE]))
+    cams = wide_cameras(cameras, rng, arena_cm)
+    looks = fleet_looks(n)
+    scene = wide_scene(looks, arena_cm)
+    plans = grid_circles(n, arena_cm, rng)
+    return WideSetup(
+        seed, arena_cm, cams, scene, tuple((look.rover_id, p) for look, p in zip(looks, plans, strict=True)), f
+    )
+
+
+def wide_cameras(
+    cameras: int, rng: np.random.Generator, arena_cm: tuple[float, float, float, float]
+) -> tuple[WideCamera, ...]:
+    """The boards' cameras over ``arena_cm`` (layout, poses, exposures, phases, clock errors drawn from ``rng``)."""
+    if cameras not in LAYOUTS:
+        raise SimulationError(f"wide arena: --cameras must be one of {', '.join(map(str, LAYOUTS))}, got {cameras}")
     cols = LAYOUTS[cameras][0]
     cams = []
     for k, region in enumerate(regions(cameras, arena_cm)):
@@ -203,10 +216,10 @@ def build_wide(
         phase = 0.0 if k == 0 else float(rng.uniform(-MAX_PHASE_S, MAX_PHASE_S))
         clock = float(rng.uniform(-MAX_CLOCK_ERROR_S, MAX_CLOCK_ERROR_S))
         cams.append(WideCamera(f"cam{k + 1}", camera, region, phase, clock, effects))
-    looks = fleet_looks(n)
+    return tuple(cams)
+
+
+def wide_scene(looks: tuple[RoverLook, ...], arena_cm: tuple[float, float, float, float]) -> Scene:
+    """The wide arena's floor: its tape outline and its troffers, with ``looks`` on it."""
     tape = TapeLook(area_cm=(arena_cm[2] - arena_cm[0], arena_cm[3] - arena_cm[1]))
-    scene = Scene(looks, tape=tape, lamps=wide_lamps(arena_cm))
-    plans = grid_circles(n, arena_cm, rng)
-    return WideSetup(
-        seed, arena_cm, tuple(cams), scene, tuple((look.rover_id, p) for look, p in zip(looks, plans, strict=True)), f
-    )
+    return Scene(looks, tape=tape, lamps=wide_lamps(arena_cm))

@@ -105,6 +105,31 @@ def stop_run(poses: Poses, ids: Sequence[str], t_stop: float, after_s: float, wi
     return largest_moves_cm([asdict(p) for p in window], ids, t0, t1)
 
 
+def rest_events(lab: LabClient, label: str, after: int, rovers: Sequence[str]) -> dict[str, dict[str, Any] | None]:
+    """Wait for the lab's word on each of ``rovers`` after the fault or note ``label`` (events after number
+    ``after``): its rest timing (``after_fault_s``, ``after_pose_s``), or None for a rover at rest already."""
+    found: dict[str, dict[str, Any] | None] = {}
+    for _ in range(int(TIMEOUT_S / 0.5)):  # the lab's events, polled (they come within a second of the fault)
+        for e in lab.status(after)["events"]:
+            rest = e.get("rest")
+            if e["who"] in rovers and rest is not None and rest["fault"] == label:
+                found[e["who"]] = None if rest.get("already") else rest
+        if all(r in found for r in rovers):
+            return found
+        threading.Event().wait(0.5)
+    raise AssertionError(f"the lab did not time every rover after {label}: {found}")
+
+
+def wait_driving(lab: LabClient, speed_cm_s: float = 10.0) -> None:
+    """Until a rover drives at ``speed_cm_s`` or more by the lab's ground truth (a rover's poses jump when the lab
+    scatters it, which is no driving)."""
+    for _ in range(int(TIMEOUT_S / 0.2)):  # the lab's status, polled
+        if any(r["speed_cm_s"] >= speed_cm_s for r in lab.status()["rovers"]):
+            return
+        threading.Event().wait(0.2)
+    raise AssertionError(f"no rover drove at {speed_cm_s:g} cm/s within {TIMEOUT_S:g} s")
+
+
 @dataclass
 class TwinLabProcess:
     """``edge-ips sim twin`` started by hand (for an external broker, with the rovers' logins)."""

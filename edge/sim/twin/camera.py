@@ -36,7 +36,9 @@ class TwinCamera:
         fps: float,
         latency_s: float,
         clock: Callable[[], float] = time.monotonic,
+        name: str = "cam1",
     ) -> None:
+        self.name = name
         self.render = render
         self.state = state
         self.fps = fps
@@ -81,7 +83,7 @@ class TwinCamera:
 
     # -- the camera's own loop --------------------------------------------------------------------------------------
     def start(self, stop: threading.Event) -> TwinCamera:
-        self._thread = threading.Thread(target=self._run, args=(stop,), name="twin-camera", daemon=True)
+        self._thread = threading.Thread(target=self._run, args=(stop,), name=f"twin-{self.name}", daemon=True)
         self._thread.start()
         return self
 

@@ -8,15 +8,20 @@
           |                                                   v
     edge-ips start  <--------- camera frames (the lab's socket, as a webcam) ---------  camera
 
+With ``cameras`` > 1 the floor is the wide arena (:mod:`edge.sim.twin.views`): each camera renders the one world
+on its own thread into its own readers' slots, and each board (an ``edge-ips start --source sim:twin:camK``) reads
+its own camera.
+
 The world is the one the closed-loop experiments use: :class:`~edge.sim.world.World`'s differential drive with the
 rover's config-derived wheel speeds, dead band and acceleration limit, and the motor physics of
 :class:`~edge.sim.rover.MotorPhysics` (gain error, noise, actuation delay), with bodies that cannot pass through
 each other (:class:`~edge.sim.contact.SolidWorld`). A physics thread moves it every :data:`PHYSICS_PERIOD_S` by
 the wheel speeds each rover's motor duties stand for at that moment, as wheels follow an H-bridge.
 
-Faults the lab can cause: a rover's Wi-Fi gone for a while (its station loses the access point), the camera hanging
-(no pictures, the stream open). For every fault, the lab's own or one the edge announces (:meth:`TwinLab.note`:
-a broker restart, the edge killed), it times how long each rover takes to come to rest, from the ground truth.
+Faults the lab can cause: a rover's Wi-Fi gone for a while (its station loses the access point), a camera hanging
+(no pictures, the stream open; with several cameras, that one only). For every fault, the lab's own or one the
+edge announces (:meth:`TwinLab.note`: a broker restart, the edge killed), it times how long each rover takes to
+come to rest, from the ground truth.
 """
 
 from __future__ import annotations
@@ -31,15 +36,16 @@ from typing import Any
 
 import numpy as np
 
-from edge.camera import paper_camera
+from edge.camera import PinholeCamera
 from edge.errors import ConfigError
 from edge.sim.contact import SolidWorld
 from edge.sim.link import LinkSettings
 from edge.sim.rover import BODY_LENGTH_CM, BODY_WIDTH_CM, MotorPhysics, fleet_drive_model, rover_looks
-from edge.sim.scene import Heading, Scene
+from edge.sim.scene import Heading
 from edge.sim.starts import random_layout
 from edge.sim.twin.camera import TwinCamera
 from edge.sim.twin.rovers import TwinRover, thread_cpu_s
+from edge.sim.twin.views import CAMERA_COUNTS, LabView, lab_floor
 from edge.sim.twin.wire import LAB_FAULTS, CameraDescription
 from edge.sim.world import Pose, WheelCommand, WorldState
 from edge.tracker_config import RoverConfig
@@ -55,7 +61,8 @@ class LabSettings:
     """``rovers`` 1-12; ``seed``: starting layout, scatters, motors, links, camera noise; ``heading``: two-tone
     markers (heading even standing still) or one colour; ``camera_latency_ms``: exposure to hand-over (a USB
     webcam's readout, transfer and decoding); ``physics``: how far the motors are from the firmware's duty model;
-    ``link``: each rover's Wi-Fi (:class:`~edge.sim.link.LinkSettings`, ``--link``; the default delays nothing)."""
+    ``link``: each rover's Wi-Fi (:class:`~edge.sim.link.LinkSettings`, ``--link``; the default delays nothing);
+    ``cameras``: 1 (the paper's lab) or 2-4 boards over the wide arena (:mod:`edge.sim.twin.views`)."""
 
     rovers: int = 3
     seed: int = 0
@@ -64,8 +71,11 @@ class LabSettings:
     camera_latency_ms: float = 40.0
     physics: MotorPhysics = field(default_factory=MotorPhysics)
     link: LinkSettings = field(default_factory=LinkSettings)
+    cameras: int = 1
 
     def __post_init__(self) -> None:
+        if self.cameras not in CAMERA_COUNTS:
+            raise ConfigError(f"--cameras must be one of {', '.join(map(str, CAMERA_COUNTS))}, got {self.cameras}")
         if not 1 <= self.rovers <= MAX_ROVERS:
             raise ConfigError(f"--rovers must be 1-{MAX_ROVERS}, got {self.rovers}")
         if not 0.0 <= self.camera_latency_ms <= 1000.0:
@@ -112,7 +122,7 @@ class _RestWatch:
 
 
 class TwinLab:
-    """The world, the camera and the rovers (see the module docstring). ``configs``: each rover's checked firmware
+    """The world, the cameras and the rovers (see the module docstring). ``configs``: each rover's checked firmware
     config, its broker address and login included. :meth:`start` runs the world and the camera; :meth:`start_rovers`
     switches the rovers on (once their broker is there)."""
 
@@ -124,10 +134,6 @@ class TwinLab:
         events: LabEvents | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        from edge.sim.camera_path import marker_colors
-        from edge.sim.render import Renderer
-        from edge.sim.scenarios import lab_effects
-
         if len(configs) != settings.rovers:
             raise ConfigError(f"twin lab: {settings.rovers} rovers asked for, {len(configs)} configs given")
         self.settings = settings
@@ -136,13 +142,8 @@ class TwinLab:
         self.configs = [dict(c) for c in configs]
         self.ids = tuple(str(c["id"]) for c in configs)
         self._rng = np.random.default_rng(np.random.SeedSequence([settings.seed, 0x7419]))
-        self.camera_model = paper_camera()
-        scene = Scene(rover_looks(self.configs, settings.heading))
-        effects = lab_effects(np.random.default_rng(settings.seed))
-        colors = marker_colors(self.camera_model, scene, effects, settings.seed, settings.fps)
-        self.rover_configs = tuple(
-            RoverConfig(id=rid, color_bgr=main, front_color_bgr=front, front_fraction=scene.look(rid).front_fraction)
-            for rid, (main, front) in colors.items()
+        self.floor = lab_floor(
+            settings.cameras, rover_looks(self.configs, settings.heading), settings.seed, settings.fps
         )
         self.world = SolidWorld(
             dict(zip(self.ids, self._layout(), strict=True)),
@@ -151,14 +152,17 @@ class TwinLab:
             seed=settings.seed,
         )
         self._world_lock = threading.Lock()
-        renderer = Renderer(self.camera_model, scene, effects, seed=settings.seed, fps=settings.fps)
-        self.camera = TwinCamera(
-            renderer.render,
-            self.state,
-            fps=settings.fps,
-            latency_s=settings.camera_latency_ms / 1000.0,
-            clock=clock,
-        )
+        self.cameras = {
+            view.name: TwinCamera(
+                view.render,
+                self.state,
+                fps=settings.fps,
+                latency_s=settings.camera_latency_ms / 1000.0,
+                clock=clock,
+                name=view.name,
+            )
+            for view in self.floor.views
+        }
         self.rovers: list[TwinRover] = []
         self._faults: list[_Fault] = []
         self._watches: list[_RestWatch] = []
@@ -171,23 +175,48 @@ class TwinLab:
         with self._world_lock:
             return self.world.state()
 
-    def describe(self) -> CameraDescription:
+    @property
+    def camera(self) -> TwinCamera:
+        """The first camera (the only one of the paper's lab)."""
+        return self.cameras[self.floor.views[0].name]
+
+    @property
+    def camera_model(self) -> PinholeCamera:
+        return self.floor.views[0].camera
+
+    @property
+    def rover_configs(self) -> tuple[RoverConfig, ...]:
+        """The rovers as the first camera sees them."""
+        return self.floor.views[0].rover_configs
+
+    def camera_named(self, name: str | None) -> tuple[LabView, TwinCamera]:
+        """The camera ``name`` (the first when None); :class:`ConfigError` naming the lab's cameras otherwise."""
+        view = self.floor.view(name)
+        return view, self.cameras[view.name]
+
+    def describe(self, name: str | None = None) -> CameraDescription:
+        """What a reader of camera ``name`` (the first when None) is told: its model, its view of the rovers."""
         s = self.settings
+        view, _ = self.camera_named(name)
+        which = "" if len(self.cameras) == 1 else f"{view.name} of {len(self.cameras)} over the wide arena, "
         return CameraDescription(
-            self.camera_model.width_px,
-            self.camera_model.height_px,
+            view.camera.width_px,
+            view.camera.height_px,
             s.fps,
-            self.camera_model,
-            self.rover_configs,
-            f"twin lab: {len(self.ids)} rovers ({', '.join(self.ids)}), seed {s.seed}, "
+            view.camera,
+            view.rover_configs,
+            f"twin lab: {which}{len(self.ids)} rovers ({', '.join(self.ids)}), seed {s.seed}, "
             f"camera latency {s.camera_latency_ms:g} ms, link {'wire' if s.link.is_wire else s.link}",
+            name=view.name,
+            region_cm=view.region_cm,
         )
 
     # -- life cycle ---------------------------------------------------------------------------------------------------
     def start(self) -> TwinLab:
         self._physics = threading.Thread(target=self._run_physics, name="twin-physics", daemon=True)
         self._physics.start()
-        self.camera.start(self._stop)
+        for camera in self.cameras.values():
+            camera.start(self._stop)
         return self
 
     def start_rovers(self, configs: Sequence[Mapping[str, Any]] | None = None) -> None:
@@ -213,7 +242,8 @@ class TwinLab:
             rover.close()
         if self._physics is not None:
             self._physics.join(5.0)
-        self.camera.join()
+        for camera in self.cameras.values():
+            camera.join()
 
     @property
     def stopped(self) -> threading.Event:
@@ -269,11 +299,11 @@ class TwinLab:
     # -- what an operator (or the dashboard) can do -------------------------------------------------------------------
     def _layout(self) -> list[Pose]:
         n = len(self.ids)
-        return list(random_layout(n, self._rng, 150.0 if n <= 8 else 100.0, 40.0))
+        return list(random_layout(n, self._rng, 150.0 if n <= 8 else 100.0, 40.0, area_cm=self.floor.area_cm))
 
     def scatter(self) -> dict[str, tuple[float, float]]:
-        """Every rover picked up and put down at a random free spot (the closed-loop experiments' starts: at least
-        150 cm apart, 100 cm for more than 8 rovers, 40 cm from the edges), facing anywhere."""
+        """Every rover picked up and put down at a random free spot of the floor (the closed-loop experiments'
+        starts: at least 150 cm apart, 100 cm for more than 8 rovers, 40 cm from the edges), facing anywhere."""
         placed = dict(zip(self.ids, self._layout(), strict=True))
         with self._world_lock:
             for rover_id, pose in placed.items():
@@ -282,8 +312,10 @@ class TwinLab:
         self.events.add("lab", "scattered: " + ", ".join(f"{rid} at ({x:g}, {y:g})" for rid, (x, y) in where.items()))
         return where
 
-    def fault(self, kind: str, seconds: float, rover: str | None = None) -> str:
-        """Cause a lab fault (``wifi`` of one rover, or the ``camera``) for ``seconds``; returns what was done."""
+    def fault(self, kind: str, seconds: float, rover: str | None = None, camera: str | None = None) -> str:
+        """Cause a lab fault (``wifi`` of one rover, or ``camera``: the camera ``camera`` hangs, the first when
+        None) for ``seconds``; returns what was done. The rovers timed to rest: the Wi-Fi's one, or those only the
+        hung camera sees (with one camera, all)."""
         if kind not in LAB_FAULTS:
             raise ConfigError(f"the lab causes {' and '.join(LAB_FAULTS)} faults, not {kind!r}")
         if not 0.0 < seconds <= MAX_FAULT_S:
@@ -298,14 +330,22 @@ class TwinLab:
             label = f"{target.id}'s Wi-Fi gone for {seconds:g} s{lost}"
             watched: Sequence[str] = [target.id]
         else:
-            label = f"camera hung for {seconds:g} s"
-            self.camera.stall(seconds)
-            watched = self.ids
+            view, hung = self.camera_named(camera)
+            label = (
+                f"camera hung for {seconds:g} s" if len(self.cameras) == 1 else f"{view.name} hung for {seconds:g} s"
+            )
+            hung.stall(seconds)
+            watched = self._seen_only_by(view)
         with self._lock:
             self._faults.append(_Fault(kind, rover, self.clock() + seconds, label))
         self.events.add(rover if kind == "wifi" and rover else "lab", f"fault: {label}")
         self._watch(label, watched)
         return label
+
+    def _seen_only_by(self, view: LabView) -> list[str]:
+        others = [v for v in self.floor.views if v is not view]
+        where = self.state().by_id()
+        return [r for r in self.ids if not any(v.sees(where[r].x_cm, where[r].y_cm) for v in others)]
 
     def note(self, label: str) -> None:
         """An edge-side fault is about to happen (``label``): time how fast every rover comes to rest."""
@@ -313,15 +353,19 @@ class TwinLab:
         self._watch(label, self.ids)
 
     def cpu_s(self) -> dict[str, Any]:
-        """CPU seconds used so far by the camera (rendering), the physics, and each rover (its firmware's thread and
-        its link's relay)."""
+        """CPU seconds used so far by the cameras (rendering: all of them, and each), the physics, and each rover (its
+        firmware's thread and its link's relay)."""
+        cameras = {name: round(thread_cpu_s(c.thread), 3) for name, c in self.cameras.items()}
         return {
-            "camera": round(thread_cpu_s(self.camera.thread), 3),
+            "camera": round(sum(cameras.values()), 3),
+            "cameras": cameras,
             "physics": round(thread_cpu_s(self._physics), 3),
             "rovers": {r.id: {"firmware": round(r.cpu_s()[0], 3), "link": round(r.cpu_s()[1], 3)} for r in self.rovers},
         }
 
-    def status(self, events_after: int = 0) -> dict[str, Any]:
+    def status(self, events_after: int = 0, camera: str | None = None) -> dict[str, Any]:
+        """Rovers (with their ground truth), faults, events, CPU, and the cameras: ``cameras`` lists every one,
+        ``camera`` is the one named (the first when None: a single camera's client)."""
         now = self.clock()
         state = self.state().by_id()
         with self._lock:
@@ -354,13 +398,21 @@ class TwinLab:
             "rovers": rovers,
             "faults": faults,
             "events": self.events.recent(events_after),
-            "camera": {
-                "frames": self.camera.frames,
-                "skipped": self.camera.skipped,
-                "readers": self.camera.readers,
-                "stalled": self.camera.stalled,
-            },
+            "area_cm": list(self.floor.area_cm),
+            "camera": _camera_status(*self.camera_named(camera)),
+            "cameras": [_camera_status(view, self.cameras[view.name]) for view in self.floor.views],
         }
+
+
+def _camera_status(view: LabView, camera: TwinCamera) -> dict[str, Any]:
+    return {
+        "name": view.name,
+        "region_cm": [round(v, 1) for v in view.region_cm],
+        "frames": camera.frames,
+        "skipped": camera.skipped,
+        "readers": camera.readers,
+        "stalled": camera.stalled,
+    }
 
 
 def _delay_figures(delays_s: Sequence[float]) -> dict[str, float] | None:

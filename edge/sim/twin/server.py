@@ -1,9 +1,9 @@
 """The lab's socket: camera streams and control requests (the protocol is :mod:`edge.sim.twin.wire`).
 
 A Unix stream socket, mode 0600 in the state directory (only its owner can watch the camera or cause faults). One
-thread accepts; each connection has its own thread: a camera reader gets the camera description and then frames
-from its own newest-frame slot (a reader slower than the camera misses frames, it never falls behind); a control
-request gets one reply.
+thread accepts; each connection has its own thread: a camera reader gets the description of the camera it named
+(the first when it names none) and then frames from its own newest-frame slot (a reader slower than the camera
+misses frames, it never falls behind); a control request gets one reply.
 """
 
 from __future__ import annotations
@@ -97,7 +97,7 @@ class LabServer:
                     send_line(conn, {"ok": False, "error": f"protocol version {request.get('v')!r}, not {VERSION}"})
                 return
             if request.get("want") == "camera":
-                self._stream(conn)
+                self._stream(conn, request.get("camera"))
                 return
             reply = self._control(request)
             with contextlib.suppress(OSError):
@@ -109,27 +109,39 @@ class LabServer:
             what = request.get("do")
             if what == "scatter":
                 return {"ok": True, "placed": lab.scatter()}
+            camera = request.get("camera")
+            if camera is not None and not isinstance(camera, str):
+                return {"ok": False, "error": f"a camera is named by a string, not {camera!r}"}
             if what == "fault":
                 seconds = float(request.get("seconds", 0))
-                return {"ok": True, "done": lab.fault(str(request.get("kind")), seconds, request.get("rover"))}
+                kind = str(request.get("kind"))
+                return {"ok": True, "done": lab.fault(kind, seconds, request.get("rover"), camera)}
             if what == "note":
                 lab.note(str(request.get("kind", "an edge fault")))
                 return {"ok": True}
             if what == "status":
-                return {"ok": True, **lab.status(int(request.get("after", 0)))}
+                return {"ok": True, **lab.status(int(request.get("after", 0)), camera)}
             return {"ok": False, "error": f"unknown request {what!r}: scatter, fault, note or status"}
         except (EdgeIpsError, TypeError, ValueError) as exc:
             return {"ok": False, "error": str(exc)}
 
-    def _stream(self, conn: socket.socket) -> None:
-        camera = self.lab.camera
+    def _stream(self, conn: socket.socket, name: object) -> None:
+        try:
+            if name is not None and not isinstance(name, str):
+                raise SimulationError(f"a camera is named by a string, not {name!r}")
+            _, camera = self.lab.camera_named(name)
+            description = self.lab.describe(name)
+        except EdgeIpsError as exc:
+            with contextlib.suppress(OSError):
+                send_line(conn, {"ok": False, "error": str(exc)})
+            return
         slot = camera.attach()
         with self._lock:
             self._readers += 1
             self.last_reader_left = None
         try:
             conn.settimeout(SEND_TIMEOUT_S)
-            send_line(conn, self.lab.describe().to_json())
+            send_line(conn, description.to_json())
             while not self._closed.is_set():
                 frame = slot.take(timeout_s=0.5)
                 if frame is None:

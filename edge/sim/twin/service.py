@@ -67,8 +67,10 @@ def run_lab(plan: LabPlan, stop: threading.Event, echo: Callable[[str], None]) -
 
     ids = list(fleet_ids(plan.settings.rovers))
     rover_broker(plan.broker_url)  # a bad URL is said before anything starts
-    if plan.credentials is not None and not plan.wait_for_logins and not plan.credentials.is_file():
-        raise ConfigError(f"{plan.credentials}: no such credentials file")
+    if plan.credentials is not None and not plan.wait_for_logins:
+        if not plan.credentials.is_file():
+            raise ConfigError(f"{plan.credentials}: no such credentials file")
+        _configs(plan, ids, with_logins=True)  # a file without every rover's login is said now, not waited for
     events = LabEvents(echo)
     lab = TwinLab(plan.settings, _configs(plan, ids, with_logins=False), events=events).start()
     server = LabServer(plan.socket_path, lab)

@@ -11,6 +11,11 @@ When no lab answers on the socket, the source starts one (``edge-ips sim twin`` 
 ``twin.log`` beside the socket) with the rovers connecting to the edge's embedded broker with the state directory's
 logins; it ends when the edge exits, or 30 s after the last camera reader left (an edge killed and not restarted).
 With an external broker the lab is started by hand, with the rovers' logins for that broker.
+
+A lab of several cameras (``edge-ips sim twin --cameras N``) is started by hand too, and each board opens its own
+camera: ``--source sim:twin:cam2`` (plain ``sim:twin`` is the lab's first camera). Such a source never starts a
+lab (the lab it would start has one camera), and its controls act on its own camera (``camera`` faults, the status'
+``camera`` figures).
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import logging
+import re
 import socket
 import subprocess
 import sys
@@ -41,14 +47,25 @@ log = logging.getLogger("edge.sim.twin")
 
 LAB_START_TIMEOUT_S = 180.0  # a lab measures its rovers' colours on rendered frames before it serves (slow when loaded)
 UNWATCHED_EXIT_S = 30.0
+_TARGET = re.compile(r"^twin(?::(cam[1-9]\d*))?$")
+
+
+def parse_twin(target: str) -> str | None:
+    """``twin`` -> None (the lab's first camera), ``twin:camK`` -> ``camK``; :class:`SourceError` otherwise."""
+    match = _TARGET.match(target)
+    if match is None:
+        raise SourceError(f"sim:{target}: the live twin's cameras are sim:twin or sim:twin:camK (e.g. sim:twin:cam2)")
+    return match[1]
 
 
 class LabClient:
-    """Control requests to the lab at ``path`` (one connection each)."""
+    """Control requests to the lab at ``path`` (one connection each); ``camera``: the camera a ``camera`` fault
+    hangs and whose figures the status' ``camera`` holds (None: the lab's first, or the one ``fault`` names)."""
 
-    def __init__(self, path: Path, timeout_s: float = 10.0) -> None:
+    def __init__(self, path: Path, timeout_s: float = 10.0, camera: str | None = None) -> None:
         self.path = path
         self.timeout_s = timeout_s
+        self.camera = camera
 
     def request(self, req: ControlRequest, **extra: Any) -> dict[str, Any]:
         """The lab's reply; :class:`SimulationError` when the lab is not there or refuses."""
@@ -67,14 +84,16 @@ class LabClient:
     def scatter(self) -> dict[str, Any]:
         return dict(self.request(ControlRequest("scatter"))["placed"])
 
-    def fault(self, kind: str, seconds: float, rover: str | None = None) -> str:
-        return str(self.request(ControlRequest("fault", kind=kind, rover=rover, seconds=seconds))["done"])
+    def fault(self, kind: str, seconds: float, rover: str | None = None, camera: str | None = None) -> str:
+        camera = camera or (self.camera if kind == "camera" else None)
+        request = ControlRequest("fault", kind=kind, rover=rover, seconds=seconds, camera=camera)
+        return str(self.request(request)["done"])
 
     def note(self, label: str) -> None:
         self.request(ControlRequest("note", kind=label))
 
     def status(self, after: int = 0) -> dict[str, Any]:
-        return self.request(ControlRequest("status"), after=after)
+        return self.request(ControlRequest("status", camera=self.camera), after=after)
 
 
 @dataclass
@@ -113,14 +132,22 @@ class LabLaunch:
 
 
 class TwinSource:
-    """The twin lab's camera at the Unix socket ``path`` (see the module docstring). ``read_timeout_s``: a read
-    that waits longer fails (the capture thread then reopens the source with backoff)."""
+    """The twin lab's camera ``camera`` (None: its first) at the Unix socket ``path`` (see the module docstring).
+    ``read_timeout_s``: a read that waits longer fails (the capture thread then reopens the source with backoff)."""
 
-    def __init__(self, path: Path, *, launch: LabLaunch | None = None, read_timeout_s: float = 4.0) -> None:
+    def __init__(
+        self,
+        path: Path,
+        *,
+        camera: str | None = None,
+        launch: LabLaunch | None = None,
+        read_timeout_s: float = 4.0,
+    ) -> None:
         self.path = path
+        self.camera_name = camera
         self.launch = launch
         self.read_timeout_s = read_timeout_s
-        self.controls = LabClient(path)
+        self.controls = LabClient(path, camera=camera)
         self._sock: socket.socket | None = None
         self._description: CameraDescription | None = None
 
@@ -129,23 +156,36 @@ class TwinSource:
         sock = self._connect()
         try:
             sock.settimeout(self.read_timeout_s)
-            send_line(sock, {"v": 1, "want": "camera"})
-            description = CameraDescription.from_json(read_line(sock))
+            request: dict[str, Any] = {"v": 1, "want": "camera"}
+            if self.camera_name is not None:
+                request["camera"] = self.camera_name
+            send_line(sock, request)
+            reply = read_line(sock)
         except (OSError, ValueError, ConnectionError) as exc:
             sock.close()
             raise SourceError(f"twin lab at {self.path}: {exc}") from None
+        if reply.get("ok") is False:
+            sock.close()
+            raise SourceError(f"twin lab at {self.path}: {reply.get('error', 'refused')}")
+        try:
+            description = CameraDescription.from_json(reply)
+        except SourceError:
+            sock.close()
+            raise
         self._sock, self._description = sock, description
         d = description
-        return SourceInfo(d.width_px, d.height_px, d.fps, f"sim:twin, {d.summary} (socket {self.path})")
+        spec = "sim:twin" if self.camera_name is None else f"sim:twin:{self.camera_name}"
+        return SourceInfo(d.width_px, d.height_px, d.fps, f"{spec}, {d.summary} (socket {self.path})")
 
     def _connect(self) -> socket.socket:
         sock = _dial(self.path)
         if sock is not None:
             return sock
         if self.launch is None:
+            cameras = "" if self.camera_name is None else " --cameras N"
             raise SourceError(
-                f"no twin lab answers at {self.path}: start one with `edge-ips sim twin` (with --broker and the "
-                "rovers' --credentials of your broker)"
+                f"no twin lab answers at {self.path}: start one with `edge-ips sim twin{cameras}` (with --broker and "
+                "the rovers' --credentials of your broker)"
             )
         self.launch.ensure()
         deadline = time.monotonic() + LAB_START_TIMEOUT_S
@@ -207,17 +247,19 @@ def _dial(path: Path) -> socket.socket | None:
     return sock
 
 
-def twin_source(config: EdgeConfig) -> TwinSource:
-    """The source for ``--source sim:twin``: the lab at the state directory's socket, started when none answers and
-    the broker is the embedded one (see the module docstring)."""
+def twin_source(config: EdgeConfig, target: str = "twin") -> TwinSource:
+    """The source for ``--source sim:twin[:camK]`` (``target``: what follows ``sim:``): camera K (the first when
+    none is named) of the lab at the state directory's socket; for the first camera on the embedded broker, a lab
+    started when none answers (see the module docstring)."""
     from edge.config import broker_target, state_dir
     from edge.errors import ConfigError
 
+    camera = parse_twin(target)
     directory = state_dir(config)
     path = socket_path(directory)
     read_timeout_s = max(2.0 * config.camera.stall_timeout_s, 2.0)
-    if not broker_target(config.broker).embedded:
-        return TwinSource(path, read_timeout_s=read_timeout_s)
+    if camera is not None or not broker_target(config.broker).embedded:
+        return TwinSource(path, camera=camera, read_timeout_s=read_timeout_s)
     from edge.broker.credentials import credentials_path
 
     port = config.broker.embedded_port

@@ -4,11 +4,13 @@ The lab (``edge-ips sim twin``) listens on a Unix stream socket (``twin.sock`` i
 owner can connect). A client opens a connection and sends one request line (JSON, at most
 :data:`MAX_LINE_BYTES`):
 
-* ``{"v": 1, "want": "camera"}``: the lab answers one line describing its camera (:class:`CameraDescription`:
-  image size, frame rate, the camera model, each rover's id and marker colours as the camera sees them), then
-  frames until either side closes: a :data:`FRAME_HEADER` (magic, payload length, the camera's frame number) and
-  the image as raw 8-bit BGR rows. A camera hands over pictures, nothing else: no world state, no timestamps (the
-  reader stamps a frame when it has it, as with a USB camera).
+* ``{"v": 1, "want": "camera", "camera": "cam2"}``: the lab answers one line describing that camera
+  (:class:`CameraDescription`: its name, image size, frame rate, the camera model in the floor's frame, the floor
+  region it watches, each rover's id and marker colours as the camera sees them), then frames until either side
+  closes (no ``camera``: the lab's first; a name the lab has not: one line ``{"ok": false, "error": ...}``):
+  a :data:`FRAME_HEADER` (magic, payload length, the camera's frame number) and the image as raw 8-bit BGR rows.
+  A camera hands over pictures, nothing else: no world state, no timestamps (the reader stamps a frame when it has
+  it, as with a USB camera).
 * ``{"v": 1, "want": "control", ...}``: one :class:`ControlRequest`, one JSON reply line, then the lab closes.
 """
 
@@ -53,7 +55,8 @@ def socket_path(state_dir: Path) -> Path:
 @dataclass(frozen=True)
 class CameraDescription:
     """What a camera client learns when it connects: the picture's size and rate, the camera model (the exact
-    calibration of a simulated camera), and the rovers as this camera sees them (for the tracker's settings)."""
+    calibration of a simulated camera, in the floor frame every camera of the lab shares), and the rovers as this
+    camera sees them (for the tracker's settings); ``name`` and ``region_cm`` (x0, y0, x1, y1) say which camera."""
 
     width_px: int
     height_px: int
@@ -61,6 +64,8 @@ class CameraDescription:
     camera: PinholeCamera
     rovers: tuple[RoverConfig, ...]
     summary: str
+    name: str = "cam1"
+    region_cm: tuple[float, float, float, float] | None = None
 
     def to_json(self) -> dict[str, Any]:
         c = self.camera
@@ -77,6 +82,8 @@ class CameraDescription:
             },
             "rovers": [r.model_dump(mode="json") for r in self.rovers],
             "summary": self.summary,
+            "name": self.name,
+            "region_cm": None if self.region_cm is None else list(self.region_cm),
         }
 
     @classmethod
@@ -93,24 +100,39 @@ class CameraDescription:
                 height,
             )
             rovers = tuple(RoverConfig.model_validate(r) for r in data["rovers"])
-            return cls(width, height, float(data["fps"]), camera, rovers, str(data.get("summary", "")))
+            region_cm = None
+            if data.get("region_cm") is not None:
+                x0, y0, x1, y1 = (float(v) for v in data["region_cm"])
+                region_cm = (x0, y0, x1, y1)
+            return cls(
+                width,
+                height,
+                float(data["fps"]),
+                camera,
+                rovers,
+                str(data.get("summary", "")),
+                name=str(data.get("name", "cam1")),
+                region_cm=region_cm,
+            )
         except Exception as exc:  # a lab of another version, or not a lab at all
             raise SourceError(f"twin lab: a camera description this edge cannot read ({exc})") from None
 
 
 @dataclass(frozen=True)
 class ControlRequest:
-    """``scatter``, ``fault`` (``kind`` one of :data:`FAULT_KINDS`, ``rover`` for wifi, ``seconds``), ``note`` (an
-    edge-side fault about to happen: the lab times how fast the rovers stop) or ``status``."""
+    """``scatter``, ``fault`` (``kind`` one of :data:`FAULT_KINDS`, ``rover`` for wifi, ``camera`` for camera: the
+    lab's first when None; ``seconds``), ``note`` (an edge-side fault about to happen: the lab times how fast the
+    rovers stop) or ``status`` (``camera``: whose figures ``camera`` holds; ``cameras`` lists all)."""
 
     do: str
     kind: str | None = None
     rover: str | None = None
     seconds: float | None = None
+    camera: str | None = None
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {"v": VERSION, "want": "control", "do": self.do}
-        for key in ("kind", "rover", "seconds"):
+        for key in ("kind", "rover", "seconds", "camera"):
             if getattr(self, key) is not None:
                 out[key] = getattr(self, key)
         return out
