@@ -203,16 +203,21 @@ class BackgroundModel:
             r0 = self._next_row
             rows = slice(r0, min(h, r0 + self._band))
             self._next_row = 0 if rows.stop >= h else rows.stop
-        keep = np.ones((rows.stop - rows.start, self.reference.shape[1]), bool)
+        # The band is copied whole and the boxes' parts of it put back: a dozen times quicker than a masked copy.
+        held = []
         for x0, y0, x1, y1 in exclude:
             ya, yb = max(y0, rows.start), min(y1, rows.stop)
             if ya < yb and x0 < x1:
-                keep[ya - rows.start : yb - rows.start, max(0, x0) : max(0, x1)] = False
-        if rows.start == 0 and rows.stop == h and not self.valid.any():
-            self.reference[...] = frame  # first frame: a reference to compare with, valid only where keep
-        else:
-            np.copyto(self.reference[rows], frame[rows], where=keep[..., None])
-        self.valid[rows] |= keep
+                part = (slice(ya, yb), slice(max(0, x0), max(0, x1)))
+                held.append((part, self.reference[part].copy(), self.valid[part].copy()))
+        first = rows.start == 0 and rows.stop == h and not self.valid.any()
+        # first frame: a reference to compare with everywhere, valid only outside the boxes
+        self.reference[rows] = frame[rows]
+        self.valid[rows] = True
+        for part, reference, valid in held:
+            if not first:
+                self.reference[part] = reference
+            self.valid[part] = valid
         return rows
 
     def foreground(self, frame_roi: U8, roi: tuple[int, int, int, int], threshold: float) -> BoolArray:

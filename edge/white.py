@@ -55,6 +55,7 @@ class LocalWhite:
         the whole view's mean colour (a few rovers in it change it little)."""
         self.white = _chromaticity(_mean_colour(reference, np.ones(valid.shape, bool)))
         self.coarse = np.zeros((0, 0, 3))
+        self._edges: list[int] = []
         self.update(reference, valid)
 
     def update(self, reference: U8, valid: BoolArray, rows: slice | None = None) -> None:
@@ -63,12 +64,13 @@ class LocalWhite:
         renews a band of rows per frame: a block row is recomputed once, when the band has passed all of it)."""
         h, w = reference.shape[:2]
         nh, nw = max(1, h // BLOCK_PX), max(1, w // BLOCK_PX)
-        edges = np.linspace(0, h, nh + 1).round().astype(int)
         if rows is None or self.coarse.shape[:2] != (nh, nw):
             self.coarse = np.empty((nh, nw, 3))
+            self._edges = [int(e) for e in np.linspace(0, h, nh + 1).round()]  # block rows' first image rows
             blocks = list(range(nh))
         else:
-            blocks = [i for i in range(nh) if rows.start < edges[i + 1] <= rows.stop]
+            blocks = [i for i in range(nh) if rows.start < self._edges[i + 1] <= rows.stop]
+        edges = self._edges
         for i in blocks:
             self.coarse[i] = self._block_row(reference[edges[i] : edges[i + 1]], valid[edges[i] : edges[i + 1]], nw)
 
