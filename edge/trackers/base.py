@@ -143,8 +143,7 @@ def measure_core(
     turned into its area centroid on the world plane."""
     t0 = time.perf_counter()
     level = marker_level(window.plane, core)
-    others = (window.classes >= 0) & ~candidates
-    exclude = others if others.any() else None
+    exclude = window.others(rover.index)  # the pixels of ``~candidates`` of other rovers' hues
     weights = coverage_weights(window.bgr, core, ring_px, exclude=exclude, pure=mask, linear=window.linear)
     t1 = time.perf_counter()
     clock.add("measure", t1 - t0)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -62,10 +62,19 @@ class Window:
     image_size: tuple[int, int]
     background_threshold: float = 0.2
     raw: U8 | None = None
+    _others: dict[int, BoolArray | None] = field(default_factory=dict, repr=False)
 
     @property
     def offset(self) -> tuple[int, int]:
         return self.box[0], self.box[1]
+
+    def others(self, index: int) -> BoolArray | None:
+        """The pixels of other rovers' hues than rover ``index``'s (None where there are none), computed once for the
+        window's stages."""
+        if index not in self._others:
+            others = (self.classes >= 0) & (self.classes != index)
+            self._others[index] = others if others.any() else None
+        return self._others[index]
 
     @cached_property
     def linear(self) -> F32:
