@@ -73,7 +73,7 @@ class Window:
         window's stages."""
         if index not in self._others:
             others = (self.classes >= 0) & (self.classes != index)
-            self._others[index] = others if others.any() else None
+            self._others[index] = others if np.count_nonzero(others) else None
         return self._others[index]
 
     @cached_property
@@ -115,7 +115,7 @@ def prepare_window(
     t0 = time.perf_counter()
     raw = image[y0:y1, x0:x1]
     valid = background.valid[y0:y1, x0:x1]
-    reference = background.reference[y0:y1, x0:x1] if valid.any() else None
+    reference = background.reference[y0:y1, x0:x1] if np.count_nonzero(valid) else None
     crop = raw if white is None else white.correct(raw, white.gains(box, raw, reference, valid))
     c1, c2, lum = opponent_planes(crop)  # RGB colour planes extraction, generalised to N colours
     classes = colors.classify(c1, c2, lum)
