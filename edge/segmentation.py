@@ -305,7 +305,7 @@ def reconstruct(marker: BoolArray, mask: BoolArray, connectivity: int = 8) -> Bo
     hit = np.zeros(n, bool)
     hit[labels[marker & mask]] = True
     hit[0] = False
-    return hit.take(labels)
+    return hit.take(np.asarray(labels, np.intp))
 
 
 def fill_holes(mask: BoolArray) -> BoolArray:
