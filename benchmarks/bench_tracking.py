@@ -1,7 +1,7 @@
 """Tracking benchmarks: Table IV stage times, scaling with rover count, Table V accuracy, and accuracy over the
 simulator's camera family.
 
-    python benchmarks/bench_tracking.py stages   [--frames N] [--seed S]
+    python benchmarks/bench_tracking.py stages   [--frames N] [--seed S] [--baseline OTHER_CHECKOUT [--reps R]]
     python benchmarks/bench_tracking.py scale    [--frames N] [--counts 1,3,8,16,32]
     python benchmarks/bench_tracking.py accuracy [--scenarios lab,...] [--methods ...] [--seeds 0,1] [--frames N]
                                                  [--calibration camera|points] [--heading plain|two_tone]
@@ -58,7 +58,11 @@ if importlib.util.find_spec("edge") is None:  # run from a checkout without the 
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from tracking_runs import Score, render_clip, run_clip, summary  # noqa: E402
+from tracking_runs import Score, frame_of, render_clip, run_clip, summary  # noqa: E402
+
+from edge.tracker_config import TrackerConfig  # noqa: E402
+from edge.trackers.base import CameraPlaneMapping  # noqa: E402
+from edge.trackers.factory import build_tracker  # noqa: E402
 
 SCENARIOS = ("lab", "drift", "sun", "cross", "occlusion", "lens", "crowd")
 FAMILY_SCENARIOS = (*SCENARIOS, "daylight", "crowd8")
@@ -129,6 +133,80 @@ def bench_stages(frames: int, seed: int, outline_fit: bool) -> None:
     else:
         print()
     print(f"speed-up over the full-frame paper pipeline: {np.median(paper.ms) / np.median(score.ms):.1f}x")
+
+
+def compare_stages(frames: int, seed: int, baseline: str, reps: int) -> None:
+    """The same clip through this checkout's tracker and ``baseline``'s (another checkout of the repository), each in
+    its own process, runs interleaved (A B, B A, ...) so that a shared machine's load falls on both alike: per stage
+    the median over runs of each run's median ms per frame, the ratio, and whether the poses are the same."""
+    import json
+    import pickle
+    import subprocess
+    import tempfile
+
+    clip = render_clip("lab", seed, frames)
+    roots = {"this": str(Path(__file__).resolve().parent.parent), "baseline": str(Path(baseline).resolve())}
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "clip.pkl"
+        path.write_bytes(pickle.dumps(clip))
+        workers = {
+            name: subprocess.Popen(
+                [sys.executable, __file__, "_stage_worker", str(path)],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                text=True,
+                env={**os.environ, "PYTHONPATH": root},
+            )
+            for name, root in roots.items()
+        }
+        runs: dict[str, list[dict]] = {name: [] for name in roots}
+        for rep in range(reps):
+            for name in ("this", "baseline") if rep % 2 == 0 else ("baseline", "this"):
+                pipe_in, pipe_out = workers[name].stdin, workers[name].stdout
+                assert pipe_in is not None and pipe_out is not None
+                pipe_in.write("run\n")
+                pipe_in.flush()
+                runs[name].append(json.loads(pipe_out.readline()))
+        for w in workers.values():
+            w.communicate("")
+    a, b = runs["this"][0]["poses"], runs["baseline"][0]["poses"]
+    same_ids = all([e[0] for e in fa] == [e[0] for e in fb] for fa, fb in zip(a, b, strict=True))
+    diff = 0.0
+    for fa, fb in zip(a, b, strict=True):
+        for ea, eb in zip(fa, fb, strict=False):  # the same rovers: checked above
+            diff = max([diff, *(abs(u - v) for u, v in zip(ea[1:], eb[1:], strict=True))])
+    print(f"## Stage times against {roots['baseline']} ({machine()})")
+    print(f"lab scenario seed {seed}, {len(clip.frames)} frames, {reps} runs each, interleaved; median over runs of")
+    print(" each run's median ms per frame (first 5 frames left out)\n")
+    print(f"poses: same rovers in every frame: {same_ids}; largest difference {diff:.2g} (cm, rad, cm/s)\n")
+    print("| stage | this checkout | baseline | this / baseline |")
+    print("|---|---|---|---|")
+    stages = sorted({k for r in runs["this"] + runs["baseline"] for f in r["stages"] for k in f})
+    for stage in stages:
+        med = {
+            n: float(np.median([np.median([f.get(stage, 0.0) for f in r["stages"][5:]]) for r in runs[n]]))
+            for n in runs
+        }
+        ratio = f"{med['this'] / med['baseline']:.2f}" if med["baseline"] > 0 else ""
+        print(f"| {stage} | {med['this']:.3f} | {med['baseline']:.3f} | {ratio} |")
+
+
+def stage_worker(clip_path: str) -> None:
+    """``compare_stages``' worker: tracks the pickled clip with this process's ``edge`` on each ``run`` line."""
+    import json
+    import pickle
+
+    clip = pickle.loads(Path(clip_path).read_bytes())
+    for _ in sys.stdin:
+        config = TrackerConfig(rovers=clip.rovers, method="particles", fps=clip.fps)
+        tracker = build_tracker(config, CameraPlaneMapping(clip.camera, clip.height_cm), None)
+        stages, poses = [], []
+        for i, image in enumerate(clip.frames):
+            t0 = time.perf_counter()
+            result = tracker.process(frame_of(image, i, clip.fps))
+            stages.append({**result.stage_ms, "wall": (time.perf_counter() - t0) * 1e3})
+            poses.append([[e.rover_id, e.x_cm, e.y_cm, e.theta_rad or 0.0, e.quality] for e in result.estimates])
+        print(json.dumps({"stages": stages, "poses": poses}), flush=True)
 
 
 # -- scaling -----------------------------------------------------------------------------------------------------
@@ -323,6 +401,9 @@ def family_table(
 def main() -> None:
     cv2.setNumThreads(1)
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    if sys.argv[1:2] == ["_stage_worker"]:
+        stage_worker(sys.argv[2])
+        return
     parser.add_argument("what", choices=("stages", "scale", "accuracy", "family", "all"))
     parser.add_argument("--frames", type=int, default=None)
     parser.add_argument("--seed", type=int, default=0)
@@ -336,6 +417,12 @@ def main() -> None:
         "--outline-fit", action="store_true", help="stages, family: track with outline_fit = true (default: false)"
     )
     parser.add_argument("--detail", action="store_true", help="family: a row per scenario, camera and colour")
+    parser.add_argument(
+        "--baseline",
+        default=None,
+        help="stages: compare with the tracker of this other checkout (e.g. of main), runs interleaved",
+    )
+    parser.add_argument("--reps", type=int, default=10, help="stages --baseline: runs of each tracker")
     parser.add_argument(
         "--chroma",
         choices=("4:2:0", "4:2:2", "4:4:4"),
@@ -352,6 +439,9 @@ def main() -> None:
     )
     args = parser.parse_args()
     print(f"# edge-ips tracking benchmark, {time.strftime('%Y-%m-%d %H:%M')}\n")
+    if args.what == "stages" and args.baseline is not None:
+        compare_stages(args.frames or 150, args.seed, args.baseline, args.reps)
+        return
     if args.what in ("stages", "all"):
         bench_stages(args.frames or 300, args.seed, args.outline_fit)
         print()

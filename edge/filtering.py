@@ -39,44 +39,64 @@ class FilterSettings:
 
 
 class ConstantVelocityFilter:
-    """One rover's filter. ``predict(dt_s)`` then ``update(z_cm, r_cm2)`` per frame; only ``predict`` when unseen."""
+    """One rover's filter. ``predict(dt_s)`` then ``update(z_cm, r_cm2)`` per frame; only ``predict`` when unseen.
+
+    The state (``x``: 4 floats) and its covariance (``p``: 16 floats, row by row) are plain Python floats: a 4-state
+    filter is a hundred multiplications, which numpy's per-call cost makes ten times slower."""
 
     def __init__(self, settings: FilterSettings, xy_cm: tuple[float, float], r_cm2: FloatArray) -> None:
         self.settings = settings
-        self.x = np.array([xy_cm[0], xy_cm[1], 0.0, 0.0])
-        self.p = np.zeros((4, 4))
-        self.p[:2, :2] = r_cm2
-        self.p[2, 2] = self.p[3, 3] = settings.initial_speed_sigma_cm_s**2
         self.updates = 1
         self.rejected = 0
         self.last_fade = 1.0
         self._pending: list[FloatArray] = []
         self._dt = 1.0 / 30.0
+        self._restart(float(xy_cm[0]), float(xy_cm[1]), 0.0, 0.0, r_cm2)
+
+    def _restart(self, x: float, y: float, vx: float, vy: float, r_cm2: FloatArray) -> None:
+        (r00, r01), (r10, r11) = np.asarray(r_cm2, dtype=np.float64).tolist()
+        speed2 = self.settings.initial_speed_sigma_cm_s**2
+        self.x = [x, y, vx, vy]
+        self.p = [r00, r01, 0.0, 0.0, r10, r11, 0.0, 0.0, 0.0, 0.0, speed2, 0.0, 0.0, 0.0, 0.0, speed2]
 
     # -- state ------------------------------------------------------------------------------------------------
     @property
     def position(self) -> tuple[float, float]:
-        return float(self.x[0]), float(self.x[1])
+        return self.x[0], self.x[1]
 
     @property
     def velocity(self) -> tuple[float, float] | None:
         """(vx, vy) cm/s once two measurements have been fused, else None."""
-        return (float(self.x[2]), float(self.x[3])) if self.updates >= 2 else None
+        return (self.x[2], self.x[3]) if self.updates >= 2 else None
 
     @property
     def position_sigma_cm(self) -> float:
         """1-sigma radius of the position uncertainty (largest axis)."""
-        a, b, d = float(self.p[0, 0]), float(self.p[0, 1]), float(self.p[1, 1])
+        a, b, d = self.p[0], self.p[1], self.p[5]
         largest = 0.5 * (a + d) + math.sqrt(max(0.25 * (a - d) ** 2 + b * b, 0.0))
         return math.sqrt(max(largest, 0.0))
 
     # -- steps ------------------------------------------------------------------------------------------------
     def predict(self, dt_s: float) -> None:
-        """Propagate the state by ``dt_s`` (constant velocity, white-noise acceleration)."""
+        """Propagate the state by ``dt_s`` (constant velocity, white-noise acceleration): ``x = F x``,
+        ``P = F P F^T + Q``, with ``F`` adding ``dt`` times the velocity to the position."""
         self._dt = dt = max(float(dt_s), 1e-4)
-        f, q_unit = _transition(dt)
-        self.x = f @ self.x
-        self.p = f @ self.p @ f.T + q_unit * (self.settings.accel_sigma_cm_s2**2)
+        x0, x1, x2, x3 = self.x
+        self.x = [x0 + dt * x2, x1 + dt * x3, x2, x3]
+        q = self.settings.accel_sigma_cm_s2**2
+        q_pos, q_cross, q_vel = dt**4 / 4.0 * q, dt**3 / 2.0 * q, dt**2 * q
+        p00, p01, p02, p03, p10, p11, p12, p13, p20, p21, p22, p23, p30, p31, p32, p33 = self.p
+        # F P: rows 0 and 1 gain dt times rows 2 and 3
+        a00, a01, a02, a03 = p00 + dt * p20, p01 + dt * p21, p02 + dt * p22, p03 + dt * p23
+        a10, a11, a12, a13 = p10 + dt * p30, p11 + dt * p31, p12 + dt * p32, p13 + dt * p33
+        # (F P) F^T: columns 0 and 1 gain dt times columns 2 and 3; plus Q
+        out = [
+            a00 + dt * a02 + q_pos, a01 + dt * a03, a02 + q_cross, a03,
+            a10 + dt * a12, a11 + dt * a13 + q_pos, a12, a13 + q_cross,
+            p20 + dt * p22 + q_cross, p21 + dt * p23, p22 + q_vel, p23,
+            p30 + dt * p32, p31 + dt * p33 + q_cross, p32, p33 + q_vel,
+        ]  # fmt: skip
+        self.p = out
 
     def update(self, z_cm: FloatArray, r_cm2: FloatArray) -> bool:
         """Fuse a measurement; returns False when it was rejected as a spike (the state is then unchanged).
@@ -87,15 +107,17 @@ class ConstantVelocityFilter:
         lagging. A run of ``confirm_after`` spikes that agree with each other is a real jump: the filter moves
         there, keeping the velocity the jump implies.
         """
-        z = np.asarray(z_cm, dtype=np.float64)
-        nu = z - self.x[:2]
-        s_inv = _inv2(self.p[:2, :2] + r_cm2)
-        nis = float(nu @ s_inv @ nu)
-        if nis > self.settings.gate_nis and math.hypot(nu[0], nu[1]) > self.settings.spike_min_cm:
-            self._pending.append(z)
+        z0, z1 = np.asarray(z_cm, dtype=np.float64).tolist()
+        (r00, r01), (r10, r11) = np.asarray(r_cm2, dtype=np.float64).tolist()
+        nu0, nu1 = z0 - self.x[0], z1 - self.x[1]
+        p = self.p
+        s00, s01, s10, s11 = _inv2(p[0] + r00, p[1] + r01, p[4] + r10, p[5] + r11)
+        nis = (nu0 * s00 + nu1 * s10) * nu0 + (nu0 * s01 + nu1 * s11) * nu1
+        if nis > self.settings.gate_nis and math.hypot(nu0, nu1) > self.settings.spike_min_cm:
+            self._pending.append(np.array([z0, z1]))
             self.rejected += 1
             if len(self._pending) >= self.settings.confirm_after:
-                spread = max(float(np.hypot(*(p - self._pending[-1]))) for p in self._pending)
+                spread = max(float(np.hypot(*(q - self._pending[-1]))) for q in self._pending)
                 if spread <= self.settings.confirm_radius_cm * len(self._pending):
                     self._jump(r_cm2)
                     return True
@@ -104,13 +126,38 @@ class ConstantVelocityFilter:
         self._pending.clear()
         self.last_fade = 1.0
         if nis > self.settings.fade_nis:
-            self.last_fade = min(nis / self.settings.fade_nis, self.settings.max_fade)
-            self.p = self.p * self.last_fade
-            s_inv = _inv2(self.p[:2, :2] + r_cm2)
-        k = self.p[:, :2] @ s_inv
-        self.x = self.x + k @ nu
-        self.p = self.p - k @ self.p[:2, :]
-        self.p = 0.5 * (self.p + self.p.T)
+            self.last_fade = fade = min(nis / self.settings.fade_nis, self.settings.max_fade)
+            p = [v * fade for v in p]
+            s00, s01, s10, s11 = _inv2(p[0] + r00, p[1] + r01, p[4] + r10, p[5] + r11)
+        # gain K = P[:, :2] S^-1 (4 x 2); x += K nu; P -= K P[:2, :], then symmetrised
+        p00, p01, p02, p03, p10, p11, p12, p13, p20, p21, p22, p23, p30, p31, p32, p33 = p
+        k00, k01 = p00 * s00 + p01 * s10, p00 * s01 + p01 * s11
+        k10, k11 = p10 * s00 + p11 * s10, p10 * s01 + p11 * s11
+        k20, k21 = p20 * s00 + p21 * s10, p20 * s01 + p21 * s11
+        k30, k31 = p30 * s00 + p31 * s10, p30 * s01 + p31 * s11
+        x0, x1, x2, x3 = self.x
+        self.x = [
+            x0 + k00 * nu0 + k01 * nu1,
+            x1 + k10 * nu0 + k11 * nu1,
+            x2 + k20 * nu0 + k21 * nu1,
+            x3 + k30 * nu0 + k31 * nu1,
+        ]
+        n00, n01 = p00 - (k00 * p00 + k01 * p10), p01 - (k00 * p01 + k01 * p11)
+        n02, n03 = p02 - (k00 * p02 + k01 * p12), p03 - (k00 * p03 + k01 * p13)
+        n10, n11 = p10 - (k10 * p00 + k11 * p10), p11 - (k10 * p01 + k11 * p11)
+        n12, n13 = p12 - (k10 * p02 + k11 * p12), p13 - (k10 * p03 + k11 * p13)
+        n20, n21 = p20 - (k20 * p00 + k21 * p10), p21 - (k20 * p01 + k21 * p11)
+        n22, n23 = p22 - (k20 * p02 + k21 * p12), p23 - (k20 * p03 + k21 * p13)
+        n30, n31 = p30 - (k30 * p00 + k31 * p10), p31 - (k30 * p01 + k31 * p11)
+        n32, n33 = p32 - (k30 * p02 + k31 * p12), p33 - (k30 * p03 + k31 * p13)
+        a01, a02, a03 = 0.5 * (n01 + n10), 0.5 * (n02 + n20), 0.5 * (n03 + n30)
+        a12, a13, a23 = 0.5 * (n12 + n21), 0.5 * (n13 + n31), 0.5 * (n23 + n32)
+        self.p = [
+            n00, a01, a02, a03,
+            a01, n11, a12, a13,
+            a02, a12, n22, a23,
+            a03, a13, a23, n33,
+        ]  # fmt: skip
         self.updates += 1
         return True
 
@@ -118,10 +165,7 @@ class ConstantVelocityFilter:
         z = self._pending[-1]
         span = (len(self._pending) - 1) * self._dt
         v = (z - self._pending[0]) / span if span > 0 else np.zeros(2)
-        self.x = np.array([z[0], z[1], v[0], v[1]])
-        self.p = np.zeros((4, 4))
-        self.p[:2, :2] = r_cm2
-        self.p[2, 2] = self.p[3, 3] = self.settings.initial_speed_sigma_cm_s**2
+        self._restart(float(z[0]), float(z[1]), float(v[0]), float(v[1]), r_cm2)
         self.updates = 2 if span > 0 else 1
         self._pending.clear()
 
@@ -173,29 +217,7 @@ def axis_heading(
     )
 
 
-_TRANSITIONS: dict[float, tuple[FloatArray, FloatArray]] = {}
-
-
-def _transition(dt: float) -> tuple[FloatArray, FloatArray]:
-    """Constant-velocity transition F and the white-noise-acceleration Q for unit intensity, cached by dt."""
-    key = round(dt, 6)
-    hit = _TRANSITIONS.get(key)
-    if hit is not None:
-        return hit
-    f = np.eye(4)
-    f[0, 2] = f[1, 3] = dt
-    q = np.zeros((4, 4))
-    q[0, 0] = q[1, 1] = dt**4 / 4.0
-    q[0, 2] = q[2, 0] = q[1, 3] = q[3, 1] = dt**3 / 2.0
-    q[2, 2] = q[3, 3] = dt**2
-    if len(_TRANSITIONS) > 256:
-        _TRANSITIONS.clear()
-    _TRANSITIONS[key] = (f, q)
-    return f, q
-
-
-def _inv2(s: FloatArray) -> FloatArray:
-    """Inverse of a 2x2 matrix."""
-    a, b, c, d = float(s[0, 0]), float(s[0, 1]), float(s[1, 0]), float(s[1, 1])
+def _inv2(a: float, b: float, c: float, d: float) -> tuple[float, float, float, float]:
+    """Inverse of the 2x2 matrix ``[[a, b], [c, d]]``, row by row."""
     det = a * d - b * c
-    return np.array([[d, -b], [-c, a]]) / det
+    return d / det, -b / det, -c / det, a / det

@@ -113,7 +113,7 @@ def edge_axis(plane: F32, mask: BoolArray, jacobian_cm_per_px: FloatArray) -> tu
     sub, inside = plane[rows, cols], mask[rows, cols]
     gu = cv2.Scharr(sub, cv2.CV_32F, 1, 0)[inside].astype(np.float64)
     gv = cv2.Scharr(sub, cv2.CV_32F, 0, 1)[inside].astype(np.float64)
-    (a, b), (c, d) = np.asarray(jacobian_cm_per_px, dtype=np.float64)
+    (a, b), (c, d) = np.asarray(jacobian_cm_per_px, dtype=np.float64).tolist()  # plain floats: quicker, same
     if not (math.isfinite(a * d - b * c) and a * d - b * c != 0.0):
         return 0.0, 0.0
     # Plane gradients are the inverse transpose of the Jacobian times the image's; its 1/det scales every gradient

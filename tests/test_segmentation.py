@@ -265,3 +265,23 @@ def test_particles_of_a_filled_mask_are_measured_alike_when_told_so():
     labels_told, particles_told = label_particles(filled, filled=True)
     assert np.array_equal(labels, labels_told) and particles == particles_told
     assert [p.holes_px for p in label_particles(mask)[1]] == [25, 0]
+
+
+@pytest.mark.slow
+@given(masks)
+def test_particles_and_reconstruction_match_opencvs_statistics_and_components(mask):
+    # One particle is measured without OpenCV's statistics (a quicker path): the same integers and centroids.
+    n, labels, stats, centroids = cv2.connectedComponentsWithStatsWithAlgorithm(
+        mask.view(np.uint8), 8, cv2.CV_32S, cv2.CCL_GRANA
+    )
+    got_labels, particles = label_particles(mask)
+    assert np.array_equal(got_labels, labels)
+    assert [p.label for p in particles] == list(range(1, n))
+    for p in particles:
+        x, y, w, h, area = (int(v) for v in stats[p.label])
+        assert (p.area_px, p.bbox) == (area, (x, y, x + w, y + h))
+        assert p.centre_px == (float(centroids[p.label, 0]), float(centroids[p.label, 1]))
+    # Reconstruction (one component or many): the components of the mask that the marker touches.
+    marker = mask & mask[::-1, ::-1]
+    touched = {int(v) for v in labels[marker]} - {0}
+    assert np.array_equal(reconstruct(marker, mask), np.isin(labels, sorted(touched)) & mask)

@@ -12,6 +12,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Protocol
 
+import numpy as np
+
 from edge.coverage import coverage_weights, marker_level
 from edge.segmentation import F32, BoolArray, auto_threshold, threshold
 from edge.trackers.plane import (
@@ -120,7 +122,7 @@ def threshold_marker(
     those of them inside the automatic interval of its colour plane (``mask``); None when the window has none."""
     t0 = time.perf_counter()
     candidates = window.classes == rover.index
-    if not candidates.any():
+    if not np.count_nonzero(candidates):  # quicker than any() on a window
         clock.add("threshold", time.perf_counter() - t0)
         return None
     interval = auto_threshold(window.plane, candidates, fraction)
@@ -143,8 +145,7 @@ def measure_core(
     turned into its area centroid on the world plane."""
     t0 = time.perf_counter()
     level = marker_level(window.plane, core)
-    others = (window.classes >= 0) & ~candidates
-    exclude = others if others.any() else None
+    exclude = window.others(rover.index)  # the pixels of ``~candidates`` of other rovers' hues
     weights = coverage_weights(window.bgr, core, ring_px, exclude=exclude, pure=mask, linear=window.linear)
     t1 = time.perf_counter()
     clock.add("measure", t1 - t0)

@@ -83,10 +83,10 @@ def _edge_planes(window: Window, m: Measurement, rover_index: int, exclude: Bool
 
 def _usable(window: Window, rover_index: int, exclude: BoolArray | None) -> BoolArray | None:
     """The window's pixels not of other things: other rovers' hues, ``exclude``; None where that is all of them."""
-    others = (window.classes >= 0) & (window.classes != rover_index)
+    others = window.others(rover_index)
     if exclude is not None:
-        others |= exclude
-    return ~others if others.any() else None
+        others = exclude if others is None else others | exclude
+    return ~others if others is not None and others.any() else None
 
 
 def _edge_signal(

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -62,10 +62,19 @@ class Window:
     image_size: tuple[int, int]
     background_threshold: float = 0.2
     raw: U8 | None = None
+    _others: dict[int, BoolArray | None] = field(default_factory=dict, repr=False)
 
     @property
     def offset(self) -> tuple[int, int]:
         return self.box[0], self.box[1]
+
+    def others(self, index: int) -> BoolArray | None:
+        """The pixels of other rovers' hues than rover ``index``'s (None where there are none), computed once for the
+        window's stages."""
+        if index not in self._others:
+            others = (self.classes >= 0) & (self.classes != index)
+            self._others[index] = others if np.count_nonzero(others) else None
+        return self._others[index]
 
     @cached_property
     def linear(self) -> F32:
@@ -106,7 +115,7 @@ def prepare_window(
     t0 = time.perf_counter()
     raw = image[y0:y1, x0:x1]
     valid = background.valid[y0:y1, x0:x1]
-    reference = background.reference[y0:y1, x0:x1] if valid.any() else None
+    reference = background.reference[y0:y1, x0:x1] if np.count_nonzero(valid) else None
     crop = raw if white is None else white.correct(raw, white.gains(box, raw, reference, valid))
     c1, c2, lum = opponent_planes(crop)  # RGB colour planes extraction, generalised to N colours
     classes = colors.classify(c1, c2, lum)
