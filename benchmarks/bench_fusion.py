@@ -712,6 +712,11 @@ def main() -> None:
     acc.add_argument("--rovers", type=int, default=50)
     acc.add_argument("--frames", type=int, default=300)
     acc.add_argument("--seed", type=int, default=1)
+    acc.add_argument(
+        "--detections-only",
+        action="store_true",
+        help="Fuse and evaluate the detections --work already holds (a changed fuser on the same recording).",
+    )
     lv = sub.add_parser("live")
     lv.add_argument("--work", type=Path, required=True)
     lv.add_argument("--seconds", type=float, default=30.0)
@@ -735,7 +740,12 @@ def main() -> None:
     print(f"# {platform.node()} {platform.machine()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M')}")
     if a.what == "accuracy":
         a.work.mkdir(parents=True, exist_ok=True)
-        extra = render_and_track(a.work, a.cameras, a.rovers, a.frames, a.seed)
+        if a.detections_only:
+            if not (a.work / "truth.csv").exists():
+                parser.error(f"{a.work} holds no recording (truth.csv): run without --detections-only first")
+            extra: dict[str, Any] = {}
+        else:
+            extra = render_and_track(a.work, a.cameras, a.rovers, a.frames, a.seed)
         result = evaluate(a.work) | extra
         (a.work / "accuracy.json").write_text(json.dumps(result, indent=2))
     elif a.what == "one-broker":

@@ -308,3 +308,41 @@ def test_a_better_board_joining_moves_the_rover_by_small_steps_to_where_it_is() 
     assert max(steps) <= settings.max_correction_cm + 1e-9
     assert max(steps[44:]) == pytest.approx(settings.max_correction_cm)  # the correction was spread, not skipped
     assert abs(poses[-1].y_cm - 200.0) < 0.3  # and it arrived: the precise board is believed
+
+
+def _drive(kind: str, t: float) -> tuple[float, float]:
+    """A rover's true centre at ``t``: 30 cm/s along x, then (after 1 s) a hard stop within 0.1 s, or a turn."""
+    if t <= 1.0:
+        return 100.0 + 30.0 * t, 200.0
+    if kind == "brake":  # 300 cm/s^2 down to rest: what a STOP does to a rover at full speed
+        u = min(t - 1.0, 0.1)
+        return 130.0 + 30.0 * u - 150.0 * u * u, 200.0
+    a = (t - 1.0) * 30.0 / 20.0  # a circle of 20 cm radius at 30 cm/s, turning left
+    return 130.0 + 20.0 * math.sin(a), 220.0 - 20.0 * math.cos(a)
+
+
+@pytest.mark.parametrize("kind", ["brake", "turn"])
+@pytest.mark.parametrize("boards", [("a",), ("a", "b")])
+def test_a_rover_that_brakes_or_turns_is_shown_where_it_is_not_where_it_was_going(
+    kind: str, boards: tuple[str, ...]
+) -> None:
+    """The shown pose follows the filter outside handovers: a rover that stops or turns is not held back by the
+    smoothing that spreads a handover's correction (which held a braking rover 10-15 cm behind its boards). Two
+    boards (an overlap, both always seeing it) change nothing: no handover, no smoothing."""
+    from edge.fusion.detections import Detection, Detections
+
+    fuser = Fuser(SETTINGS, learn_offsets=False)
+    poses: list[FusedPose] = []
+    rng = np.random.default_rng(7)
+    for k in range(75):
+        t = k / 30.0
+        x, y = _drive(kind, t)
+        for edge_id in boards:
+            xy = (x + rng.normal(0.0, 0.1), y + rng.normal(0.0, 0.1))
+            rover = Detection("r1", xy, (0.01, 0.0, 0.01), None, 0.9, (0.0, 0.0))
+            poses.extend(fuser.add(Detections(edge_id, k, k, t, t, 1.0, (), (rover,))))
+    late = [p for p in poses if p.t_s >= 1.5]
+    assert late
+    worst = max(math.dist((p.x_cm, p.y_cm), _drive(kind, p.t_s)) for p in late)
+    # what a constant-velocity filter itself needs to follow the manoeuvre, not the 10-15 cm of the old rule
+    assert worst < 1.0, worst

@@ -24,11 +24,15 @@
   rover's pose for frame ``k``. Live (``pose_time = "measured"``) the pose is the filter's state at its newest
   measurement's capture instant (on the fuser's clock, to the millisecond below): never dated later than anything
   measured, so ``arrival - t`` is a true grab-to-pose latency and a rover's idea of its pose's age is right; for a
-  recording (``"frame"``) the state is moved to ``k / fps``. Either way the published pose moves along the
+  recording (``"frame"``) the state is moved to ``k / fps``. The published pose is the filter's, except around a
+  handover: for ``handover_s`` after the set of boards measuring a rover changes, the pose moves along the
   filter's velocity smoothed over ``shown_velocity_s`` (the kick a correction gives the filter's velocity is not
-  shown at once), plus at most ``max_correction_cm`` a frame towards the filter: a better board joining or a worse
-  one leaving moves the rover smoothly, and the controllers see no step at a handover. A rover not measured for
-  ``timeout_s`` is missing: no pose is published for it (the rovers' own staleness stops them).
+  shown at once), plus at most ``max_correction_cm`` a frame towards the filter, so a better board joining or a
+  worse one leaving moves the rover smoothly and the controllers see no step; what is left of that difference when
+  the handover ends shrinks by ``max_correction_cm`` a frame. Outside handovers nothing holds the pose back: a rover
+  that turns, speeds up or brakes is shown where the filter has it (smoothing every frame held a braking rover
+  10-15 cm behind its measurements). A rover not measured for ``timeout_s`` is missing: no pose is published for
+  it (the rovers' own staleness stops them).
 """
 
 from __future__ import annotations
@@ -78,6 +82,7 @@ class FusionSettings:
     claim_radius_cm: float = 20.0  # two markers' centres are never closer: a body is 20 cm wide
     initial_speed_sigma_cm_s: float = 50.0
     max_correction_cm: float = 0.25  # per frame beyond the shown motion: a handover moves a rover smoothly
+    handover_s: float = 1.0  # how long after the boards measuring a rover change its pose is smoothed
     shown_velocity_s: float = 0.15  # the shown motion's velocity: the filter's, smoothed over this time
     shown_warmup_s: float = 0.5  # a new track shows the filter's velocity as it is for this long
     # "measured": a pose is the state at its newest measurement's capture instant (live: never dated after what was
@@ -126,6 +131,9 @@ class _Track:
     last_tick: int = -1
     # the last published (t, x, y) and the velocity it moved along: corrections are spread from it
     shown: tuple[float, float, float, float, float] | None = None
+    shown_boards: tuple[str, ...] = ()  # the boards that measured the rover for the last published pose
+    handover_until_s: float = -math.inf  # the pose is smoothed until then (a handover)
+    offset: tuple[float, float] = (0.0, 0.0)  # shown minus the filter's estimate at the last published pose
     born_s: float = -math.inf
     last_measured_s: float = -math.inf
     refused_since_s: float | None = None
@@ -366,28 +374,49 @@ class Fuser:
             x += vel[0] * (t_pose - track.t_s)
             y += vel[1] * (t_pose - track.t_s)
         shown_v = vel
+        recent = tuple(sorted(b for b, t in track.boards_now.items() if track.t_s - t <= 1.5 / s.fps))
         if track.shown is not None and vel is not None and 0.0 < t_pose - track.shown[0] <= 3.5 / s.fps:
-            # a correction (a better board joins, a worse one leaves) is spread over frames, not jumped: the shown
-            # pose moves along the filter's velocity smoothed over shown_velocity_s (the kick a correction gives
-            # the filter's velocity is not shown at once), plus at most max_correction_cm a frame
             st, sx, sy, ux, uy = track.shown
             dt = t_pose - st
-            vx, vy = vel
-            if t_pose - track.born_s > s.shown_warmup_s:
-                a = dt / (s.shown_velocity_s + dt)
-                vx, vy = ux + a * (vx - ux), uy + a * (vy - uy)
-            shown_v = (vx, vy)
-            px, py = sx + vx * dt, sy + vy * dt
-            dx, dy = x - px, y - py
-            step = math.hypot(dx, dy)
+            if recent != track.shown_boards:
+                track.handover_until_s = t_pose + s.handover_s
             limit = s.max_correction_cm * dt * s.fps
-            if step > limit:
-                x, y = px + dx * limit / step, py + dy * limit / step
+            if t_pose <= track.handover_until_s:
+                # a handover: a correction (a better board joins, a worse one leaves) is spread over frames, not
+                # jumped: the shown pose moves along the filter's velocity smoothed over shown_velocity_s (the
+                # kick a correction gives the filter's velocity is not shown at once), plus at most
+                # max_correction_cm a frame
+                vx, vy = vel
+                if t_pose - track.born_s > s.shown_warmup_s:
+                    a = dt / (s.shown_velocity_s + dt)
+                    vx, vy = ux + a * (vx - ux), uy + a * (vy - uy)
+                shown_v = (vx, vy)
+                px, py = sx + vx * dt, sy + vy * dt
+                dx, dy = x - px, y - py
+                step = math.hypot(dx, dy)
+                if step > limit:
+                    px, py = px + dx * limit / step, py + dy * limit / step
+                else:
+                    px, py = x, y
+                track.offset = (px - x, py - y)
+                x, y = px, py
+            else:
+                # no handover: the filter's estimate as it is, plus what is left of the last handover's
+                # difference, shrinking by max_correction_cm a frame
+                ox, oy = track.offset
+                left = math.hypot(ox, oy)
+                if left > limit:
+                    track.offset = (ox - ox * limit / left, oy - oy * limit / left)
+                    x, y = x + track.offset[0], y + track.offset[1]
+                else:
+                    track.offset = (0.0, 0.0)
+        else:
+            track.offset = (0.0, 0.0)  # a new track or one back after a gap: shown where the filter has it
+        track.shown_boards = recent
         track.shown = None if shown_v is None else (t_pose, x, y, shown_v[0], shown_v[1])
         theta = track.theta_rad if track.t_s - track.theta_t_s <= s.heading_s else None
         if theta is None and vel is not None and math.hypot(*vel) >= s.heading_min_speed_cm_s:
             theta = math.atan2(vel[1], vel[0])
-        recent = tuple(sorted(b for b, t in track.boards_now.items() if track.t_s - t <= 1.5 / s.fps))
         return FusedPose(
             rover_id,
             tick,
