@@ -462,7 +462,7 @@ def _wait(predicate: Any, timeout_s: float) -> bool:
 def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) -> dict[str, Any]:
     import psutil
 
-    from edge.broker.bridge import BoardAddress, write_bridge_configs
+    from edge.broker.bridge import BoardAddress, read_logins, write_bridge_configs
 
     layout = json.loads((work / "wide.json").read_text())
     names = [c["name"] for c in layout["cameras"]]
@@ -481,10 +481,7 @@ def live(work: Path, seconds: float, repeats: int, tracking_delay: bool = True) 
     )
 
     def logins(where: Path) -> dict[str, dict[str, str]]:
-        import tomllib
-
-        data = tomllib.loads((where / "credentials.toml").read_text())
-        return {t: {u: v["password"] for u, v in users.items()} for t, users in data.items()}
+        return read_logins(where / "credentials.toml")
 
     central_logins = logins(brokers / "central")
     central_ports = {1884: free_port(), 1883: free_port()}

@@ -125,6 +125,18 @@ def send_formation(
         info.wait_for_publish(timeout_s)
         if not info.is_published():
             raise BrokerError(f"broker {target.display()} did not acknowledge the formation within {timeout_s:g} s")
+        # read it back: an MQTT 3.1.1 broker acknowledges a publish its ACL drops, and a command (a STOP) that
+        # silently went nowhere must not look sent
+        current.clear()
+        got.clear()
+        client.subscribe(FORMATION_TOPIC, qos=FORMATION_QOS)
+        got.wait(timeout_s)
+        now = current[-1] if current else None
+        if now != message and now == retained:
+            raise BrokerError(
+                f"broker {target.display()} acknowledged the formation but did not take it: this login may not "
+                "publish formations there (with several camera boards, command at the central broker)"
+            )
         return message
     finally:
         client.disconnect()

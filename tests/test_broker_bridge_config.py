@@ -18,6 +18,7 @@ from edge.broker.access import topic_matches, verify_mosquitto_hash
 from edge.broker.bridge import BoardAddress, parse_board, write_bridge_configs
 from edge.cli import main
 from edge.errors import BrokerError
+from edge.messages import FormationV1
 from tests.support.mosquitto import Mosquitto
 from tests.support.runtime import MqttRecorder
 
@@ -195,7 +196,7 @@ def test_a_real_board_broker_lets_the_centrals_login_read_and_write_only_what_cr
 ) -> None:
     files = write_bridge_configs(tmp_path / "brokers", boards=BOARDS, rovers=["r1"])
     password = connections((files.central / "mosquitto.conf").read_text())["cam1"]["remote_password"][0]
-    edge = tomllib.loads((files.boards["cam1"] / "credentials.toml").read_text())["edge"]["edge"]["password"]
+    edge = tomllib.loads((files.boards["cam1"] / "credentials.toml").read_text())["edge"]["password"]
     with Mosquitto(tmp_path / "run", conf_path=files.boards["cam1"] / "mosquitto.conf") as board:
         network = board.ports[1883]
         topics = ("ips/v1/#", "ips/v2/#")
@@ -220,3 +221,29 @@ def test_a_real_board_broker_lets_the_centrals_login_read_and_write_only_what_cr
         "ips/v1/edge/cam1/status",
     ]
     assert not [m for m in local.messages if m.payload == b"forged"]
+
+
+def test_a_formation_a_boards_broker_drops_is_an_error_not_a_command_sent(tmp_path: Path) -> None:
+    """A board's `edge` login may not publish the formation on its broker (commands go to the central one). Mosquitto
+    (MQTT 3.1.1) still acknowledges the publish and drops it; `edge-ips formation` and the dashboard read the
+    retained command back and say so, instead of reporting a STOP that went nowhere. The central's `edge` login
+    commands as before."""
+    from edge.commands import build_formation, send_formation
+    from edge.config import parse_broker_url
+    from edge.errors import BrokerError
+
+    files = write_bridge_configs(tmp_path / "brokers", boards=BOARDS, rovers=["r1"])
+    board_edge = tomllib.loads((files.boards["cam1"] / "credentials.toml").read_text())["edge"]["password"]
+    central_edge = tomllib.loads((files.central / "credentials.toml").read_text())["edge"]["password"]
+
+    def stop(seq: int) -> FormationV1:
+        return build_formation("stop", [], seq=seq)
+
+    with Mosquitto(tmp_path / "run", conf_path=files.boards["cam1"] / "mosquitto.conf") as board:
+        target = parse_broker_url(f"mqtt://edge:{board_edge}@127.0.0.1:{board.port}")
+        with pytest.raises(BrokerError, match=r"did not take it.*central broker"):
+            send_formation(target, stop, timeout_s=2.0)
+    with Mosquitto(tmp_path / "run-central", conf_path=files.central / "mosquitto.conf") as central:
+        target = parse_broker_url(f"mqtt://edge:{central_edge}@127.0.0.1:{central.port}")
+        assert send_formation(target, stop).kind == "stop"
+        assert send_formation(target, stop).seq == 2  # read back, and the next one follows it

@@ -10,7 +10,6 @@ import re
 import socket
 import subprocess
 import time
-import tomllib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +18,7 @@ import pytest
 from click.testing import CliRunner
 
 from edge.board_messages import parse_detections, parse_fuser_status
+from edge.broker.bridge import read_logins
 from edge.cli import main
 from tests.support.mosquitto import Mosquitto
 from tests.support.proxy import Proxy
@@ -49,11 +49,6 @@ class Deployment:
         return f"mqtt://edge:{self.logins[board]['edge']['edge']}@127.0.0.1:{self.boards[board].port}"
 
 
-def _logins(path: Path) -> dict[str, dict[str, str]]:
-    data = tomllib.loads(path.read_text())
-    return {table: {u: v["password"] for u, v in users.items()} for table, users in data.items()}
-
-
 def write_brokers(out: Path, *extra: str) -> None:
     args = ["broker-config", "--bridge", "--board", "cam1=127.0.0.1", "--board", "cam2=127.0.0.1", *extra]
     result = CliRunner().invoke(main, [*args, "--rovers", "r1,r2,r3", "--out", str(out)], catch_exceptions=False)
@@ -70,7 +65,7 @@ def point_bridge(conf: Path, board: str, port: int) -> None:
 def deployment(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[Deployment]:
     out = tmp_path / "brokers"
     write_brokers(out)
-    logins = {name: _logins(out / name / "credentials.toml") for name in ("central", "cam1", "cam2")}
+    logins = {name: read_logins(out / name / "credentials.toml") for name in ("central", "cam1", "cam2")}
     boards: dict[str, Mosquitto] = {}
     proxy: Proxy | None = None
     try:
@@ -270,7 +265,7 @@ def test_the_central_opens_each_bridge_and_the_detections_leave_the_board_withou
 def test_over_tls_the_central_reaches_each_board_with_the_boards_client_certificate(tmp_path: Path) -> None:
     out = tmp_path / "brokers"
     write_brokers(out, "--tls")
-    logins = {name: _logins(out / name / "credentials.toml") for name in ("central", "cam1")}
+    logins = {name: read_logins(out / name / "credentials.toml") for name in ("central", "cam1")}
     conf = out / "central" / "mosquitto.conf"
     with Mosquitto(tmp_path / "run-cam1", conf_path=out / "cam1" / "mosquitto.conf") as cam1:
         point_bridge(conf, "cam1", cam1.ports[8883])  # the board's TLS listener, not its plain one

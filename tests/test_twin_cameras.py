@@ -2,11 +2,12 @@
 camera served by name to its own ``edge-ips start --source sim:twin:camK``, with its own calibration in the shared
 floor frame and its own faults.
 
-End to end with real processes on one real Mosquitto (``broker-config --bridge``'s central broker, its logins and
-ACLs): the lab (each rover's firmware its own MQTT client with its own login), two edges publishing detections, one
-``edge-ips fuse`` publishing the poses the rovers act on. A line formation commanded through one edge's dashboard
-converges across the seam (rovers cross from one camera's view into the other's), STOP leaves every rover at rest,
-and the fused poses of the standing rovers are where the lab's ground truth has them.
+End to end with real processes on the brokers of ``broker-config --bridge`` (a Mosquitto per board, the central one
+opening a bridge to each; their logins and ACLs): the lab (each rover's firmware its own MQTT client with its own
+login at the central broker), two edges publishing detections to their own brokers, one ``edge-ips fuse`` at the
+central publishing the poses the rovers act on. A formation commanded at the central broker converges across the
+seam (rovers cross from one camera's view into the other's), STOP leaves every rover at rest, and the fused poses of
+the standing rovers are where the lab's ground truth has them.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import subprocess
 import time
 import tomllib
 from collections.abc import Callable, Iterator
+from contextlib import ExitStack
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -26,7 +28,10 @@ from click.testing import CliRunner
 
 from edge.camera import MARKER_HEIGHT_CM, PinholeCamera
 from edge.cli import main
+from edge.commands import build_formation, send_formation
+from edge.config import BrokerTarget, parse_broker_url
 from edge.errors import ConfigError, SourceError
+from edge.messages import FormationV1
 from edge.sim.fleet import FleetBroker, fleet_configs
 from edge.sim.starts import random_layout
 from edge.sim.twin.lab import LabSettings, TwinLab
@@ -47,6 +52,7 @@ from tests.support.twin import (
     wait_driving,
     wait_tracked,
 )
+from tests.test_fusion_bridge import point_bridge
 
 IDS = ["red", "green", "blue"]
 WAIT_S = 120.0  # a failure guard only
@@ -203,29 +209,33 @@ class Boards:
     edges: dict[str, Edge]
     rec: MqttRecorder
     poses: Poses
+    central: BrokerTarget  # the operators' `edge` login at the central broker, where formations are commanded
+
+    def command(self, kind: str) -> FormationV1:
+        """What `edge-ips formation KIND --broker <central>` does (a board's own broker refuses a formation)."""
+        return send_formation(self.central, lambda seq: build_formation(kind, [] if kind == "stop" else IDS, seq=seq))
 
 
 @pytest.fixture
 def boards(tmp_path: Path) -> Iterator[Boards]:
+    """The deployment of docs/deploy.md's "more than one camera" on loopback: each board's own Mosquitto, the
+    central one (where the rovers, the fuser and the observer connect) opening a bridge to each board."""
     conf = tmp_path / "brokers"
-    bridged = ["--bridge", "--boards", "cam1,cam2", "--central-host", "127.0.0.1"]
+    bridged = ["--bridge", "--board", "cam1=127.0.0.1", "--board", "cam2=127.0.0.1"]
     made = CliRunner().invoke(main, ["broker-config", *bridged, "--rovers", ",".join(IDS), "--out", str(conf)])
     assert made.exit_code == 0, made.output
     central = conf / "central"
-    logins = tomllib.loads((central / "credentials.toml").read_text())
     state = tmp_path / "s"  # the boards find the lab's socket in their state directory
-    # the rovers' logins at the central broker, in the file the lab reads ([edge], [rovers.<id>]): `sim twin` does
-    # not read the central's credentials.toml, whose logins are grouped ([edge.edge], [bridges.*], [fusers.*])
-    rovers_file = tmp_path / "rovers.toml"
-    rovers_file.write_text(
-        "".join(
-            f'[{table}]\nusername = "{login["username"]}"\npassword = "{login["password"]}"\n'
-            for table, login in [("edge", logins["edge"]["edge"])]
-            + [(f"rovers.{rid}", logins["rovers"][rid]) for rid in IDS]
-        )
-    )
-    with Mosquitto(tmp_path / "mosquitto", conf_path=central / "mosquitto.conf") as broker:
-        local, network = broker.port, broker.ports[1883]
+    logins = tomllib.loads((central / "credentials.toml").read_text())
+    with ExitStack() as stack:
+        board_brokers = {
+            cam: stack.enter_context(Mosquitto(tmp_path / f"mosquitto-{cam}", conf_path=conf / cam / "mosquitto.conf"))
+            for cam in ("cam1", "cam2")
+        }
+        for cam, board_broker in board_brokers.items():  # the test moved every listener to a free port
+            point_bridge(central / "mosquitto.conf", cam, board_broker.ports[1883])
+        broker = stack.enter_context(Mosquitto(tmp_path / "mosquitto", conf_path=central / "mosquitto.conf"))
+        network = broker.ports[1883]
         lab_process = TwinLabProcess(
             [
                 "--cameras",
@@ -233,7 +243,7 @@ def boards(tmp_path: Path) -> Iterator[Boards]:
                 "--broker",
                 f"mqtt://127.0.0.1:{network}",
                 "--credentials",
-                str(rovers_file),
+                str(central / "credentials.toml"),
             ],
             state,
             tmp_path / "lab",
@@ -250,23 +260,25 @@ def boards(tmp_path: Path) -> Iterator[Boards]:
             stderr=subprocess.STDOUT,
         )
         edges = {}
-        viewer = logins["viewer"]["viewer"]
+        viewer = logins["viewer"]
         rec = MqttRecorder(
             "127.0.0.1", network, (*TOPICS, "ips/v1/edge/+/detections"), viewer["username"], viewer["password"]
         )
         try:
             rec.start()
             for cam in ("cam1", "cam2"):
-                login = logins["bridges"][cam]
+                login = tomllib.loads((conf / cam / "credentials.toml").read_text())["edge"]
                 env = clean_env(
                     EDGE_IPS_EDGE__ID=cam,
                     EDGE_IPS_EDGE__PUBLISH="detections",
                     EDGE_IPS_EDGE__STATE_DIR=str(state),
                     EDGE_IPS_DASHBOARD__TOKEN=TOKEN,
                 )
-                url = f"mqtt://{login['username']}:{login['password']}@127.0.0.1:{local}"
+                url = f"mqtt://{login['username']}:{login['password']}@127.0.0.1:{board_brokers[cam].port}"
                 edges[cam] = Edge(["--source", f"sim:twin:{cam}", "--broker", url], env, tmp_path / cam).start()
-            yield Boards(LabClient(state / "twin.sock"), state / "twin.sock", edges, rec, Poses(rec))
+            edge = logins["edge"]
+            central_edge = parse_broker_url(f"mqtt://{edge['username']}:{edge['password']}@127.0.0.1:{broker.port}")
+            yield Boards(LabClient(state / "twin.sock"), state / "twin.sock", edges, rec, Poses(rec), central_edge)
         finally:
             rec.stop()
             with (tmp_path / "messages.jsonl").open("w") as out:  # what the observer got, for a failure's reader
@@ -367,7 +379,7 @@ class HandOver:
 
 
 def _handed_over(b: Boards, kind: str, cameras: dict[str, PinholeCamera]) -> HandOver:
-    """Scatter across the seam, command ``kind`` through cam1's dashboard, wait for it to converge; the rovers that
+    """Scatter across the seam, command ``kind`` at the central broker, wait for it to converge; the rovers that
     one board alone measured at the start and the other measures at the end."""
     placed = _straddling_scatter(b.lab, cameras)
     t_scatter = time.time()
@@ -380,8 +392,8 @@ def _handed_over(b: Boards, kind: str, cameras: dict[str, PinholeCamera]) -> Han
     }
     assert alone[("cam1", "cam2")] and alone[("cam2", "cam1")], (placed, alone)
 
-    sent = b.edges["cam1"].command(kind, TOKEN, IDS)
-    t_command = arrival(b.rec, kind, sent["seq"], t_scatter)
+    sent = b.command(kind)
+    t_command = arrival(b.rec, kind, sent.seq, t_scatter)
     run = formation_run(b.poses, IDS, kind, t_command, FRAMES)
     truth = {r["id"]: r["truth"] for r in b.lab.status()["rovers"]}
     assert run.converged_frame is not None, (run, truth, _why(b, t_command))
@@ -409,7 +421,7 @@ def _note_while_driving(lab: LabClient) -> tuple[int, str]:
 
 
 def _stop(b: Boards, cameras: dict[str, PinholeCamera]) -> dict[str, object]:
-    """Scattered again, the retained formation brings the rovers back; STOP (through cam2's dashboard) while they
+    """Scattered again, the retained formation brings the rovers back; STOP (at the central broker) while they
     drive: every rover at rest within the bound (the lab's ground truth), then the fused poses at rest too and where
     the rovers stand."""
     t_scatter = time.time()
@@ -417,7 +429,7 @@ def _stop(b: Boards, cameras: dict[str, PinholeCamera]) -> dict[str, object]:
     wait_tracked(b.poses, IDS, t_scatter)
     mark, label = _note_while_driving(b.lab)
     t_stop = time.time()
-    b.edges["cam2"].command("stop", TOKEN)
+    b.command("stop")
     rest = {r: e["after_fault_s"] for r, e in rest_events(b.lab, label, mark, IDS).items() if e is not None}
     assert rest and max(rest.values()) < AT_REST_AFTER_S, rest
     moved = stop_run(b.poses, IDS, t_stop, POSES_SETTLED_S, REST_WINDOW_S)

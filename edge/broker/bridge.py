@@ -35,6 +35,7 @@ from __future__ import annotations
 import json
 import re
 import shutil
+import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -269,8 +270,26 @@ def _credentials(title: str, logins: Mapping[str, Mapping[str, str]]) -> str:
     ]
     for table, users in logins.items():
         for user, password in users.items():
-            lines += [f"[{table}.{user}]", f"username = {json.dumps(user)}", f"password = {json.dumps(password)}", ""]
+            # [edge] and [viewer] as every credentials file has them (read_credentials reads this one too), the
+            # rest grouped: [rovers.<id>], [fusers.<id>]
+            name = table if table in SINGLE_LOGINS else f"{table}.{user}"
+            lines += [f"[{name}]", f"username = {json.dumps(user)}", f"password = {json.dumps(password)}", ""]
     return "\n".join(lines)
+
+
+SINGLE_LOGINS = ("edge", "viewer")  # one login each, a table of its own in credentials.toml
+
+
+def read_logins(path: Path) -> dict[str, dict[str, str]]:
+    """A credentials.toml that :func:`write_bridge_configs` wrote, as ``{table: {user: password}}`` (``[edge]`` ->
+    ``{"edge": {"edge": ...}}``, ``[fusers.fuser-a]`` -> ``{"fusers": {"fuser-a": ...}}``)."""
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    return {
+        table: {users["username"]: users["password"]}
+        if table in SINGLE_LOGINS
+        else {user: login["password"] for user, login in users.items()}
+        for table, users in data.items()
+    }
 
 
 def _check(boards: Mapping[str, BoardAddress], fusers: Sequence[str], rovers: Sequence[str], ports: list[int]) -> None:
@@ -336,7 +355,7 @@ def write_bridge_configs(
         central / "credentials.toml",
         _credentials(
             "Central broker logins: [edge] for the operators' tools, [fusers.*] for edge-ips fuse, [rovers.*] for"
-            " the firmware, [viewer.*] read-only.",
+            " the firmware, [viewer] read-only.",
             {
                 "edge": {EDGE_USER: passwords[EDGE_USER]},
                 "fusers": {f: passwords[f] for f in fusers},
