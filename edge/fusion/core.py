@@ -29,10 +29,9 @@
   filter's velocity smoothed over ``shown_velocity_s`` (the kick a correction gives the filter's velocity is not
   shown at once), plus at most ``max_correction_cm`` a frame towards the filter, so a better board joining or a
   worse one leaving moves the rover smoothly and the controllers see no step; what is left of that difference when
-  the handover ends shrinks by ``max_correction_cm`` a frame. Outside handovers nothing holds the pose back: a rover
-  that turns, speeds up or brakes is shown where the filter has it (smoothing every frame held a braking rover
-  10-15 cm behind its measurements). A rover not measured for ``timeout_s`` is missing: no pose is published for
-  it (the rovers' own staleness stops them).
+  the handover ends shrinks by ``max_correction_cm`` a frame. Elsewhere a rover that turns or brakes is shown where
+  the filter has it (smoothing every frame held it 10-15 cm behind). A rover not measured for ``timeout_s`` is
+  missing: no pose is published for it (the rovers' own staleness stops them).
 """
 
 from __future__ import annotations
@@ -382,9 +381,8 @@ class Fuser:
                 track.handover_until_s = t_pose + s.handover_s
             limit = s.max_correction_cm * dt * s.fps
             if t_pose <= track.handover_until_s:
-                # a handover: a correction (a better board joins, a worse one leaves) is spread over frames, not
-                # jumped: the shown pose moves along the filter's velocity smoothed over shown_velocity_s (the
-                # kick a correction gives the filter's velocity is not shown at once), plus at most
+                # a handover (a better board joins, a worse one leaves): the correction is spread over frames, the
+                # shown pose moving along the filter's velocity smoothed over shown_velocity_s plus at most
                 # max_correction_cm a frame
                 vx, vy = vel
                 if t_pose - track.born_s > s.shown_warmup_s:
