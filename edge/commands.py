@@ -112,13 +112,19 @@ def send_formation(
         current.append(read_retained(bytes(message.payload)))
         got.set()
 
+    def retained_now(wait_s: float) -> FormationV1 | None:
+        """What the broker holds: a retained message arrives right after the subscription, if there is one."""
+        current.clear()
+        got.clear()
+        client.subscribe(FORMATION_TOPIC, qos=FORMATION_QOS)
+        got.wait(wait_s)
+        client.unsubscribe(FORMATION_TOPIC)
+        return current[-1] if current else None
+
     client.on_message = on_message
     connect_blocking(client, target, timeout_s)
     try:
-        client.subscribe(FORMATION_TOPIC, qos=FORMATION_QOS)
-        got.wait(retained_wait_s)  # a retained message arrives right after the subscription, if there is one
-        client.unsubscribe(FORMATION_TOPIC)
-        retained = current[-1] if current else None
+        retained = retained_now(retained_wait_s)
         seq = next_seq(retained.seq if retained is not None else None)
         message = make(seq)
         info = client.publish(FORMATION_TOPIC, dumps(message), qos=FORMATION_QOS, retain=True)
@@ -127,11 +133,7 @@ def send_formation(
             raise BrokerError(f"broker {target.display()} did not acknowledge the formation within {timeout_s:g} s")
         # read it back: an MQTT 3.1.1 broker acknowledges a publish its ACL drops, and a command (a STOP) that
         # silently went nowhere must not look sent
-        current.clear()
-        got.clear()
-        client.subscribe(FORMATION_TOPIC, qos=FORMATION_QOS)
-        got.wait(timeout_s)
-        now = current[-1] if current else None
+        now = retained_now(timeout_s)
         if now != message and now == retained:
             raise BrokerError(
                 f"broker {target.display()} acknowledged the formation but did not take it: this login may not "
