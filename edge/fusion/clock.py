@@ -28,6 +28,7 @@ Without the seam term, a 3 mm disagreement crossed one way at 25 cm/s reads as a
 from __future__ import annotations
 
 import math
+import zlib
 from collections import deque
 from dataclasses import dataclass
 
@@ -187,7 +188,10 @@ class ClockAligner:
             by_board = self._tracks.setdefault(r.rover_id, {})
             track = by_board.setdefault(d.edge_id, deque())
             key = (r.rover_id, d.edge_id)
-            due = sample.t_local_s - self._compared.get(key, -math.inf) >= s.compare_every_s
+            last = self._compared.get(key)
+            if last is None:  # each rover's comparisons at its own phase: not every rover's in one frame
+                last = self._compared[key] = sample.t_local_s - s.compare_every_s * _phase(key)
+            due = sample.t_local_s - last >= s.compare_every_s
             if due and track and 0.0 < sample.t_local_s - track[-1].t_local_s <= s.max_gap_s:
                 self._compared[key] = sample.t_local_s
                 for board, other in by_board.items():
@@ -373,6 +377,11 @@ def _at_least_the_arrival_bound(
             b = rhs[free] - info[np.ix_(free, fixed)] @ offsets[fixed]
             offsets[free] = np.linalg.solve(a, b)
     return offsets
+
+
+def _phase(key: tuple[str, str]) -> float:
+    """A fixed fraction in [0, 1) for a (rover, board): the same in every run (a str's hash() is not)."""
+    return (zlib.crc32("/".join(key).encode()) & 0xFFFF) / 65536.0
 
 
 def _velocity(samples: list[_Sample]) -> tuple[float, float] | None:
