@@ -736,33 +736,42 @@ def stages(work: Path, seconds: float, latency_s: float = 0.002) -> dict[str, An
         ticks.append(tick)
     fuser = Fuser()
     names = ("parse", "fuse", "encode", "learn", "total")
-    ms: dict[str, list[float]] = {n: [] for n in names}
-    last_of_tick: list[float] = []
+    # wall time (what a pose waits) and the thread's CPU time (the same work, without the waits a loaded machine adds)
+    clocks = {"wall": time.perf_counter, "cpu": time.thread_time}
+    ms: dict[str, dict[str, list[float]]] = {c: {n: [] for n in names} for c in clocks}
+    last_of_tick: dict[str, list[float]] = {c: [] for c in clocks}
     warmup = 30  # the first second: tracks and clocks starting
-    clock = time.perf_counter
+
+    def now() -> tuple[float, float]:
+        return time.perf_counter(), time.thread_time()
+
     for k, tick in enumerate(ticks):
-        start = clock()
-        for payload, now in tick:
-            a = clock()
+        start = now()
+        for payload, arrival in tick:
+            a = now()
             d = from_message(parse_detections(payload))
-            b = clock()
-            poses = fuser.add(d, now_s=now, learn=False)
-            c = clock()
+            b = now()
+            poses = fuser.add(d, now_s=arrival, learn=False)
+            c = now()
             for n, pose in enumerate(poses):
                 pose_line(pose, n)
-            e = clock()
+            e = now()
             fuser.learn_pending()
-            f = clock()
+            f = now()
             if k >= warmup:
-                for name, v in zip(names, (b - a, c - b, e - c, f - e, f - a), strict=True):
-                    ms[name].append(1e3 * v)
+                for i, clock in enumerate(clocks):
+                    for name, v in zip(
+                        names, (b[i] - a[i], c[i] - b[i], e[i] - c[i], f[i] - e[i], f[i] - a[i]), strict=True
+                    ):
+                        ms[clock][name].append(1e3 * v)
         if k >= warmup:
-            last_of_tick.append(1e3 * (e - start))
+            for i, clock in enumerate(clocks):
+                last_of_tick[clock].append(1e3 * (e[i] - start[i]))
     offsets = fuser.aligner.estimates()
     return {
-        "messages": len(ms["total"]),
-        "stages_ms": {n: _spread(v) for n, v in ms.items()},
-        "last_of_tick_ms": _spread(last_of_tick),
+        "messages": len(ms["wall"]["total"]),
+        "stages_ms": {c: {n: _spread(v) for n, v in by_stage.items()} for c, by_stage in ms.items()},
+        "last_of_tick_ms": {c: _spread(v) for c, v in last_of_tick.items()},
         # live, the offsets are against the fuser's clock: the boards' clocks are exact, so the truth is 0 less the
         # latency the arrival bound cannot see, plus each board's apparent lag (its tracker's smoothing)
         "offsets_ms": {

@@ -54,8 +54,8 @@ class ClockSettings:
     drift_rate: float = 5e-4  # how fast the arrival bound may fall: NTP slews a clock by at most 500 ppm
     arrival_sigma_s: float = 0.002  # how well the arrival bound pins a board to the fuser's clock
     prior_sigma_s: float = 1.0  # a board with no evidence at all: offset 0, this unsure
-    # live, the offsets are solved again at most this often (data time): a clock moves microseconds in that time,
-    # and solving on every message is a third of the fuser's work between a board's frame and its rovers' poses
+    # live, the offsets are solved again at most this often (data time), in the learning after a frame's poses are
+    # out: a clock moves microseconds in that time, and solving on every message was a third of the fuser's work
     solve_every_s: float = 0.1
 
 
@@ -180,6 +180,8 @@ class ClockAligner:
         other board's samples of the rover that fall inside that interval are compared with it, interpolated."""
         self._board(d.edge_id)
         s = self.settings
+        if self._dirty and self._data_s - self._solved_s >= s.solve_every_s:
+            self.solve()  # here, in the learning, not in offset_s: live that is between a frame and its poses
         fixed = self.interpolate_with
         # held for the whole frame
         offsets = {b: fixed.get(b, 0.0) if fixed is not None else self.offset_s(b) for b in self._boards}
@@ -272,11 +274,9 @@ class ClockAligner:
 
     # -- estimates --------------------------------------------------------------------------------------------------
     def offset_s(self, edge_id: str) -> float:
-        """The current estimate of the board's offset (0 for a board never seen), solved again when
-        ``solve_every_s`` of new evidence is in; never below the board's arrival bound as it is now."""
-        if self._dirty and (
-            self._data_s - self._solved_s >= self.settings.solve_every_s or edge_id not in self._estimates
-        ):
+        """The board's offset as last solved (0 for a board never seen; a new board's solved at once), never below
+        its arrival bound as it is now. :meth:`observe` solves again when ``solve_every_s`` of new evidence is in."""
+        if self._dirty and edge_id not in self._estimates:
             self.solve()
         est = self._estimates.get(edge_id)
         offset = est.offset_s if est is not None else 0.0
