@@ -40,7 +40,7 @@ import math
 import statistics
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -107,8 +107,7 @@ class FusedPose:
     boards: tuple[str, ...]
 
 
-@dataclass(frozen=True)
-class _Measurement:
+class _Measurement(NamedTuple):  # immutable like a frozen dataclass, built in a third of its time
     t_s: float  # reference clock
     x: float
     y: float
