@@ -206,7 +206,7 @@ class Fuser:
         self.boards: dict[str, BoardState] = {}
         self.tracks: dict[str, _Track] = {}
         self._latest_s = -math.inf
-        self._unlearned: list[Detections] = []
+        self.unlearned: list[Detections] = []  # fused, not yet given to the clock aligner
 
     # -- input ------------------------------------------------------------------------------------------------------
     def add(self, d: Detections, now_s: float | None = None, learn: bool = True) -> list[FusedPose]:
@@ -229,7 +229,7 @@ class Fuser:
             board.stale += 1
             return []
         if self.learn_offsets:
-            self._unlearned.append(d)
+            self.unlearned.append(d)
         board.frames += 1
         board.last_capture_s = t_ref if board.last_capture_s is None else max(board.last_capture_s, t_ref)
         board.rovers = {r.rover_id for r in d.rovers}
@@ -245,9 +245,9 @@ class Fuser:
 
     def learn_pending(self) -> None:
         """Give the clock aligner the frames fused since it last learned."""
-        for d in self._unlearned:
+        for d in self.unlearned:
             self.aligner.observe(d)
-        self._unlearned.clear()
+        self.unlearned.clear()
 
     def board_offline(self, edge_id: str) -> None:
         """The board's retained status says it is offline (its last will): its view is reported missing at once."""

@@ -39,7 +39,7 @@ class CvState:
         return cls(x, y, pxx=rxx, pxy=rxy, pyy=ryy, puu=v, pvv=v)
 
     def copy(self) -> CvState:
-        return CvState(*self.snapshot())
+        return CvState.restore(self.snapshot())
 
     def snapshot(self) -> tuple[float, ...]:
         """The state as an immutable tuple (cheap to keep after every update; :meth:`restore` makes it a filter)."""
