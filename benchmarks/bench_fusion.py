@@ -30,7 +30,9 @@ the live boards send them (:func:`replay_index`, each board's exposure phase, Un
 stage as :class:`edge.fusion.service.FuserService` runs them: parse (bytes to :class:`Detections`), fuse
 (:meth:`Fuser.add` without learning), encode (each pose's bytes), learn (the clock aligner's share, after the poses
 are out). The four boards' frames of one tick arrive together, so the last one's poses wait for the three before:
-``last_of_tick_ms`` is the time from the tick's first message to the last one's poses encoded. Also the clock
+``last_of_tick_ms`` is the time from the tick's first message to the last one's poses encoded, the clocks learning
+after each message; ``last_of_tick_learning_after_ms`` the same without the learning of the three before (the
+service learns when no other message waits: after the burst). Also the clock
 offsets the live fuser learned (against the fuser's clock, which is the boards' true clock here).
 
 Timing figures (latency, CPU) measured on a loaded machine are not valid: re-run on a quiet one.
@@ -740,6 +742,7 @@ def stages(work: Path, seconds: float, latency_s: float = 0.002) -> dict[str, An
     clocks = {"wall": time.perf_counter, "cpu": time.thread_time}
     ms: dict[str, dict[str, list[float]]] = {c: {n: [] for n in names} for c in clocks}
     last_of_tick: dict[str, list[float]] = {c: [] for c in clocks}
+    burst: dict[str, list[float]] = {c: [] for c in clocks}  # the same, the clocks learning after the tick's frames
     warmup = 30  # the first second: tracks and clocks starting
 
     def now() -> tuple[float, float]:
@@ -747,6 +750,7 @@ def stages(work: Path, seconds: float, latency_s: float = 0.002) -> dict[str, An
 
     for k, tick in enumerate(ticks):
         start = now()
+        learning = [0.0, 0.0]
         for payload, arrival in tick:
             a = now()
             d = from_message(parse_detections(payload))
@@ -758,6 +762,7 @@ def stages(work: Path, seconds: float, latency_s: float = 0.002) -> dict[str, An
             e = now()
             fuser.learn_pending()
             f = now()
+            learning = [learning[0] + f[0] - e[0], learning[1] + f[1] - e[1]]
             if k >= warmup:
                 for i, clock in enumerate(clocks):
                     for name, v in zip(
@@ -767,11 +772,13 @@ def stages(work: Path, seconds: float, latency_s: float = 0.002) -> dict[str, An
         if k >= warmup:
             for i, clock in enumerate(clocks):
                 last_of_tick[clock].append(1e3 * (e[i] - start[i]))
+                burst[clock].append(1e3 * (e[i] - start[i] - (learning[i] - (f[i] - e[i]))))
     offsets = fuser.aligner.estimates()
     return {
         "messages": len(ms["wall"]["total"]),
         "stages_ms": {c: {n: _spread(v) for n, v in by_stage.items()} for c, by_stage in ms.items()},
         "last_of_tick_ms": {c: _spread(v) for c, v in last_of_tick.items()},
+        "last_of_tick_learning_after_ms": {c: _spread(v) for c, v in burst.items()},
         # live, the offsets are against the fuser's clock: the boards' clocks are exact, so the truth is 0 less the
         # latency the arrival bound cannot see, plus each board's apparent lag (its tracker's smoothing)
         "offsets_ms": {
