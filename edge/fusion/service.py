@@ -7,8 +7,8 @@ it holds the lease (:mod:`edge.fusion.lease`), publishes the canonical ``ips/v1/
 A standby fuses too, so its filters are warm when it takes over.
 
 Threads: paho's network thread receives and fuses each detections message and publishes the poses it gives at once
-(the shortest path from a board's grab to a rover); the ``lease`` thread sends beats and claims and the status. The
-fuser's state is shared under one lock.
+(the shortest path from a board's grab to a rover), the clocks learning from the frames when no other message waits;
+the ``lease`` thread sends beats and claims and the status. The fuser's state is shared under one lock.
 """
 
 from __future__ import annotations
