@@ -4,6 +4,7 @@
     .venv/bin/python benchmarks/bench_fusion.py accuracy --work runs/fusion      # 4 cameras, 50 rovers, 300 frames
     .venv/bin/python benchmarks/bench_fusion.py live --work runs/fusion          # bridged brokers, real processes
     .venv/bin/python benchmarks/bench_fusion.py one-broker --work runs/fusion    # where the time goes, no bridges
+    .venv/bin/python benchmarks/bench_fusion.py stages --work runs/fusion        # the fuser's work per message
 
 ``accuracy``: ``sim render wide`` (4 cameras, 50 rovers with one hue each: the simulator's palette spreads 50 hues
 7.2 deg apart), every board calibrated from its own survey points (34, 0.5 px click noise), every video tracked
@@ -23,6 +24,16 @@ clock). Measured: grab-to-fused-pose latency p50/p99 (receive time minus the pos
 detection in it; one clock, so a negative one is an error and counted), and the same for the detections at the
 board's broker and at the central one (the bridge's share); the active fuser's CPU, the takeover time when the
 active fuser is killed (and when it is paused), what happens when one board dies.
+
+``stages``: the live fuser's Python work per detections message, no network: the recorded detections replayed as
+the live boards send them (:func:`replay_index`, each board's exposure phase, Unix times), each message timed per
+stage as :class:`edge.fusion.service.FuserService` runs them: parse (bytes to :class:`Detections`), fuse
+(:meth:`Fuser.add` without learning), encode (each pose's bytes), learn (the clock aligner's share, after the poses
+are out). The four boards' frames of one tick arrive together, so the last one's poses wait for the three before:
+``last_of_tick_ms`` is the time from the tick's first message to the last one's poses encoded, the clocks learning
+after each message; ``last_of_tick_learning_after_ms`` the same without the learning of the three before (the
+service learns when no other message waits: after the burst). Also the clock
+offsets the live fuser learned (against the fuser's clock, which is the boards' true clock here).
 
 Timing figures (latency, CPU) measured on a loaded machine are not valid: re-run on a quiet one.
 """
@@ -700,6 +711,92 @@ def one_broker(work: Path, seconds: float) -> dict[str, Any]:
         broker.terminate()
 
 
+def stages(work: Path, seconds: float, latency_s: float = 0.002) -> dict[str, Any]:
+    """The fuser's work per detections message, per stage (see the module's doc)."""
+    from edge.board_messages import parse_detections
+    from edge.fusion.core import Fuser
+    from edge.fusion.detections import Detections, encode_detections, from_message
+    from edge.fusion.offline import pose_line
+
+    layout = json.loads((work / "wide.json").read_text())
+    cams = sorted(layout["cameras"], key=lambda c: c["phase_s"])
+    recorded = {
+        c["name"]: [
+            from_message(parse_detections(x)) for x in (work / c["name"] / "det.jsonl").read_bytes().splitlines()
+        ]
+        for c in cams
+    }
+    t0 = 1.8e9  # Unix times, as live: the wire's rounding of large numbers
+    ticks = []
+    for k in range(round(seconds * 30.0)):
+        tick = []
+        for c in cams:
+            d = recorded[c["name"]][replay_index(k, 0, len(recorded[c["name"]]))]
+            grab = t0 + k / 30.0 + c["phase_s"]
+            moved = Detections(d.edge_id, k, k, grab, grab, d.image_quality, d.view_cm, d.rovers)
+            tick.append((encode_detections(moved), grab + latency_s))
+        ticks.append(tick)
+    fuser = Fuser()
+    names = ("parse", "fuse", "encode", "learn", "total")
+    # wall time (what a pose waits) and the thread's CPU time (the same work, without the waits a loaded machine adds)
+    clocks = {"wall": time.perf_counter, "cpu": time.thread_time}
+    ms: dict[str, dict[str, list[float]]] = {c: {n: [] for n in names} for c in clocks}
+    last_of_tick: dict[str, list[float]] = {c: [] for c in clocks}
+    burst: dict[str, list[float]] = {c: [] for c in clocks}  # the same, the clocks learning after the tick's frames
+    warmup = 30  # the first second: tracks and clocks starting
+
+    def now() -> tuple[float, float]:
+        return time.perf_counter(), time.thread_time()
+
+    for k, tick in enumerate(ticks):
+        start = now()
+        learning = [0.0, 0.0]
+        for payload, arrival in tick:
+            a = now()
+            d = from_message(parse_detections(payload))
+            b = now()
+            poses = fuser.add(d, now_s=arrival, learn=False)
+            c = now()
+            for n, pose in enumerate(poses):
+                pose_line(pose, n)
+            e = now()
+            fuser.learn_pending()
+            f = now()
+            learning = [learning[0] + f[0] - e[0], learning[1] + f[1] - e[1]]
+            if k >= warmup:
+                for i, clock in enumerate(clocks):
+                    for name, v in zip(
+                        names, (b[i] - a[i], c[i] - b[i], e[i] - c[i], f[i] - e[i], f[i] - a[i]), strict=True
+                    ):
+                        ms[clock][name].append(1e3 * v)
+        if k >= warmup:
+            for i, clock in enumerate(clocks):
+                last_of_tick[clock].append(1e3 * (e[i] - start[i]))
+                burst[clock].append(1e3 * (e[i] - start[i] - (learning[i] - (f[i] - e[i]))))
+    offsets = fuser.aligner.estimates()
+    return {
+        "messages": len(ms["wall"]["total"]),
+        "stages_ms": {c: {n: _spread(v) for n, v in by_stage.items()} for c, by_stage in ms.items()},
+        "last_of_tick_ms": {c: _spread(v) for c, v in last_of_tick.items()},
+        "last_of_tick_learning_after_ms": {c: _spread(v) for c, v in burst.items()},
+        # live, the offsets are against the fuser's clock: the boards' clocks are exact, so the truth is 0 less the
+        # latency the arrival bound cannot see, plus each board's apparent lag (its tracker's smoothing)
+        "offsets_ms": {
+            b: {"offset": 1e3 * o.offset_s, "sigma": 1e3 * o.sigma_s, "source": o.source} for b, o in offsets.items()
+        },
+    }
+
+
+def _spread(values: list[float]) -> dict[str, float]:
+    a = np.asarray(values)
+    return {
+        "n": int(a.size),
+        "mean": float(a.mean()),
+        "p50": float(np.percentile(a, 50)),
+        "p99": float(np.percentile(a, 99)),
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
     sub = parser.add_subparsers(dest="what", required=True)
@@ -727,6 +824,9 @@ def main() -> None:
     one = sub.add_parser("one-broker")
     one.add_argument("--work", type=Path, required=True)
     one.add_argument("--seconds", type=float, default=20.0)
+    st = sub.add_parser("stages")
+    st.add_argument("--work", type=Path, required=True)
+    st.add_argument("--seconds", type=float, default=60.0)
     board = sub.add_parser("_board")
     board.add_argument("args", nargs=6)
     a = parser.parse_args()
@@ -745,6 +845,9 @@ def main() -> None:
             extra = render_and_track(a.work, a.cameras, a.rovers, a.frames, a.seed)
         result = evaluate(a.work) | extra
         (a.work / "accuracy.json").write_text(json.dumps(result, indent=2))
+    elif a.what == "stages":
+        result = stages(a.work, a.seconds)
+        (a.work / "stages.json").write_text(json.dumps(result, indent=2))
     elif a.what == "one-broker":
         result = one_broker(a.work, a.seconds)
         (a.work / "one-broker.json").write_text(json.dumps(result, indent=2))

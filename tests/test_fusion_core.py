@@ -10,8 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from edge.cli import main
+from edge.fusion.clock import ClockAligner, _Pair
 from edge.fusion.core import FusedPose, Fuser, FusionSettings
 from edge.fusion.detections import encode_detections
 from edge.fusion.offline import estimate_offsets
@@ -75,6 +78,34 @@ def test_clock_offsets_come_from_rovers_seen_by_two_boards(recording: Recording)
         assert est.sigma_s < 0.002
     # b shares the busiest overlap with a (rovers cross it both ways): within a millisecond
     assert estimates["b"].offset_s == pytest.approx(BOARDS[1].clock_offset_s, abs=0.001)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([0.0, 0.2, 5.0]))
+def test_a_pairs_offset_is_the_weighted_least_squares_solution(seed: int, spread_cm_s: float) -> None:
+    """The pair's normal equations, kept in plain floats, solve as numpy solves them written out: ``y = seam + v d``
+    over samples with their weights, the prior on the seam added (spread 0: every rover at one velocity, the case
+    where the offset is barely known)."""
+    rng = np.random.default_rng(seed)
+    pair, rows, ys, weights = _Pair(), [], [], []
+    for _ in range(int(rng.integers(1, 40))):
+        v = np.array([25.0, -10.0]) + rng.normal(0.0, spread_cm_s, 2)
+        y = np.array([0.3, -0.2]) + v * 0.012 + rng.normal(0.0, 0.1, 2)
+        a = rng.normal(0.0, 0.3, (2, 2))
+        cov = a @ a.T + 0.01 * np.eye(2)
+        w = np.linalg.inv(cov)
+        pair.add((y[0], y[1]), (v[0], v[1]), (w[0, 0], w[0, 1], w[1, 1]), 1.0)
+        rows.append(np.array([[1.0, 0.0, v[0]], [0.0, 1.0, v[1]]]))
+        ys.append(y)
+        weights.append(w)
+    normal = sum(r.T @ w @ r for r, w in zip(rows, weights, strict=True)) + np.diag([1.0, 1.0, 0.0])
+    rhs = sum(r.T @ w @ y for r, w, y in zip(rows, weights, ys, strict=True))
+    cov = np.linalg.inv(normal)
+    found = pair.estimate(seam_sigma_cm=1.0)
+    assert found is not None
+    d, var = found
+    assert var == pytest.approx(cov[2, 2], rel=1e-6)
+    assert d == pytest.approx((cov @ rhs)[2], rel=1e-6, abs=1e-9)
 
 
 def test_live_offsets_are_anchored_to_the_fusers_clock_by_arrival_times(recording: Recording) -> None:
@@ -162,6 +193,26 @@ def test_detections_that_arrive_late_are_fused_in_their_place(recording: Recordi
     e_prompt = np.concatenate(list(errors_cm(recording, prompt, after_s=2.0).values()))
     e_late = np.concatenate(list(errors_cm(recording, late, after_s=2.0).values()))
     assert float(np.mean(e_late)) < float(np.mean(e_prompt)) + 0.05
+
+
+@pytest.mark.parametrize("delayed", [3, 20])
+def test_a_late_detection_gives_the_filter_it_would_have_had_in_order(delayed: int) -> None:
+    """A detection more than a frame late is put in its place and what came after it filtered again from the state
+    kept before it: the filter ends exactly where the same detections in order leave it (counting none twice, the
+    rover's first included: the 3rd frame is within the replay window of the track's start)."""
+    boards = [Board("a", (0, 0, 400, 400)), Board("b", (0, 0, 400, 400), phase_s=0.013)]
+    rec = record(boards, {"r1": circle((200, 200), 80, 30)}, 1.5)  # short: no board's noise scale has moved yet
+    in_order = sorted((d for f in rec.frames.values() for d in f), key=lambda d: d.t_capture_s)
+    late = rec.frames["b"][delayed]
+    held = [d for d in in_order if d is not late]
+    at = next(i for i, d in enumerate(held) if d.t_capture_s > late.t_capture_s + 0.1)  # arrives 0.1 s late
+    states = []
+    for frames in (in_order, [*held[:at], late, *held[at:]]):
+        fuser = Fuser(SETTINGS, aligner=ClockAligner(reference="a"), learn_offsets=False)
+        for d in frames:
+            fuser.add(d)
+        states.append(fuser.tracks["r1"].filter.snapshot())
+    assert states[1] == pytest.approx(states[0], rel=1e-12, abs=1e-12)
 
 
 def test_detections_older_than_the_age_limit_are_dropped(recording: Recording) -> None:

@@ -28,8 +28,9 @@ Without the seam term, a 3 mm disagreement crossed one way at 25 cm/s reads as a
 from __future__ import annotations
 
 import math
+import zlib
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -53,8 +54,8 @@ class ClockSettings:
     drift_rate: float = 5e-4  # how fast the arrival bound may fall: NTP slews a clock by at most 500 ppm
     arrival_sigma_s: float = 0.002  # how well the arrival bound pins a board to the fuser's clock
     prior_sigma_s: float = 1.0  # a board with no evidence at all: offset 0, this unsure
-    # live, the offsets are solved again at most this often (data time): a clock moves microseconds in that time,
-    # and solving on every message is a third of the fuser's work between a board's frame and its rovers' poses
+    # live, the offsets are solved again at most this often (data time), in the learning after a frame's poses are
+    # out: a clock moves microseconds in that time, and solving on every message was a third of the fuser's work
     solve_every_s: float = 0.1
 
 
@@ -71,32 +72,63 @@ class OffsetEstimate:
 @dataclass
 class _Pair:
     """Evidence on one pair of boards ``(lo, hi)``: the normal equations of ``y = b + v * d`` (weighted least
-    squares), ``b`` the pair's calibration disagreement in the overlap (cm), ``d = off_hi - off_lo`` (s)."""
+    squares), ``b`` the pair's calibration disagreement in the overlap (cm), ``d = off_hi - off_lo`` (s).
 
-    normal: FloatArray = field(default_factory=lambda: np.zeros((3, 3)))
-    rhs: FloatArray = field(default_factory=lambda: np.zeros(3))
+    Plain floats (the symmetric 3 x 3 as its 6 distinct entries, unknowns ``(bx, by, d)``): numpy's overhead on
+    arrays this small was most of the aligner's time."""
+
+    n00: float = 0.0
+    n01: float = 0.0
+    n02: float = 0.0
+    n11: float = 0.0
+    n12: float = 0.0
+    n22: float = 0.0
+    r0: float = 0.0
+    r1: float = 0.0
+    r2: float = 0.0
     samples: int = 0
     t_s: float = 0.0  # data time of the last update (for forgetting)
 
+    def add(self, y: tuple[float, float], v: tuple[float, float], w: tuple[float, float, float], fade: float) -> None:
+        """Fade the evidence, then add ``y`` with design ``[[1, 0, vx], [0, 1, vy]]`` and weight ``w`` (the 2 x 2
+        inverse covariance ``(xx, xy, yy)``)."""
+        (y1, y2), (vx, vy), (w11, w12, w22) = y, v, w
+        g1, g2 = w11 * vx + w12 * vy, w12 * vx + w22 * vy  # the design's third column times w
+        self.n00 = self.n00 * fade + w11
+        self.n01 = self.n01 * fade + w12
+        self.n02 = self.n02 * fade + g1
+        self.n11 = self.n11 * fade + w22
+        self.n12 = self.n12 * fade + g2
+        self.n22 = self.n22 * fade + g1 * vx + g2 * vy
+        self.r0 = self.r0 * fade + w11 * y1 + w12 * y2
+        self.r1 = self.r1 * fade + w12 * y1 + w22 * y2
+        self.r2 = self.r2 * fade + g1 * y1 + g2 * y2
+
     def estimate(self, seam_sigma_cm: float) -> tuple[float, float] | None:
         """``(d, variance of d)``, with the prior that the calibrations agree to ``seam_sigma_cm``; None when the
-        data cannot tell a time offset from a seam (every rover crossed it one way at one speed)."""
-        prior = np.diag([1.0 / seam_sigma_cm**2, 1.0 / seam_sigma_cm**2, 0.0])
-        try:
-            cov = np.linalg.inv(self.normal + prior)
-        except np.linalg.LinAlgError:
+        data cannot tell a time offset from a seam (every rover crossed it one way at one speed).
+
+        ``d`` is eliminated last: with ``A`` the seam's block (prior added) and ``n`` its coupling to ``d``, the
+        variance of ``d`` is ``1 / (n22 - n^T A^-1 n)`` (the Schur complement)."""
+        prior = 1.0 / seam_sigma_cm**2
+        a, b, c = self.n00 + prior, self.n01, self.n11 + prior
+        det = a * c - b * b
+        if not det > 0.0:
             return None
-        var = float(cov[2, 2])
-        if not math.isfinite(var) or var <= 0.0:
+        # A^-1 n and A^-1 r[:2]
+        p0, p1 = (c * self.n02 - b * self.n12) / det, (a * self.n12 - b * self.n02) / det
+        schur = self.n22 - (self.n02 * p0 + self.n12 * p1)
+        if not (math.isfinite(schur) and schur > 0.0):
             return None
-        return float((cov @ self.rhs)[2]), var
+        return (self.r2 - (p0 * self.r0 + p1 * self.r1)) / schur, 1.0 / schur
 
 
-@dataclass
+@dataclass(slots=True)
 class _Sample:
     t_local_s: float
-    xy_cm: FloatArray
-    var_cm2: FloatArray  # (2, 2)
+    x: float
+    y: float
+    var: tuple[float, float, float]  # (xx, xy, yy) cm^2
 
 
 @dataclass
@@ -148,16 +180,20 @@ class ClockAligner:
         other board's samples of the rover that fall inside that interval are compared with it, interpolated."""
         self._board(d.edge_id)
         s = self.settings
+        if self._dirty and self._data_s - self._solved_s >= s.solve_every_s:
+            self.solve()  # here, in the learning, not in offset_s: live that is between a frame and its poses
         fixed = self.interpolate_with
         # held for the whole frame
         offsets = {b: fixed.get(b, 0.0) if fixed is not None else self.offset_s(b) for b in self._boards}
         for r in d.rovers:
-            xx, xy, yy = r.cov_cm2
-            sample = _Sample(d.t_capture_s, np.array(r.xy_cm), np.array([[xx, xy], [xy, yy]]))
+            sample = _Sample(d.t_capture_s, r.xy_cm[0], r.xy_cm[1], r.cov_cm2)
             by_board = self._tracks.setdefault(r.rover_id, {})
             track = by_board.setdefault(d.edge_id, deque())
             key = (r.rover_id, d.edge_id)
-            due = sample.t_local_s - self._compared.get(key, -math.inf) >= s.compare_every_s
+            last = self._compared.get(key)
+            if last is None:  # each rover's comparisons at its own phase: not every rover's in one frame
+                last = self._compared[key] = sample.t_local_s - s.compare_every_s * _phase(key)
+            due = sample.t_local_s - last >= s.compare_every_s
             if due and track and 0.0 < sample.t_local_s - track[-1].t_local_s <= s.max_gap_s:
                 self._compared[key] = sample.t_local_s
                 for board, other in by_board.items():
@@ -200,24 +236,37 @@ class ClockAligner:
             return
         sign = 1.0 if a < b else -1.0
         key = (a, b) if a < b else (b, a)
+        used = sign * (off_b - off_a)
         for sample in others:
             tau = sample.t_local_s - off_a + off_b  # board b's clock at the instant of a's sample, as estimated
             if not p0.t_local_s < tau <= p1.t_local_s:
                 continue
             f = (tau - p0.t_local_s) / dt
-            e = sample.xy_cm - (p0.xy_cm + f * (p1.xy_cm - p0.xy_cm))
-            if float(np.hypot(*e)) > s.max_residual_cm:
+            ex = sample.x - (p0.x + f * (p1.x - p0.x))
+            ey = sample.y - (p0.y + f * (p1.y - p0.y))
+            if math.hypot(ex, ey) > s.max_residual_cm:
                 continue  # an association mistake, not a clock
-            var = sample.var_cm2 + (1 - f) ** 2 * p0.var_cm2 + f * f * p1.var_cm2
-            y = sign * e + v * (sign * (off_b - off_a))  # = seam + v * d, in the pair's orientation
-            self._add_pair(key, y, v, np.asarray(np.linalg.inv(var), dtype=np.float64), sample.t_local_s)
+            g, h = (1 - f) ** 2, f * f
+            xx = sample.var[0] + g * p0.var[0] + h * p1.var[0]
+            xy = sample.var[1] + g * p0.var[1] + h * p1.var[1]
+            yy = sample.var[2] + g * p0.var[2] + h * p1.var[2]
+            det = xx * yy - xy * xy
+            if not det > 0.0:
+                continue
+            y = (sign * ex + v[0] * used, sign * ey + v[1] * used)  # = seam + v * d, in the pair's orientation
+            self._add_pair(key, y, v, (yy / det, -xy / det, xx / det), sample.t_local_s)
 
-    def _add_pair(self, key: tuple[str, str], y: FloatArray, v: FloatArray, w: FloatArray, t_s: float) -> None:
+    def _add_pair(
+        self,
+        key: tuple[str, str],
+        y: tuple[float, float],
+        v: tuple[float, float],
+        w: tuple[float, float, float],
+        t_s: float,
+    ) -> None:
         pair = self._pairs.setdefault(key, _Pair())
         fade = math.exp(-max(0.0, t_s - pair.t_s) / self.settings.memory_s) if pair.samples else 1.0
-        design = np.array([[1.0, 0.0, v[0]], [0.0, 1.0, v[1]]])
-        pair.normal = pair.normal * fade + design.T @ w @ design
-        pair.rhs = pair.rhs * fade + design.T @ w @ y
+        pair.add(y, v, w, fade)
         pair.samples += 1
         pair.t_s = max(pair.t_s, t_s)
         self._data_s = max(self._data_s, t_s)
@@ -225,11 +274,9 @@ class ClockAligner:
 
     # -- estimates --------------------------------------------------------------------------------------------------
     def offset_s(self, edge_id: str) -> float:
-        """The current estimate of the board's offset (0 for a board never seen), solved again when
-        ``solve_every_s`` of new evidence is in; never below the board's arrival bound as it is now."""
-        if self._dirty and (
-            self._data_s - self._solved_s >= self.settings.solve_every_s or edge_id not in self._estimates
-        ):
+        """The board's offset as last solved (0 for a board never seen; a new board's solved at once), never below
+        its arrival bound as it is now. :meth:`observe` solves again when ``solve_every_s`` of new evidence is in."""
+        if self._dirty and edge_id not in self._estimates:
             self.solve()
         est = self._estimates.get(edge_id)
         offset = est.offset_s if est is not None else 0.0
@@ -332,21 +379,25 @@ def _at_least_the_arrival_bound(
     return offsets
 
 
-def _velocity(samples: list[_Sample]) -> FloatArray | None:
-    """(2,) cm/s: the least-squares slope of a track's positions over time; None with fewer than 4 samples.
-    (Plain floats: numpy's overhead on half a dozen samples was a fifth of the fuser's time.)"""
+def _phase(key: tuple[str, str]) -> float:
+    """A fixed fraction in [0, 1) for a (rover, board): the same in every run (a str's hash() is not)."""
+    return (zlib.crc32("/".join(key).encode()) & 0xFFFF) / 65536.0
+
+
+def _velocity(samples: list[_Sample]) -> tuple[float, float] | None:
+    """cm/s: the least-squares slope of a track's positions over time; None with fewer than 4 samples."""
     n = len(samples)
     if n < 4:
         return None
     t_mean = sum(q.t_local_s for q in samples) / n
-    x_mean = sum(float(q.xy_cm[0]) for q in samples) / n
-    y_mean = sum(float(q.xy_cm[1]) for q in samples) / n
+    x_mean = sum(q.x for q in samples) / n
+    y_mean = sum(q.y for q in samples) / n
     denom = sx = sy = 0.0
     for q in samples:
         dt = q.t_local_s - t_mean
         denom += dt * dt
-        sx += dt * (float(q.xy_cm[0]) - x_mean)
-        sy += dt * (float(q.xy_cm[1]) - y_mean)
+        sx += dt * (q.x - x_mean)
+        sy += dt * (q.y - y_mean)
     if denom <= 0.0:
         return None
-    return np.array([sx / denom, sy / denom])
+    return sx / denom, sy / denom

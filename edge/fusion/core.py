@@ -40,7 +40,7 @@ import math
 import statistics
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -107,8 +107,7 @@ class FusedPose:
     boards: tuple[str, ...]
 
 
-@dataclass(frozen=True)
-class _Measurement:
+class _Measurement(NamedTuple):  # immutable like a frozen dataclass, built in a third of its time
     t_s: float  # reference clock
     x: float
     y: float
@@ -120,13 +119,14 @@ class _Measurement:
 
 @dataclass
 class _Track:
-    """One rover: its filter (at ``t_s``), the last ``replay_s`` of measurements and the state before them."""
+    """One rover: its filter (at ``t_s``), the last ``replay_s`` of measurements, each with the filter's state and
+    time after it (a snapshot: no second filter re-stepped behind), and the state before them (``checkpoint``)."""
 
     filter: CvState
     t_s: float
-    checkpoint: CvState
+    checkpoint: tuple[float, ...]  # CvState.snapshot()
     checkpoint_t_s: float
-    log: deque[_Measurement] = field(default_factory=deque)
+    log: deque[tuple[_Measurement, tuple[float, ...], float]] = field(default_factory=deque)
     last_tick: int = -1
     # the last published (t, x, y) and the velocity it moved along: corrections are spread from it
     shown: tuple[float, float, float, float, float] | None = None
@@ -206,7 +206,7 @@ class Fuser:
         self.boards: dict[str, BoardState] = {}
         self.tracks: dict[str, _Track] = {}
         self._latest_s = -math.inf
-        self._unlearned: list[Detections] = []
+        self.unlearned: list[Detections] = []  # fused, not yet given to the clock aligner
 
     # -- input ------------------------------------------------------------------------------------------------------
     def add(self, d: Detections, now_s: float | None = None, learn: bool = True) -> list[FusedPose]:
@@ -229,7 +229,7 @@ class Fuser:
             board.stale += 1
             return []
         if self.learn_offsets:
-            self._unlearned.append(d)
+            self.unlearned.append(d)
         board.frames += 1
         board.last_capture_s = t_ref if board.last_capture_s is None else max(board.last_capture_s, t_ref)
         board.rovers = {r.rover_id for r in d.rovers}
@@ -245,9 +245,9 @@ class Fuser:
 
     def learn_pending(self) -> None:
         """Give the clock aligner the frames fused since it last learned."""
-        for d in self._unlearned:
+        for d in self.unlearned:
             self.aligner.observe(d)
-        self._unlearned.clear()
+        self.unlearned.clear()
 
     def board_offline(self, edge_id: str) -> None:
         """The board's retained status says it is offline (its last will): its view is reported missing at once."""
@@ -304,8 +304,7 @@ class Fuser:
 
     def _start(self, rover_id: str, m: _Measurement) -> _Track:
         f = CvState.start(m.x, m.y, m.rxx, m.rxy, m.ryy, self.settings.initial_speed_sigma_cm_s)
-        track = _Track(filter=f, t_s=m.t_s, checkpoint=f.copy(), checkpoint_t_s=m.t_s, born_s=m.t_s)
-        track.log.append(m)
+        track = _Track(filter=f, t_s=m.t_s, checkpoint=f.snapshot(), checkpoint_t_s=m.t_s, born_s=m.t_s)
         old = self.tracks.get(rover_id)
         if old is not None:
             track.last_tick = old.last_tick
@@ -335,28 +334,27 @@ class Fuser:
     def _apply(self, track: _Track, m: _Measurement) -> None:
         s = self.settings
         late = track.t_s - m.t_s
+        f = track.filter
         if late <= 0.0:
-            self._step(track.filter, track.t_s, m)
+            self._step(f, track.t_s, m)
             track.t_s = m.t_s
-            track.log.append(m)
+            track.log.append((m, f.snapshot(), m.t_s))
         elif late <= s.late_direct_s:  # another board's frame of the same period: brought forward, no replay
-            f = track.filter
             grow = (f.puu + f.pvv) / 2.0 * late * late
             f.update(m.x + f.vx * late, m.y + f.vy * late, m.rxx + grow, m.rxy, m.ryy + grow, s.fade_nis)
-            track.log.append(m)
-        else:  # late: put it in its place and filter the kept measurements again
-            entries = sorted([*track.log, m], key=lambda e: e.t_s)
-            track.log = deque(entries)
-            f, t = track.checkpoint.copy(), track.checkpoint_t_s
+            track.log.append((m, f.snapshot(), track.t_s))
+        else:  # late: put it in its place and filter the kept measurements again from the state before them
+            entries = sorted([*(e for e, _, _ in track.log), m], key=lambda e: e.t_s)
+            f, t, track.log = CvState.restore(track.checkpoint), track.checkpoint_t_s, deque()
             for e in entries:
                 self._step(f, t, e)
                 t = max(t, e.t_s)
+                track.log.append((e, f.snapshot(), t))
             track.filter, track.t_s = f, t
+        # what leaves the replay window is in the state after it (kept in order: the log is the order applied)
         horizon = track.t_s - s.replay_s
-        while len(track.log) > 1 and track.log[0].t_s < horizon:
-            e = track.log.popleft()
-            self._step(track.checkpoint, track.checkpoint_t_s, e)
-            track.checkpoint_t_s = max(track.checkpoint_t_s, e.t_s)
+        while len(track.log) > 1 and track.log[0][0].t_s < horizon:
+            _, track.checkpoint, track.checkpoint_t_s = track.log.popleft()
 
     def _step(self, f: CvState, t_s: float, m: _Measurement) -> None:
         """Predict ``f`` from ``t_s`` to the measurement's time (if later) and fuse it."""

@@ -7,13 +7,14 @@ it holds the lease (:mod:`edge.fusion.lease`), publishes the canonical ``ips/v1/
 A standby fuses too, so its filters are warm when it takes over.
 
 Threads: paho's network thread receives and fuses each detections message and publishes the poses it gives at once
-(the shortest path from a board's grab to a rover); the ``lease`` thread sends beats and claims and the status. The
-fuser's state is shared under one lock.
+(the shortest path from a board's grab to a rover), the clocks learning from the frames when no other message waits;
+the ``lease`` thread sends beats and claims and the status. The fuser's state is shared under one lock.
 """
 
 from __future__ import annotations
 
 import logging
+import select
 import threading
 import time
 from collections.abc import Callable
@@ -40,6 +41,7 @@ if TYPE_CHECKING:
 log = logging.getLogger("edge.fusion")
 
 STATUS_QOS = 1
+MAX_UNLEARNED = 16  # fused frames the clock learning may lag behind while messages keep arriving
 EDGE_STATUS_WILDCARD = edge_status_topic("+")
 
 
@@ -179,6 +181,7 @@ class FuserService:
                 log.warning(
                     "fuser %s: refused a message on %s (%d so far): %s", self.fuser_id, topic, self.stats.invalid, exc
                 )
+        self._learn()
 
     def _fuse(self, payload: bytes) -> None:
         d = from_message(parse_detections(payload))
@@ -198,7 +201,27 @@ class FuserService:
                         self.on_pose(pose, line)
                 else:
                     self.stats.poses_withheld += 1
-            self.fuser.learn_pending()  # the clocks' evidence, once the poses are on their way
+
+    def _learn(self) -> None:
+        """The clocks' evidence, after the poses are queued and not while another message waits: four boards'
+        frames of one instant arrive together, and the last one's poses would wait for the others' learning (paho
+        sends them when the callback returns)."""
+        if self.fuser.unlearned and (len(self.fuser.unlearned) >= MAX_UNLEARNED or not self._more_waiting()):
+            with self._lock:
+                self.fuser.learn_pending()
+
+    def _more_waiting(self) -> bool:
+        """Bytes of another message are in the socket (or the TLS layer's buffer) already."""
+        sock = self._client.socket()
+        if sock is None:
+            return False
+        pending = getattr(sock, "pending", None)
+        if pending is not None and pending() > 0:
+            return True
+        try:
+            return bool(select.select([sock], [], [], 0.0)[0])
+        except (OSError, ValueError):  # closed under us: the loop reconnects; learn now
+            return False
 
     # -- the lease and the status (own thread) ------------------------------------------------------------------
     def _lease_loop(self) -> None:

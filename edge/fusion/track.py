@@ -13,7 +13,7 @@ import math
 from dataclasses import dataclass
 
 
-@dataclass
+@dataclass(slots=True)
 class CvState:
     """State and covariance (the 10 distinct entries of the symmetric 4 x 4), cm and s."""
 
@@ -39,7 +39,19 @@ class CvState:
         return cls(x, y, pxx=rxx, pxy=rxy, pyy=ryy, puu=v, pvv=v)
 
     def copy(self) -> CvState:
-        return CvState(**self.__dict__)
+        return CvState.restore(self.snapshot())
+
+    def snapshot(self) -> tuple[float, ...]:
+        """The state as an immutable tuple (cheap to keep after every update; :meth:`restore` makes it a filter)."""
+        return (
+            self.x, self.y, self.vx, self.vy, self.pxx, self.pxy, self.pyy, self.pxu, self.pxv, self.pyu, self.pyv,
+            self.puu, self.puv, self.pvv, self.updates,
+        )  # fmt: skip
+
+    @classmethod
+    def restore(cls, snapshot: tuple[float, ...]) -> CvState:
+        x, y, vx, vy, pxx, pxy, pyy, pxu, pxv, pyu, pyv, puu, puv, pvv, updates = snapshot
+        return cls(x, y, vx, vy, pxx, pxy, pyy, pxu, pxv, pyu, pyv, puu, puv, pvv, int(updates))
 
     @property
     def velocity(self) -> tuple[float, float] | None:
@@ -75,42 +87,36 @@ class CvState:
 
     def update(self, zx: float, zy: float, rxx: float, rxy: float, ryy: float, fade_nis: float) -> None:
         nx, ny = zx - self.x, zy - self.y
-        a, b, d = self.pxx + rxx, self.pxy + rxy, self.pyy + ryy
+        pxx, pxy, pyy, pxu, pxv = self.pxx, self.pxy, self.pyy, self.pxu, self.pxv
+        pyu, pyv, puu, puv, pvv = self.pyu, self.pyv, self.puu, self.puv, self.pvv
+        a, b, d = pxx + rxx, pxy + rxy, pyy + ryy
         det = a * d - b * b
         nis = (d * nx * nx - 2.0 * b * nx * ny + a * ny * ny) / det
         if nis > fade_nis:  # a manoeuvre: trust the prediction less for this step, follow at once
             f = min(nis / fade_nis, 100.0)
-            for name in ("pxx", "pxy", "pyy", "pxu", "pxv", "pyu", "pyv", "puu", "puv", "pvv"):
-                setattr(self, name, getattr(self, name) * f)
-            a, b, d = self.pxx + rxx, self.pxy + rxy, self.pyy + ryy
+            pxx, pxy, pyy, pxu, pxv = pxx * f, pxy * f, pyy * f, pxu * f, pxv * f
+            pyu, pyv, puu, puv, pvv = pyu * f, pyv * f, puu * f, puv * f, pvv * f
+            a, b, d = pxx + rxx, pxy + rxy, pyy + ryy
             det = a * d - b * b
         ia, ib, id_ = d / det, -b / det, a / det  # S^-1
-        # K = P[:, (x, y)] S^-1, one row per state component
-        rows = (
-            (self.pxx, self.pxy),
-            (self.pxy, self.pyy),
-            (self.pxu, self.pyu),
-            (self.pxv, self.pyv),
-        )
-        k = [(c1 * ia + c2 * ib, c1 * ib + c2 * id_) for c1, c2 in rows]
-        self.x += k[0][0] * nx + k[0][1] * ny
-        self.y += k[1][0] * nx + k[1][1] * ny
-        self.vx += k[2][0] * nx + k[2][1] * ny
-        self.vy += k[3][0] * nx + k[3][1] * ny
+        # K = P[:, (x, y)] S^-1, one row per state component (x, y, vx, vy)
+        k0x, k0y = pxx * ia + pxy * ib, pxx * ib + pxy * id_
+        k1x, k1y = pxy * ia + pyy * ib, pxy * ib + pyy * id_
+        k2x, k2y = pxu * ia + pyu * ib, pxu * ib + pyu * id_
+        k3x, k3y = pxv * ia + pyv * ib, pxv * ib + pyv * id_
+        self.x += k0x * nx + k0y * ny
+        self.y += k1x * nx + k1y * ny
+        self.vx += k2x * nx + k2y * ny
+        self.vy += k3x * nx + k3y * ny
         # P -= K P[(x, y), :]: entry (i, j) loses K_i1 P_xj + K_i2 P_yj
-        (cx0, cy0), (cx1, cy1), (cx2, cy2), (cx3, cy3) = rows
-
-        def drop(i: int, cxj: float, cyj: float) -> float:
-            return k[i][0] * cxj + k[i][1] * cyj
-
-        self.pxx -= drop(0, cx0, cy0)
-        self.pxy -= drop(0, cx1, cy1)
-        self.pyy -= drop(1, cx1, cy1)
-        self.pxu -= drop(0, cx2, cy2)
-        self.pxv -= drop(0, cx3, cy3)
-        self.pyu -= drop(1, cx2, cy2)
-        self.pyv -= drop(1, cx3, cy3)
-        self.puu -= drop(2, cx2, cy2)
-        self.puv -= drop(2, cx3, cy3)
-        self.pvv -= drop(3, cx3, cy3)
+        self.pxx = pxx - (k0x * pxx + k0y * pxy)
+        self.pxy = pxy - (k0x * pxy + k0y * pyy)
+        self.pyy = pyy - (k1x * pxy + k1y * pyy)
+        self.pxu = pxu - (k0x * pxu + k0y * pyu)
+        self.pxv = pxv - (k0x * pxv + k0y * pyv)
+        self.pyu = pyu - (k1x * pxu + k1y * pyu)
+        self.pyv = pyv - (k1x * pxv + k1y * pyv)
+        self.puu = puu - (k2x * pxu + k2y * pyu)
+        self.puv = puv - (k2x * pxv + k2y * pyv)
+        self.pvv = pvv - (k3x * pxv + k3y * pyv)
         self.updates += 1
