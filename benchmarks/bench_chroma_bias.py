@@ -1,7 +1,7 @@
 """Where the colour-dependent bias of the marker centre comes from: single frames of one marker at known poses,
 rendered through the simulator's camera with one JPEG chroma sampling and quality at a time.
 
-    python benchmarks/bench_chroma_bias.py [--poses N] [--seed S] [--palette default|eight]
+    python benchmarks/bench_chroma_bias.py [--poses N] [--seed S] [--palette default|eight] [--centre linear|encoded]
 
 The centre is the tracker's default one (``edge.coverage.coverage_weights``: the linear-light coverage, its area
 centroid on the plane by ``world_blob``); the marker's interior mask is the truth's (the pixels whose centre lies
@@ -11,6 +11,16 @@ on the marker), so only the sub-pixel edge is measured. Each row: one chroma sam
 worst per-colour mean |(x, y)| (the bias bar: 0.05 cm). ``none`` is the uncompressed frame; ``q100`` JPEG with
 the least quantisation (the chroma subsampling alone); lower qualities add the quantisation of the chroma.
 No noise, no motion, no automatic exposure: the bias, not the scatter.
+
+``--centre encoded`` measures two centres that were tried and not adopted (``docs/benchmarks.md``, "Shares in
+the camera's values plus an optics correction"). *encoded*: shares by one affine map of the decoded 8-bit B'G'R'
+(which a chroma spread that keeps the chroma's sum leaves in place), over a 4-pixel ring, the surround's levels
+from a band 4-7 pixels out; besides its error, how far it moves from the same pose's uncompressed frame (the
+stream's own part) and the ceiling of any optics correction (the uncompressed frame's optics offset, encoded minus
+linear centre, taken off exactly). *optics*: the encoded shares plus a per-pixel optics correction from a model
+of the marker's rectangle (its size known, placed at the centre found, two rounds) blurred by the *true* blur and
+the pixel's aperture in linear light, each pixel's surround level solved from its full-resolution luma (BT.601,
+which the chroma spread does not touch), the model's encoded share taken off and its linear coverage put in.
 """
 
 from __future__ import annotations
@@ -23,6 +33,7 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 if importlib.util.find_spec("edge") is None:  # run from a checkout without the package installed
@@ -30,6 +41,7 @@ if importlib.util.find_spec("edge") is None:  # run from a checkout without the 
 
 from edge.camera import paper_camera
 from edge.coverage import coverage_weights
+from edge.segmentation import LINEAR, dilate, erode
 from edge.sim.effects import Compression, Effects, Optics
 from edge.sim.render import Renderer
 from edge.sim.scene import BLUE_BGR, EIGHT_HUES, GREEN_BGR, RED_BGR, RoverLook, Scene, marker_albedo_for_hue
@@ -61,8 +73,107 @@ def palette(name: str) -> dict[str, tuple[float, float, float]]:
     return {hue_name: marker_albedo_for_hue(hue) for hue_name, hue in EIGHT_HUES}
 
 
-def centre_error_cm(image: np.ndarray, pose: tuple[float, float, float], grid: PlaneGrid) -> tuple[float, float]:
-    """(x, y) error of the coverage centroid of the marker at ``pose`` in ``image``."""
+ENCODED_RING_PX = 4
+ENCODED_BAND_PX = (4, 7)
+
+
+LUMA_BGR = np.array([0.114, 0.587, 0.299])  # BT.601, the luma JPEG and FFmpeg decode to
+_ERF = np.vectorize(math.erf)
+
+
+def encoded_affine(values: np.ndarray, core: np.ndarray) -> tuple[np.ndarray, float]:
+    """The affine map ``share = values @ row + offset`` of the decoded B'G'R' (no tone curve undone): 1 at the
+    core's mean, 0 at the darker and brighter halves of the band ``ENCODED_BAND_PX`` out (beyond the chroma's
+    spread)."""
+    band = dilate(core, ENCODED_BAND_PX[1]) & ~dilate(core, ENCODED_BAND_PX[0])
+    brightness = values.sum(axis=2)
+    cut = float(np.median(brightness[band]))
+    marker = values[erode(core, 1)].mean(axis=0)
+    dark = values[band & (brightness <= cut)].mean(axis=0)
+    bright = values[band & (brightness >= cut)].mean(axis=0)
+    a_vec, b_vec = marker - dark, bright - dark
+    aa, ab = float(a_vec @ a_vec), float(a_vec @ b_vec)
+    bb = float(b_vec @ b_vec) + 1e-3 * aa
+    row = (a_vec * bb - b_vec * ab) / (aa * bb - ab * ab)
+    return row, -float(dark @ row)
+
+
+def encoded_shares(bgr: np.ndarray, core: np.ndarray) -> np.ndarray:
+    """(h, w) float32 marker share by :func:`encoded_affine`, unclipped, over the core and a ``ENCODED_RING_PX``
+    ring (the interior too: a sum-keeping spread moves share out of it as much as into the ring)."""
+    values = bgr.astype(np.float32)
+    row, offset = encoded_affine(values, core)
+    affine = np.array([[*row, offset]], np.float32)
+    return np.where(dilate(core, ENCODED_RING_PX), cv2.transform(values, affine), 0.0).astype(np.float32)
+
+
+def srgb_encode(linear: np.ndarray) -> np.ndarray:
+    """Linear light (0..1) -> 8-bit values through the sRGB curve (the inverse of the tracker's ``LINEAR``)."""
+    v = np.clip(linear, 0.0, 1.0)
+    return 255.0 * np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.power(v, 1 / 2.4) - 0.055)
+
+
+def model_coverage(
+    shape: tuple[int, int], offset: tuple[int, int], centre_cm: tuple[float, float], theta: float, sigma_px: float
+) -> np.ndarray:
+    """(h, w) linear coverage of each pixel by the marker's rectangle at ``centre_cm`` (on the plane 13 cm up),
+    blurred by a Gaussian of ``sigma_px`` (by the distance to the nearest side: corners are approximate)."""
+    c, s = math.cos(theta), math.sin(theta)
+    half = (MARKER_CM[0] / 2, MARKER_CM[1] / 2)
+    corners = [(a * half[0], b * half[1]) for a, b in ((1, 1), (-1, 1), (-1, -1), (1, -1))]
+    world = np.array([[centre_cm[0] + c * a - s * b, centre_cm[1] + s * a + c * b, 13.0] for a, b in corners])
+    quad = paper_camera().project(world)
+    vv, uu = np.mgrid[0 : shape[0], 0 : shape[1]]
+    u, v = uu + offset[0], vv + offset[1]
+    middle = quad.mean(axis=0)
+    outside = np.full(shape, -np.inf)
+    for k in range(4):
+        p0, p1 = quad[k], quad[(k + 1) % 4]
+        normal = np.array([p1[1] - p0[1], p0[0] - p1[0]]) / math.hypot(*(p1 - p0))
+        if (middle - p0) @ normal > 0:
+            normal = -normal
+        outside = np.maximum(outside, (u - p0[0]) * normal[0] + (v - p0[1]) * normal[1])
+    return 0.5 * (1.0 - _ERF(outside / (sigma_px * math.sqrt(2.0))))
+
+
+def optics_weights(
+    bgr: np.ndarray, core: np.ndarray, offset: tuple[int, int], grid: PlaneGrid, theta: float, blur_px: float
+) -> np.ndarray:
+    """Encoded shares plus the optics correction (module docstring), after two rounds of placing the model."""
+    values = bgr.astype(np.float64)
+    row, shift = encoded_affine(values.astype(np.float32), core)
+    region = dilate(core, ENCODED_RING_PX)
+    observed = np.where(region, values @ row + shift, 0.0)
+    linear = LINEAR[bgr].astype(np.float64)
+    marker = linear[erode(core, 1)].mean(axis=0)
+    band = dilate(core, ENCODED_BAND_PX[1]) & ~dilate(core, ENCODED_BAND_PX[0])
+    tint = linear[band].mean(axis=0)
+    tint /= tint @ LUMA_BGR
+    luma = values @ LUMA_BGR
+    sigma_px = math.sqrt(blur_px**2 + 1.0 / 12.0)  # the lens's blur and the pixel's own aperture
+    weights = observed.astype(np.float32)
+    for _ in range(2):
+        blob = world_blob(weights, offset, grid)
+        assert blob is not None
+        cover = model_coverage(core.shape, offset, (blob.x_cm, blob.y_cm), theta, sigma_px)
+        mixed_marker = cover[..., None] * marker
+        lo, hi = np.zeros(core.shape), np.full(core.shape, 2.0)
+        for _ in range(24):  # the surround's level that gives the pixel's luma, by bisection
+            mid = 0.5 * (lo + hi)
+            below = srgb_encode(mixed_marker + (1 - cover)[..., None] * mid[..., None] * tint) @ LUMA_BGR < luma
+            lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+        surround = 0.5 * (lo + hi)[..., None] * tint
+        model = srgb_encode(mixed_marker + (1 - cover)[..., None] * surround) @ row + shift
+        model -= (1 - cover) * (srgb_encode(surround) @ row + shift)  # the surround alone counts 0
+        weights = np.where(region, observed + cover - model, 0.0).astype(np.float32)
+    return weights
+
+
+def centre_errors_cm(
+    image: np.ndarray, pose: tuple[float, float, float], grid: PlaneGrid, blur_px: float | None
+) -> tuple[tuple[float, float], ...]:
+    """(x, y) error of the default centre of the marker at ``pose`` in ``image``; with ``blur_px`` (the true blur)
+    also of the encoded-share centre and of that centre with the optics correction."""
     x, y, th = pose
     uv = paper_camera().project(np.array([[x, y, 13.0]]))[0]
     local = grid.at(*uv)
@@ -75,10 +186,23 @@ def centre_error_cm(image: np.ndarray, pose: tuple[float, float, float], grid: P
     along = (xs - x) * math.cos(th) + (ys - y) * math.sin(th)
     across = (ys - y) * math.cos(th) - (xs - x) * math.sin(th)
     core = (np.abs(along) < MARKER_CM[0] / 2) & (np.abs(across) < MARKER_CM[1] / 2)
-    weights = coverage_weights(np.ascontiguousarray(image[y0:y1, x0:x1]), core, 2, pure=core)
-    blob = world_blob(weights, (x0, y0), grid)
-    assert blob is not None
-    return blob.x_cm - x, blob.y_cm - y
+    roi = np.ascontiguousarray(image[y0:y1, x0:x1])
+    shares = [coverage_weights(roi, core, 2, pure=core)]
+    if blur_px is not None:
+        shares += [encoded_shares(roi, core), optics_weights(roi, core, (x0, y0), grid, th, blur_px)]
+    errors = []
+    for weights in shares:
+        blob = world_blob(weights, (x0, y0), grid)
+        assert blob is not None
+        errors.append((blob.x_cm - x, blob.y_cm - y))
+    return tuple(errors)
+
+
+def worst_colour(errors: np.ndarray, colour_of: list[str]) -> tuple[float, str]:
+    """The largest per-colour mean |(x, y)| of (N, 2) ``errors`` and its colour."""
+    means = {c: errors[[k == c for k in colour_of]].mean(axis=0) for c in dict.fromkeys(colour_of)}
+    worst = max(means, key=lambda c: float(np.hypot(*means[c])))
+    return float(np.hypot(*means[worst])), worst
 
 
 def main() -> None:
@@ -86,6 +210,7 @@ def main() -> None:
     parser.add_argument("--poses", type=int, default=4, help="random poses per body, blur and colour")
     parser.add_argument("--seed", type=int, default=2000)
     parser.add_argument("--palette", choices=("default", "eight"), default="default")
+    parser.add_argument("--centre", choices=("linear", "encoded"), default="linear")
     args = parser.parse_args()
     grid = PlaneGrid(CameraPlaneMapping(paper_camera()), (1280, 720))
     colours = palette(args.palette)
@@ -94,15 +219,29 @@ def main() -> None:
         (float(rng.uniform(40, 380)), float(rng.uniform(60, 520)), float(rng.uniform(-math.pi, math.pi)))
         for _ in range(args.poses)
     ]
+    encoded = args.centre == "encoded"
     print(f"# edge-ips chroma bias on static poses, {time.strftime('%Y-%m-%d %H:%M')}\n")
     print(f"{args.poses} poses (seed {args.seed}) x bodies {', '.join(BODIES)} x blur {BLURS_PX} px x {args.palette}")
-    print("palette; exact interior mask; the default centre (linear-light coverage centroid).\n")
-    print(
-        "| stream | bias x, y cm (all) | mean error cm | worst colour bias cm | black body bias y | white body bias y |"
-    )
-    print("|---|---|---|---|---|---|")
+    if encoded:
+        print("palette; exact interior mask; the encoded-share centre and it with the optics correction (true blur).\n")
+        print(
+            "| stream | centre | bias x, y cm (all) | mean error cm | worst colour bias cm | bias y: black, dark "
+            "grey, white | moved from uncompressed: mean y, worst colour, max cm | ceiling: worst colour bias, mean "
+            "error cm |"
+        )
+        print("|---|---|---|---|---|---|---|---|")
+    else:
+        print("palette; exact interior mask; the default centre (linear-light coverage centroid).\n")
+        print(
+            "| stream | bias x, y cm (all) | mean error cm | worst colour bias cm | black body bias y "
+            "| white body bias y |"
+        )
+        print("|---|---|---|---|---|---|")
+    uncompressed: np.ndarray | None = None
     for chroma, quality in STREAMS:
-        errors: dict[tuple[str, str], list[tuple[float, float]]] = {}
+        body_of: list[str] = []
+        colour_of: list[str] = []
+        measured: list[tuple[tuple[float, float], ...]] = []
         for body, blur, colour in itertools.product(BODIES, BLURS_PX, colours):
             look = RoverLook(
                 "r",
@@ -118,20 +257,42 @@ def main() -> None:
             renderer = Renderer(paper_camera(), Scene((look,)), effects)
             for pose in poses:
                 image = renderer.render(WorldState(0.0, (RoverState("r", *pose, 0.0, 0.0, 0.0),)), 0)
-                errors.setdefault((body, colour), []).append(centre_error_cm(image, pose, grid))
-        every = np.array([e for v in errors.values() for e in v])
-        per_colour = {
-            c: np.array([e for (_, cc), v in errors.items() if cc == c for e in v]).mean(axis=0) for c in colours
-        }
-        worst = max(per_colour, key=lambda c: float(np.hypot(*per_colour[c])))
-        by_body = {b: np.array([e for (bb, _), v in errors.items() if bb == b for e in v]).mean(axis=0) for b in BODIES}
-        bias = every.mean(axis=0)
+                measured.append(centre_errors_cm(image, pose, grid, blur if encoded else None))
+                body_of.append(body)
+                colour_of.append(colour)
+        errors = np.array(measured)  # (N, centres, 2)
+        if uncompressed is None:
+            uncompressed = errors
         name = "none" if quality is None else f"{chroma} q{quality}"
-        print(
-            f"| {name} | {bias[0]:+.3f}, {bias[1]:+.3f} | {float(np.hypot(*every.T).mean()):.3f} | "
-            f"{float(np.hypot(*per_colour[worst])):.3f} ({worst}) | {by_body['black'][1]:+.3f} | "
-            f"{by_body['white'][1]:+.3f} |"
-        )
+        centres = ("encoded", "optics") if encoded else ("linear",)
+        for k, centre in enumerate(centres, start=len(errors[0]) - len(centres)):
+            every = errors[:, k]
+            bias = every.mean(axis=0)
+            worst = worst_colour(every, colour_of)
+            by_body = {b: every[[i == b for i in body_of]].mean(axis=0)[1] for b in BODIES}
+            cells = [
+                name,
+                f"{bias[0]:+.3f}, {bias[1]:+.3f}",
+                f"{float(np.hypot(*every.T).mean()):.3f}",
+                f"{worst[0]:.3f} ({worst[1]})",
+            ]
+            if not encoded:
+                print("| " + " | ".join([*cells, f"{by_body['black']:+.3f}", f"{by_body['white']:+.3f}"]) + " |")
+                continue
+            moved = every - uncompressed[:, k]
+            moved_worst = worst_colour(moved, colour_of)
+            ceiling = "-"
+            if centre == "encoded":  # the uncompressed frame's optics offset taken off exactly
+                exact = worst_colour(uncompressed[:, 0] + moved, colour_of)
+                ceiling = f"{exact[0]:.3f} ({exact[1]}), {float(np.hypot(*(uncompressed[:, 0] + moved).T).mean()):.3f}"
+            cells.insert(1, centre)
+            cells += [
+                f"{by_body['black']:+.3f}, {by_body['dark grey']:+.3f}, {by_body['white']:+.3f}",
+                f"{moved[:, 1].mean():+.3f}, {moved_worst[0]:.3f} ({moved_worst[1]}), "
+                f"{float(np.hypot(*moved.T).max()):.2f}",
+                ceiling,
+            ]
+            print("| " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":
