@@ -120,12 +120,13 @@ def edge_axis(plane: F32, mask: BoolArray, jacobian_cm_per_px: FloatArray) -> tu
     # alike (its sign turns each by pi, nothing modulo pi/2), so the adjugate does.
     gx = d * gu - c * gv
     gy = a * gv - b * gu
-    mag2 = gx * gx + gy * gy
+    gxx, gyy = gx * gx, gy * gy
+    mag2 = gxx + gyy
     total = float(mag2.sum())
     if total <= 0.0:
         return 0.0, 0.0
     # exp(4 i alpha) * |g|^2 = (gx + i gy)^4 / |g|^2, in real arithmetic: (gx + i gy)^2 = c2 + i s2
-    c2 = gx * gx - gy * gy
+    c2 = gxx - gyy
     s2 = 2.0 * gx * gy
     inv = 1.0 / np.maximum(mag2, 1e-30)
     re = float(((c2 * c2 - s2 * s2) * inv).sum())

@@ -15,7 +15,7 @@ from typing import Protocol
 import numpy as np
 
 from edge.coverage import coverage_weights, marker_level
-from edge.segmentation import F32, BoolArray, auto_threshold, threshold
+from edge.segmentation import F32, BoolArray, auto_threshold, erode, threshold
 from edge.trackers.plane import (
     CameraPlaneMapping,
     FloatArray,
@@ -88,6 +88,21 @@ class Measurement:
     weights: F32 | None = field(default=None, compare=False, repr=False)
     outlined: bool = False
 
+    def with_axis(self, axis_rad: float) -> Measurement:
+        """This measurement with its long axis replaced (``dataclasses.replace`` costs ten times more)."""
+        return Measurement(
+            self.xy_cm,
+            self.uv_px,
+            self.area_cm2,
+            self.level,
+            self.quality,
+            axis_rad,
+            self.elongation,
+            self.at_image_edge,
+            self.weights,
+            self.outlined,
+        )
+
 
 def make_measurement(
     blob: WorldBlob, window: Window, core: BoolArray, level: float, quality: float, weights: F32 | None = None
@@ -144,9 +159,10 @@ def measure_core(
     thresholded pixels ``mask``), weighted by grey-level edge coverage (pixels of other rovers' hues left out) and
     turned into its area centroid on the world plane."""
     t0 = time.perf_counter()
-    level = marker_level(window.plane, core)
+    interior = erode(core, 1)  # for both: the marker's level and its pure colour are taken inside its edge
+    level = marker_level(window.plane, core, interior)
     exclude = window.others(rover.index)  # the pixels of ``~candidates`` of other rovers' hues
-    weights = coverage_weights(window.bgr, core, ring_px, exclude=exclude, pure=mask, linear=window.linear)
+    weights = coverage_weights(window.bgr, core, ring_px, exclude=exclude, pure=mask, interior=interior)
     t1 = time.perf_counter()
     clock.add("measure", t1 - t0)
     blob = world_blob(weights, window.offset, window.grid)

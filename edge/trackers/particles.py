@@ -67,7 +67,7 @@ class ParticleTracker:
     def _expected_px(window: Window, rover: RoverModel) -> float:
         """The marker's expected area in pixels where it is predicted."""
         pu, pv = window.predicted_uv
-        px_area = float(window.local.area_per_pixel(np.array([pu]), np.array([pv]))[0])
+        px_area = window.local.area_at(pu, pv)
         return rover.marker_area_cm2 / px_area if px_area > 0 else 0.0
 
     def _choose(

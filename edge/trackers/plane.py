@@ -84,6 +84,11 @@ class LocalPlaneMap:
     def _g_inv_floats(self) -> tuple[float, ...]:
         return tuple(float(v) for v in self.g_inv.ravel())
 
+    def area_at(self, u: float, v: float) -> float:
+        """World cm^2 covered by the pixel at ``(u, v)``: :meth:`area_per_pixel` of one pixel, in plain floats."""
+        _, _, _, _, _, _, g20, g21, g22 = self._g_floats
+        return abs(self.det) / abs(g20 * u + g21 * v + g22) ** 3
+
     def to_world(self, u: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray]:
         g = self.g
         den = g[2, 0] * u + g[2, 1] * v + g[2, 2]
