@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
 
 from edge.segmentation import F32, U8, BoolArray, dilate, erode, linear_bgr
 
@@ -108,22 +107,25 @@ def _unmix(
     cut = np.partition(lum_outer, half)[half]
     dark = _mean(lin, outer & (lum <= cut))
     bright = _mean(lin, outer & (lum >= cut))
-    a_vec, b_vec = marker - dark, bright - dark
-    aa, ab = float(a_vec @ a_vec), float(a_vec @ b_vec)
-    bb = float(b_vec @ b_vec) + 1e-3 * aa  # ridge: floor and body alike (no floor in view) is not singular
+    # Three channels: plain floats, several times quicker than arrays this small.
+    a0, a1, a2 = marker[0] - dark[0], marker[1] - dark[1], marker[2] - dark[2]
+    b0, b1, b2 = bright[0] - dark[0], bright[1] - dark[1], bright[2] - dark[2]
+    aa, ab = a0 * a0 + a1 * a1 + a2 * a2, a0 * b0 + a1 * b1 + a2 * b2
+    bb = b0 * b0 + b1 * b1 + b2 * b2 + 1e-3 * aa  # ridge: floor and body alike (no floor in view) is not singular
     det = aa * bb - ab * ab
     if aa <= 1e-6 or det <= 1e-14:
         return None
     # share = (p - D) . (a bb - b ab) / det for every pixel at once: one affine map of the three channels
-    row = (a_vec * bb - b_vec * ab) / det
-    affine = np.array([[row[0], row[1], row[2], -float(dark @ row)]], np.float32)
+    r0, r1, r2 = (a0 * bb - b0 * ab) / det, (a1 * bb - b1 * ab) / det, (a2 * bb - b2 * ab) / det
+    affine = np.array([[r0, r1, r2, -(dark[0] * r0 + dark[1] * r1 + dark[2] * r2)]], np.float32)
     share = np.clip(cv2.transform(lin, affine), -0.5, 1.0)
     # the ring (region & ~interior) unmixed, the interior whole (1.0), the rest nothing
     return np.where(region > interior, share, interior)
 
 
-def _mean(values: F32, mask: BoolArray) -> NDArray[np.float64]:
-    """(3,) mean of the masked pixels of an (h, w, 3) image."""
+def _mean(values: F32, mask: BoolArray) -> tuple[float, float, float]:
+    """The mean of the masked pixels of an (h, w, 3) image, per channel."""
     if not np.count_nonzero(mask):
-        return np.zeros(3)
-    return np.asarray(cv2.mean(values, mask=mask.view(np.uint8))[:3], dtype=np.float64)
+        return 0.0, 0.0, 0.0
+    b, g, r, _ = cv2.mean(values, mask=mask.view(np.uint8))
+    return b, g, r
