@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from edge.segmentation import F32, U8, BoolArray, dilate, erode, linear_bgr
+from edge.segmentation import F32, U8, BoolArray, erode, linear_bgr
 
 _CHANNEL_SUM = np.ones((1, 3), np.float32)
 
@@ -87,9 +87,11 @@ def _unmix(
     ``interior``: ``erode(core, 1)``, of the crop or cropped from a larger one: the crop ends at least the outer
     band's reach from the core or where the larger image ends, so the two are the same); None where the marker
     cannot be told from its surround (the binary core stands)."""
+    # The chessboard distance to the core gives both its dilations (by ring_px and by ring_px + 3) in one pass.
     # Masks of booleans: ``a > b`` is ``a & ~b`` in one pass.
-    region = dilate(core, ring_px)
-    outer = dilate(core, ring_px + 3) > region
+    dist = cv2.distanceTransform((~core).view(np.uint8), cv2.DIST_C, 3)
+    region = dist <= ring_px
+    outer = (dist <= ring_px + 3) > region
     if exclude is not None:
         region = region > (exclude > core)  # region & (~exclude | core)
         outer = outer > exclude
@@ -101,10 +103,11 @@ def _unmix(
         return None
     sample = interior & pure if pure is not None else interior
     marker = _mean(lin, sample if np.count_nonzero(sample) else interior)
-    lum = cv2.transform(lin, _CHANNEL_SUM)
+    lum = cv2.transform(lin, _CHANNEL_SUM)  # a tenth of the cost of numpy's sum over three channels
     lum_outer = lum[outer]
     half = lum_outer.size // 2
-    cut = np.partition(lum_outer, half)[half]
+    lum_outer.partition(half)  # in place: a fresh array
+    cut = lum_outer[half]
     dark = _mean(lin, outer & (lum <= cut))
     bright = _mean(lin, outer & (lum >= cut))
     # Three channels: plain floats, several times quicker than arrays this small.
@@ -118,14 +121,13 @@ def _unmix(
     # share = (p - D) . (a bb - b ab) / det for every pixel at once: one affine map of the three channels
     r0, r1, r2 = (a0 * bb - b0 * ab) / det, (a1 * bb - b1 * ab) / det, (a2 * bb - b2 * ab) / det
     affine = np.array([[r0, r1, r2, -(dark[0] * r0 + dark[1] * r1 + dark[2] * r2)]], np.float32)
-    share = np.clip(cv2.transform(lin, affine), -0.5, 1.0)
+    share = cv2.transform(lin, affine)
+    np.minimum(np.maximum(share, -0.5, out=share), 1.0, out=share)  # clipped in place (np.clip's wrapper costs more)
     # the ring (region & ~interior) unmixed, the interior whole (1.0), the rest nothing
     return np.where(region > interior, share, interior)
 
 
 def _mean(values: F32, mask: BoolArray) -> tuple[float, float, float]:
     """The mean of the masked pixels of an (h, w, 3) image, per channel."""
-    if not np.count_nonzero(mask):
-        return 0.0, 0.0, 0.0
-    b, g, r, _ = cv2.mean(values, mask=mask.view(np.uint8))
+    b, g, r, _ = cv2.mean(values, mask=mask.view(np.uint8))  # zeros for an empty mask
     return b, g, r

@@ -36,7 +36,8 @@ from edge.rover_track import Observation, RoverTrack
 from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr
 from edge.tracker_config import TrackerConfig
 from edge.trackers import make_filters, make_tracker
-from edge.trackers.base import Measurement, PlaneGrid, PlaneMapping, RoverModel, Window, WindowTracker, world_blob
+from edge.trackers.base import Measurement, RoverModel, Window, WindowTracker, measurement_covariance
+from edge.trackers.plane import PlaneGrid, PlaneMapping, world_blob
 from edge.trackers.refine import refine_axis, refine_outline
 from edge.trackers.window import prepare_window, window_box
 from edge.tracking import Frame, FrameResult, RoverEstimate, StageTimes
@@ -45,7 +46,6 @@ from edge.white import LocalWhite
 
 FloatArray = NDArray[np.float64]
 SIDEWAYS_MIN_SPEED_CM_S = 10.0  # motion that checks a two-tone marker's axis (edge.two_tone.TwoToneHeading.update)
-_FLOOR_CM2 = np.eye(2) * 1e-4  # the measurement covariance's floor (a perfectly sharp pixel is not exact)
 
 
 class Pipeline:
@@ -242,9 +242,7 @@ class Pipeline:
             if two_tone is None:
                 return None  # without a heading the centre of a two-tone marker is not known
             m = two_tone
-        # Measurement covariance: the pixel noise seen through the local scale of the plane mapping.
-        sigma = self.config.measurement_sigma_px
-        return Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + _FLOOR_CM2)
+        return Observation(m, measurement_covariance(jac, self.config.measurement_sigma_px))
 
     def _two_tone(self, window: Window, m: Measurement, tr: RoverTrack, jacobian: FloatArray) -> Measurement | None:
         """A two-tone marker (``edge.two_tone``): the heading from the coloured part's edges and the light end, and

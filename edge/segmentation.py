@@ -262,7 +262,8 @@ def auto_threshold(
     if vals.size == 0:
         return ThresholdInterval(0.0, 0.0)
     k = min(vals.size - 1, int(vals.size * percentile / 100.0))
-    k_max = float(np.partition(vals, k)[k])
+    vals.partition(k)  # in place: a fresh array
+    k_max = float(vals[k])
     return ThresholdInterval(fraction * k_max, k_max)
 
 
@@ -381,32 +382,20 @@ def label_particles(
     m8 = mask.view(np.uint8)
     if filled:
         # Without holes no particle lies inside another, so the external outlines are the particles (8-connected, as
-        # the labelling's): with one (a tracked marker's window, nearly always) it is measured from its outline and
-        # the mask alone, the same integers as below, and no labelling is needed.
+        # the labelling's): one (a tracked marker's window, nearly always) is measured from its outline and the mask
+        # alone (the same integers as the labelling's statistics, which cost five times the labelling itself).
         contours, _ = cv2.findContours(m8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         if len(contours) == 1:
-            return np.asarray(mask, np.int32), _single_particle(mask, contours[0], min_area_px)
-    # Grana's block-based labelling. Its statistics cost five times the labelling itself on a window: with one
-    # particle they are measured directly, the same integers.
-    n, labels = cv2.connectedComponentsWithAlgorithm(m8, 8, cv2.CV_32S, cv2.CCL_GRANA)
+            return np.asarray(mask, np.int32), outline_particle(mask, contours[0], min_area_px)
+    n, labels, stats, centroids = cv2.connectedComponentsWithStatsWithAlgorithm(m8, 8, cv2.CV_32S, cv2.CCL_GRANA)
     found: list[tuple[int, int, tuple[int, int, int, int], BoolArray, tuple[float, float]]] = []
-    if n == 2:
-        area = int(np.count_nonzero(mask))
-        x, y, w, h = cv2.boundingRect(m8)
-        sub = mask[y : y + h, x : x + w]
-        if area >= min_area_px:
-            moments = cv2.moments(sub.view(np.uint8), True)  # integer sums, exact in doubles as the statistics'
-            centre = ((int(moments["m10"]) + x * area) / area, (int(moments["m01"]) + y * area) / area)
-            found.append((1, area, (x, y, w, h), sub, centre))
-    elif n > 2:
-        n, labels, stats, centroids = cv2.connectedComponentsWithStatsWithAlgorithm(m8, 8, cv2.CV_32S, cv2.CCL_GRANA)
-        for i in range(1, n):
-            area = int(stats[i, cv2.CC_STAT_AREA])
-            if area < min_area_px:
-                continue
-            x, y, w, h = (int(stats[i, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, 3))
-            centre = (float(centroids[i, 0]), float(centroids[i, 1]))
-            found.append((i, area, (x, y, w, h), labels[y : y + h, x : x + w] == i, centre))
+    for i in range(1, n):
+        area = int(stats[i, cv2.CC_STAT_AREA])
+        if area < min_area_px:
+            continue
+        x, y, w, h = (int(stats[i, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, 3))
+        centre = (float(centroids[i, 0]), float(centroids[i, 1]))
+        found.append((i, area, (x, y, w, h), labels[y : y + h, x : x + w] == i, centre))
     out: list[Particle] = []
     for i, area, (x, y, w, h), sub, centre in found:
         whole = sub if filled else fill_holes(sub)
@@ -419,8 +408,26 @@ def label_particles(
     return np.asarray(labels, np.int32), out
 
 
-def _single_particle(mask: BoolArray, outline: NDArray[np.int32], min_area_px: int) -> list[Particle]:
-    """The one particle of a hole-free ``mask`` whose external ``outline`` (``cv2.findContours``) is given."""
+def single_outline(mask: BoolArray, iterations: int) -> tuple[np.ndarray, bool] | None:
+    """The outer outline of a ``mask`` that is one 8-connected particle (a tracked marker's window, nearly always)
+    and whether it has holes, from one outline pass; None when it is not one particle that survives
+    :func:`open_by_reconstruction` (whole). Then that opening is ``mask`` itself, its :func:`fill_holes` is ``mask``
+    when it has no holes, and ``outline_particle(filled, outline, ...)`` is its :func:`label_particles`.
+
+    The outlines' two-level hierarchy has one outer outline per particle (one inside another's hole too) and one per
+    hole; a particle's outer outline is its filling's."""
+    contours, hierarchy = cv2.findContours(mask.view(np.uint8), cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    if hierarchy is None:
+        return None
+    outer = [c for c, link in zip(contours, hierarchy[0].tolist(), strict=True) if link[3] < 0]
+    if len(outer) != 1 or (iterations > 0 and not np.count_nonzero(erode(mask, iterations))):
+        return None
+    return outer[0], len(contours) > 1
+
+
+def outline_particle(mask: BoolArray, outline: np.ndarray, min_area_px: int) -> list[Particle]:
+    """The one particle of a hole-free ``mask`` whose external ``outline`` (``cv2.findContours``) is given (none when
+    it has fewer than ``min_area_px`` pixels)."""
     sums = ramp(mask.shape[0]).T @ mask.view(np.uint8) @ ramp(mask.shape[1])  # integers: exact in doubles
     area = int(sums[0, 0])
     if area < min_area_px:

@@ -115,8 +115,10 @@ def edge_axis(plane: F32, mask: BoolArray, jacobian_cm_per_px: FloatArray) -> tu
         return 0.0, 0.0
     sub = plane[rows, cols]
     # both derivatives of the pixels in the mask as one (2, n) array: one gather of the mask's flat indices
-    image = np.stack([cv2.Scharr(sub, cv2.CV_32F, 1, 0), cv2.Scharr(sub, cv2.CV_32F, 0, 1)]).reshape(2, -1)
-    image = image.take(np.flatnonzero(mask[rows, cols]), axis=1)
+    image = np.empty((2, *sub.shape), np.float32)
+    cv2.Scharr(sub, cv2.CV_32F, 1, 0, dst=image[0])
+    cv2.Scharr(sub, cv2.CV_32F, 0, 1, dst=image[1])
+    image = image.reshape(2, -1).take(mask[rows, cols].ravel().nonzero()[0], axis=1)
     # Plane gradients are the inverse transpose of the Jacobian times the image's; its 1/det scales every gradient
     # alike (its sign turns each by pi, nothing modulo pi/2), so the adjugate does (in float64).
     g = np.array([[d, -c], [-b, a]]) @ image

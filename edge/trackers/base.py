@@ -44,6 +44,7 @@ __all__ = [
     "area_quality",
     "make_measurement",
     "measure_core",
+    "measurement_covariance",
     "threshold_marker",
     "world_blob",
 ]
@@ -183,6 +184,16 @@ class WindowTracker(Protocol):
     def reset(self, index: int) -> None:
         """Forget rover ``index`` (it was lost, or the pipeline starts afresh)."""
         ...
+
+
+def measurement_covariance(jacobian: FloatArray, sigma_px: float, floor_cm2: float = 1e-4) -> FloatArray:
+    """(2, 2) covariance on the plane of a measurement with ``sigma_px`` pixel noise: ``J J^T sigma^2`` through the
+    plane mapping's Jacobian there, plus ``floor_cm2`` on its diagonal (a perfectly sharp pixel is not exact); in
+    plain floats."""
+    s2 = sigma_px * sigma_px
+    (a, b), (c, d) = jacobian.tolist()
+    xy = (a * c + b * d) * s2
+    return np.array([[(a * a + b * b) * s2 + floor_cm2, xy], [xy, (c * c + d * d) * s2 + floor_cm2]])
 
 
 def area_quality(area_cm2: float, expected_cm2: float) -> float:

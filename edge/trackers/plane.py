@@ -248,12 +248,12 @@ def world_blob(weights: F32, offset_xy: tuple[int, int], grid: PlaneGrid) -> Wor
     bx, by, w, h = cv2.boundingRect((weights != 0).view(np.uint8))
     if w == 0 or h == 0:
         return None
-    weights = weights[by : by + h, bx : bx + w]
+    wt = weights[by : by + h, bx : bx + w].astype(np.float64)  # one contiguous copy: no mixed types below
     x0, y0 = offset_xy[0] + bx, offset_xy[1] + by
     rows, cols = slice(y0, y0 + h), slice(x0, x0 + w)
-    jw = (weights * grid.area_cm2[rows, cols]).ravel()  # float64; zero off the plane
+    jw = (wt * grid.area_cm2[rows, cols]).ravel()  # zero off the plane
     total = float(jw.sum())
-    (wsum, u_sum), (v_sum, _) = (ramp(h).T @ weights @ ramp(w)).tolist()  # the image centroid's sums
+    (wsum, u_sum), (v_sum, _) = (ramp(h).T @ wt @ ramp(w)).tolist()  # the image centroid's sums
     if total <= 1e-9 or wsum <= 1e-9:
         return None
     # Moments about a point inside the window keep the sums well conditioned (a blob spans a few tens of cm); each

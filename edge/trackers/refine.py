@@ -16,6 +16,7 @@ import math
 from collections.abc import Iterable, Iterator
 from dataclasses import replace
 
+import cv2
 import numpy as np
 
 from edge.outline import fit_outline, marker_signal
@@ -132,11 +133,18 @@ def marker_axis(
     rovers were turned by 20 degrees."""
     if m.weights is None or abs(size_cm[0] - size_cm[1]) < 0.05 * max(size_cm):
         return m.axis_rad
-    band = edge_band(np.asarray(m.weights >= 0.5))
+    half = m.weights >= 0.5
+    x, y, w, h = cv2.boundingRect(half.view(np.uint8))
+    if w == 0 or h == 0:
+        return m.axis_rad
+    # Everything within two pixels of the half coverage's box: the band and the derivatives round it (the same
+    # pixels and values as over the whole window)
+    crop = (slice(max(0, y - 2), y + h + 2), slice(max(0, x - 2), x + w + 2))
+    band = edge_band(half[crop])
     if usable is not None:
-        band &= usable
+        band &= usable[crop]
     for plane in planes:
-        axis4, strength = edge_axis(plane, band, jacobian)
+        axis4, strength = edge_axis(plane[crop], band, jacobian)
         if strength >= MIN_EDGE_COHERENCE:
             candidates = (axis4, axis4 + 0.5 * math.pi)
             long_axis = m.axis_rad if size_cm[0] >= size_cm[1] else m.axis_rad + 0.5 * math.pi
