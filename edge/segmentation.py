@@ -408,9 +408,9 @@ def label_particles(
     return np.asarray(labels, np.int32), out
 
 
-def single_outline(mask: BoolArray, iterations: int) -> tuple[np.ndarray, bool] | None:
-    """The outer outline of a ``mask`` that is one 8-connected particle (a tracked marker's window, nearly always)
-    and whether it has holes, from one outline pass; None when it is not one particle that survives
+def single_outline(mask: BoolArray, iterations: int) -> tuple[np.ndarray, bool, BoolArray] | None:
+    """The outer outline of a ``mask`` that is one 8-connected particle (a tracked marker's window, nearly always),
+    whether it has holes and its erosion, from one outline pass; None when it is not one particle that survives
     :func:`open_by_reconstruction` (whole). Then that opening is ``mask`` itself, its :func:`fill_holes` is ``mask``
     when it has no holes, and ``outline_particle(filled, outline, ...)`` is its :func:`label_particles`.
 
@@ -420,9 +420,12 @@ def single_outline(mask: BoolArray, iterations: int) -> tuple[np.ndarray, bool] 
     if hierarchy is None:
         return None
     outer = [c for c, link in zip(contours, hierarchy[0].tolist(), strict=True) if link[3] < 0]
-    if len(outer) != 1 or (iterations > 0 and not np.count_nonzero(erode(mask, iterations))):
+    if len(outer) != 1:
         return None
-    return outer[0], len(contours) > 1
+    eroded = erode(mask, iterations)
+    if iterations > 0 and not np.count_nonzero(eroded):
+        return None
+    return outer[0], len(contours) > 1, eroded
 
 
 def outline_particle(mask: BoolArray, outline: np.ndarray, min_area_px: int) -> list[Particle]:

@@ -57,7 +57,7 @@ class ParticleTracker:
         t1 = time.perf_counter()
         single = single_outline(mask, self.erosion_iterations)  # one particle (a tracked marker's, nearly always)
         if single is not None:  # the opening (P.M.O.) keeps it whole; its outline gives Table II
-            outline, holes = single
+            outline, holes, eroded = single
             t2 = time.perf_counter()
             clock.add("erosion", t2 - t1)
             filled = fill_holes(mask) if holes else mask  # A.M.O.
@@ -69,6 +69,8 @@ class ParticleTracker:
             if not chosen:
                 return None
             core = filled
+            # a mask without holes is its own core: its erosion by one is the core's interior
+            interior = eroded if not holes and self.erosion_iterations == 1 else None
         else:
             mask = open_by_reconstruction(mask, self.erosion_iterations)  # P.M.O.
             t2 = time.perf_counter()
@@ -82,7 +84,8 @@ class ParticleTracker:
             if not chosen:
                 return None
             core = np.isin(labels, [p.label for p in chosen]) if len(chosen) > 1 else labels == chosen[0].label
-        return measure_core(window, rover, core, candidates, mask, self.ring_px, clock)  # eq. 9-10 on the plane
+            interior = None
+        return measure_core(window, rover, core, candidates, mask, self.ring_px, clock, interior)  # eq. 9-10
 
     @staticmethod
     def _expected_px(window: Window, rover: RoverModel) -> float:
