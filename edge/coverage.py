@@ -124,7 +124,9 @@ def _unmix(
     share = cv2.transform(lin, affine)
     np.minimum(np.maximum(share, -0.5, out=share), 1.0, out=share)  # clipped in place (np.clip's wrapper costs more)
     # the ring (region & ~interior) unmixed, the interior whole (1.0), the rest nothing
-    return np.where(region > interior, share, interior)
+    out = interior.astype(np.float32)
+    np.copyto(out, share, where=region > interior)  # cheaper than np.where, which would promote the booleans
+    return out
 
 
 def _mean(values: F32, mask: BoolArray) -> tuple[float, float, float]:
