@@ -36,7 +36,8 @@ from edge.rover_track import Observation, RoverTrack
 from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr
 from edge.tracker_config import TrackerConfig
 from edge.trackers import make_filters, make_tracker
-from edge.trackers.base import Measurement, PlaneGrid, PlaneMapping, RoverModel, Window, WindowTracker, world_blob
+from edge.trackers.base import Measurement, RoverModel, Window, WindowTracker, measurement_covariance
+from edge.trackers.plane import PlaneGrid, PlaneMapping, world_blob
 from edge.trackers.refine import refine_axis, refine_outline
 from edge.trackers.window import prepare_window, window_box
 from edge.tracking import Frame, FrameResult, RoverEstimate, StageTimes
@@ -45,7 +46,6 @@ from edge.white import LocalWhite
 
 FloatArray = NDArray[np.float64]
 SIDEWAYS_MIN_SPEED_CM_S = 10.0  # motion that checks a two-tone marker's axis (edge.two_tone.TwoToneHeading.update)
-_FLOOR_CM2 = np.eye(2) * 1e-4  # the measurement covariance's floor (a perfectly sharp pixel is not exact)
 
 
 class Pipeline:
@@ -226,31 +226,32 @@ class Pipeline:
         learned = tr.learned
         model = RoverModel(tr.index, tr.expected_area(self.config.marker_area_cm2), tr.level)
         m = (tracker or self.tracker).measure(window, model, clock)
-        if m is not None and tr.config.front_color_bgr is None:
+        if m is None:
+            return None
+        jac = window.local.jacobian(*m.uv_px)  # the refinements keep the image centroid: one Jacobian for all
+        if tr.config.front_color_bgr is None:
             t0 = time.perf_counter()
             size = (self.config.marker_length_cm, self.config.marker_width_cm)
             refine = refine_outline if self.config.outline_fit else refine_axis
-            m = refine(window, m, size, tr.index)
+            m = refine(window, m, size, tr.index, jacobian=jac)
             clock.add("outline", time.perf_counter() - t0)
-        if m is None or not self._plausible(m, model.marker_area_cm2, learned, tr):
+        if not self._plausible(m, model.marker_area_cm2, learned, tr):
             return None
         if tr.config.front_color_bgr is not None:
-            two_tone = self._two_tone(window, m, tr)
+            two_tone = self._two_tone(window, m, tr, jac)
             if two_tone is None:
                 return None  # without a heading the centre of a two-tone marker is not known
             m = two_tone
-        # Measurement covariance: the pixel noise seen through the local scale of the plane mapping.
-        jac = window.local.jacobian(*m.uv_px)
-        sigma = self.config.measurement_sigma_px
-        return Observation(m, np.asarray(jac @ jac.T) * (sigma * sigma) + _FLOOR_CM2)
+        return Observation(m, measurement_covariance(jac, self.config.measurement_sigma_px))
 
-    def _two_tone(self, window: Window, m: Measurement, tr: RoverTrack) -> Measurement | None:
+    def _two_tone(self, window: Window, m: Measurement, tr: RoverTrack, jacobian: FloatArray) -> Measurement | None:
         """A two-tone marker (``edge.two_tone``): the heading from the coloured part's edges and the light end, and
         the marker's centre (the coloured part covers only the rear ``1 - front_fraction`` of the marker, so its
         centroid lies ``front_fraction * length / 2`` behind the centre, along the heading).
 
         Returns the measurement moved to the marker's centre (the heading to report is in ``tr.two_tone``); None
-        when the heading is unknown even roughly (no pose this frame: the centre is not known).
+        when the heading is unknown even roughly (no pose this frame: the centre is not known). ``jacobian``: the
+        plane mapping's at the measurement's image centroid.
         """
         assert self.maps is not None
         x0, y0, x1, y1 = window.box
@@ -265,7 +266,6 @@ class Pipeline:
             if abs(ox - m.xy_cm[0]) < 3.0 * reach and abs(oy - m.xy_cm[1]) < 3.0 * reach:
                 others |= (wx - ox) ** 2 + (wy - oy) ** 2 <= reach * reach
         geometry = TwoToneGeometry(self.config.marker_length_cm, self.config.marker_width_cm, tr.config.front_fraction)
-        jacobian = window.local.jacobian(*m.uv_px)
         pixels = MarkerPixels(
             bgr=window.bgr,
             lum=window.lum,

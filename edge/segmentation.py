@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -61,6 +62,16 @@ def linear_bgr(bgr: U8) -> F32:
     return np.asarray(cv2.LUT(bgr, LINEAR), dtype=np.float32)
 
 
+@lru_cache(maxsize=512)
+def ramp(n: int) -> NDArray[np.float64]:
+    """(n, 2) float64 columns ``1`` and ``0 .. n-1`` (read-only): ``ramp(h).T @ image @ ramp(w)`` is an (h, w)
+    image's sum and first moments, ``[[sum, sum x], [sum y, sum x y]]``, in two matrix products (cv2.moments costs
+    several times more on a window)."""
+    out = np.column_stack([np.ones(n), np.arange(n, dtype=np.float64)])
+    out.flags.writeable = False
+    return out
+
+
 # -- colour planes -----------------------------------------------------------------------------------------------
 def chroma_of_bgr(color_bgr: Sequence[float]) -> tuple[float, float, float]:
     """``(c1, c2, luminance)`` of one BGR colour (0-255): the opponent chroma and the mean of the channels."""
@@ -75,7 +86,7 @@ def opponent_planes(bgr: U8) -> tuple[F32, F32, F32]:
     black surface has zero chroma whatever its brightness.
     """
     planes = cv2.transform(bgr.astype(np.float32), _OPPONENT)  # one pass over the pixels for all three
-    c1, c2, lum = np.ascontiguousarray(np.moveaxis(planes, -1, 0))  # one copy, quicker than cv2.split's three
+    c1, c2, lum = np.ascontiguousarray(planes.transpose(2, 0, 1))  # one copy, quicker than cv2.split's three
     return c1, c2, lum
 
 
@@ -126,7 +137,8 @@ class ColorModel:
         saturation, hue = cv2.cartToPolar(c1, c2)  # |c| and the hue angle 0..2pi, float32, in one pass
         # int32 indices and take(): a tenth of the time of intp and fancy indexing on a window (same classes)
         cls = self.hue_lut.take((hue * np.float32(HUE_BINS / (2.0 * math.pi))).astype(np.int32))
-        cls[saturation < np.float32(self.min_relative_saturation) * np.maximum(lum, np.float32(4.0))] = NO_ROVER
+        weak = saturation < np.float32(self.min_relative_saturation) * np.maximum(lum, np.float32(4.0))
+        np.putmask(cls, weak, NO_ROVER)  # a fraction of the cost of a boolean-indexed assignment
         return cls
 
     def plane(self, index: int, c1: F32, c2: F32) -> F32:
@@ -250,7 +262,8 @@ def auto_threshold(
     if vals.size == 0:
         return ThresholdInterval(0.0, 0.0)
     k = min(vals.size - 1, int(vals.size * percentile / 100.0))
-    k_max = float(np.partition(vals, k)[k])
+    vals.partition(k)  # in place: a fresh array
+    k_max = float(vals[k])
     return ThresholdInterval(fraction * k_max, k_max)
 
 
@@ -317,8 +330,7 @@ def fill_holes(mask: BoolArray) -> BoolArray:
     same reconstruction in one pass.
     """
     h, w = mask.shape
-    padded = np.zeros((h + 2, w + 2), np.uint8)
-    padded[1:-1, 1:-1] = mask
+    padded = cv2.copyMakeBorder(mask.view(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
     ff_mask = np.zeros((h + 4, w + 4), np.uint8)
     cv2.floodFill(padded, ff_mask, (0, 0), 2, flags=4)
     return np.asarray(padded[1:-1, 1:-1] != 2)
@@ -367,28 +379,23 @@ def label_particles(
     Returns the (H, W) int32 label image and the particles with at least ``min_area_px`` pixels. ``filled``: the
     mask's holes are filled already (:func:`fill_holes`): no particle has any.
     """
-    # Grana's block-based labelling. Its statistics cost five times the labelling itself on a window: with one
-    # particle (a tracked marker's window, nearly always) they are measured directly, the same integers.
     m8 = mask.view(np.uint8)
-    n, labels = cv2.connectedComponentsWithAlgorithm(m8, 8, cv2.CV_32S, cv2.CCL_GRANA)
+    if filled:
+        # Without holes no particle lies inside another, so the external outlines are the particles (8-connected, as
+        # the labelling's): one (a tracked marker's window, nearly always) is measured from its outline and the mask
+        # alone (the same integers as the labelling's statistics, which cost five times the labelling itself).
+        contours, _ = cv2.findContours(m8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        if len(contours) == 1:
+            return np.asarray(mask, np.int32), outline_particle(mask, contours[0], min_area_px)
+    n, labels, stats, centroids = cv2.connectedComponentsWithStatsWithAlgorithm(m8, 8, cv2.CV_32S, cv2.CCL_GRANA)
     found: list[tuple[int, int, tuple[int, int, int, int], BoolArray, tuple[float, float]]] = []
-    if n == 2:
-        area = int(np.count_nonzero(mask))
-        x, y, w, h = cv2.boundingRect(m8)
-        sub = mask[y : y + h, x : x + w]
-        if area >= min_area_px:
-            moments = cv2.moments(sub.view(np.uint8), True)  # integer sums, exact in doubles as the statistics'
-            centre = ((int(moments["m10"]) + x * area) / area, (int(moments["m01"]) + y * area) / area)
-            found.append((1, area, (x, y, w, h), sub, centre))
-    elif n > 2:
-        n, labels, stats, centroids = cv2.connectedComponentsWithStatsWithAlgorithm(m8, 8, cv2.CV_32S, cv2.CCL_GRANA)
-        for i in range(1, n):
-            area = int(stats[i, cv2.CC_STAT_AREA])
-            if area < min_area_px:
-                continue
-            x, y, w, h = (int(stats[i, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, 3))
-            centre = (float(centroids[i, 0]), float(centroids[i, 1]))
-            found.append((i, area, (x, y, w, h), labels[y : y + h, x : x + w] == i, centre))
+    for i in range(1, n):
+        area = int(stats[i, cv2.CC_STAT_AREA])
+        if area < min_area_px:
+            continue
+        x, y, w, h = (int(stats[i, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, 3))
+        centre = (float(centroids[i, 0]), float(centroids[i, 1]))
+        found.append((i, area, (x, y, w, h), labels[y : y + h, x : x + w] == i, centre))
     out: list[Particle] = []
     for i, area, (x, y, w, h), sub, centre in found:
         whole = sub if filled else fill_holes(sub)
@@ -399,3 +406,36 @@ def label_particles(
         hull = max(hull, float(area + holes))  # contourArea runs through pixel centres: never below the count
         out.append(Particle(i, area, holes, hull, (x, y, x + w, y + h), centre))
     return np.asarray(labels, np.int32), out
+
+
+def single_outline(mask: BoolArray, iterations: int) -> tuple[np.ndarray, bool, BoolArray] | None:
+    """The outer outline of a ``mask`` that is one 8-connected particle (a tracked marker's window, nearly always),
+    whether it has holes and its erosion, from one outline pass; None when it is not one particle that survives
+    :func:`open_by_reconstruction` (whole). Then that opening is ``mask`` itself, its :func:`fill_holes` is ``mask``
+    when it has no holes, and ``outline_particle(filled, outline, ...)`` is its :func:`label_particles`.
+
+    The outlines' two-level hierarchy has one outer outline per particle (one inside another's hole too) and one per
+    hole; a particle's outer outline is its filling's."""
+    contours, hierarchy = cv2.findContours(mask.view(np.uint8), cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    if hierarchy is None:
+        return None
+    outer = [c for c, link in zip(contours, hierarchy[0].tolist(), strict=True) if link[3] < 0]
+    if len(outer) != 1:
+        return None
+    eroded = erode(mask, iterations)
+    if iterations > 0 and not np.count_nonzero(eroded):
+        return None
+    return outer[0], len(contours) > 1, eroded
+
+
+def outline_particle(mask: BoolArray, outline: np.ndarray, min_area_px: int) -> list[Particle]:
+    """The one particle of a hole-free ``mask`` whose external ``outline`` (``cv2.findContours``) is given (none when
+    it has fewer than ``min_area_px`` pixels)."""
+    sums = ramp(mask.shape[0]).T @ mask.view(np.uint8) @ ramp(mask.shape[1])  # integers: exact in doubles
+    area = int(sums[0, 0])
+    if area < min_area_px:
+        return []
+    x, y, w, h = cv2.boundingRect(outline)
+    centre = (float(sums[0, 1]) / area, float(sums[1, 0]) / area)
+    hull = max(float(cv2.contourArea(cv2.convexHull(outline))), float(area))  # never below the pixel count
+    return [Particle(1, area, 0, hull, (x, y, x + w, y + h), centre)]

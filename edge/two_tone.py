@@ -110,26 +110,29 @@ def edge_axis(plane: F32, mask: BoolArray, jacobian_cm_per_px: FloatArray) -> tu
     # The derivative needs one pixel round the mask (the window's own border is treated as before, unpadded).
     rows = slice(max(0, y - 1), min(plane.shape[0], y + h + 1))
     cols = slice(max(0, x - 1), min(plane.shape[1], x + w + 1))
-    sub, inside = plane[rows, cols], mask[rows, cols]
-    gu = cv2.Scharr(sub, cv2.CV_32F, 1, 0)[inside].astype(np.float64)
-    gv = cv2.Scharr(sub, cv2.CV_32F, 0, 1)[inside].astype(np.float64)
     (a, b), (c, d) = np.asarray(jacobian_cm_per_px, dtype=np.float64).tolist()  # plain floats: quicker, same
     if not (math.isfinite(a * d - b * c) and a * d - b * c != 0.0):
         return 0.0, 0.0
+    sub = plane[rows, cols]
+    # both derivatives of the pixels in the mask as one (2, n) array: one gather of the mask's flat indices
+    image = np.empty((2, *sub.shape), np.float32)
+    cv2.Scharr(sub, cv2.CV_32F, 1, 0, dst=image[0])
+    cv2.Scharr(sub, cv2.CV_32F, 0, 1, dst=image[1])
+    image = image.reshape(2, -1).take(mask[rows, cols].ravel().nonzero()[0], axis=1)
     # Plane gradients are the inverse transpose of the Jacobian times the image's; its 1/det scales every gradient
-    # alike (its sign turns each by pi, nothing modulo pi/2), so the adjugate does.
-    gx = d * gu - c * gv
-    gy = a * gv - b * gu
-    mag2 = gx * gx + gy * gy
+    # alike (its sign turns each by pi, nothing modulo pi/2), so the adjugate does (in float64).
+    g = np.array([[d, -c], [-b, a]]) @ image
+    squares = g * g
+    mag2 = squares[0] + squares[1]
     total = float(mag2.sum())
     if total <= 0.0:
         return 0.0, 0.0
-    # exp(4 i alpha) * |g|^2 = (gx + i gy)^4 / |g|^2, in real arithmetic: (gx + i gy)^2 = c2 + i s2
-    c2 = gx * gx - gy * gy
-    s2 = 2.0 * gx * gy
-    inv = 1.0 / np.maximum(mag2, 1e-30)
-    re = float(((c2 * c2 - s2 * s2) * inv).sum())
-    im = float((2.0 * c2 * s2 * inv).sum())
+    # exp(4 i alpha) * |g|^2 = (gx + i gy)^4 / |g|^2, in real arithmetic: with (gx + i gy)^2 = c2 + i s2 (s2 = 2 gx gy,
+    # c2^2 + s2^2 = |g|^4) the real part is 2 c2^2 / |g|^2 - |g|^2 and the imaginary one 2 c2 s2 / |g|^2: two sums
+    c2 = squares[0] - squares[1]
+    share = c2 / np.maximum(mag2, 1e-30)
+    re = 2.0 * float(c2 @ share) - total
+    im = 4.0 * float((g[0] * g[1]) @ share)
     return math.atan2(im, re) / 4.0, math.hypot(re, im) / total
 
 

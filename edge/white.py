@@ -39,6 +39,7 @@ MAX_GAIN = 2.5  # no channel is corrected more than this (a saturated or black f
 # parked object of a marker's hue), not the light's colour.
 MAX_LIGHT_SHIFT = 0.2
 _ENCODE = np.asarray(np.interp(np.linspace(0.0, 1.0, 4096), LINEAR, np.arange(256)).round(), dtype=np.uint8)
+_LINEAR_COLUMN = LINEAR[:, None].copy()  # (256, 1): the look-up table of one gain per channel
 
 
 def encode_linear(linear: NDArray[np.float32]) -> U8:
@@ -92,13 +93,14 @@ class LocalWhite:
         x0, y0, x1, y1 = box
         cy = min(self.coarse.shape[0] - 1, ((y0 + y1) // 2) // BLOCK_PX)
         cx = min(self.coarse.shape[1] - 1, ((x0 + x1) // 2) // BLOCK_PX)
-        light = [float(v) for v in self.coarse[cy, cx]]  # three numbers: plain floats are quicker than arrays
+        light = self.coarse[cy, cx].tolist()  # three numbers: plain floats are quicker than arrays
         if reference is not None and valid is not None:
             border = _border_index(*valid.shape[:2])
-            usable = border[valid.reshape(-1)[border]]
+            usable = border.compress(valid.reshape(-1).take(border))
             if len(usable) >= 8:
-                now = cv2.LUT(crop.reshape(-1, 3)[usable], LINEAR) + np.float32(1e-4)
-                then = cv2.LUT(reference.reshape(-1, 3)[usable], LINEAR) + np.float32(1e-4)
+                # take() along the pixels: a third of the time of indexing them
+                now = cv2.LUT(crop.reshape(-1, 3).take(usable, axis=0), LINEAR) + np.float32(1e-4)
+                then = cv2.LUT(reference.reshape(-1, 3).take(usable, axis=0), LINEAR) + np.float32(1e-4)
                 light = [a * float(b) for a, b in zip(light, _column_medians(now / then), strict=True)]
         total = max(sum(light), 1e-9)
         gains = [float(w) / max(v / total, 1e-6) for w, v in zip(self.white, light, strict=True)]
@@ -115,13 +117,15 @@ class LocalWhite:
     @staticmethod
     def correct(crop: U8, gains: FloatArray | NDArray[np.float32]) -> U8:
         """``crop`` with each channel multiplied by ``gains`` ((3,) or per pixel) in linear light."""
-        if np.ndim(gains) == 1:
-            g = [float(v) for v in gains]
-            if max(abs(v - 1.0) for v in g) <= 2e-3:
+        if gains.ndim == 1:
+            g = gains.tolist()
+            if max(abs(g[0] - 1.0), abs(g[1] - 1.0), abs(g[2] - 1.0)) <= 2e-3:
                 return crop
-            # One gain per channel: each output value depends on its input value alone, so a table per channel.
-            table = encode_linear(LINEAR[:, None] * np.asarray(g, np.float32)[None, :])
-            return np.asarray(cv2.LUT(crop, table.reshape(1, 256, 3)), dtype=np.uint8)
+            # One gain per channel: each output value depends on its input value alone, so a table per channel
+            # (encode_linear's, of values that are never negative).
+            linear = _LINEAR_COLUMN * gains.astype(np.float32)
+            index = np.minimum(linear * 4095.0 + 0.5, 4095).astype(np.int32)
+            return np.asarray(cv2.LUT(crop, _ENCODE.take(index).reshape(1, 256, 3)), dtype=np.uint8)
         return encode_linear(linear_bgr(crop) * gains.astype(np.float32))
 
 

@@ -15,7 +15,7 @@ from typing import Protocol
 import numpy as np
 
 from edge.coverage import coverage_weights, marker_level
-from edge.segmentation import F32, BoolArray, auto_threshold, threshold
+from edge.segmentation import F32, BoolArray, auto_threshold, erode, threshold
 from edge.trackers.plane import (
     CameraPlaneMapping,
     FloatArray,
@@ -44,6 +44,7 @@ __all__ = [
     "area_quality",
     "make_measurement",
     "measure_core",
+    "measurement_covariance",
     "threshold_marker",
     "world_blob",
 ]
@@ -87,6 +88,21 @@ class Measurement:
     at_image_edge: bool
     weights: F32 | None = field(default=None, compare=False, repr=False)
     outlined: bool = False
+
+    def with_axis(self, axis_rad: float) -> Measurement:
+        """This measurement with its long axis replaced (``dataclasses.replace`` costs ten times more)."""
+        return Measurement(
+            self.xy_cm,
+            self.uv_px,
+            self.area_cm2,
+            self.level,
+            self.quality,
+            axis_rad,
+            self.elongation,
+            self.at_image_edge,
+            self.weights,
+            self.outlined,
+        )
 
 
 def make_measurement(
@@ -139,14 +155,17 @@ def measure_core(
     mask: BoolArray,
     ring_px: int,
     clock: StageClock,
+    interior: BoolArray | None = None,
 ) -> Measurement | None:
     """Stages ``measure`` and ``calibration`` of the binary trackers: the marker whose interior is ``core`` (its
     thresholded pixels ``mask``), weighted by grey-level edge coverage (pixels of other rovers' hues left out) and
-    turned into its area centroid on the world plane."""
+    turned into its area centroid on the world plane. ``interior``: ``erode(core, 1)`` when the caller has it."""
     t0 = time.perf_counter()
-    level = marker_level(window.plane, core)
+    if interior is None:  # for both: the marker's level and its pure colour are taken inside its edge
+        interior = erode(core, 1)
+    level = marker_level(window.plane, core, interior)
     exclude = window.others(rover.index)  # the pixels of ``~candidates`` of other rovers' hues
-    weights = coverage_weights(window.bgr, core, ring_px, exclude=exclude, pure=mask, linear=window.linear)
+    weights = coverage_weights(window.bgr, core, ring_px, exclude=exclude, pure=mask, interior=interior)
     t1 = time.perf_counter()
     clock.add("measure", t1 - t0)
     blob = world_blob(weights, window.offset, window.grid)
@@ -167,6 +186,16 @@ class WindowTracker(Protocol):
     def reset(self, index: int) -> None:
         """Forget rover ``index`` (it was lost, or the pipeline starts afresh)."""
         ...
+
+
+def measurement_covariance(jacobian: FloatArray, sigma_px: float, floor_cm2: float = 1e-4) -> FloatArray:
+    """(2, 2) covariance on the plane of a measurement with ``sigma_px`` pixel noise: ``J J^T sigma^2`` through the
+    plane mapping's Jacobian there, plus ``floor_cm2`` on its diagonal (a perfectly sharp pixel is not exact); in
+    plain floats."""
+    s2 = sigma_px * sigma_px
+    (a, b), (c, d) = jacobian.tolist()
+    xy = (a * c + b * d) * s2
+    return np.array([[(a * a + b * b) * s2 + floor_cm2, xy], [xy, (c * c + d * d) * s2 + floor_cm2]])
 
 
 def area_quality(area_cm2: float, expected_cm2: float) -> float:

@@ -14,7 +14,14 @@ import time
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.segmentation import Particle, fill_holes, label_particles, open_by_reconstruction
+from edge.segmentation import (
+    Particle,
+    fill_holes,
+    label_particles,
+    open_by_reconstruction,
+    outline_particle,
+    single_outline,
+)
 from edge.trackers.base import Measurement, RoverModel, StageClock, Window, measure_core, threshold_marker
 
 
@@ -45,35 +52,52 @@ class ParticleTracker:
         if found is None:
             return None
         candidates, mask = found
-        t1 = time.perf_counter()
-        mask = open_by_reconstruction(mask, self.erosion_iterations)  # P.M.O.
-        t2 = time.perf_counter()
-        clock.add("erosion", t2 - t1)
-        filled = fill_holes(mask)  # A.M.O.
-        t3 = time.perf_counter()
-        clock.add("holes", t3 - t2)
         expected_px = self._expected_px(window, rover)
-        labels, particles = label_particles(
-            filled, min_area_px=max(2, int(self.min_area_fraction * expected_px)), filled=True
-        )
-        chosen = self._choose(particles, labels, window, expected_px, clock)
-        clock.add("measure", time.perf_counter() - t3)
-        if not chosen:
-            return None
-        core = np.isin(labels, [p.label for p in chosen]) if len(chosen) > 1 else labels == chosen[0].label
-        return measure_core(window, rover, core, candidates, mask, self.ring_px, clock)  # eq. 9-10 on the plane
+        min_area_px = max(2, int(self.min_area_fraction * expected_px))
+        t1 = time.perf_counter()
+        single = single_outline(mask, self.erosion_iterations)  # one particle (a tracked marker's, nearly always)
+        if single is not None:  # the opening (P.M.O.) keeps it whole; its outline gives Table II
+            outline, holes, eroded = single
+            t2 = time.perf_counter()
+            clock.add("erosion", t2 - t1)
+            filled = fill_holes(mask) if holes else mask  # A.M.O.
+            t3 = time.perf_counter()
+            clock.add("holes", t3 - t2)
+            particles = outline_particle(filled, outline, min_area_px)
+            chosen = self._choose(particles, None, window, expected_px, clock)
+            clock.add("measure", time.perf_counter() - t3)
+            if not chosen:
+                return None
+            core = filled
+            # a mask without holes is its own core: its erosion by one is the core's interior
+            interior = eroded if not holes and self.erosion_iterations == 1 else None
+        else:
+            mask = open_by_reconstruction(mask, self.erosion_iterations)  # P.M.O.
+            t2 = time.perf_counter()
+            clock.add("erosion", t2 - t1)
+            filled = fill_holes(mask)  # A.M.O.
+            t3 = time.perf_counter()
+            clock.add("holes", t3 - t2)
+            labels, particles = label_particles(filled, min_area_px=min_area_px, filled=True)
+            chosen = self._choose(particles, labels, window, expected_px, clock)
+            clock.add("measure", time.perf_counter() - t3)
+            if not chosen:
+                return None
+            core = np.isin(labels, [p.label for p in chosen]) if len(chosen) > 1 else labels == chosen[0].label
+            interior = None
+        return measure_core(window, rover, core, candidates, mask, self.ring_px, clock, interior)  # eq. 9-10
 
     @staticmethod
     def _expected_px(window: Window, rover: RoverModel) -> float:
         """The marker's expected area in pixels where it is predicted."""
         pu, pv = window.predicted_uv
-        px_area = float(window.local.area_per_pixel(np.array([pu]), np.array([pv]))[0])
+        px_area = window.local.area_at(pu, pv)
         return rover.marker_area_cm2 / px_area if px_area > 0 else 0.0
 
     def _choose(
         self,
         particles: list[Particle],
-        labels: NDArray[np.int32],
+        labels: NDArray[np.int32] | None,
         window: Window,
         expected_px: float,
         clock: StageClock,
@@ -82,7 +106,8 @@ class ParticleTracker:
 
         Particles are scored by area (Table II) and solidity, and by nearness to the prediction; when several
         qualify, background subtraction (eq. 2) breaks the tie: a particle that is part of the empty scene (a
-        sticker, a poster of the same hue) is not the rover.
+        sticker, a poster of the same hue) is not the rover. ``labels``: the label image of several particles (None
+        with one).
         """
         if not particles:
             return []
@@ -100,6 +125,7 @@ class ParticleTracker:
         scores = {p.label: score(p) for p in particles}
         plausible = [p for p in particles if scores[p.label] > -math.inf]
         if len(plausible) > 1:
+            assert labels is not None  # None only with one particle
             t0 = time.perf_counter()
             for p in plausible:
                 scores[p.label] += 0.5 * window.foreground_fraction(labels == p.label)

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.camera import PinholeCamera
-from edge.segmentation import F32
+from edge.segmentation import F32, ramp
 
 FloatArray = NDArray[np.float64]
 
@@ -83,6 +83,11 @@ class LocalPlaneMap:
     @cached_property
     def _g_inv_floats(self) -> tuple[float, ...]:
         return tuple(float(v) for v in self.g_inv.ravel())
+
+    def area_at(self, u: float, v: float) -> float:
+        """World cm^2 covered by the pixel at ``(u, v)``: :meth:`area_per_pixel` of one pixel, in plain floats."""
+        _, _, _, _, _, _, g20, g21, g22 = self._g_floats
+        return abs(self.det) / abs(g20 * u + g21 * v + g22) ** 3
 
     def to_world(self, u: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray]:
         g = self.g
@@ -162,7 +167,9 @@ class PlaneGrid:
         def image(a: FloatArray) -> FloatArray:
             return np.ascontiguousarray(a.transpose(0, 2, 1, 3).reshape(nv * t, nu * t)[:height, :width])
 
-        self.x_cm, self.y_cm, self.area_cm2 = image(xs), image(ys), image(areas)
+        # x and y as the planes of one (2, h, w) array: a window's offsets from a point are then one subtraction
+        self.xy_cm: FloatArray = np.stack([image(xs), image(ys)])
+        self.x_cm, self.y_cm, self.area_cm2 = self.xy_cm[0], self.xy_cm[1], image(areas)
 
     def tile_of(self, u: float, v: float) -> int | None:
         if not (math.isfinite(u) and math.isfinite(v)):
@@ -238,35 +245,27 @@ def world_blob(weights: F32, offset_xy: tuple[int, int], grid: PlaneGrid) -> Wor
     edge); ``offset_xy``: the window's top-left pixel in the image. Each pixel contributes its coverage times
     the world area it spans, at its centre mapped to the plane. Returns None when the weights sum to nothing.
     """
-    bx, by, bw, bh = cv2.boundingRect((weights != 0).view(np.uint8))
-    if bw == 0 or bh == 0:
+    bx, by, w, h = cv2.boundingRect((weights != 0).view(np.uint8))
+    if w == 0 or h == 0:
         return None
-    weights = weights[by : by + bh, bx : bx + bw]
-    h, w = weights.shape
+    wt = weights[by : by + h, bx : bx + w].astype(np.float64)  # one contiguous copy: no mixed types below
     x0, y0 = offset_xy[0] + bx, offset_xy[1] + by
     rows, cols = slice(y0, y0 + h), slice(x0, x0 + w)
-    wt = weights.astype(np.float64)
     jw = (wt * grid.area_cm2[rows, cols]).ravel()  # zero off the plane
     total = float(jw.sum())
-    wsum = float(wt.sum())
+    (wsum, u_sum), (v_sum, _) = (ramp(h).T @ wt @ ramp(w)).tolist()  # the image centroid's sums
     if total <= 1e-9 or wsum <= 1e-9:
         return None
-    x = grid.x_cm[rows, cols]
-    y = grid.y_cm[rows, cols]
-    # Moments about a point inside the window keep the sums well conditioned (a blob spans a few tens of cm).
-    ox, oy = float(x[h // 2, w // 2]), float(y[h // 2, w // 2])
-    dx = (x - ox).ravel()
-    dy = (y - oy).ravel()
-    jdx, jdy = jw * dx, jw * dy
-    mx, my = float(jdx.sum()) / total, float(jdy.sum()) / total
-    cov = (
-        float(jdx @ dx) / total - mx * mx,
-        float(jdx @ dy) / total - mx * my,
-        float(jdy @ dy) / total - my * my,
-    )
-    u_px = float(wt.sum(axis=0) @ np.arange(x0, x0 + w)) / wsum
-    v_px = float(wt.sum(axis=1) @ np.arange(y0, y0 + h)) / wsum
-    return WorldBlob(ox + mx, oy + my, total, u_px, v_px, cov)
+    # Moments about a point inside the window keep the sums well conditioned (a blob spans a few tens of cm); each
+    # sum over the pixels is one product with the (2, n) offsets.
+    xy = grid.xy_cm[:, rows, cols]
+    centre = xy[:, h // 2, w // 2]
+    d = (xy - centre[:, None, None]).reshape(2, -1)
+    mx, my = (d @ jw / total).tolist()
+    (sxx, sxy), (_, syy) = ((d * jw) @ d.T / total).tolist()
+    ox, oy = centre.tolist()
+    cov = (sxx - mx * mx, sxy - mx * my, syy - my * my)
+    return WorldBlob(ox + mx, oy + my, total, x0 + u_sum / wsum, y0 + v_sum / wsum, cov)
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ import math
 from collections.abc import Iterable, Iterator
 from dataclasses import replace
 
+import cv2
 import numpy as np
 
 from edge.outline import fit_outline, marker_signal
@@ -35,11 +36,12 @@ def refine_outline(
     size_cm: tuple[float, float],
     rover_index: int,
     exclude: BoolArray | None = None,
+    jacobian: np.ndarray | None = None,
 ) -> Measurement:
     """``m`` with its centre (``xy_cm``) and axis (``axis_rad``) from the marker's fitted outline (``outlined``),
     or ``m`` with only the axis refined when the outline does not fit (not a clean rectangle of the marker's size
     within a pixel of the area centroid). ``size_cm``: the marker's (length, width); ``exclude``: pixels of other
-    things (other rovers) in the window."""
+    things (other rovers) in the window; ``jacobian``: ``window.local.jacobian(*m.uv_px)`` when the caller has it."""
     edges = _edge_signal(window, m, rover_index, exclude)
     if edges is None:
         return m
@@ -47,29 +49,36 @@ def refine_outline(
     x0, y0, x1, y1 = window.box
     x_cm = window.grid.x_cm[y0:y1, x0:x1]
     y_cm = window.grid.y_cm[y0:y1, x0:x1]
-    jacobian = window.local.jacobian(*m.uv_px)
+    if jacobian is None:
+        jacobian = window.local.jacobian(*m.uv_px)
     axis = marker_axis((window.lum, signal), m, jacobian, usable, size_cm)
     cm_per_px = footprint_cm(jacobian, axis)
     fit = fit_outline(signal, x_cm, y_cm, m.xy_cm, axis, size_cm, cm_per_px, usable)
     if fit is None or fit.residual > MAX_RESIDUAL:
-        return replace(m, axis_rad=axis)
+        return m.with_axis(axis)
     shift = math.hypot(fit.xy_cm[0] - m.xy_cm[0], fit.xy_cm[1] - m.xy_cm[1])
     size_error = max(abs(fit.size_cm[0] / size_cm[0] - 1.0), abs(fit.size_cm[1] / size_cm[1] - 1.0))
     if shift > MAX_SHIFT_PX * max(cm_per_px) or size_error > MAX_SIZE_ERROR:
-        return replace(m, axis_rad=axis)
+        return m.with_axis(axis)
     return replace(m, xy_cm=fit.xy_cm, axis_rad=axis, outlined=True)
 
 
 def refine_axis(
-    window: Window, m: Measurement, size_cm: tuple[float, float], rover_index: int, exclude: BoolArray | None = None
+    window: Window,
+    m: Measurement,
+    size_cm: tuple[float, float],
+    rover_index: int,
+    exclude: BoolArray | None = None,
+    jacobian: np.ndarray | None = None,
 ) -> Measurement:
     """``m`` with its long axis (``axis_rad``) from the marker's edges (:func:`marker_axis`), its centre unchanged:
-    the heading's part of :func:`refine_outline`, at a small part of its cost."""
+    the heading's part of :func:`refine_outline`, at a small part of its cost (``jacobian``: as there)."""
     if m.weights is None:
         return m
-    jacobian = window.local.jacobian(*m.uv_px)
+    if jacobian is None:
+        jacobian = window.local.jacobian(*m.uv_px)
     usable = _usable(window, rover_index, exclude)
-    return replace(m, axis_rad=marker_axis(_edge_planes(window, m, rover_index, exclude), m, jacobian, usable, size_cm))
+    return m.with_axis(marker_axis(_edge_planes(window, m, rover_index, exclude), m, jacobian, usable, size_cm))
 
 
 def _edge_planes(window: Window, m: Measurement, rover_index: int, exclude: BoolArray | None) -> Iterator[F32]:
@@ -83,10 +92,12 @@ def _edge_planes(window: Window, m: Measurement, rover_index: int, exclude: Bool
 
 def _usable(window: Window, rover_index: int, exclude: BoolArray | None) -> BoolArray | None:
     """The window's pixels not of other things: other rovers' hues, ``exclude``; None where that is all of them."""
-    others = window.others(rover_index)
+    others = window.others(rover_index)  # None or some pixels
     if exclude is not None:
         others = exclude if others is None else others | exclude
-    return ~others if others is not None and others.any() else None
+        if not np.count_nonzero(others):
+            return None
+    return None if others is None else ~others
 
 
 def _edge_signal(
@@ -122,11 +133,18 @@ def marker_axis(
     rovers were turned by 20 degrees."""
     if m.weights is None or abs(size_cm[0] - size_cm[1]) < 0.05 * max(size_cm):
         return m.axis_rad
-    band = edge_band(np.asarray(m.weights >= 0.5))
+    half = m.weights >= 0.5
+    x, y, w, h = cv2.boundingRect(half.view(np.uint8))
+    if w == 0 or h == 0:
+        return m.axis_rad
+    # Everything within two pixels of the half coverage's box: the band and the derivatives round it (the same
+    # pixels and values as over the whole window)
+    crop = (slice(max(0, y - 2), y + h + 2), slice(max(0, x - 2), x + w + 2))
+    band = edge_band(half[crop])
     if usable is not None:
-        band &= usable
+        band &= usable[crop]
     for plane in planes:
-        axis4, strength = edge_axis(plane, band, jacobian)
+        axis4, strength = edge_axis(plane[crop], band, jacobian)
         if strength >= MIN_EDGE_COHERENCE:
             candidates = (axis4, axis4 + 0.5 * math.pi)
             long_axis = m.axis_rad if size_cm[0] >= size_cm[1] else m.axis_rad + 0.5 * math.pi

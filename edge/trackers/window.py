@@ -165,11 +165,12 @@ def window_box(
     local = maps.at(*hint_uv)
     if local is None:
         return None, (math.nan, math.nan)
-    u, v, _, _ = local.pixel_of(*xy_cm)
+    u, v, su, sv = local.pixel_of(*xy_cm)
     better = maps.at(u, v)
     if better is None:
         return None, (u, v)
-    u, v, su, sv = better.pixel_of(*xy_cm)
+    if better is not local:  # the circle's centre lies in another tile: map it through that one
+        u, v, su, sv = better.pixel_of(*xy_cm)
     # The image of the circle is an ellipse whose bounding box, to first order, is this (the margin covers
     # the perspective's second order).
     h, w = shape[:2]
