@@ -44,8 +44,10 @@ _LINEAR_COLUMN = LINEAR[:, None].copy()  # (256, 1): the look-up table of one ga
 
 def encode_linear(linear: NDArray[np.float32]) -> U8:
     """Linear light (0..1) back to 8-bit values through the sRGB tone curve (inverse of ``LINEAR``)."""
-    index = np.clip(linear * 4095.0 + 0.5, 0, 4095).astype(np.intp)
-    return np.asarray(_ENCODE[index], dtype=np.uint8)
+    # minimum/maximum and int32 indices read with take(): the same table entries as np.clip and fancy indexing, at a
+    # fraction of their wrappers' cost on the small tables and windows this is called with
+    index = np.minimum(np.maximum(linear * 4095.0 + 0.5, 0.0), 4095.0).astype(np.int32)
+    return np.asarray(_ENCODE.take(index), dtype=np.uint8)
 
 
 class LocalWhite:
@@ -121,11 +123,9 @@ class LocalWhite:
             g = gains.tolist()
             if max(abs(g[0] - 1.0), abs(g[1] - 1.0), abs(g[2] - 1.0)) <= 2e-3:
                 return crop
-            # One gain per channel: each output value depends on its input value alone, so a table per channel
-            # (encode_linear's, of values that are never negative).
-            linear = _LINEAR_COLUMN * gains.astype(np.float32)
-            index = np.minimum(linear * 4095.0 + 0.5, 4095).astype(np.int32)
-            return np.asarray(cv2.LUT(crop, _ENCODE.take(index).reshape(1, 256, 3)), dtype=np.uint8)
+            # One gain per channel: each output value depends on its input value alone, so a table per channel.
+            table = encode_linear(_LINEAR_COLUMN * gains.astype(np.float32))
+            return np.asarray(cv2.LUT(crop, table.reshape(1, 256, 3)), dtype=np.uint8)
         return encode_linear(linear_bgr(crop) * gains.astype(np.float32))
 
 

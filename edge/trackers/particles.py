@@ -56,35 +56,31 @@ class ParticleTracker:
         min_area_px = max(2, int(self.min_area_fraction * expected_px))
         t1 = time.perf_counter()
         single = single_outline(mask, self.erosion_iterations)  # one particle (a tracked marker's, nearly always)
-        if single is not None:  # the opening (P.M.O.) keeps it whole; its outline gives Table II
+        if single is None:
+            mask, holes = open_by_reconstruction(mask, self.erosion_iterations), True  # P.M.O.
+        else:  # the opening keeps the one particle whole (the mask is its own opening); its outline gives Table II
             outline, holes, eroded = single
-            t2 = time.perf_counter()
-            clock.add("erosion", t2 - t1)
-            filled = fill_holes(mask) if holes else mask  # A.M.O.
-            t3 = time.perf_counter()
-            clock.add("holes", t3 - t2)
+        t2 = time.perf_counter()
+        clock.add("erosion", t2 - t1)
+        filled = fill_holes(mask) if holes else mask  # A.M.O.
+        t3 = time.perf_counter()
+        clock.add("holes", t3 - t2)
+        labels: NDArray[np.int32] | None = None
+        if single is not None:
             particles = outline_particle(filled, outline, min_area_px)
-            chosen = self._choose(particles, None, window, expected_px, clock)
-            clock.add("measure", time.perf_counter() - t3)
-            if not chosen:
-                return None
+        else:
+            labels, particles = label_particles(filled, min_area_px=min_area_px, filled=True)
+        chosen = self._choose(particles, labels, window, expected_px, clock)
+        clock.add("measure", time.perf_counter() - t3)
+        if not chosen:
+            return None
+        interior = None
+        if labels is None:  # the one particle: its filled mask is the core
             core = filled
             # a mask without holes is its own core: its erosion by one is the core's interior
             interior = eroded if not holes and self.erosion_iterations == 1 else None
         else:
-            mask = open_by_reconstruction(mask, self.erosion_iterations)  # P.M.O.
-            t2 = time.perf_counter()
-            clock.add("erosion", t2 - t1)
-            filled = fill_holes(mask)  # A.M.O.
-            t3 = time.perf_counter()
-            clock.add("holes", t3 - t2)
-            labels, particles = label_particles(filled, min_area_px=min_area_px, filled=True)
-            chosen = self._choose(particles, labels, window, expected_px, clock)
-            clock.add("measure", time.perf_counter() - t3)
-            if not chosen:
-                return None
             core = np.isin(labels, [p.label for p in chosen]) if len(chosen) > 1 else labels == chosen[0].label
-            interior = None
         return measure_core(window, rover, core, candidates, mask, self.ring_px, clock, interior)  # eq. 9-10
 
     @staticmethod
