@@ -38,9 +38,6 @@ class CvState:
         v = speed_sigma_cm_s * speed_sigma_cm_s
         return cls(x, y, pxx=rxx, pxy=rxy, pyy=ryy, puu=v, pvv=v)
 
-    def copy(self) -> CvState:
-        return CvState.restore(self.snapshot())
-
     def snapshot(self) -> tuple[float, ...]:
         """The state as an immutable tuple (cheap to keep after every update; :meth:`restore` makes it a filter)."""
         return (
