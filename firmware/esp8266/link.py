@@ -236,7 +236,8 @@ class Link:
     def _wifi(self, now_ms):
         if self.wlan.isconnected():
             return True
-        if self._wifi_at is None or time.ticks_diff(now_ms, self._wifi_at) >= _WIFI_RETRY_MS:
+        # (a tick difference below 0: the last try was more than 2**29 ms ago, and the ticks wrapped since)
+        if self._wifi_at is None or not 0 <= time.ticks_diff(now_ms, self._wifi_at) < _WIFI_RETRY_MS:
             self._wifi_at = now_ms
             self.wlan.active(True)
             if self.ssid:
