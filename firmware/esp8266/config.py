@@ -75,6 +75,20 @@ _NUMBERS = (
 )
 
 
+# Numbers the firmware hands to calls that take only ints on the chip (time.sleep_ms, struct.pack, PWM, sockets):
+# 20.0 there is a TypeError in the loop, not at boot.
+_INTEGERS = (
+    "broker.port",
+    "broker.keepalive_s",
+    "motors.freq_hz",
+    "motors.deadband_duty",
+    "control.period_ms",
+    "control.stale_ms",
+    "control.fade_ms",
+    "control.forget_ms",
+    "control.latency_ms",
+)
+
 # GPIOs the ESP8266 reads at reset to choose how to boot: a motor driver that pulls them the wrong way at power-on
 # stops the board from booting (or boots it into the serial bootloader).
 _STRAPPING = {
@@ -121,8 +135,9 @@ def check(cfg):
     for section, key, lo, hi in _NUMBERS:
         v = cfg[section][key]
         name = section + "." + key
-        if type(v) is not int and type(v) is not float:
-            raise ValueError("key " + name + ": expected a number, got " + repr(v))
+        if type(v) is not int and (type(v) is not float or name in _INTEGERS):
+            what = "a whole number" if name in _INTEGERS else "a number"
+            raise ValueError("key " + name + ": expected " + what + ", got " + repr(v))
         if not (lo <= v <= hi):
             raise ValueError("key " + name + ": " + repr(v) + " is outside " + repr(lo) + ".." + repr(hi))
     used = {}  # type: dict[int, str]

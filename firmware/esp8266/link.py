@@ -4,7 +4,7 @@
 #   - radio: the access point interface off (after an erase MicroPython runs an open-ish AP), the station's power
 #     saving off (modem sleep holds frames for up to a DTIM period: gaps the 100 ms fade would turn into slow-downs);
 #     joins Wi-Fi (the ESP8266 keeps retrying on its own; connect is re-issued every 10 s while down);
-#   - connects to the broker with a last will (retained status "offline" on ips/v1/rovers/<id>/status), calls
+#   - connects to the broker with a last will (retained status "offline" on ips/v2/rovers/<id>/status), calls
 #     on_connect() after CONNACK and before SUBSCRIBE, subscribes to every rover's pose and to the formation;
 #   - hands over what arrived (the callback gets every message, up to 16 a poll: a PINGRESP in the middle of a
 #     backlog does not end the drain, although umqtt's check_msg() returns None for it as when nothing is there),
@@ -236,7 +236,8 @@ class Link:
     def _wifi(self, now_ms):
         if self.wlan.isconnected():
             return True
-        if self._wifi_at is None or time.ticks_diff(now_ms, self._wifi_at) >= _WIFI_RETRY_MS:
+        # (a tick difference below 0: the last try was more than 2**29 ms ago, and the ticks wrapped since)
+        if self._wifi_at is None or not 0 <= time.ticks_diff(now_ms, self._wifi_at) < _WIFI_RETRY_MS:
             self._wifi_at = now_ms
             self.wlan.active(True)
             if self.ssid:

@@ -39,6 +39,7 @@ _BUCKET_MS = const(2000)  # ... of 2 s each: a minimum that no longer holds leav
 _GAP_COUNTED_MS = const(250)  # the most a gap between own poses adds to the window: an outage does not age it out
 _BACK_STEP_MS = const(100)  # an own pose this much older than the last one: the edge's clock was set back
 _JUMP_MS = const(1 << 24)  # an offset that moves this far (4.7 h), either way: the edge's clock jumped
+_AGE_CAP_MS = const(1 << 28)  # pose ages are kept below this (3.1 days): tick differences wrap at 2**29
 
 # Why the motors are stopped ("none": they are not).
 HALT_NONE = "none"
@@ -347,6 +348,7 @@ class Rover:
         self.steps += 1
         dt_s = 0.0 if self._last_step is None else tdiff(now_ms, self._last_step) * 0.001
         self._last_step = now_ms
+        self._cap_ages(now_ms)
         try:
             k = self._scale
             self.heading.moved(self.command[fm.C_V] * k, self.command[fm.C_W] * k, dt_s, 0.5)
@@ -366,6 +368,15 @@ class Rover:
             self._report(now_ms)
         except Exception as e:
             self.log("status not sent:", repr(e))
+
+    def _cap_ages(self, now_ms):
+        # A pose's age is a tick difference, which wraps after 2**29 ms (6.2 days): a pose never replaced (a rover
+        # the camera lost, left on for a week) would come back young and be driven on. Ages past the cap stay at it,
+        # which is as old as anything here cares about.
+        cap = (now_ms - _AGE_CAP_MS) & (_TICKS_PERIOD - 1)
+        for s in range(MAX_ROVERS):
+            if self._ids[s] is not None and tdiff(cap, self._stamp[s]) > 0:
+                self._stamp[s] = cap
 
     def _stop(self, reason):
         self.motors.stop()

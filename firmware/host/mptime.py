@@ -21,20 +21,27 @@ def ticks_us() -> int:
 
 
 def ticks_add(ticks: int, delta: int) -> int:
-    return (ticks + delta) & (TICKS_PERIOD - 1)
+    return (_int(ticks) + _int(delta)) & (TICKS_PERIOD - 1)
 
 
 def ticks_diff(a: int, b: int) -> int:
     return ((a - b + _HALF) & (TICKS_PERIOD - 1)) - _HALF
 
 
+def _int(n: int) -> int:
+    # The chip takes only ints here: time.sleep_ms(2.5) is a TypeError on the ESP8266, and must be one on the host.
+    if type(n) is not int:
+        raise TypeError("can't convert float to int")
+    return n
+
+
 def sleep_ms(ms: int) -> None:
-    if ms > 0:
+    if _int(ms) > 0:
         time.sleep(ms / 1000)
 
 
 def sleep_us(us: int) -> None:
-    if us > 0:
+    if _int(us) > 0:
         time.sleep(us / 1_000_000)
 
 

