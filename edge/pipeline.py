@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from edge.acquisition import acquisition_scale, candidates, low_resolution_classes
 from edge.errors import ConfigError, SourceError
-from edge.filtering import FilterFactory, axis_heading
+from edge.filtering import FilterFactory, axis_heading, checked_axis
 from edge.rover_track import Observation, RoverTrack
 from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr
 from edge.tracker_config import TrackerConfig
@@ -432,12 +432,13 @@ class Pipeline:
     def _heading(self, tr: RoverTrack, vel: tuple[float, float] | None, m: Measurement) -> float | None:
         """A two-tone marker's own heading while the evidence for its front end is strong (else None: the
         direction of motion would be the opposite of the body's whenever the rover backs up); for a one-colour
-        marker its long axis pointed the way it drives, or kept from the last heading while it stands or turns on
-        the spot (``edge.filtering.axis_heading``)."""
+        marker its long axis (or the direction of motion where the marker's edges say little,
+        ``edge.filtering.checked_axis``) pointed the way it drives, or kept from the last heading while it stands or
+        turns on the spot (``edge.filtering.axis_heading``)."""
         if tr.config.front_color_bgr is not None:
             return tr.two_tone.heading_rad if tr.two_tone.confident else None
         square = abs(self.config.marker_length_cm - self.config.marker_width_cm) < 0.05 * self.config.marker_length_cm
-        axis = None if square else m.axis_rad
+        axis = None if square else checked_axis(m.axis_rad, m.axis_coherence, vel)
         tr.theta_rad = axis_heading(axis, vel, tr.theta_rad, self.config.heading_min_speed_cm_s)
         return tr.theta_rad
 

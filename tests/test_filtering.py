@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from edge.filtering import ConstantVelocityFilter, FilterSettings
+from edge.filtering import ConstantVelocityFilter, FilterSettings, checked_axis
 
 DT = 1.0 / 30.0
 R = np.eye(2) * 0.04  # 0.2 cm measurement sigma
@@ -152,3 +152,46 @@ def test_a_one_colour_markers_heading_is_its_axis_pointed_by_the_motion(axis_deg
     else:
         assert got is not None
         assert math.degrees(math.remainder(got - math.radians(expected_deg), math.tau)) == pytest.approx(0.0, abs=1e-9)
+
+
+def _axis_deg(axis_rad: float) -> float:
+    return math.degrees(math.remainder(axis_rad, math.pi))
+
+
+def _driving(deg: float, speed: float = 15.0) -> tuple[float, float]:
+    return speed * math.cos(math.radians(deg)), speed * math.sin(math.radians(deg))
+
+
+def test_coherent_edges_give_the_axis_whatever_the_motion_says():
+    """Edges that show the rectangle clearly are sharper than the filter's direction of motion (which lags in a
+    turn): taken as they are, even 40 degrees from it."""
+    assert _axis_deg(checked_axis(math.radians(30.0), 0.6, _driving(70.0))) == pytest.approx(30.0)
+
+
+@pytest.mark.parametrize("coherence", [0.35, 0.8])
+def test_the_motion_picks_the_long_one_of_the_edges_two_directions(coherence):
+    """The edges give the orientation modulo 90 degrees and the blob's elongation picks the long axis; on a
+    far-side smudge it picked the short one in one frame of three. A driving rover's motion picks it instead."""
+    assert _axis_deg(checked_axis(math.radians(95.0), coherence, _driving(6.0))) == pytest.approx(5.0)
+    assert _axis_deg(checked_axis(math.radians(5.0), coherence, _driving(6.0))) == pytest.approx(5.0)
+
+
+def test_a_blobs_axis_gives_way_to_the_direction_of_motion_while_the_rover_drives():
+    """The blob's second moments (coherence 0) were 20-25 degrees off for seconds on a far-side smudge; a driving
+    differential drive's direction of motion is its axis (modulo pi: driving towards 100 degrees is the axis -80)."""
+    assert _axis_deg(checked_axis(math.radians(-58.0), 0.0, _driving(100.0))) == pytest.approx(-80.0)
+    assert _axis_deg(checked_axis(math.radians(-78.0), 0.0, _driving(100.0))) == pytest.approx(-80.0)
+
+
+@pytest.mark.parametrize(("axis_deg", "expected_deg"), [(45.0, 45.0), (25.0, 25.0), (62.0, 40.0), (-5.0, 40.0)])
+def test_weakly_coherent_edges_far_from_the_motion_give_way_to_it(axis_deg, expected_deg):
+    """Weak edges (coherence 0.3-0.5) within 20 degrees of the direction of motion are kept (they are sharper than
+    it where they are right); farther off they pointed 30 degrees wrong now and then, and the motion stands in."""
+    assert _axis_deg(checked_axis(math.radians(axis_deg), 0.4, _driving(40.0))) == pytest.approx(expected_deg)
+
+
+@pytest.mark.parametrize("velocity", [None, (0.0, 0.0), _driving(40.0, speed=3.0)])
+def test_standing_or_crawling_the_measurement_is_all_there_is(velocity):
+    """Standing, turning on the spot or crawling (the filter's direction scatters at a few cm/s), even the blob's
+    axis is kept: the motion says nothing about the axis then."""
+    assert _axis_deg(checked_axis(math.radians(-58.0), 0.0, velocity)) == pytest.approx(-58.0)

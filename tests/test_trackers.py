@@ -260,12 +260,13 @@ def test_the_marker_axis_comes_from_its_own_edge_not_the_bodys_visible_side(degr
     theta = math.radians(degrees)
     lum, weights = _marker_on_a_body(theta)
     m = Measurement((0.0, 0.0), (60.0, 50.0), 361.0, 1.0, 1.0, theta + 0.05, 1.28, False, weights)
-    axis = marker_axis((lum,), m, np.eye(2) * 0.5, np.ones(lum.shape, bool), (21.5, 16.8))
+    axis, coherence = marker_axis((lum,), m, np.eye(2) * 0.5, np.ones(lum.shape, bool), (21.5, 16.8))
     assert abs(math.degrees(math.remainder(axis - theta, math.pi))) < 1.0
+    assert coherence >= 0.3
 
 
 def test_the_marker_axis_is_the_blobs_where_no_plane_shows_a_rectangle():
     lum, weights = _marker_on_a_body(0.3)
     m = Measurement((0.0, 0.0), (60.0, 50.0), 361.0, 1.0, 1.0, 0.31, 1.28, False, weights)
     flat = np.full(lum.shape, 50.0, np.float32)
-    assert marker_axis((flat,), m, np.eye(2) * 0.5, np.ones(lum.shape, bool), (21.5, 16.8)) == 0.31
+    assert marker_axis((flat,), m, np.eye(2) * 0.5, np.ones(lum.shape, bool), (21.5, 16.8)) == (0.31, 0.0)

@@ -75,7 +75,8 @@ class Measurement:
     (h, w) float32 coverage of each window pixel by the marker that the centre was taken from (None if the tracker
     has none), so a later step can re-weigh an edge it knows more about (a two-tone marker's inner edge);
     ``outlined``: the centre and axis come from the marker's fitted outline, whose size matched the marker's
-    (``edge.trackers.refine``).
+    (``edge.trackers.refine``); ``axis_coherence``: how clearly the marker's edges showed that axis (0..1; 0: the
+    blob's principal axis).
     """
 
     xy_cm: tuple[float, float]
@@ -88,9 +89,11 @@ class Measurement:
     at_image_edge: bool
     weights: F32 | None = field(default=None, compare=False, repr=False)
     outlined: bool = False
+    axis_coherence: float = 0.0
 
-    def with_axis(self, axis_rad: float) -> Measurement:
-        """This measurement with its long axis replaced (``dataclasses.replace`` costs ten times more)."""
+    def with_axis(self, axis_rad: float, coherence: float) -> Measurement:
+        """This measurement with its long axis and that axis's coherence replaced (``dataclasses.replace`` costs ten
+        times more)."""
         return Measurement(
             self.xy_cm,
             self.uv_px,
@@ -102,6 +105,7 @@ class Measurement:
             self.at_image_edge,
             self.weights,
             self.outlined,
+            coherence,
         )
 
 

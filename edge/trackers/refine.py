@@ -19,6 +19,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
+from edge.filtering import MIN_EDGE_COHERENCE  # below it the edges show no rectangle (edge.two_tone.edge_axis)
 from edge.outline import fit_outline, marker_signal
 from edge.segmentation import F32, BoolArray, edge_band, erode
 from edge.trackers.base import Measurement, Window
@@ -26,7 +27,6 @@ from edge.two_tone import edge_axis, footprint_cm
 
 MAX_SHIFT_PX = 1.0  # the outline may move the area centroid by this much, else it fitted something else
 MAX_SIZE_ERROR = 0.08  # the fitted length and width must be the marker's within this share
-MIN_EDGE_COHERENCE = 0.3  # below, the edges do not show a rectangle (edge.two_tone.edge_axis)
 MAX_RESIDUAL = 0.3  # the fit's RMS residual over the marker's level: above, the edges are not a clean rectangle
 
 
@@ -51,16 +51,16 @@ def refine_outline(
     y_cm = window.grid.y_cm[y0:y1, x0:x1]
     if jacobian is None:
         jacobian = window.local.jacobian(*m.uv_px)
-    axis = marker_axis((window.lum, signal), m, jacobian, usable, size_cm)
+    axis, coherence = marker_axis((window.lum, signal), m, jacobian, usable, size_cm)
     cm_per_px = footprint_cm(jacobian, axis)
     fit = fit_outline(signal, x_cm, y_cm, m.xy_cm, axis, size_cm, cm_per_px, usable)
     if fit is None or fit.residual > MAX_RESIDUAL:
-        return m.with_axis(axis)
+        return m.with_axis(axis, coherence)
     shift = math.hypot(fit.xy_cm[0] - m.xy_cm[0], fit.xy_cm[1] - m.xy_cm[1])
     size_error = max(abs(fit.size_cm[0] / size_cm[0] - 1.0), abs(fit.size_cm[1] / size_cm[1] - 1.0))
     if shift > MAX_SHIFT_PX * max(cm_per_px) or size_error > MAX_SIZE_ERROR:
-        return m.with_axis(axis)
-    return replace(m, xy_cm=fit.xy_cm, axis_rad=axis, outlined=True)
+        return m.with_axis(axis, coherence)
+    return replace(m, xy_cm=fit.xy_cm, axis_rad=axis, axis_coherence=coherence, outlined=True)
 
 
 def refine_axis(
@@ -78,7 +78,7 @@ def refine_axis(
     if jacobian is None:
         jacobian = window.local.jacobian(*m.uv_px)
     usable = _usable(window, rover_index, exclude)
-    return m.with_axis(marker_axis(_edge_planes(window, m, rover_index, exclude), m, jacobian, usable, size_cm))
+    return m.with_axis(*marker_axis(_edge_planes(window, m, rover_index, exclude), m, jacobian, usable, size_cm))
 
 
 def _edge_planes(window: Window, m: Measurement, rover_index: int, exclude: BoolArray | None) -> Iterator[F32]:
@@ -122,21 +122,22 @@ def marker_axis(
     jacobian: np.ndarray,
     usable: BoolArray | None,
     size_cm: tuple[float, float],
-) -> float:
-    """The marker's long axis (modulo pi) on the plane: the directions of its edges (modulo pi/2, sharp) in the first
-    of ``planes`` that shows them coherently, resolved by the blob's elongation (which of the two is the long one).
-    Where the marker is square, or no plane shows a rectangle, the blob axis alone.
+) -> tuple[float, float]:
+    """The marker's long axis (modulo pi) on the plane and the coherence of the edges it came from (0..1): the
+    directions of its edges (modulo pi/2, sharp) in the first of ``planes`` that shows them coherently, resolved by
+    the blob's elongation (which of the two is the long one). Where the marker is square, or no plane shows a
+    rectangle, the blob axis alone, with coherence 0 (``edge.axis_track`` weighs it against the last frames').
 
     Only the marker's own edge counts: the band of pixels within one of the boundary of its coverage (``m.weights``
     at one half). Farther out the body's outline shows too, and where the camera sees a rover from the side, the
     edges of the body's visible side are not on the marker plane: taken with them, the lens scenario's far-field
     rovers were turned by 20 degrees."""
     if m.weights is None or abs(size_cm[0] - size_cm[1]) < 0.05 * max(size_cm):
-        return m.axis_rad
+        return m.axis_rad, 0.0
     half = m.weights >= 0.5
     x, y, w, h = cv2.boundingRect(half.view(np.uint8))
     if w == 0 or h == 0:
-        return m.axis_rad
+        return m.axis_rad, 0.0
     # Everything within two pixels of the half coverage's box: the band and the derivatives round it (the same
     # pixels and values as over the whole window)
     crop = (slice(max(0, y - 2), y + h + 2), slice(max(0, x - 2), x + w + 2))
@@ -149,5 +150,5 @@ def marker_axis(
             candidates = (axis4, axis4 + 0.5 * math.pi)
             long_axis = m.axis_rad if size_cm[0] >= size_cm[1] else m.axis_rad + 0.5 * math.pi
             best = min(candidates, key=lambda a: abs(math.remainder(a - long_axis, math.pi)))
-            return math.remainder(best, math.pi)
-    return m.axis_rad
+            return math.remainder(best, math.pi), strength
+    return m.axis_rad, 0.0
