@@ -57,7 +57,7 @@ class BrokerFiles:
         return [self.conf, self.passwd, self.local_passwd, self.acl, self.credentials, *[p for p in tls if p]]
 
 
-def _login_lines(where: Path, passwd: str) -> list[str]:
+def login_lines(where: Path, passwd: str) -> list[str]:
     """A listener's own security settings (``per_listener_settings true``): logins from ``where/passwd``, one ACL."""
     return ["allow_anonymous false", f"password_file {where / passwd}", f"acl_file {where / 'acl'}"]
 
@@ -90,13 +90,13 @@ def _conf_text(
         "# the edge's login, so they keep their own client ids. Only processes on this machine reach it, and only",
         "# with the edge's login: with a rover's (read out of its flash) one could take the edge's session here.",
         f"listener {local_port} 127.0.0.1",
-        *_login_lines(where, LOCAL_PASSWD),
+        *login_lines(where, LOCAL_PASSWD),
         "",
         "# Rovers and the rest of the network. A client's id is its user name here, so no login can take the",
         "# session of another user's client (a rover's password cannot disconnect the edge).",
         f"listener {port} {bind}",
         "use_username_as_clientid true",
-        *_login_lines(where, "passwd"),
+        *login_lines(where, "passwd"),
         "",
     ]
     if tls_port is not None:
@@ -105,7 +105,7 @@ def _conf_text(
             "# connect, with the edge's or the viewer's login. ESP8266 rovers stay on the plain listener",
             "# (docs/deploy.md).",
             *[line for line in tls_listener_lines(tls_port, bind, where) if line],
-            *_login_lines(where, TLS_PASSWD),
+            *login_lines(where, TLS_PASSWD),
             "",
         ]
     return "\n".join(lines)
