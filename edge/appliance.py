@@ -8,7 +8,7 @@
 4. :func:`start_http`: the HTTP server, bound (before the broker: a taken port is said first);
 5. :func:`start_broker`: the embedded broker, or the configured one (:func:`edge.broker.clients.select_broker`);
 6. :func:`start_recorder`: the recording of everything published;
-7. :func:`start_publisher`: the MQTT publisher, connected, with the retained stop at start;
+7. :func:`start_publisher`: the MQTT publisher, connected, with the retained stop at start (and at every reconnection);
 8. the :class:`edge.runtime.EdgeRuntime` over all of them;
 9. :func:`start_dashboard_for`, :func:`add_sim_panel` and :func:`add_health_routes`: the page, the simulator's
    controls when the source offers them, then ``/healthz`` and ``/metrics``.
@@ -201,7 +201,8 @@ def start_recorder(config: EdgeConfig) -> Recorder | None:
 
 
 class _OnConnected:
-    """The publisher's (re)connection: the retained stop at start, and a fresh status once the runtime runs."""
+    """The publisher's (re)connection: a retained stop (at start, and after a broker restart), and a fresh status
+    once the runtime runs."""
 
     def __init__(self, stop_at_start: StopAtStart) -> None:
         self.stop_at_start = stop_at_start

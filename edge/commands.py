@@ -178,13 +178,20 @@ def publish_formation(
 
 
 class StopAtStart:
-    """The appliance's retained ``stop`` at start, so that after a restart, crash or power cut every rover halts until
-    someone commands again.
+    """The appliance's retained ``stop`` whenever its publisher (re)connects, so that after an edge restart, crash
+    or power cut, and after a broker restart, every rover halts until someone commands again.
 
-    Sent with :func:`send_formation` (its own short connection, seq after the retained one) when :meth:`on_connected`
-    is first called (the edge's publisher has reached the broker); if that attempt fails it is made again at the
-    next connection. :attr:`done` is set once the broker acknowledged the stop; ``tap(topic, payload, retain)`` is
-    then shown it (the recording, like everything the edge publishes).
+    A broker that comes back may hold an older formation than the last command: Mosquitto saves its retained
+    messages on a clean exit or every ``autosave_interval`` (30 min), so after a crash or power cut it brings back
+    whatever it saved last (a ``line`` that the ``stop`` after it had replaced), and a rover that reconnects
+    forgets its formation and applies that. The edge cannot tell such a replay from a command it missed, so it
+    halts the fleet.
+
+    Sent with :func:`send_formation` (its own short connection, seq after the retained one) from
+    :meth:`on_connected` (the edge's publisher reached the broker); a connection made while a stop is on its way
+    gets one more after it, a failed attempt is made again at the next connection. :attr:`done` is set once the
+    broker acknowledged the first stop; ``tap(topic, payload, retain)`` is shown each (the recording, like
+    everything the edge publishes).
     """
 
     def __init__(
@@ -201,25 +208,40 @@ class StopAtStart:
         self.tap = tap
         self.done = threading.Event()
         self._lock = threading.Lock()
+        self._pending = False  # a connection that has not had its stop yet
         self._thread: threading.Thread | None = None
 
     def on_connected(self) -> None:
-        """Start the attempt unless one is running or it is done (any thread; returns at once)."""
+        """Send a stop for this connection, after the one on its way if any (any thread; returns at once)."""
         with self._lock:
-            if self.done.is_set() or (self._thread is not None and self._thread.is_alive()):
-                return
-            self._thread = threading.Thread(target=self._send, name="stop-at-start", daemon=True)
-            self._thread.start()
+            self._pending = True
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="stop-at-start", daemon=True)
+                self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            with self._lock:
+                if not self._pending:
+                    self._thread = None
+                    return
+                self._pending = False
+            self._send()
 
     def _send(self) -> None:
+        when = "after the broker connection came back" if self.done.is_set() else "at start"
         try:
             sent = send_formation(
                 self.target, lambda seq: build_formation("stop", [], seq=seq), client_id=self.client_id, tls=self.tls
             )
         except EdgeIpsError as exc:
-            log.warning("the retained stop at start was not published (%s); trying again at the next connection", exc)
+            log.warning("the retained stop %s was not published (%s); trying again at the next connection", when, exc)
             return
         if self.tap is not None:
             self.tap(FORMATION_TOPIC, dumps(sent), True)
         self.done.set()
-        log.info("published a retained stop (seq %d): every rover halts until someone commands a formation", sent.seq)
+        log.info(
+            "published a retained stop (seq %d) %s: every rover halts until someone commands again",
+            sent.seq,
+            when,
+        )

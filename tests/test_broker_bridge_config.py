@@ -20,6 +20,7 @@ from edge.cli import main
 from edge.errors import BrokerError
 from edge.messages import FormationV1
 from tests.support.mosquitto import Mosquitto
+from tests.support.probe import Probe
 from tests.support.runtime import MqttRecorder
 
 BOARDS = {"cam1": BoardAddress("10.0.0.21"), "cam2": BoardAddress("cam2.lab", 1999)}
@@ -221,6 +222,24 @@ def test_a_real_board_broker_lets_the_centrals_login_read_and_write_only_what_cr
         "ips/v1/edge/cam1/status",
     ]
     assert not [m for m in local.messages if m.payload == b"forged"]
+
+
+@pytest.mark.parametrize("where", ["central", "cam1"])
+def test_only_the_edge_login_connects_to_the_loopback_listener_where_clients_keep_their_ids(
+    tmp_path: Path, where: str
+) -> None:
+    files = write_bridge_configs(tmp_path / "brokers", boards=BOARDS, rovers=["r1"])
+    directory = files.central if where == "central" else files.boards[where]
+    logins = tomllib.loads((directory / "credentials.toml").read_text())
+    with Mosquitto(tmp_path / "run", conf_path=directory / "mosquitto.conf") as broker:
+        edge_id = "edge-ips-cam1"  # what edge-ips there uses; kept on this listener, so a rover must not get in
+        with Probe("127.0.0.1", broker.port, client_id=edge_id, user="edge", password=logins["edge"]["password"]) as e:
+            assert e.accepted
+        rover = logins["rovers"]["r1"]
+        with Probe("127.0.0.1", broker.port, client_id=edge_id, user="r1", password=rover["password"]) as r1:
+            assert not r1.accepted
+        with Probe("127.0.0.1", broker.ports[1883], client_id="x", user="r1", password=rover["password"]) as r1:
+            assert r1.accepted  # its own listener
 
 
 def test_a_formation_a_boards_broker_drops_is_an_error_not_a_command_sent(tmp_path: Path) -> None:

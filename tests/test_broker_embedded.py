@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import socket
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -13,6 +14,7 @@ from hypothesis import strategies as st
 
 from edge.broker import BrokerAccess, Credentials, EmbeddedBroker, ensure_credentials
 from edge.broker.access import MAX_PACKET_BYTES, Policy, payload_limit
+from edge.broker.embedded import MAX_PENDING_CONNECTS, MAX_PENDING_PER_ADDRESS, PendingConnects
 from edge.broker.gate import IDENTIFIER_REJECTED, NOT_AUTHORIZED, PacketLimit, PacketTooLarge
 from edge.config import BrokerTarget
 from edge.messages import FORMATION_TOPIC, ROVER_STATUS_WILDCARD, edge_status_topic, pose_topic, rover_status_topic
@@ -240,3 +242,48 @@ def test_client_ids_belong_to_logins(user: str | None, client_id: str, allowed: 
 def test_other_host_is_not_this_machines_loopback() -> None:
     with other_host() as there:
         assert isinstance(there, OtherHost) and not there.address.startswith("127.")
+
+
+def test_silent_sockets_from_a_host_keep_neither_this_machine_nor_other_hosts_out(
+    secured: tuple[EmbeddedBroker, Credentials],
+) -> None:
+    # Each STOP of the dashboard and each `edge-ips formation` is a new connection from this machine: a host on
+    # the network that holds sockets open without a CONNECT (dropped only after 10 s) must not keep them out.
+    broker, creds = secured
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.connect(("192.0.2.1", 9))  # no packet is sent: picks this host's outgoing (non-loopback) address
+        lan = s.getsockname()[0]
+    assert not lan.startswith("127.")
+    silent = [
+        socket.create_connection((lan, broker.port), source_address=(lan, 0))
+        for _ in range(MAX_PENDING_PER_ADDRESS + 1)
+    ]
+    try:
+        silent[-1].settimeout(60)  # a guard only: the broker closes it as soon as it sees it
+        assert silent[-1].recv(1) == b""  # one too many from that address: closed at once...
+        silent[0].setblocking(False)
+        with pytest.raises(BlockingIOError):
+            silent[0].recv(1)  # ...while the first still waits for its CONNECT (not the 10 s timeout for all)
+        with Probe("127.0.0.1", broker.port, client_id="edge-ips-stop", **login(creds, "edge")) as edge:
+            assert edge.accepted
+    finally:
+        for sock in silent:
+            sock.close()
+
+
+def test_this_machine_has_room_for_its_connects_whatever_other_hosts_hold() -> None:
+    pending = PendingConnects()
+    hosts = [f"10.0.0.{i}" for i in range(MAX_PENDING_CONNECTS // MAX_PENDING_PER_ADDRESS)]
+    for host in hosts:
+        for _ in range(MAX_PENDING_PER_ADDRESS):
+            assert pending.refusal(host) is None
+            pending.add(host)
+        if host == hosts[0]:
+            assert "from that address" in str(pending.refusal(host))  # one host alone
+    assert "other hosts" in str(pending.refusal("10.0.1.1"))  # every other host together: the cap
+    for local in ("127.0.0.1", "::1", "::ffff:127.0.0.1"):
+        assert pending.refusal(local) is None  # this machine's own clients are counted apart
+    for host in hosts:
+        for _ in range(MAX_PENDING_PER_ADDRESS):
+            pending.add(host, -1)
+    assert pending.refusal("10.0.1.1") is None

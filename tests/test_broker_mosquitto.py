@@ -64,6 +64,37 @@ def test_a_rover_login_with_the_edges_client_id_does_not_disconnect_the_edge(
         publisher.stop()
 
 
+@pytest.mark.parametrize("login", ["red", "viewer"])
+def test_no_login_but_the_edges_connects_to_the_local_listener_where_clients_keep_their_ids(
+    deployed: tuple[Mosquitto, BrokerFiles], login: str
+) -> None:
+    broker, files = deployed
+    creds = read_credentials(files.credentials)
+    assert creds.viewer is not None
+    other = {"red": creds.rovers["red"], "viewer": creds.viewer}[login]
+    local = broker.ports[LOCAL_PORT]
+    edge_login = creds.edge
+    target = BrokerTarget(False, "127.0.0.1", local, username=edge_login.username, password=edge_login.password)
+    publisher = MqttPublisher(target, edge_id=EDGE_ID, rovers=ROVERS, reconnect_min_s=0.1, reconnect_max_s=0.2)
+    publisher.start()
+    try:
+        assert publisher.wait_connected(10)
+        with Probe("127.0.0.1", local, client_id="edge-ips-watch", user="edge", password=edge_login.password) as w:
+            w.subscribe(edge_status_topic(EDGE_ID))
+            # Here a client keeps the id it asks for: a rover's login (read out of its flash) with the edge's id
+            # would take the edge's session and make the broker publish its last will.
+            intruder = Probe(
+                "127.0.0.1", local, client_id=f"edge-ips-{EDGE_ID}", user=other.username, password=other.password
+            )
+            with intruder:
+                assert not intruder.accepted
+            states = edge_states_until_marker(publisher, w, EDGE_ID)
+        assert "offline" not in states
+        assert publisher.connected and publisher.stats.disconnects == 0
+    finally:
+        publisher.stop()
+
+
 def test_the_tls_listener_takes_the_edge_with_the_client_certificate_and_nobody_without(
     deployed: tuple[Mosquitto, BrokerFiles],
 ) -> None:
@@ -84,6 +115,9 @@ def test_the_tls_listener_takes_the_edge_with_the_client_certificate_and_nobody_
     no_certificate = {"ca_certs": str(files.tls.ca_cert), "cert_reqs": ssl.CERT_REQUIRED}
     with Probe("localhost", port, client_id="rover-red", tls=no_certificate, **users["red"]) as red:
         assert not red.accepted  # the handshake fails before any login is read
+    certificate = {**no_certificate, "certfile": str(files.tls.client_cert), "keyfile": str(files.tls.client_key)}
+    with Probe("localhost", port, client_id=f"edge-ips-{EDGE_ID}", tls=certificate, **users["red"]) as red:
+        assert not red.accepted  # with the certificate, still no rover login (clients keep their ids here)
     with Probe("localhost", broker.ports[1883], client_id="x", tls=no_certificate, **users["red"]) as plain:
         assert not plain.accepted  # the plain listener speaks no TLS
 

@@ -129,7 +129,8 @@ def deployment(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Deplo
             url,
             ["--source", "sim", "--broker", url],
             clean_env(EDGE_IPS_DASHBOARD__TOKEN=TOKEN, **ids),
-            ["--broker", f"mqtt://127.0.0.1:{broker.port}", "--config-dir", str(bundles)],
+            # the rovers on the network listener (the loopback one takes the edge's login only)
+            ["--broker", f"mqtt://127.0.0.1:{broker.ports[1883]}", "--config-dir", str(bundles)],
             edge_user,
             edge_password,
         )

@@ -122,6 +122,37 @@ def test_a_broker_that_comes_up_later_gets_the_stop_on_the_first_connection(tmp_
         publisher.stop()
 
 
+def test_a_broker_that_crashes_and_brings_back_an_older_formation_gets_a_stop_again(tmp_path: Path) -> None:
+    # Mosquitto saves its retained messages on a clean exit (and every 30 min): after a crash it brings back the
+    # line the stop had replaced, and the rovers, which reconnect, would apply it.
+    (tmp_path / "db").mkdir()
+    conf = tmp_path / "persistent.conf"
+    conf.write_text(f"listener 1883\nallow_anonymous true\npersistence true\npersistence_location {tmp_path}/db/\n")
+    broker = Mosquitto(tmp_path / "run", conf_path=conf)
+    with broker:
+        retain(broker, LINE)  # saved at the clean exit
+    broker.start()
+    publisher, stop = halted_on_connect(broker)
+    try:
+        assert stop.done.wait(30) and retained(broker)["kind"] == "stop"
+        assert broker.proc is not None
+        broker.proc.kill()  # a crash: the stop was never saved
+        broker.proc.wait()
+        broker.start()
+        sub = FormationSubscriber(broker.host, broker.port)
+        try:
+            seen = [sub.next()[0]]  # the replayed line, or already the edge's new stop
+            while seen[-1]["kind"] != "stop":
+                seen.append(sub.next()[0])
+        finally:
+            sub.close()
+        assert [d["kind"] for d in seen] in (["stop"], ["line", "stop"])
+        assert retained(broker)["kind"] == "stop" and publisher.stats.connects == 2
+    finally:
+        publisher.stop()
+        broker.stop()
+
+
 def test_the_appliance_publishes_a_retained_stop_when_it_starts(mosquitto: Mosquitto) -> None:
     retain(mosquitto, LINE)  # what the fleet was doing before the edge restarted
     sub = FormationSubscriber(mosquitto.host, mosquitto.port)

@@ -109,10 +109,11 @@ def test_a_rover_with_a_wrong_password_is_refused_in_one_line(
 ) -> None:
     broker, _ = acl_broker
     _bundle(tmp_path / "bundles", "red", password="not-red-pw")
-    result = sim_rovers("--broker", f"mqtt://127.0.0.1:{broker.port}", "--config-dir", str(tmp_path / "bundles"))
+    network = broker.ports[1883]  # where rovers log in
+    result = sim_rovers("--broker", f"mqtt://127.0.0.1:{network}", "--config-dir", str(tmp_path / "bundles"))
     assert result.exit_code == 2
     assert result.output.strip() == (
-        f"Error: broker mqtt://127.0.0.1:{broker.port} refused rover 'red' (user 'red'): not authorised "
+        f"Error: broker mqtt://127.0.0.1:{network} refused rover 'red' (user 'red'): not authorised "
         "(check the rover's user and password)"
     )
 
@@ -128,7 +129,7 @@ def test_each_rover_connects_with_its_own_credentials_behind_the_acl(acl_broker:
             seen.notify_all()
 
     with MqttRecorder(broker.host, broker.port, (ROVER_STATUS_WILDCARD,), "edge", PASSWORDS["edge"]) as rec:
-        fleet = start_fleet(f"mqtt://127.0.0.1:{broker.port}", credentials=credentials, on_event=on_event)
+        fleet = start_fleet(f"mqtt://127.0.0.1:{broker.ports[1883]}", credentials=credentials, on_event=on_event)
         try:
             assert rec.wait_for(lambda m: {json.loads(x.payload)["id"] for x in m} == set(IDS), 60)
             with seen:

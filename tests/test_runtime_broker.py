@@ -175,8 +175,8 @@ def deployed(tmp_path: Path) -> Any:
 
 def test_broker_config_rover_cannot_publish_poses_or_other_rovers_status(deployed: Mosquitto) -> None:
     edge = Client(deployed.port, "edge", PASSWORDS["edge"])
-    red = Client(deployed.port, "red", PASSWORDS["red"])
-    green = Client(deployed.port, "green", PASSWORDS["green"])
+    red = Client(deployed.ports[1883], "red", PASSWORDS["red"])  # rovers log in on the network listener
+    green = Client(deployed.ports[1883], "green", PASSWORDS["green"])
     try:
         assert edge.accepted and red.accepted and green.accepted
         green.subscribe(POSE_WILDCARD)
@@ -204,7 +204,7 @@ def test_broker_config_rover_cannot_publish_poses_or_other_rovers_status(deploye
 def test_broker_config_rover_reads_the_retained_formation(deployed: Mosquitto) -> None:
     target = parse_broker_url(f"mqtt://edge:{PASSWORDS['edge']}@127.0.0.1:{deployed.port}")
     send_formation(target, lambda seq: build_formation("rendezvous", ROVERS, seq=seq))
-    blue = Client(deployed.port, "blue", PASSWORDS["blue"])
+    blue = Client(deployed.ports[1883], "blue", PASSWORDS["blue"])
     try:
         blue.subscribe(FORMATION_TOPIC)
         assert parse_formation(blue.wait_for(FORMATION_TOPIC)[0]).kind == "rendezvous"

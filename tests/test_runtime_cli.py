@@ -248,8 +248,8 @@ def test_doctor_checks_that_the_broker_lets_the_edge_publish(tmp_path: Path, env
     files = write_mosquitto_config(tmp_path / "mq", rovers=["red"], passwords=passwords)
     with Mosquitto(tmp_path / "run", conf_path=files.conf) as broker:
         lines = {}
-        for user in ("edge", "red"):
-            url = f"mqtt://{user}:{passwords[user]}@127.0.0.1:{broker.port}"
+        for user, port in (("edge", broker.port), ("red", broker.ports[1883])):  # red on the rovers' listener
+            url = f"mqtt://{user}:{passwords[user]}@127.0.0.1:{port}"
             out = CliRunner().invoke(main, ["doctor", "--broker", url, "--source", "/dev/video7"], env=env).output
             lines[user] = next(ln for ln in out.splitlines() if ln.split()[1] == "broker")
         wrong = (

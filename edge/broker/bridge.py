@@ -57,7 +57,7 @@ from edge.broker.access import (
     rover_rights,
 )
 from edge.broker.credentials import new_password
-from edge.broker.mosquitto import write_password_file
+from edge.broker.mosquitto import LOCAL_PASSWD, login_lines, write_password_file
 from edge.broker.tls import tls_listener_lines, write_tls_files
 from edge.errors import BrokerError
 from edge.fusion.lease import LEASE_TOPIC
@@ -155,8 +155,8 @@ class BridgeFiles:
 
 def _limits() -> list[str]:
     return [
-        "per_listener_settings false",
-        "allow_anonymous false",
+        "# Each listener names the logins it takes (the loopback one the edge's only); one ACL.",
+        "per_listener_settings true",
         "# Several boards' messages: detections (up to 64 rovers) and the fusers' statuses are the largest.",
         f"max_packet_size {PACKET_LIMIT_BYTES}",
         f"message_size_limit {MESSAGE_LIMIT_BYTES}",
@@ -169,18 +169,23 @@ def _limits() -> list[str]:
 
 def _listeners(where: Path, port: int, local_port: int, tls_port: int | None, who: str) -> list[str]:
     lines = [
-        "# The edge's own tools on this machine with the edge login, each with its own client id.",
+        "# The edge's own tools on this machine with the edge login (the only one taken here: a rover's, read out",
+        "# of its flash, would take their sessions), each with its own client id.",
         f"listener {local_port} 127.0.0.1",
+        *login_lines(where, LOCAL_PASSWD),
         "",
         f"# {who}: a client's id is its user name.",
         f"listener {port} 0.0.0.0",
         "use_username_as_clientid true",
+        *login_lines(where, "passwd"),
         "",
     ]
     if tls_port is not None:
         lines += [
             "# TLS: only clients holding client.crt (signed by ca.crt) connect.",
-            *tls_listener_lines(tls_port, "0.0.0.0", where, clientid_from_username=True),
+            *[line for line in tls_listener_lines(tls_port, "0.0.0.0", where, clientid_from_username=True) if line],
+            *login_lines(where, "passwd"),
+            "",
         ]
     return lines
 
@@ -236,8 +241,6 @@ def _central_conf(
         "# `edge-ips broker-config --bridge`. The fusers (edge-ips fuse) and the rovers connect here; this broker",
         "# opens one bridge to each board. Holds the bridges' passwords: keep it secret (mode 600).",
         *_limits(),
-        f"password_file {where / 'passwd'}",
-        f"acl_file {where / 'acl'}",
         "",
         *_listeners(where, port, local_port, tls_port, "Rovers, fusers and the rest of the network"),
     ]
@@ -254,8 +257,6 @@ def _board_conf(board: str, where: Path, *, local_port: int, port: int, tls_port
         "# Written by `edge-ips broker-config --bridge`. edge-ips on this board: broker.url =",
         f'# mqtt://edge@localhost:{local_port}, edge.publish = "detections".',
         *_limits(),
-        f"password_file {where / 'passwd'}",
-        f"acl_file {where / 'acl'}",
         "",
         *_listeners(where, port, local_port, tls_port, "The central broker's bridge, rovers"),
     ]
@@ -339,6 +340,7 @@ def write_bridge_configs(
     if tls:
         write_tls_files(central, tls_names)
     write_password_file(central / "passwd", passwords)
+    write_password_file(central / LOCAL_PASSWD, {EDGE_USER: passwords[EDGE_USER]})
     write_private(central / "acl", rights_acl_text(central_rights(fusers, rovers)), mode=0o640)
     write_private(
         central / "mosquitto.conf",
@@ -382,6 +384,7 @@ def write_bridge_configs(
             VIEWER_USER: passwords[VIEWER_USER],
         }
         write_password_file(where / "passwd", local)
+        write_password_file(where / LOCAL_PASSWD, {EDGE_USER: local[EDGE_USER]})
         write_private(where / "acl", rights_acl_text(board_rights(board, rovers)), mode=0o640)
         write_private(
             where / "mosquitto.conf",

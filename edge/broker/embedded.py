@@ -19,6 +19,7 @@ import asyncio
 import errno
 import logging
 import threading
+from collections import Counter
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any
@@ -28,13 +29,14 @@ from amqtt.plugins.base import BaseAuthPlugin
 from amqtt.plugins.topic_checking import TopicAccessControlListPlugin
 
 from edge.broker.access import ANONYMOUS, VIEWER_RIGHTS, Policy, payload_limit
-from edge.broker.gate import OPEN_DESCRIPTION, BrokerAccess, Connect, GateReader, admit_open
+from edge.broker.gate import OPEN_DESCRIPTION, BrokerAccess, Connect, GateReader, admit_open, is_loopback
 from edge.errors import BrokerError
 
 log = logging.getLogger("edge.broker")
 
 CONNECT_TIMEOUT_S = 10.0  # a client that opens a socket and says nothing is dropped after this
-MAX_PENDING_CONNECTS = 64  # sockets at once that have not finished their CONNECT
+MAX_PENDING_CONNECTS = 64  # sockets at once that have not finished their CONNECT (other hosts; this machine apart)
+MAX_PENDING_PER_ADDRESS = 8  # of them from any one other host
 SHUTDOWN_TIMEOUT_S = 4.0  # amqtt's own shutdown, then what it left
 
 
@@ -129,6 +131,37 @@ def plugins_config(access: BrokerAccess | None) -> dict[str, Any]:
 
 
 # -- the broker --------------------------------------------------------------------------------------------------
+class PendingConnects:
+    """Sockets that have not finished their CONNECT, counted so that a host on the network holding silent sockets
+    keeps neither this machine out (the edge's publisher, its dashboard's STOP and ``edge-ips formation`` connect
+    from here, each command on a new connection) nor the other hosts (the rovers): at most
+    :data:`MAX_PENDING_CONNECTS` from other hosts together, :data:`MAX_PENDING_PER_ADDRESS` from any one, and as
+    many again from this machine."""
+
+    def __init__(self) -> None:
+        self._counts: Counter[str | None] = Counter()
+
+    @staticmethod
+    def _keys(address: str | None) -> tuple[str | None, str | None]:
+        return ("this machine", None) if is_loopback(address) else ("other hosts", address)
+
+    def refusal(self, address: str | None) -> str | None:
+        """Why a new socket from ``address`` is refused now (None: it may send its CONNECT)."""
+        group, one = self._keys(address)
+        if self._counts[group] >= MAX_PENDING_CONNECTS:
+            return f"{MAX_PENDING_CONNECTS} others ({group}) have not logged in yet"
+        if one is not None and self._counts[one] >= MAX_PENDING_PER_ADDRESS:
+            return f"{MAX_PENDING_PER_ADDRESS} others from that address have not logged in yet"
+        return None
+
+    def add(self, address: str | None, step: int = 1) -> None:
+        for key in self._keys(address):
+            if key is not None:
+                self._counts[key] += step
+                if self._counts[key] <= 0:
+                    del self._counts[key]  # remember no address that has nothing pending
+
+
 def _make_broker(config: dict[str, Any], access: BrokerAccess | None) -> Any:
     """An amqtt broker behind the gate, with per-topic payload limits and retained messages only for subscribers.
 
@@ -142,19 +175,20 @@ def _make_broker(config: dict[str, Any], access: BrokerAccess | None) -> Any:
     from amqtt.mqtt.connect import ConnectPacket
     from amqtt.mqtt.packet import CONNECT, MQTTFixedHeader
 
-    pending = [0]  # sockets that have not finished their CONNECT
+    pending = PendingConnects()
 
     class _Broker(Broker):
         async def stream_connected(self, reader: Any, writer: Any, listener_name: str) -> None:
             peer = writer.get_extra_info("peername")
             address = peer[0] if peer else None
             out = StreamWriterAdapter(writer)
-            if pending[0] >= MAX_PENDING_CONNECTS:
-                refused(f"a connection from {address}: {MAX_PENDING_CONNECTS} others have not logged in yet")
+            full = pending.refusal(address)
+            if full is not None:
+                refused(f"a connection from {address}: {full}")
                 await out.close()
                 return
             gate = GateReader(reader, on_too_large=lambda why: refused(f"{why} from {address}; disconnected"))
-            pending[0] += 1
+            pending.add(address)
             try:
                 header = await asyncio.wait_for(MQTTFixedHeader.from_stream(gate), CONNECT_TIMEOUT_S)
                 if header is None or header.packet_type != CONNECT:
@@ -165,7 +199,7 @@ def _make_broker(config: dict[str, Any], access: BrokerAccess | None) -> Any:
                 await out.close()
                 return
             finally:
-                pending[0] -= 1
+                pending.add(address, -1)
             will = packet.will_flag and packet.will_topic is not None
             connect = Connect(
                 username=packet.username if packet.username_flag else None,

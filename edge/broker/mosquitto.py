@@ -4,13 +4,16 @@ Listeners, and why there are two (three with TLS):
 
 * ``127.0.0.1:<local port>`` (1884): the edge's own clients on the broker's machine. The publisher, the dashboard,
   ``edge-ips formation`` and ``doctor`` share the edge's login and need their own client ids, so this listener
-  keeps the ids clients choose; only processes on this machine reach it.
+  keeps the ids clients choose; only processes on this machine reach it, and only with the edge's login
+  (``passwd-local``): a rover's login, read out of its flash, would otherwise take the edge's session here.
 * ``<bind>:<port>`` (1883): rovers and the rest of the network, with ``use_username_as_clientid true``: a client's id
   is its user name, so a login (a rover's, read out of its flash) cannot take the session of another user's client.
 * ``--tls``: ``<bind>:<tls port>`` (8883) for the edge and laptops on other machines; only clients holding the
-  client certificate connect (``require_certificate``), so rover logins are no key to it.
+  client certificate connect (``require_certificate``), and only with the edge's or the viewer's login
+  (``passwd-tls``): rovers never use TLS, and this listener too keeps the ids clients choose.
 
-Anonymous access is off everywhere; the ACL is :meth:`edge.broker.access.Policy.acl_text`. Packets larger than
+Each listener has its own password file (``per_listener_settings true``). Anonymous access is off everywhere;
+the ACL is :meth:`edge.broker.access.Policy.acl_text`. Packets larger than
 :data:`~edge.broker.access.MAX_PACKET_BYTES` disconnect their sender, payloads larger than the contract's largest
 ``x-max-bytes`` are dropped.
 """
@@ -29,6 +32,8 @@ from edge.private_files import private_dir, write_private
 
 LOCAL_PORT = 1884
 TLS_PORT = 8883
+LOCAL_PASSWD = "passwd-local"  # the local listener's logins: the edge's only
+TLS_PASSWD = "passwd-tls"  # the TLS listener's: the edge's and the viewer's
 
 
 def write_password_file(path: Path, passwords: Mapping[str, str]) -> Path:
@@ -43,11 +48,18 @@ class BrokerFiles:
     passwd: Path
     acl: Path
     credentials: Path
+    local_passwd: Path
+    tls_passwd: Path | None = None
     tls: TlsPaths | None = None
 
     def all(self) -> list[Path]:
-        tls = [] if self.tls is None else list(vars(self.tls).values())
-        return [self.conf, self.passwd, self.acl, self.credentials, *tls]
+        tls = [] if self.tls is None else [self.tls_passwd, *vars(self.tls).values()]
+        return [self.conf, self.passwd, self.local_passwd, self.acl, self.credentials, *[p for p in tls if p]]
+
+
+def login_lines(where: Path, passwd: str) -> list[str]:
+    """A listener's own security settings (``per_listener_settings true``): logins from ``where/passwd``, one ACL."""
+    return ["allow_anonymous false", f"password_file {where / passwd}", f"acl_file {where / 'acl'}"]
 
 
 def _conf_text(
@@ -65,10 +77,8 @@ def _conf_text(
         f"# Mosquitto configuration for edge-ips (edge {edge_id!r}; rovers {rovers}),",
         f"# written by `edge-ips broker-config`. Install: copy this directory to {where} and include this file",
         "# from /etc/mosquitto/conf.d/. Who may do what: docs/deploy.md, section 'Security model'.",
-        "per_listener_settings false",
-        "allow_anonymous false",
-        f"password_file {where / 'passwd'}",
-        f"acl_file {where / 'acl'}",
+        "# Each listener names the logins it takes (a rover's is no key to the edge's listeners); one ACL.",
+        "per_listener_settings true",
         "# Nothing edge-ips sends is larger: a bigger packet disconnects its sender, a bigger payload is dropped.",
         f"max_packet_size {MAX_PACKET_BYTES}",
         f"message_size_limit {MAX_PAYLOAD_BYTES}",
@@ -77,20 +87,26 @@ def _conf_text(
         "# Keep the system's `persistence true` (Debian's default): the retained formation survives restarts.",
         "",
         "# The edge's own clients on this machine (publisher, dashboard, `edge-ips formation`, doctor): they share",
-        "# the edge's login, so they keep their own client ids. Only processes on this machine reach it.",
+        "# the edge's login, so they keep their own client ids. Only processes on this machine reach it, and only",
+        "# with the edge's login: with a rover's (read out of its flash) one could take the edge's session here.",
         f"listener {local_port} 127.0.0.1",
+        *login_lines(where, LOCAL_PASSWD),
         "",
         "# Rovers and the rest of the network. A client's id is its user name here, so no login can take the",
         "# session of another user's client (a rover's password cannot disconnect the edge).",
         f"listener {port} {bind}",
         "use_username_as_clientid true",
+        *login_lines(where, "passwd"),
         "",
     ]
     if tls_port is not None:
         lines += [
             "# TLS for the edge and laptops on other machines: only clients with client.crt (signed by ca.crt)",
-            "# connect. ESP8266 rovers stay on the plain listener (docs/deploy.md).",
-            *tls_listener_lines(tls_port, bind, where),
+            "# connect, with the edge's or the viewer's login. ESP8266 rovers stay on the plain listener",
+            "# (docs/deploy.md).",
+            *[line for line in tls_listener_lines(tls_port, bind, where) if line],
+            *login_lines(where, TLS_PASSWD),
+            "",
         ]
     return "\n".join(lines)
 
@@ -127,14 +143,22 @@ def write_mosquitto_config(
     credentials = generate(rovers, edge_user=edge_user, viewer=viewer, passwords=passwords)
     if len({port, local_port, tls_port or port}) != (2 if tls_port is None else 3):
         raise BrokerError(f"listener ports must differ: {port}, {local_port}" + (f", {tls_port}" if tls_port else ""))
-    names = ["mosquitto.conf", "passwd", "acl", "credentials.toml", *(TLS_FILES if tls_port is not None else ())]
+    tls_names_written = (TLS_PASSWD, *TLS_FILES) if tls_port is not None else ()
+    names = ["mosquitto.conf", "passwd", LOCAL_PASSWD, "acl", "credentials.toml", *tls_names_written]
     existing = [name for name in names if (out_dir / name).exists()]
     if existing and not force:
         raise BrokerError(f"{out_dir}: {', '.join(existing)} already exist (use --force to overwrite)")
     private_dir(out_dir)
     where = install_dir if install_dir is not None else out_dir.resolve()
     tls = write_tls_files(out_dir, tls_names) if tls_port is not None else None
-    passwd = write_password_file(out_dir / "passwd", credentials.passwords())
+    passwords = credentials.passwords()
+    passwd = write_password_file(out_dir / "passwd", passwords)
+    edge_only = {credentials.edge.username: passwords[credentials.edge.username]}
+    local_passwd = write_password_file(out_dir / LOCAL_PASSWD, edge_only)
+    tls_passwd = None
+    if tls_port is not None:
+        viewer_only = {} if credentials.viewer is None else {credentials.viewer.username: credentials.viewer.password}
+        tls_passwd = write_password_file(out_dir / TLS_PASSWD, {**edge_only, **viewer_only})
     acl = write_private(out_dir / "acl", credentials.policy(edge_id).acl_text(), mode=0o640)
     conf = write_private(
         out_dir / "mosquitto.conf",
@@ -150,4 +174,4 @@ def write_mosquitto_config(
         mode=0o644,
     )
     secrets = write_private(out_dir / "credentials.toml", credentials.to_toml(CREDENTIALS_HEADER))
-    return BrokerFiles(conf, passwd, acl, secrets, tls)
+    return BrokerFiles(conf, passwd, acl, secrets, local_passwd, tls_passwd, tls)
