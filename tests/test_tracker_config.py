@@ -133,23 +133,47 @@ def test_a_lost_rover_is_not_taken_for_a_marker_of_its_colour_farther_than_it_co
     assert any(p is not None and math.hypot(p[0] - 300.0, p[1] - 365.0) < 1.0 for p in ungated[12:])
 
 
-def _red_resized_after_frame_14(area_scale: float, **settings: Any) -> list[bool]:
+def _red_resized_after_frame_14(
+    area_scale: float, hidden_end: bool = False, growing: bool = False, **settings: Any
+) -> list[bool]:
     """Red stands at (150, 200), its marker whole for 14 frames (its own area learned), then showing
-    ``area_scale`` of that area (a leg hides part of it, or something of its hue lies against it): whether the
-    tracker reports red, frame by frame."""
+    ``area_scale`` of that area: shrunk about its centre (a stream that shows it smaller), or with ``hidden_end``
+    a strip of its front end hidden (a leg in front of it; what is left has its centroid behind the centre), with
+    ``growing`` a strip that grows by 2 % of the marker a frame down to ``area_scale``: whether the tracker reports
+    red, frame by frame."""
     scene = shared_scene()
     config = TrackerConfig(rovers=(RoverConfig(id="red", color_bgr=COLORS["red"]),), **settings)
     tracker = build_tracker(config, scene.mapping)
     rng = np.random.default_rng(5)
     out = []
     for i in range(24):
-        k = math.sqrt(area_scale) if i >= 14 else 1.0
-        red = SynthRover(
-            "red", 150.0, 200.0, 0.3, COLORS["red"], marker_cm=(22.0 * k, 17.0 * k), body_cm=(25 * k, 20 * k)
-        )
+        if i < 14:
+            look = {"marker_cm": (22.0, 17.0), "body_cm": (25.0, 20.0)}
+            x = 150.0
+        elif hidden_end:
+            shown = max(area_scale, 1.0 - 0.02 * (i - 13)) if growing else area_scale
+            look = {"marker_cm": (22.0 * shown, 17.0), "body_cm": (25.0, 20.0)}
+            x = 150.0 - 0.5 * 22.0 * (1.0 - shown) * math.cos(0.3)
+        else:
+            k = math.sqrt(area_scale)
+            look = {"marker_cm": (22.0 * k, 17.0 * k), "body_cm": (25 * k, 20 * k)}
+            x = 150.0
+        y = 200.0 - (0.0 if not hidden_end or i < 14 else (150.0 - x) * math.tan(0.3))
+        red = SynthRover("red", x, y, 0.3, COLORS["red"], **look)  # type: ignore[arg-type]
         result = tracker.process(frame(scene.render([red], noise_sigma=2.0, rng=rng), i, FPS))
         out.append(any(e.rover_id == "red" for e in result.estimates))
     return out
+
+
+@pytest.mark.slow
+def test_a_partly_hidden_marker_is_refused_whether_hidden_at_once_or_a_little_more_each_frame() -> None:
+    """A strip of one end hidden moves the centroid of what is left 1.6 cm behind the rover's centre (15 %
+    hidden): no pose. A leg covering it a little more each frame drags the position filter along with the
+    centroid, so a check against the filter's prediction would follow it (a red marker was followed to 2.6 cm off
+    that way in the family's occlusion clip); the area band refuses it all the same once 12 % are hidden."""
+    assert _red_resized_after_frame_14(0.85, hidden_end=True) == [True] * 14 + [False] * 10
+    growing = _red_resized_after_frame_14(0.8, hidden_end=True, growing=True)
+    assert growing[:14] == [True] * 14 and not any(growing[20:])
 
 
 @pytest.mark.slow
