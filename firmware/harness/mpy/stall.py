@@ -287,7 +287,7 @@ def board(directory, interrupt_ms):
     _s["saved"] = (app.time, link.time, simple.socket)
     app.time = link.time = clock
     simple.socket = net
-    machine.stop_timers()
+    machine.power_on()  # a chip just powered: no timer, no PWM channel, no pin driven
     _s.update(case=case, clock=clock, broker=broker, net=net, on=False, changes=[], log=[], interrupted=None)
     edge = _Edge(broker, case, 1 << 30)
     clock.watchers.append(edge)
