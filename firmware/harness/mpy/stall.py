@@ -152,6 +152,7 @@ def _setup(case_name, path, stall_ms):
     _s["motors"] = m
     _s["rover"] = r
     _s["wd"] = app.Watchdog(m)
+    _s["wd"].start()
     clock.watchers.append(_motors)
 
 
