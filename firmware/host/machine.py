@@ -14,9 +14,10 @@ _timers = []  # armed Timer stand-ins
 board = None  # the board stand-in, when a test runs one
 # The chip's PWM (ports/esp8266/esppwm.c): a duty per GPIO that has a channel, driven by a timer interrupt. These are
 # C statics, not Python objects: they outlive a soft reset (Ctrl-D, mpremote's raw REPL) and keep the pins pulsing
-# through it; only a hard reset (power_on()) clears them. _levels: what each GPIO's output register holds.
-_pwm = {}  # gpio -> duty of each running channel
-_levels = {}  # gpio -> 0/1 written to the output (by Pin, or left by a PWM channel's end)
+# through it; only a hard reset (power_on()) clears them. _levels: what each GPIO's output register holds. Both are
+# lists made at import, as the chip's are static: changing them allocates nothing (the heap budget runs through here).
+_pwm = [None] * 17  # gpio -> duty of its running channel; None: no channel
+_levels = [None] * 17  # gpio -> 0/1 written to its output (by Pin, or left by a channel's end); None: not driven
 _PWM_GPIOS = (0, 2, 4, 5, 12, 13, 14, 15)  # esppwm.c's pin_num: no PWM on any other GPIO
 
 
@@ -42,13 +43,10 @@ class Pin:
             raise ValueError("invalid pin")  # as the port's pin table: 6, 7, 8 and 11 are the flash chip's
         self.id = id
         self.mode = mode
-        self.level = _levels.get(id, 0) if value is None else int(bool(value))
+        self.level = (_levels[id] or 0) if value is None else int(bool(value))
         if mode == -1:
             return  # Pin(id) alone configures nothing (machine_pin.c: only a mode or keywords do)
-        if mode == Pin.OUT:
-            _levels[id] = self.level
-        elif id in _levels:
-            del _levels[id]  # an input drives nothing
+        _levels[id] = self.level if mode == Pin.OUT else None  # an input drives nothing
         if board is not None:
             board.pin_set(id, self.level if mode == Pin.OUT else None)
 
@@ -86,7 +84,7 @@ class PWM:
             raise ValueError("PWM frequency %d Hz outside 1..1000 (ESP8266)" % freq)
         self.pin = pin
         self.frequency = 1000 if freq is None else freq
-        if pin.id not in _pwm:
+        if _pwm[pin.id] is None:
             _pwm[pin.id] = 0
         self.duty_value = _pwm[pin.id]
         self.changes = 0
@@ -112,8 +110,9 @@ class PWM:
         return None
 
     def deinit(self):
-        if self.pin.id in _pwm:
-            level = 1 if _pwm.pop(self.pin.id) == self.MAX_DUTY else 0
+        if _pwm[self.pin.id] is not None:
+            level = 1 if _pwm[self.pin.id] == self.MAX_DUTY else 0
+            _pwm[self.pin.id] = None
             _levels[self.pin.id] = level
             if board is not None:
                 board.pin_set(self.pin.id, level)
@@ -123,18 +122,20 @@ def outputs():
     """What each GPIO that was driven puts out, as a duty 0..1023: its PWM channel's, else 1023 when its output is
     high (a motor driver's enable pin held high turns the motor at full speed)."""
     out = {}
-    for gpio in _levels:
-        out[gpio] = _levels[gpio] * PWM.MAX_DUTY
-    for gpio in _pwm:
-        out[gpio] = _pwm[gpio]
+    for gpio in range(17):
+        if _pwm[gpio] is not None:
+            out[gpio] = _pwm[gpio]
+        elif _levels[gpio] is not None:
+            out[gpio] = _levels[gpio] * PWM.MAX_DUTY
     return out
 
 
 def power_on():
     """A hard reset's peripherals (tests): no timer armed, no PWM channel, no output driven."""
     stop_timers()
-    _pwm.clear()
-    _levels.clear()
+    for gpio in range(17):
+        _pwm[gpio] = None
+        _levels[gpio] = None
 
 
 class Timer:

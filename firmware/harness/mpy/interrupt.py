@@ -54,6 +54,6 @@ def run(path):
             app.run(path, 0, _quiet)  # no step: the loop itself never runs
         except KeyboardInterrupt:
             interrupted = True
-        duties = [machine._pwm[g] for g in machine._pwm]  # the motors' PWM channels
+        duties = [d for d in machine._pwm if d is not None]  # the motors' PWM channels
         print(json.dumps([where, interrupted, len(machine._timers), max(duties or [0])]))
     machine.power_on()
