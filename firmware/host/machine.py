@@ -72,8 +72,9 @@ class Pin:
 class PWM:
     """machine.PWM as ports/esp8266/machine_pwm.c has it. The constructor gives the GPIO a channel if it has none
     (at duty 0: no pulse) and keeps the duty of one it has, so PWM(Pin(p)) with no arguments never starts a pulse
-    but finds one a soft reset left running; freq= changes the one frequency of all channels; deinit() ends the
-    channel, leaving the pin where the last period left it (high at full duty, where no period ever clears it)."""
+    but finds one a soft reset left running; deinit() ends the channel, leaving the pin where the last period left
+    it (high at full duty, where no period ever clears it). The frequency is kept per object here (the chip has one
+    for all channels: nothing here depends on it)."""
 
     MAX_DUTY = 1023
 
