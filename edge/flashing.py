@@ -197,13 +197,19 @@ def compiled_modules() -> dict[str, bytes]:
 def boot_source(config: Mapping[str, Any]) -> str:
     """boot.py for this rover: MicroPython runs it first at every boot and soft reset, before main.py can fail."""
     pins = ", ".join(str(config["motors"][side]["pwm"]) for side in ("left", "right"))
+    # A soft reset (Ctrl-D) frees the heap but not esppwm.c's PWM channels: a wheel left turning keeps turning, and
+    # Pin(p, Pin.OUT, value=0) alone does not stop it (the PWM interrupt sets the pin again every period). PWM(Pin(p))
+    # with no arguments never starts a pulse (a new channel starts at duty 0; an old one keeps its duty) and deinit()
+    # ends the channel from the next period on; at full duty no period clears the pin, so it is driven low after.
     return (
         f"# Written by edge-ips flash for rover {config['id']!r}. Runs first at every boot and soft reset: the motor\n"
-        "# driver's PWM (enable) pins low before anything else, so the motors are off whatever happens next.\n"
-        "from machine import Pin\n\n"
+        "# driver's PWM (enable) pins stopped and low before anything else, so the motors are off whatever happens\n"
+        "# next. A soft reset leaves PWM running, so each pin's PWM channel is ended first, then the pin driven low.\n"
+        "from machine import PWM, Pin\n\n"
         f"for _pin in ({pins}):\n"
+        "    PWM(Pin(_pin)).deinit()\n"
         "    Pin(_pin, Pin.OUT, value=0)\n"
-        "del _pin, Pin\n"
+        "del _pin, PWM, Pin\n"
     )
 
 

@@ -444,3 +444,34 @@ def test_a_pose_never_replaced_stays_old_when_the_ticks_wrap(
         assert [row[1] for row in after] == ["stale"] * 17
         assert all(row[8] == row[9] == 0.0 for row in after)
     assert [row[:2] for row in in_cpython] == [row[:2] for row in in_mpy]
+
+
+# -- the link: Wi-Fi and broker retries across the ticks' wrap -------------------------------------------------------
+@pytest.mark.parametrize("interpreter", ["cpython", "micropython"])
+@pytest.mark.parametrize("start_ms", [0, 3 << 28], ids=["booted at power-on", "soft reset 3.1 days in"])
+def test_the_link_retries_at_once_after_the_ticks_wrapped(interpreter: str, start_ms: int, tmp_path: Path) -> None:
+    """Tick differences wrap at 2**29 ms (6.2 days) and read anything older as that far ahead. The rover joins the
+    Wi-Fi and stays connected for 2**29 + 2**25 ms (6.6 days), so its last Wi-Fi try is beyond the wrap; then it
+    loses the access point: the Wi-Fi must be retried at the next poll, not days later. Then an outage as long: the
+    broker's retry time, set when the link dropped, is beyond the wrap too, and the rover must reconnect as soon as
+    the Wi-Fi is back. Booted at ticks 0 (power-on) and at ticks 3 * 2**28 (the chip's ticks run on through a soft
+    reset: Ctrl-D on a board up for 3.1 days), where the first broker connect must not wait either. In CPython and
+    MicroPython, with the same driver (firmware/harness/mpy/wifi.py)."""
+    cfg = json.dumps(stall_config())
+    call = (start_ms, 1 << 25, 17)
+    if interpreter == "cpython":
+        (tmp_path / "config.json").write_text(cfg)
+        got = mpy_driver("wifi").main(str(tmp_path / "config.json"), *call)
+    else:
+        args = ", ".join(map(str, call))
+        out = run_micropython(f"wifi.main('/input/data/config.json', {args})", {"config.json": cfg.encode()}, True)
+        got = json.loads(out.splitlines()[-1])
+    period = stall_config()["control"]["period_ms"]
+    # A poll starts the Wi-Fi, the next one connects to the broker (its answers take a few ms of the same poll).
+    assert got["first_up_ms"] is not None and got["first_up_ms"] < 3 * period
+    assert got["stayed_up"]  # connected all along, through the wrap
+    assert got["retry_ms"] == period  # the Wi-Fi retried at the first poll after the drop
+    assert got["back_ms"] is not None and got["back_ms"] < 250 + 3 * period  # the broker after its first backoff
+    # The next Wi-Fi try (one every 10 s), then the broker at once.
+    assert got["after_outage_ms"] is not None and got["after_outage_ms"] < 10_000 + 3 * period
+    assert got["connections"] == 3

@@ -172,3 +172,28 @@ def test_boot_py_drives_the_configs_pwm_pins_low_before_main_runs(tmp_path: Path
         board.power_on()
         assert board.pins[14] == 0 and board.pins[12] == 0
         assert board.output == ["main.py raised RuntimeError('main.py fails at once')"]
+
+
+@pytest.mark.parametrize("duty", [600, 1023], ids=["part duty", "full duty"])
+def test_a_wheel_left_turning_at_the_repl_stops_at_a_soft_reset_even_when_main_py_cannot_start(
+    tmp_path: Path, duty: int
+) -> None:
+    # The wheel check of docs/firmware.md done by hand with m.stop() forgotten, then Ctrl-D with a broken config.json.
+    # On the ESP8266 the PWM channel outlives the soft reset (esppwm.c's state is C statics, its timer interrupt
+    # keeps pulsing the pin) and Pin(p, Pin.OUT, value=0) does not stop it: the pulse is back within a period. main.py
+    # fails before it reaches the motors, so only boot.py can stop the wheel. At full duty no period ever clears the
+    # pin, so ending the channel leaves it high: boot.py must drive it low after the channel is gone, not before.
+    with flashed_board(tmp_path) as (board, _):
+        (board.root / "config.json").write_text('{"id": "red", "motors": ')
+        board.power_on()
+        board.run(1000)
+        left, right = motor_pins()
+        by_hand = f"from machine import PWM, Pin; PWM(Pin({left}), freq=1000, duty={duty})"
+        assert board.mpremote(mpremote("exec", by_hand)).returncode == 0
+        assert board.outputs()[left] == duty  # turning at the REPL
+        board.soft_reset()  # Ctrl-D
+        board.run(30_000)
+        assert board.outputs()[left] == 0 and board.outputs()[right] == 0
+        assert board.boots == 2 and board.output == ["KeyboardInterrupt"]  # mpremote's Ctrl-C; main.py still waits
+        lines = board.console.getvalue().splitlines()
+        assert len([ln for ln in lines if ln.startswith("rover not started:")]) == 2, lines

@@ -149,3 +149,27 @@ def test_a_second_ctrl_c_inside_the_stop_leaves_the_motors_off_and_the_timer_dis
     assert [row[0] for row in in_cpython] == ["motors.stop", "watchdog.stop", "timer.deinit", "left.set"]
     for where, interrupted, left, right, timers in in_cpython:
         assert interrupted and (left, right, timers) == (0, 0, 0), where
+
+
+def test_ctrl_c_between_arming_the_watchdog_and_the_loop_leaves_its_timer_disarmed(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Ctrl-C can land at any bytecode of app.run: right after the watchdog's timer was armed and before the try whose
+    finally disarms it, the timer stayed armed at the REPL (and a soft reset frees the callback it fires into).
+    Interrupted right after the start and right after the timer's init, in CPython and MicroPython
+    (firmware/harness/mpy/interrupt.py ``run``)."""
+    import json
+
+    from firmware.harness.runner import mpy_driver, run_micropython
+
+    cfg = json.dumps(stall_config()).encode()
+    (tmp_path / "config.json").write_bytes(cfg)
+    capsys.readouterr()
+    mpy_driver("interrupt").run(str(tmp_path / "config.json"))
+    in_cpython = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    out = run_micropython("interrupt.run('/input/data/config.json')", {"config.json": cfg}, True)
+    in_mpy = [json.loads(line) for line in out.splitlines()]
+    assert in_cpython == in_mpy
+    assert [row[0] for row in in_cpython] == ["app.start", "Timer.init"]
+    for where, interrupted, timers, duty in in_cpython:
+        assert interrupted and (timers, duty) == (0, 0), where

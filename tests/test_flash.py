@@ -20,7 +20,7 @@ import pytest
 
 from edge import flashing
 from edge.errors import FlashError
-from firmware.harness.runner import micropython_image
+from firmware.harness.runner import micropython_image, mpy_driver, run_micropython, stall_config
 from tests.conftest import REPO
 
 TOOL = [sys.executable, str(REPO / "tools" / "flash.py")]
@@ -249,3 +249,23 @@ def test_a_board_that_does_not_answer_is_fine_when_new_micropython_is_written(tm
 
     flashing.flash("/dev/ttyUSB0", bundle, fw, True, run=run, echo=lambda s: None)
     assert [c[c.index("--port") + 2] for c in esptool] == ["erase-flash", "--baud"]
+
+
+@pytest.mark.parametrize("interpreter", ["cpython", "micropython"])
+def test_boot_py_stops_the_pwm_a_soft_reset_left_running_on_the_motor_pins(interpreter: str, tmp_path: Path) -> None:
+    # A soft reset (Ctrl-D) frees the Python heap but not esppwm.c's channels: the wheels keep turning into boot.py.
+    # The flash bundle's boot.py must leave both PWM pins low and without a channel, whatever duty ran (at full
+    # duty no period clears the pin, so it must be driven low after the channel ends), and start no pulse elsewhere.
+    cfg = stall_config()
+    left, right = (cfg["motors"][side]["pwm"] for side in ("left", "right"))
+    other = 14  # a PWM channel on a pin that is not a motor's is not boot.py's business
+    running = [[left, 1023], [right, 600], [other, 300]]
+    boot = flashing.boot_source(cfg)
+    if interpreter == "cpython":
+        (tmp_path / "boot.py").write_text(boot)
+        got = json.loads(json.dumps(mpy_driver("softreset").main(str(tmp_path / "boot.py"), running)))
+    else:
+        out = run_micropython(f"softreset.main('/input/data/boot.py', {running!r})", {"boot.py": boot.encode()}, True)
+        got = json.loads(out.splitlines()[-1])
+    assert got["before"] == sorted(running)
+    assert got["after"] == sorted([[left, 0], [right, 0], [other, 300]])

@@ -27,14 +27,18 @@ _FAILED_POLL_MS = const(200)
 class Watchdog:
     """Stops the motors when the loop has not finished a step for limit_ms: a call that blocks where nothing was
     expected to. The timer's callback runs between bytecodes and inside every wait of the port (socket waits,
-    sleep_ms), so it acts while the loop is stuck. It never resets the board, and stop() disarms it for good."""
+    sleep_ms), so it acts while the loop is stuck. It never resets the board; start() arms it, stop() disarms it for
+    good. Made unarmed, so that the code that arms it can already hold it where a finally disarms it."""
 
     def __init__(self, motors, limit_ms=_WATCHDOG_LIMIT_MS):
         self.motors = motors
         self.limit_ms = limit_ms
         self.fed = time.ticks_ms()
         self.bites = 0
-        self.timer = machine.Timer(-1)
+        self.timer = machine.Timer(-1)  # not armed until start()
+
+    def start(self):
+        self.fed = time.ticks_ms()
         self.timer.init(mode=machine.Timer.PERIODIC, period=_WATCHDOG_PERIOD_MS, callback=self._check)
 
     def feed(self):
@@ -88,8 +92,10 @@ def run(path="config.json", steps=None, log=print):
     except Exception as e:
         _failed(e, path, steps, log)
         return None
-    wd = Watchdog(m) if r.cfg["watchdog"] else None
+    wd = Watchdog(m) if r.cfg["watchdog"] else None  # unarmed: a Ctrl-C up to the try leaves nothing running
     try:
+        if wd is not None:
+            wd.start()  # armed inside the try: a Ctrl-C right after it still reaches the finally
         loop(r, wd, steps)
     finally:  # Ctrl-C, an mpremote connection, or the end of a bounded run: stop for good
         stop(r, wd)

@@ -89,6 +89,9 @@ _INTEGERS = (
     "control.latency_ms",
 )
 
+# The GPIOs the port's PWM drives (esppwm.c's pin_num); PWM() on any other raises ValueError, in boot.py too.
+_PWM_GPIOS = (0, 2, 4, 5, 12, 13, 14, 15)
+
 # GPIOs the ESP8266 reads at reset to choose how to boot: a motor driver that pulls them the wrong way at power-on
 # stops the board from booting (or boots it into the serial bootloader).
 _STRAPPING = {
@@ -157,8 +160,8 @@ def check(cfg):
                 raise ValueError(name + ": expected a GPIO number 0-16, got " + repr(v))
             if 6 <= v <= 11:
                 raise ValueError(name + ": GPIO " + str(v) + " is wired to the flash chip (GPIO 6-11)")
-            if k == "pwm" and v == 16:
-                raise ValueError(name + ": GPIO 16 has no PWM on the ESP8266")
+            if k == "pwm" and v not in _PWM_GPIOS:
+                raise ValueError(name + ": GPIO " + str(v) + " has no PWM on the ESP8266")
             if v in used:
                 raise ValueError(name + ": GPIO " + str(v) + " is already " + used[v])
             used[v] = "motors." + side + "." + k

@@ -296,7 +296,9 @@ class Link:
                     self._drop(now_ms, "wifi lost")
                 return False
             if not self.up:
-                if time.ticks_diff(now_ms, self._retry_at) < 0:
+                # Waiting while the retry time lies at most a backoff ahead: one further ahead is one the tick
+                # differences wrapped past (an outage of days, or the 0 it starts at read by ticks past 2**29).
+                if 0 < time.ticks_diff(self._retry_at, now_ms) <= _BACKOFF_MAX_MS:
                     return False
                 self._connect(now_ms)
             s = self.stream

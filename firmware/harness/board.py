@@ -4,7 +4,9 @@
 on a :mod:`tests.mpy.fakenet` broker) in simulated time, and behaves like the chip where it matters here
 (ports/esp8266 of v1.28.0):
 
-- a hard reset runs ``boot.py`` then ``main.py`` from its filesystem (a directory), as ``__main__``;
+- a hard reset runs ``boot.py`` then ``main.py`` from its filesystem (a directory), as ``__main__``; so does a soft
+  reset (Ctrl-D at the REPL, :meth:`soft_reset`), which frees the Python heap but leaves the hardware as it was: pin
+  levels, a started WDT, and PWM channels still pulsing (esppwm.c's state is C statics, outside the heap);
 - ``machine.WDT()`` arms the SDK's soft watchdog for good: only ``feed()`` holds it off, not the REPL, not a soft reset
   (``machine_wdt.c`` sets ``ets_loop_dont_feed_sw_wdt``); after 3.2 s without a feed the chip resets, wherever it is;
 - the program runs until Ctrl-C (a KeyboardInterrupt at its next wait, as the port raises it) or a reset; at the REPL
@@ -87,7 +89,7 @@ class Board:
         app.time = link.time = self.clock
         simple.socket = self.net
         self.machine.board = self
-        self.machine.stop_timers()
+        self.machine.power_on()
         os.chdir(self.root)  # main.py's app.run() opens "config.json", relative to the board's filesystem
         sys.stdout = _Uart(self, sys.stdout)
         return self
@@ -101,10 +103,16 @@ class Board:
             os.chdir(cwd)
             if isinstance(sys.stdout, _Uart):
                 sys.stdout = sys.stdout.host
-            self.machine.stop_timers()
+            self.machine.power_on()
 
     def power_on(self) -> None:
         self._start_program()
+
+    def soft_reset(self) -> None:
+        """Ctrl-D at the REPL: boot.py and main.py again, on the hardware as the last program left it."""
+        if self._thread is not None and self._thread.is_alive():
+            raise RuntimeError("Ctrl-D is a soft reset only at the REPL; the program is running")
+        self._start_program(hard=False)
 
     # -- what the machine stand-in reports -------------------------------------------------------------------------
     def pin_set(self, gpio: int, level: int | None) -> None:
@@ -165,13 +173,15 @@ class Board:
             self._cv.wait_for(lambda: self._turn == "board")
 
     # -- the program -----------------------------------------------------------------------------------------------
-    def _start_program(self) -> None:
+    def _start_program(self, hard: bool = True) -> None:
         self._stop_program()
         self._reset_pending = False
-        self.wdt_fed = None  # a reset clears the watchdog
         self._cut_network()
         self._heap_gone()
-        self.pins = {}
+        if hard:
+            self.wdt_fed = None  # a hard reset clears the watchdog, the pins and the PWM
+            self.pins = {}
+            self.machine.power_on()
         self.boots += 1
         self.state = "running"
         self._thread = threading.Thread(target=self._program, daemon=True)
@@ -317,6 +327,11 @@ class Board:
     def drove_after(self, t_ms: int) -> list[tuple[int, int, int]]:
         """PWM writes with a non-zero duty after ``t_ms``."""
         return [w for w in self.pwm_writes if w[0] > t_ms and w[2] > 0]
+
+    def outputs(self) -> dict[int, int]:
+        """What each driven GPIO puts out now, as a duty 0..1023 (a running PWM channel's, or 1023 for a pin held
+        high): on a motor driver's enable pin, anything above 0 turns the wheel."""
+        return dict(self.machine.outputs())
 
 
 class _Uart(io.TextIOBase):

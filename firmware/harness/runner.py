@@ -326,7 +326,7 @@ def host_module(name: str) -> ModuleType:
     return _load_as(name, HOST / f"{name}.py")
 
 
-_DRIVER_NEEDS = {"stall": ("fakenet", "app"), "drain": ("fakenet",), "interrupt": ("app",)}
+_DRIVER_NEEDS = {"stall": ("fakenet", "app"), "drain": ("fakenet",), "wifi": ("fakenet",), "interrupt": ("app",)}
 
 
 def mpy_driver(name: str) -> ModuleType:

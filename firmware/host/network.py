@@ -8,7 +8,8 @@ _sta = {"pm": None}  # the power management last asked of a station interface
 
 
 class WLAN:
-    """`isconnected()` is True until `drop()`; `connect()` brings it back. Each instance is its own station."""
+    """`isconnected()` is True until `drop()`; `connect()` brings it back while the access point is `reachable`.
+    Each instance is its own station."""
 
     PM_NONE = 0
     PM_PERFORMANCE = 1
@@ -19,6 +20,7 @@ class WLAN:
         self._active = True
         self._connected = True
         self.connect_calls = 0
+        self.reachable = True  # False: the access point is gone, connect() associates with nothing (tests)
         self.pm = WLAN.PM_PERFORMANCE  # the ESP8266 boots with modem sleep on
 
     def active(self, is_active=None):
@@ -42,7 +44,7 @@ class WLAN:
 
     def connect(self, ssid=None, key=None):
         self.connect_calls += 1
-        self._connected = True
+        self._connected = self.reachable
 
     def disconnect(self):
         self._connected = False

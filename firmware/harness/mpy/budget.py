@@ -214,6 +214,7 @@ def _build():
     _s["cfg"] = None
     _s["rover"] = r
     _s["wd"] = _s["app"].Watchdog(m)
+    _s["wd"].start()
 
 
 def _quiet(*args):

@@ -152,6 +152,7 @@ def _setup(case_name, path, stall_ms):
     _s["motors"] = m
     _s["rover"] = r
     _s["wd"] = app.Watchdog(m)
+    _s["wd"].start()
     clock.watchers.append(_motors)
 
 
@@ -287,7 +288,7 @@ def board(directory, interrupt_ms):
     _s["saved"] = (app.time, link.time, simple.socket)
     app.time = link.time = clock
     simple.socket = net
-    machine.stop_timers()
+    machine.power_on()  # a chip just powered: no timer, no PWM channel, no pin driven
     _s.update(case=case, clock=clock, broker=broker, net=net, on=False, changes=[], log=[], interrupted=None)
     edge = _Edge(broker, case, 1 << 30)
     clock.watchers.append(edge)
