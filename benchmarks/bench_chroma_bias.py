@@ -41,6 +41,7 @@ if importlib.util.find_spec("edge") is None:  # run from a checkout without the 
 
 from edge.camera import paper_camera
 from edge.coverage import coverage_weights
+from edge.edges_encoded import YCC_FROM_BGR, fit_edges, half_crossings, side_profiles
 from edge.segmentation import LINEAR, dilate, erode
 from edge.sim.effects import Compression, Effects, Optics
 from edge.sim.render import Renderer
@@ -169,8 +170,32 @@ def optics_weights(
     return weights
 
 
+def edge_centres(
+    roi: np.ndarray, core: np.ndarray, offset: tuple[int, int], grid: PlaneGrid, start: tuple[float, float], th: float
+) -> list[tuple[float, float]]:
+    """The simple variant (half crossings of the projected encoded chroma) and the fitted edge model's centres,
+    from the profiles around ``start`` (the default centre) along the true axis ``th``."""
+    h, w = core.shape
+    xy = grid.xy_cm[:, offset[1] : offset[1] + h, offset[0] : offset[0] + w]
+    half = (MARKER_CM[0] / 2, MARKER_CM[1] / 2)
+    profiles = side_profiles(roi, xy, start, th, half)
+    inner = erode(core, 2)
+    marker_ycc = roi[inner].astype(np.float64).mean(axis=0) @ YCC_FROM_BGR.T
+    c, s = math.cos(th), math.sin(th)
+    out = []
+    for u0 in (half_crossings(profiles, marker_ycc), list(fit_edges(profiles, marker_ycc).u0_px)):
+        cm = [u / p.px_per_cm for u, p in zip(u0, profiles, strict=True)]
+        a, b = (cm[0] - cm[1]) / 2, (cm[2] - cm[3]) / 2
+        out.append((start[0] + c * a - s * b, start[1] + s * a + c * b))
+    return out
+
+
 def centre_errors_cm(
-    image: np.ndarray, pose: tuple[float, float, float], grid: PlaneGrid, blur_px: float | None
+    image: np.ndarray,
+    pose: tuple[float, float, float],
+    grid: PlaneGrid,
+    blur_px: float | None,
+    edges: bool = False,
 ) -> tuple[tuple[float, float], ...]:
     """(x, y) error of the default centre of the marker at ``pose`` in ``image``; with ``blur_px`` (the true blur)
     also of the encoded-share centre and of that centre with the optics correction."""
@@ -195,6 +220,9 @@ def centre_errors_cm(
         blob = world_blob(weights, (x0, y0), grid)
         assert blob is not None
         errors.append((blob.x_cm - x, blob.y_cm - y))
+    if edges:
+        start = (errors[0][0] + x, errors[0][1] + y)
+        errors += [(ex - x, ey - y) for ex, ey in edge_centres(roi, core, (x0, y0), grid, start, th)]
     return tuple(errors)
 
 
@@ -205,12 +233,33 @@ def worst_colour(errors: np.ndarray, colour_of: list[str]) -> tuple[float, str]:
     return float(np.hypot(*means[worst])), worst
 
 
+def print_edges_row(name: str, centre: str, every: np.ndarray, colour_of: list[str], body_of: list[str]) -> None:
+    """One row of the ``--centre edges`` table: (N, 2) ``every`` errors of one centre on one stream."""
+    bias = every.mean(axis=0)
+    worst = worst_colour(every, colour_of)
+    groups = list(dict.fromkeys(body_of))
+    per_group = {g: worst_colour(every[[b == g for b in body_of]], [c for c, b in zip(colour_of, body_of) if b == g]) for g in groups}
+    worst_group = max(groups, key=lambda g: per_group[g][0])
+    by_group = ", ".join(f"{every[[b == g for b in body_of]].mean(axis=0)[1]:+.3f}" for g in groups)
+    cells = [
+        name,
+        centre,
+        f"{bias[0]:+.3f}, {bias[1]:+.3f}",
+        f"{float(np.hypot(*every.T).mean()):.3f}",
+        f"{worst[0]:.3f} ({worst[1]})",
+        f"{per_group[worst_group][0]:.3f} ({worst_group}, {per_group[worst_group][1]})",
+        by_group,
+    ]
+    print("| " + " | ".join(cells) + " |", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--poses", type=int, default=4, help="random poses per body, blur and colour")
     parser.add_argument("--seed", type=int, default=2000)
     parser.add_argument("--palette", choices=("default", "eight"), default="default")
-    parser.add_argument("--centre", choices=("linear", "encoded"), default="linear")
+    parser.add_argument("--centre", choices=("linear", "encoded", "edges"), default="linear")
+    parser.add_argument("--margins", default="1.0", help="the body's top around the marker, cm (comma-separated)")
     args = parser.parse_args()
     grid = PlaneGrid(CameraPlaneMapping(paper_camera()), (1280, 720))
     colours = palette(args.palette)
@@ -219,10 +268,21 @@ def main() -> None:
         (float(rng.uniform(40, 380)), float(rng.uniform(60, 520)), float(rng.uniform(-math.pi, math.pi)))
         for _ in range(args.poses)
     ]
-    encoded = args.centre == "encoded"
+    encoded, edges = args.centre == "encoded", args.centre == "edges"
+    margins = [float(m) for m in args.margins.split(",")]
     print(f"# edge-ips chroma bias on static poses, {time.strftime('%Y-%m-%d %H:%M')}\n")
-    print(f"{args.poses} poses (seed {args.seed}) x bodies {', '.join(BODIES)} x blur {BLURS_PX} px x {args.palette}")
-    if encoded:
+    print(
+        f"{args.poses} poses (seed {args.seed}) x bodies {', '.join(BODIES)} x margins {margins} cm x blur "
+        f"{BLURS_PX} px x {args.palette}"
+    )
+    if edges:
+        print("palette; exact interior mask, true axis; the default centre, half crossings and the fitted edges.\n")
+        print(
+            "| stream | centre | bias x, y cm (all) | mean error cm | worst colour bias cm | worst body/margin "
+            "colour bias cm | bias y per body/margin |"
+        )
+        print("|---|---|---|---|---|---|---|")
+    elif encoded:
         print("palette; exact interior mask; the encoded-share centre and it with the optics correction (true blur).\n")
         print(
             "| stream | centre | bias x, y cm (all) | mean error cm | worst colour bias cm | bias y: black, dark "
@@ -242,13 +302,13 @@ def main() -> None:
         body_of: list[str] = []
         colour_of: list[str] = []
         measured: list[tuple[tuple[float, float], ...]] = []
-        for body, blur, colour in itertools.product(BODIES, BLURS_PX, colours):
+        for body, margin, blur, colour in itertools.product(BODIES, margins, BLURS_PX, colours):
             look = RoverLook(
                 "r",
                 colours[colour],
                 body_bgr=BODIES[body],
-                body_length_cm=MARKER_CM[0] + 2 * MARGIN_CM,
-                body_width_cm=MARKER_CM[1] + 2 * MARGIN_CM,
+                body_length_cm=MARKER_CM[0] + 2 * margin,
+                body_width_cm=MARKER_CM[1] + 2 * margin,
             )
             compression = None if quality is None else Compression(quality, chroma)
             effects = Effects(
@@ -257,13 +317,17 @@ def main() -> None:
             renderer = Renderer(paper_camera(), Scene((look,)), effects)
             for pose in poses:
                 image = renderer.render(WorldState(0.0, (RoverState("r", *pose, 0.0, 0.0, 0.0),)), 0)
-                measured.append(centre_errors_cm(image, pose, grid, blur if encoded else None))
-                body_of.append(body)
+                measured.append(centre_errors_cm(image, pose, grid, blur if encoded else None, edges))
+                body_of.append(f"{body} {margin:g}" if edges else body)
                 colour_of.append(colour)
         errors = np.array(measured)  # (N, centres, 2)
         if uncompressed is None:
             uncompressed = errors
         name = "none" if quality is None else f"{chroma} q{quality}"
+        if edges:
+            for k, centre in enumerate(("linear", "half", "edges")):
+                print_edges_row(name, centre, errors[:, k], colour_of, body_of)
+            continue
         centres = ("encoded", "optics") if encoded else ("linear",)
         for k, centre in enumerate(centres, start=len(errors[0]) - len(centres)):
             every = errors[:, k]
