@@ -41,6 +41,7 @@ if importlib.util.find_spec("edge") is None:  # run from a checkout without the 
 
 from edge.camera import paper_camera
 from edge.coverage import coverage_weights
+from edge import edges_encoded
 from edge.edges_encoded import YCC_FROM_BGR, fit_edges, half_crossings, side_profiles
 from edge.segmentation import LINEAR, dilate, erode
 from edge.sim.effects import Compression, Effects, Optics
@@ -170,6 +171,15 @@ def optics_weights(
     return weights
 
 
+TONES = {
+    "srgb": (edges_encoded.srgb_decode, edges_encoded.srgb_encode),
+    "gamma2.2": (lambda v: np.clip(v, 0, 1) ** 2.2, lambda x: np.clip(x, 0, 1) ** (1 / 2.2)),
+    "gamma2.0": (lambda v: np.clip(v, 0, 1) ** 2.0, lambda x: np.clip(x, 0, 1) ** (1 / 2.0)),
+    "gamma2.4": (lambda v: np.clip(v, 0, 1) ** 2.4, lambda x: np.clip(x, 0, 1) ** (1 / 2.4)),
+}
+TONE = ["srgb"]
+
+
 def edge_centres(
     roi: np.ndarray, core: np.ndarray, offset: tuple[int, int], grid: PlaneGrid, start: tuple[float, float], th: float
 ) -> list[tuple[float, float]]:
@@ -183,7 +193,7 @@ def edge_centres(
     marker_ycc = roi[inner].astype(np.float64).mean(axis=0) @ YCC_FROM_BGR.T
     c, s = math.cos(th), math.sin(th)
     out = []
-    for u0 in (half_crossings(profiles, marker_ycc), list(fit_edges(profiles, marker_ycc).u0_px)):
+    for u0 in (half_crossings(profiles, marker_ycc), list(fit_edges(profiles, marker_ycc, *TONES[TONE[0]]).u0_px)):
         cm = [u / p.px_per_cm for u, p in zip(u0, profiles, strict=True)]
         a, b = (cm[0] - cm[1]) / 2, (cm[2] - cm[3]) / 2
         out.append((start[0] + c * a - s * b, start[1] + s * a + c * b))
@@ -259,8 +269,11 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=2000)
     parser.add_argument("--palette", choices=("default", "eight"), default="default")
     parser.add_argument("--centre", choices=("linear", "encoded", "edges"), default="linear")
+    parser.add_argument("--streams", default="", help="only these rows, e.g. 'none,4:2:0 q90' (default: all)")
+    parser.add_argument("--tone", choices=tuple(TONES), default="srgb", help="the edge model's assumed tone curve")
     parser.add_argument("--margins", default="1.0", help="the body's top around the marker, cm (comma-separated)")
     args = parser.parse_args()
+    TONE[0] = args.tone
     grid = PlaneGrid(CameraPlaneMapping(paper_camera()), (1280, 720))
     colours = palette(args.palette)
     rng = np.random.default_rng(args.seed)
@@ -298,7 +311,10 @@ def main() -> None:
         )
         print("|---|---|---|---|---|---|")
     uncompressed: np.ndarray | None = None
+    wanted = [w.strip() for w in args.streams.split(",") if w.strip()]
     for chroma, quality in STREAMS:
+        if wanted and ("none" if quality is None else f"{chroma} q{quality}") not in wanted:
+            continue
         body_of: list[str] = []
         colour_of: list[str] = []
         measured: list[tuple[tuple[float, float], ...]] = []

@@ -173,7 +173,7 @@ def _side_model(
 ) -> FloatArray:
     """(n, 3) model Y'CbCr at ``u_px`` (evaluated on the regular ``grid_u`` and read off at the bins)."""
     a = phi((u0 - grid_u) / sigma)
-    b = phi((grid_u - u0 - max(margin, 0.0)) / sigma)
+    b = phi((grid_u - u0 - min(abs(margin), 20.0)) / sigma)
     lin = a[:, None] * marker + (1.0 - a - b)[:, None] * dark + b[:, None] * beyond
     ycc = (255.0 * encode(lin)) @ YCC_FROM_BGR.T  # type: ignore[operator]
     chroma = _gauss_smooth(ycc[:, 1:], k_px)
@@ -191,7 +191,7 @@ def fit_edges(
     iterations: int = 25,
 ) -> EdgeFit:
     """Fit the model of the module docstring to the four profiles (``marker_ycc``: the interior's mean Y'CbCr)."""
-    marker = decode(bgr_of_ycc(marker_ycc))  # type: ignore[operator]
+    marker = decode(np.clip(bgr_of_ycc(marker_ycc), 0, 1))  # type: ignore[operator]
     beyond = []
     for p in profiles:
         band = (p.u_px > BAND_PX[0]) & (p.u_px < BAND_PX[1])
@@ -201,38 +201,51 @@ def fit_edges(
     weights = np.array([luma_weight, 1.0, 1.0])
 
     def residuals(x: FloatArray) -> FloatArray:
-        sigma, k_px, dark = abs(x[0]) + 0.05, abs(x[1]), x[2]
+        sigma, k_px, dark = min(abs(x[0]) + 0.05, 4.0), min(abs(x[1]), 4.0), x[2:5]
         res = []
         for j, p in enumerate(profiles):
-            model = _side_model(
-                p.u_px, grid_u, marker, dark * brightest, beyond[j], x[3 + j], x[7 + j], sigma, k_px, encode
-            )
+            model = _side_model(p.u_px, grid_u, marker, dark, beyond[j], x[5 + j], x[9 + j], sigma, k_px, encode)
             res.append(((model - p.ycc) * weights).ravel())
         return np.concatenate(res)
 
-    x = np.array([0.8, 0.8, 0.1, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0])
+    best: tuple[float, FloatArray, FloatArray] | None = None
+    for level in (0.05, 0.6):
+        x, r, cost = _levenberg_marquardt(
+            residuals, np.array([0.8, 0.8, *(level * brightest), 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0]), iterations
+        )
+        if best is None or cost < best[0]:
+            best = (cost, x, r)
+    cost, x, r = best  # type: ignore[misc]
+    return EdgeFit(
+        x[5:9].copy(), np.abs(x[9:13]), abs(x[0]) + 0.05, abs(x[1]), float(x[2:5].sum() / brightest.sum()),
+        math.sqrt(cost / r.size),
+    )
+
+
+def _levenberg_marquardt(
+    residuals: object, x: FloatArray, iterations: int
+) -> tuple[FloatArray, FloatArray, float]:
+    """Minimise the sum of squares of ``residuals(x)`` from ``x`` (forward-difference Jacobian)."""
+    fun = residuals  # type: ignore[assignment]
     lam = 1e-2
-    r = residuals(x)
+    r = fun(x)  # type: ignore[operator]
     cost = float(r @ r)
     for _ in range(iterations):
         jac = np.empty((r.size, x.size))
         for i in range(x.size):
             step = np.zeros_like(x)
             step[i] = 1e-4
-            jac[:, i] = (residuals(x + step) - r) / 1e-4
+            jac[:, i] = (fun(x + step) - r) / 1e-4  # type: ignore[operator]
         jtj, jtr = jac.T @ jac, jac.T @ r
-        while True:
+        delta = np.zeros_like(x)
+        while lam <= 1e8:
             delta = np.linalg.solve(jtj + lam * np.diag(np.diag(jtj) + 1e-9), -jtr)
-            trial = x + delta
-            r_trial = residuals(trial)
+            r_trial = fun(x + delta)  # type: ignore[operator]
             c_trial = float(r_trial @ r_trial)
-            if c_trial < cost:
-                x, r, cost, lam = trial, r_trial, c_trial, lam * 0.3
+            if c_trial < cost:  # False for NaN
+                x, r, cost, lam = x + delta, r_trial, c_trial, lam * 0.3
                 break
             lam *= 10.0
-            if lam > 1e8:
-                break
         if lam > 1e8 or float(np.abs(delta).max()) < 1e-4:
             break
-    return EdgeFit(x[3:7].copy(), np.maximum(x[7:11], 0.0), abs(x[0]) + 0.05, abs(x[1]), float(x[2]),
-                   math.sqrt(cost / r.size))
+    return x, r, cost
