@@ -39,10 +39,10 @@ import numpy as np
 if importlib.util.find_spec("edge") is None:  # run from a checkout without the package installed
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from edge import edges_encoded
 from edge.camera import paper_camera
 from edge.coverage import coverage_weights
-from edge import edges_encoded
-from edge.edges_encoded import YCC_FROM_BGR, fit_edges, half_crossings, side_profiles
+from edge.edges_encoded import YCC_FROM_BGR, edge_midpoint, fit_edges, side_profiles
 from edge.segmentation import LINEAR, dilate, erode
 from edge.sim.effects import Compression, Effects, Optics
 from edge.sim.render import Renderer
@@ -66,7 +66,6 @@ STREAMS = (
     ("4:2:0", 70),
 )
 MARKER_CM = (21.5, 16.8)
-MARGIN_CM = 1.0
 
 
 def palette(name: str) -> dict[str, tuple[float, float, float]]:
@@ -180,24 +179,37 @@ TONES = {
 TONE = ["srgb"]
 
 
+def half_crossings(profiles: list[edges_encoded.SideProfile], marker_ycc: np.ndarray) -> list[float]:
+    """The simple variant: per side, where the chroma projected on the marker's chroma (relative to the band
+    beyond the spread) first falls below half, from inside out (pixels along the normal)."""
+    out = []
+    for p in profiles:
+        band = (p.u_px > edges_encoded.BAND_PX[0]) & (p.u_px < edges_encoded.BAND_PX[1])
+        surround = p.ycc[band, 1:].mean(axis=0)
+        direction = marker_ycc[1:] - surround
+        q = (p.ycc[:, 1:] - surround) @ direction / float(direction @ direction)
+        below = np.nonzero((q < 0.5) & (p.u_px > -edges_encoded.REACH_IN_PX + 1))[0]
+        k = int(below[0]) if below.size else len(q) - 1
+        if k == 0:
+            out.append(float(p.u_px[0]))
+            continue
+        t = (q[k - 1] - 0.5) / (q[k - 1] - q[k])
+        out.append(float(p.u_px[k - 1] + t * (p.u_px[k] - p.u_px[k - 1])))
+    return out
+
+
 def edge_centres(
     roi: np.ndarray, core: np.ndarray, offset: tuple[int, int], grid: PlaneGrid, start: tuple[float, float], th: float
 ) -> list[tuple[float, float]]:
-    """The simple variant (half crossings of the projected encoded chroma) and the fitted edge model's centres,
-    from the profiles around ``start`` (the default centre) along the true axis ``th``."""
+    """The simple variant (:func:`half_crossings`, no optics offset) and the fitted edge model's centres
+    (``edge.edges_encoded``, tone curve ``--tone``), from the profiles around ``start`` (the default centre) along
+    the true axis ``th``."""
     h, w = core.shape
     xy = grid.xy_cm[:, offset[1] : offset[1] + h, offset[0] : offset[0] + w]
-    half = (MARKER_CM[0] / 2, MARKER_CM[1] / 2)
-    profiles = side_profiles(roi, xy, start, th, half)
-    inner = erode(core, 2)
-    marker_ycc = roi[inner].astype(np.float64).mean(axis=0) @ YCC_FROM_BGR.T
-    c, s = math.cos(th), math.sin(th)
-    out = []
-    for u0 in (half_crossings(profiles, marker_ycc), list(fit_edges(profiles, marker_ycc, *TONES[TONE[0]]).u0_px)):
-        cm = [u / p.px_per_cm for u, p in zip(u0, profiles, strict=True)]
-        a, b = (cm[0] - cm[1]) / 2, (cm[2] - cm[3]) / 2
-        out.append((start[0] + c * a - s * b, start[1] + s * a + c * b))
-    return out
+    profiles = side_profiles(roi, xy, start, th, (MARKER_CM[0] / 2, MARKER_CM[1] / 2))
+    marker_ycc = roi[erode(core, 2)].astype(np.float64).mean(axis=0) @ YCC_FROM_BGR.T
+    fit = fit_edges(profiles, marker_ycc, *TONES[TONE[0]])
+    return [edge_midpoint(start, th, u0, profiles) for u0 in (half_crossings(profiles, marker_ycc), fit.u0_px)]
 
 
 def centre_errors_cm(
@@ -248,7 +260,10 @@ def print_edges_row(name: str, centre: str, every: np.ndarray, colour_of: list[s
     bias = every.mean(axis=0)
     worst = worst_colour(every, colour_of)
     groups = list(dict.fromkeys(body_of))
-    per_group = {g: worst_colour(every[[b == g for b in body_of]], [c for c, b in zip(colour_of, body_of) if b == g]) for g in groups}
+    per_group = {}
+    for g in groups:
+        pick = [b == g for b in body_of]
+        per_group[g] = worst_colour(every[pick], [c for c, k in zip(colour_of, pick, strict=True) if k])
     worst_group = max(groups, key=lambda g: per_group[g][0])
     by_group = ", ".join(f"{every[[b == g for b in body_of]].mean(axis=0)[1]:+.3f}" for g in groups)
     cells = [

@@ -19,12 +19,14 @@ are fitted to the four profiles at once (Levenberg-Marquardt); the centre is the
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
+ToneCurve = Callable[[FloatArray], FloatArray]
 
 BIN_PX = 0.25
 REACH_IN_PX = 4.0
@@ -103,12 +105,13 @@ def side_profiles(
         u_px = (sign * normal_coord - half_n) * px_per_cm
         keep = (np.abs(tangent_coord) < SIDE_MIDDLE * half_t) & (u_px > -REACH_IN_PX) & (u_px < REACH_OUT_PX)
         idx = np.floor((u_px[keep] + REACH_IN_PX) / BIN_PX).astype(np.int64)
-        nbins = int(round((REACH_IN_PX + REACH_OUT_PX) / BIN_PX))
+        nbins = round((REACH_IN_PX + REACH_OUT_PX) / BIN_PX)
         count = np.bincount(idx, minlength=nbins)[:nbins]
         sums = np.stack([np.bincount(idx, ycc_all[keep.ravel(), j], minlength=nbins)[:nbins] for j in range(3)], 1)
         good = count > 0
-        centres = -REACH_IN_PX + (np.arange(nbins) + 0.5) * BIN_PX
-        profiles.append(SideProfile(centres[good], sums[good] / count[good, None], px_per_cm))
+        centres: FloatArray = -REACH_IN_PX + (np.arange(nbins, dtype=np.float64) + 0.5) * BIN_PX
+        means: FloatArray = sums[good] / count[good, None]
+        profiles.append(SideProfile(centres[good], means, px_per_cm))
     return profiles
 
 
@@ -117,29 +120,10 @@ def bgr_of_ycc(ycc: FloatArray) -> FloatArray:
     return np.asarray(ycc @ np.linalg.inv(YCC_FROM_BGR).T / 255.0)
 
 
-def half_crossings(profiles: list[SideProfile], marker_ycc: FloatArray) -> list[float]:
-    """The simple variant: per side, where the chroma projected on the marker's chroma (relative to the band
-    beyond the spread) first falls below half, from inside out (pixels along the normal)."""
-    out = []
-    for p in profiles:
-        band = (p.u_px > BAND_PX[0]) & (p.u_px < BAND_PX[1])
-        surround = p.ycc[band, 1:].mean(axis=0)
-        direction = marker_ycc[1:] - surround
-        q = (p.ycc[:, 1:] - surround) @ direction / float(direction @ direction)
-        below = np.nonzero((q < 0.5) & (p.u_px > -REACH_IN_PX + 1))[0]
-        k = int(below[0]) if below.size else len(q) - 1
-        if k == 0:
-            out.append(float(p.u_px[0]))
-            continue
-        t = (q[k - 1] - 0.5) / (q[k - 1] - q[k])
-        out.append(float(p.u_px[k - 1] + t * (p.u_px[k] - p.u_px[k - 1])))
-    return out
-
-
 def _gauss_smooth(values: FloatArray, k_px: float) -> FloatArray:
     """(n, c) values on the bin grid convolved with a Gaussian of ``k_px`` (edges padded by replication)."""
     k_bins = max(k_px, 1e-3) / BIN_PX
-    half = int(math.ceil(3.5 * k_bins)) + 1
+    half = math.ceil(3.5 * k_bins) + 1
     taps = np.exp(-0.5 * (np.arange(-half, half + 1) / k_bins) ** 2)
     taps /= taps.sum()
     padded = np.concatenate([np.repeat(values[:1], half, 0), values, np.repeat(values[-1:], half, 0)])
@@ -169,13 +153,13 @@ def _side_model(
     margin: float,
     sigma: float,
     k_px: float,
-    encode: object,
+    encode: ToneCurve,
 ) -> FloatArray:
     """(n, 3) model Y'CbCr at ``u_px`` (evaluated on the regular ``grid_u`` and read off at the bins)."""
     a = phi((u0 - grid_u) / sigma)
     b = phi((grid_u - u0 - min(abs(margin), 20.0)) / sigma)
     lin = a[:, None] * marker + (1.0 - a - b)[:, None] * dark + b[:, None] * beyond
-    ycc = (255.0 * encode(lin)) @ YCC_FROM_BGR.T  # type: ignore[operator]
+    ycc = (255.0 * encode(lin)) @ YCC_FROM_BGR.T
     chroma = _gauss_smooth(ycc[:, 1:], k_px)
     full = np.column_stack([ycc[:, :1], chroma])
     idx = np.clip(np.round((u_px - grid_u[0]) / BIN_PX).astype(np.int64), 0, len(grid_u) - 1)
@@ -185,17 +169,17 @@ def _side_model(
 def fit_edges(
     profiles: list[SideProfile],
     marker_ycc: FloatArray,
-    decode: object = srgb_decode,
-    encode: object = srgb_encode,
+    decode: ToneCurve = srgb_decode,
+    encode: ToneCurve = srgb_encode,
     luma_weight: float = 1.0,
     iterations: int = 25,
 ) -> EdgeFit:
     """Fit the model of the module docstring to the four profiles (``marker_ycc``: the interior's mean Y'CbCr)."""
-    marker = decode(np.clip(bgr_of_ycc(marker_ycc), 0, 1))  # type: ignore[operator]
+    marker = decode(np.clip(bgr_of_ycc(marker_ycc), 0, 1))
     beyond = []
     for p in profiles:
         band = (p.u_px > BAND_PX[0]) & (p.u_px < BAND_PX[1])
-        beyond.append(decode(np.clip(bgr_of_ycc(p.ycc[band].mean(axis=0)), 0, 1)))  # type: ignore[operator]
+        beyond.append(decode(np.clip(bgr_of_ycc(p.ycc[band].mean(axis=0)), 0, 1)))
     brightest = max(beyond, key=lambda v: float(v.sum()))
     grid_u = np.arange(-REACH_IN_PX + BIN_PX / 2, REACH_OUT_PX, BIN_PX)
     weights = np.array([luma_weight, 1.0, 1.0])
@@ -208,39 +192,38 @@ def fit_edges(
             res.append(((model - p.ycc) * weights).ravel())
         return np.concatenate(res)
 
-    best: tuple[float, FloatArray, FloatArray] | None = None
-    for level in (0.05, 0.6):
-        x, r, cost = _levenberg_marquardt(
-            residuals, np.array([0.8, 0.8, *(level * brightest), 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0]), iterations
-        )
-        if best is None or cost < best[0]:
-            best = (cost, x, r)
-    cost, x, r = best  # type: ignore[misc]
+    # two starts, the body's top dark or light (the fit does not cross between them reliably)
+    fits = [
+        _levenberg_marquardt(residuals, np.array([0.8, 0.8, *(level * brightest), 0, 0, 0, 0, 1, 1, 1, 1]), iterations)
+        for level in (0.05, 0.6)
+    ]
+    x, r, cost = min(fits, key=lambda f: f[2] if math.isfinite(f[2]) else math.inf)
     return EdgeFit(
-        x[5:9].copy(), np.abs(x[9:13]), abs(x[0]) + 0.05, abs(x[1]), float(x[2:5].sum() / brightest.sum()),
+        x[5:9].copy(),
+        np.abs(x[9:13]),
+        abs(x[0]) + 0.05,
+        abs(x[1]),
+        float(x[2:5].sum() / brightest.sum()),
         math.sqrt(cost / r.size),
     )
 
 
-def _levenberg_marquardt(
-    residuals: object, x: FloatArray, iterations: int
-) -> tuple[FloatArray, FloatArray, float]:
-    """Minimise the sum of squares of ``residuals(x)`` from ``x`` (forward-difference Jacobian)."""
-    fun = residuals  # type: ignore[assignment]
+def _levenberg_marquardt(fun: ToneCurve, x: FloatArray, iterations: int) -> tuple[FloatArray, FloatArray, float]:
+    """Minimise the sum of squares of ``fun(x)`` from ``x`` (forward-difference Jacobian)."""
     lam = 1e-2
-    r = fun(x)  # type: ignore[operator]
+    r = fun(x)
     cost = float(r @ r)
     for _ in range(iterations):
         jac = np.empty((r.size, x.size))
         for i in range(x.size):
             step = np.zeros_like(x)
             step[i] = 1e-4
-            jac[:, i] = (fun(x + step) - r) / 1e-4  # type: ignore[operator]
+            jac[:, i] = (fun(x + step) - r) / 1e-4
         jtj, jtr = jac.T @ jac, jac.T @ r
         delta = np.zeros_like(x)
         while lam <= 1e8:
-            delta = np.linalg.solve(jtj + lam * np.diag(np.diag(jtj) + 1e-9), -jtr)
-            r_trial = fun(x + delta)  # type: ignore[operator]
+            delta = np.asarray(np.linalg.solve(jtj + lam * np.diag(np.diag(jtj) + 1e-9), -jtr), np.float64)
+            r_trial = fun(x + delta)
             c_trial = float(r_trial @ r_trial)
             if c_trial < cost:  # False for NaN
                 x, r, cost, lam = x + delta, r_trial, c_trial, lam * 0.3
@@ -249,3 +232,34 @@ def _levenberg_marquardt(
         if lam > 1e8 or float(np.abs(delta).max()) < 1e-4:
             break
     return x, r, cost
+
+
+def encoded_edge_centre(
+    bgr: NDArray[np.uint8],
+    xy_cm: FloatArray,
+    interior: NDArray[np.bool_],
+    centre_cm: tuple[float, float],
+    theta_rad: float,
+    size_cm: tuple[float, float],
+) -> tuple[tuple[float, float], EdgeFit]:
+    """The marker's centre on the plane from its four fitted edges, and the fit.
+
+    ``bgr`` (h, w, 3) the decoded window, ``xy_cm`` (2, h, w) its pixels' centres on the marker plane,
+    ``interior`` (h, w) pixels well inside the marker (its colour), ``centre_cm`` and ``theta_rad`` a first centre
+    and the marker's long axis (the sides are sampled around them), ``size_cm`` the marker's length and width. Each
+    edge is found along its own normal on the plane, so the centre is the middle of opposite edges on the plane, not
+    in the image."""
+    profiles = side_profiles(bgr, xy_cm, centre_cm, theta_rad, (size_cm[0] / 2, size_cm[1] / 2))
+    marker_ycc = bgr[interior].astype(np.float64).mean(axis=0) @ YCC_FROM_BGR.T
+    fit = fit_edges(profiles, marker_ycc)
+    return edge_midpoint(centre_cm, theta_rad, fit.u0_px, profiles), fit
+
+
+def edge_midpoint(
+    centre_cm: tuple[float, float], theta_rad: float, u0_px: FloatArray | list[float], profiles: list[SideProfile]
+) -> tuple[float, float]:
+    """The centre moved to the middle of the edges ``u0_px`` (+x, -x, +y, -y sides, pixels along each normal)."""
+    cm = [u / p.px_per_cm for u, p in zip(u0_px, profiles, strict=True)]
+    a, b = (cm[0] - cm[1]) / 2, (cm[2] - cm[3]) / 2
+    c, s = math.cos(theta_rad), math.sin(theta_rad)
+    return centre_cm[0] + c * a - s * b, centre_cm[1] + s * a + c * b
