@@ -207,6 +207,7 @@ def edge_centres(
     h, w = core.shape
     xy = grid.xy_cm[:, offset[1] : offset[1] + h, offset[0] : offset[0] + w]
     profiles = side_profiles(roi, xy, start, th, (MARKER_CM[0] / 2, MARKER_CM[1] / 2))
+    assert all(edges_encoded.has_band(p) for p in profiles)
     marker_ycc = roi[erode(core, 2)].astype(np.float64).mean(axis=0) @ YCC_FROM_BGR.T
     fit = fit_edges(profiles, marker_ycc, *TONES[TONE[0]])
     return [edge_midpoint(start, th, u0, profiles) for u0 in (half_crossings(profiles, marker_ycc), fit.u0_px)]

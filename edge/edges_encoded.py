@@ -115,6 +115,12 @@ def side_profiles(
     return profiles
 
 
+def has_band(profile: SideProfile) -> bool:
+    """Whether the profile reaches the band beyond the spread and starts inside the marker."""
+    band = (profile.u_px > BAND_PX[0]) & (profile.u_px < BAND_PX[1])
+    return bool(np.count_nonzero(band) >= 2 and profile.u_px[0] < -1.0)
+
+
 def bgr_of_ycc(ycc: FloatArray) -> FloatArray:
     """(..., 3) Y'CbCr (8-bit units) -> B'G'R' (0..1)."""
     return np.asarray(ycc @ np.linalg.inv(YCC_FROM_BGR).T / 255.0)
@@ -157,7 +163,7 @@ def _side_model(
 ) -> FloatArray:
     """(n, 3) model Y'CbCr at ``u_px`` (evaluated on the regular ``grid_u`` and read off at the bins)."""
     a = phi((u0 - grid_u) / sigma)
-    b = phi((grid_u - u0 - min(abs(margin), 20.0)) / sigma)
+    b = phi((grid_u - u0 - _bounded(margin, 20.0)) / sigma)
     lin = a[:, None] * marker + (1.0 - a - b)[:, None] * dark + b[:, None] * beyond
     ycc = (255.0 * encode(lin)) @ YCC_FROM_BGR.T
     chroma = _gauss_smooth(ycc[:, 1:], k_px)
@@ -185,7 +191,7 @@ def fit_edges(
     weights = np.array([luma_weight, 1.0, 1.0])
 
     def residuals(x: FloatArray) -> FloatArray:
-        sigma, k_px, dark = min(abs(x[0]) + 0.05, 4.0), min(abs(x[1]), 4.0), x[2:5]
+        sigma, k_px, dark = 0.05 + _bounded(x[0], 3.0), _bounded(x[1], 3.0), np.abs(x[2:5])
         res = []
         for j, p in enumerate(profiles):
             model = _side_model(p.u_px, grid_u, marker, dark, beyond[j], x[5 + j], x[9 + j], sigma, k_px, encode)
@@ -200,12 +206,18 @@ def fit_edges(
     x, r, cost = min(fits, key=lambda f: f[2] if math.isfinite(f[2]) else math.inf)
     return EdgeFit(
         x[5:9].copy(),
-        np.abs(x[9:13]),
-        abs(x[0]) + 0.05,
-        abs(x[1]),
-        float(x[2:5].sum() / brightest.sum()),
+        np.array([_bounded(m, 20.0) for m in x[9:13]]),
+        0.05 + _bounded(x[0], 3.0),
+        _bounded(x[1], 3.0),
+        float(np.abs(x[2:5]).sum() / brightest.sum()),
         math.sqrt(cost / r.size),
     )
+
+
+def _bounded(value: float, limit: float) -> float:
+    """``|value|`` for small values, smoothly saturating at ``limit`` (keeps the fit's widths in range without the
+    flat gradient of a clip, from which it would not come back)."""
+    return limit * (1.0 - math.exp(-abs(float(value)) / limit))
 
 
 def _levenberg_marquardt(fun: ToneCurve, x: FloatArray, iterations: int) -> tuple[FloatArray, FloatArray, float]:
@@ -241,8 +253,9 @@ def encoded_edge_centre(
     centre_cm: tuple[float, float],
     theta_rad: float,
     size_cm: tuple[float, float],
-) -> tuple[tuple[float, float], EdgeFit]:
-    """The marker's centre on the plane from its four fitted edges, and the fit.
+) -> tuple[tuple[float, float], EdgeFit] | None:
+    """The marker's centre on the plane from its four fitted edges, and the fit; None when the window does not hold
+    every side's profile out to the band beyond the spread (:data:`BAND_PX`).
 
     ``bgr`` (h, w, 3) the decoded window, ``xy_cm`` (2, h, w) its pixels' centres on the marker plane,
     ``interior`` (h, w) pixels well inside the marker (its colour), ``centre_cm`` and ``theta_rad`` a first centre
@@ -250,6 +263,8 @@ def encoded_edge_centre(
     edge is found along its own normal on the plane, so the centre is the middle of opposite edges on the plane, not
     in the image."""
     profiles = side_profiles(bgr, xy_cm, centre_cm, theta_rad, (size_cm[0] / 2, size_cm[1] / 2))
+    if not all(has_band(p) for p in profiles):
+        return None
     marker_ycc = bgr[interior].astype(np.float64).mean(axis=0) @ YCC_FROM_BGR.T
     fit = fit_edges(profiles, marker_ycc)
     return edge_midpoint(centre_cm, theta_rad, fit.u0_px, profiles), fit
