@@ -1,15 +1,17 @@
 """Where the colour-dependent bias of the marker centre comes from: single frames of one marker at known poses,
 rendered through the simulator's camera with one JPEG chroma sampling and quality at a time.
 
-    python benchmarks/bench_chroma_bias.py [--poses N] [--seed S] [--palette default|eight] [--centre linear|encoded]
+    python benchmarks/bench_chroma_bias.py [--poses N] [--seed S] [--palette default|eight]
+        [--centre linear|encoded|edges] [--margins 0.2,1.0,2.5] [--streams 'none,4:2:0 q90'] [--tone srgb|gamma2.2|...]
 
 The centre is the tracker's default one (``edge.coverage.coverage_weights``: the linear-light coverage, its area
-centroid on the plane by ``world_blob``); the marker's interior mask is the truth's (the pixels whose centre lies
-on the marker), so only the sub-pixel edge is measured. Each row: one chroma sampling and quality over every body
-(black, dark grey, white, with 1 cm of the body's top around the marker), blur (0.5 and 1.2 px) and marker colour,
-``--poses`` random poses each over the whole floor (seed ``--seed``): the mean error (x, y) over all of them and the
-worst per-colour mean |(x, y)| (the bias bar: 0.05 cm). ``none`` is the uncompressed frame; ``q100`` JPEG with
-the least quantisation (the chroma subsampling alone); lower qualities add the quantisation of the chroma.
+centroid on the plane by ``world_blob``); the marker's interior mask is the truth's (the pixels whose centre lies on
+the marker), so only the sub-pixel edge is measured. Each row: one chroma sampling and quality over every body
+(black, dark grey, white, with ``--margins`` cm of the body's top around the marker, 1 cm unless given), blur (0.5
+and 1.2 px) and marker colour, ``--poses`` random poses each over the whole floor (seed ``--seed``): the mean error
+(x, y) over all of them and the worst per-colour mean |(x, y)| (the bias bar: 0.05 cm). ``none`` is the uncompressed
+frame; ``q100`` JPEG with the least quantisation (the chroma subsampling alone); lower qualities add the
+quantisation of the chroma.
 No noise, no motion, no automatic exposure: the bias, not the scatter.
 
 ``--centre encoded`` measures two centres that were tried and not adopted (``docs/benchmarks.md``, "Shares in
@@ -21,6 +23,13 @@ linear centre, taken off exactly). *optics*: the encoded shares plus a per-pixel
 of the marker's rectangle (its size known, placed at the centre found, two rounds) blurred by the *true* blur and
 the pixel's aperture in linear light, each pixel's surround level solved from its full-resolution luma (BT.601,
 which the chroma spread does not touch), the model's encoded share taken off and its linear coverage put in.
+
+``--centre edges``: the default centre, the *half* crossings (per side, where the encoded chroma projected on the
+marker's chroma falls to half between the marker and the band beyond the spread; no optics offset) and the *edges*
+fitted in the encoded Y'CbCr (``edge.edges_encoded``: a 1D model per side with the optics, the body's margin and
+the stream's spread, the tone curve assumed ``--tone``), each from the profiles around the default centre along the
+true axis; per row also the worst per-colour bias within one body and margin, and the mean y bias per body and
+margin.
 """
 
 from __future__ import annotations
