@@ -63,11 +63,14 @@ def phi(z: FloatArray) -> FloatArray:
 @dataclass(frozen=True)
 class SideProfile:
     """One side's profile: ``u_px`` (n,) bin centres along the outward normal (0: the assumed edge), ``ycc`` (n, 3)
-    mean decoded Y'CbCr per bin (8-bit units), ``px_per_cm`` the normal's scale on the plane."""
+    mean decoded Y'CbCr per bin (8-bit units), ``px_per_cm`` the normal's scale on the plane, ``normal_px`` its unit
+    direction in the image (u, v): a stream that spreads its chroma along image rows only (4:2:2) spreads a side by
+    how far its normal lies along them."""
 
     u_px: FloatArray
     ycc: FloatArray
     px_per_cm: float
+    normal_px: tuple[float, float]
 
 
 def side_profiles(
@@ -101,7 +104,8 @@ def side_profiles(
         (across, along, 1.0, half_cm[1], half_cm[0], (-s, c)),
         (across, along, -1.0, half_cm[1], half_cm[0], (s, -c)),
     ):
-        px_per_cm = float(np.hypot(*(inv @ np.array(n_vec))))
+        in_image = inv @ np.array(n_vec)
+        px_per_cm = float(np.hypot(*in_image))
         u_px = (sign * normal_coord - half_n) * px_per_cm
         keep = (np.abs(tangent_coord) < SIDE_MIDDLE * half_t) & (u_px > -REACH_IN_PX) & (u_px < REACH_OUT_PX)
         idx = np.floor((u_px[keep] + REACH_IN_PX) / BIN_PX).astype(np.int64)
@@ -111,7 +115,8 @@ def side_profiles(
         good = count > 0
         centres: FloatArray = -REACH_IN_PX + (np.arange(nbins, dtype=np.float64) + 0.5) * BIN_PX
         means: FloatArray = sums[good] / count[good, None]
-        profiles.append(SideProfile(centres[good], means, px_per_cm))
+        normal = (float(in_image[0]) / px_per_cm, float(in_image[1]) / px_per_cm)
+        profiles.append(SideProfile(centres[good], means, px_per_cm, normal))
     return profiles
 
 
@@ -139,12 +144,13 @@ def _gauss_smooth(values: FloatArray, k_px: float) -> FloatArray:
 @dataclass(frozen=True)
 class EdgeFit:
     """The fit: ``u0_px`` (4,) edge of each side along its normal relative to the assumed one; ``margin_px`` (4,),
-    ``sigma_px``, ``k_px``, ``dark`` (the body top's level relative to the brightest surround), the residual RMS."""
+    ``sigma_px``, ``k_px`` the chroma's spread along image u and v, ``dark`` (the body top's level relative to the
+    brightest surround), the residual RMS (8-bit units)."""
 
     u0_px: FloatArray
     margin_px: FloatArray
     sigma_px: float
-    k_px: float
+    k_px: tuple[float, float]
     dark: float
     rms: float
 
@@ -191,24 +197,24 @@ def fit_edges(
     weights = np.array([luma_weight, 1.0, 1.0])
 
     def residuals(x: FloatArray) -> FloatArray:
-        sigma, k_px, dark = 0.05 + _bounded(x[0], 3.0), _bounded(x[1], 3.0), np.abs(x[2:5])
+        sigma, k_u, k_v, dark = 0.05 + _bounded(x[0], 3.0), _bounded(x[1], 3.0), _bounded(x[13], 3.0), np.abs(x[2:5])
         res = []
         for j, p in enumerate(profiles):
+            k_px = math.hypot(k_u * p.normal_px[0], k_v * p.normal_px[1])
             model = _side_model(p.u_px, grid_u, marker, dark, beyond[j], x[5 + j], x[9 + j], sigma, k_px, encode)
             res.append(((model - p.ycc) * weights).ravel())
         return np.concatenate(res)
 
     # two starts, the body's top dark or light (the fit does not cross between them reliably)
-    fits = [
-        _levenberg_marquardt(residuals, np.array([0.8, 0.8, *(level * brightest), 0, 0, 0, 0, 1, 1, 1, 1]), iterations)
-        for level in (0.05, 0.6)
-    ]
+    # x: sigma, k along u, the body's top (3), the edges (4), the margins (4), k along v
+    starts = [np.array([0.8, 0.8, *(level * brightest), 0, 0, 0, 0, 1, 1, 1, 1, 0.8]) for level in (0.05, 0.6)]
+    fits = [_levenberg_marquardt(residuals, start, iterations) for start in starts]
     x, r, cost = min(fits, key=lambda f: f[2] if math.isfinite(f[2]) else math.inf)
     return EdgeFit(
         x[5:9].copy(),
         np.array([_bounded(m, 20.0) for m in x[9:13]]),
         0.05 + _bounded(x[0], 3.0),
-        _bounded(x[1], 3.0),
+        (_bounded(x[1], 3.0), _bounded(x[13], 3.0)),
         float(np.abs(x[2:5]).sum() / brightest.sum()),
         math.sqrt(cost / r.size),
     )
