@@ -1,15 +1,17 @@
 """Where the colour-dependent bias of the marker centre comes from: single frames of one marker at known poses,
 rendered through the simulator's camera with one JPEG chroma sampling and quality at a time.
 
-    python benchmarks/bench_chroma_bias.py [--poses N] [--seed S] [--palette default|eight] [--centre linear|encoded]
+    python benchmarks/bench_chroma_bias.py [--poses N] [--seed S] [--palette default|eight]
+        [--centre linear|encoded|edges] [--margins 0.2,1.0,2.5] [--streams 'none,4:2:0 q90'] [--tone srgb|gamma2.2|...]
 
 The centre is the tracker's default one (``edge.coverage.coverage_weights``: the linear-light coverage, its area
-centroid on the plane by ``world_blob``); the marker's interior mask is the truth's (the pixels whose centre lies
-on the marker), so only the sub-pixel edge is measured. Each row: one chroma sampling and quality over every body
-(black, dark grey, white, with 1 cm of the body's top around the marker), blur (0.5 and 1.2 px) and marker colour,
-``--poses`` random poses each over the whole floor (seed ``--seed``): the mean error (x, y) over all of them and the
-worst per-colour mean |(x, y)| (the bias bar: 0.05 cm). ``none`` is the uncompressed frame; ``q100`` JPEG with
-the least quantisation (the chroma subsampling alone); lower qualities add the quantisation of the chroma.
+centroid on the plane by ``world_blob``); the marker's interior mask is the truth's (the pixels whose centre lies on
+the marker), so only the sub-pixel edge is measured. Each row: one chroma sampling and quality over every body
+(black, dark grey, white, with ``--margins`` cm of the body's top around the marker, 1 cm unless given), blur (0.5
+and 1.2 px) and marker colour, ``--poses`` random poses each over the whole floor (seed ``--seed``): the mean error
+(x, y) over all of them and the worst per-colour mean |(x, y)| (the bias bar: 0.05 cm). ``none`` is the uncompressed
+frame; ``q100`` JPEG with the least quantisation (the chroma subsampling alone); lower qualities add the
+quantisation of the chroma.
 No noise, no motion, no automatic exposure: the bias, not the scatter.
 
 ``--centre encoded`` measures two centres that were tried and not adopted (``docs/benchmarks.md``, "Shares in
@@ -21,6 +23,13 @@ linear centre, taken off exactly). *optics*: the encoded shares plus a per-pixel
 of the marker's rectangle (its size known, placed at the centre found, two rounds) blurred by the *true* blur and
 the pixel's aperture in linear light, each pixel's surround level solved from its full-resolution luma (BT.601,
 which the chroma spread does not touch), the model's encoded share taken off and its linear coverage put in.
+
+``--centre edges``: the default centre, the *half* crossings (per side, where the encoded chroma projected on the
+marker's chroma falls to half between the marker and the band beyond the spread; no optics offset) and the *edges*
+fitted in the encoded Y'CbCr (``edge.edges_encoded``: a 1D model per side with the optics, the body's margin and
+the stream's spread, the tone curve assumed ``--tone``), each from the profiles around the default centre along the
+true axis; per row also the worst per-colour bias within one body and margin, and the mean y bias per body and
+margin.
 """
 
 from __future__ import annotations
@@ -39,8 +48,10 @@ import numpy as np
 if importlib.util.find_spec("edge") is None:  # run from a checkout without the package installed
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from edge import edges_encoded
 from edge.camera import paper_camera
 from edge.coverage import coverage_weights
+from edge.edges_encoded import YCC_FROM_BGR, edge_midpoint, fit_edges, side_profiles
 from edge.segmentation import LINEAR, dilate, erode
 from edge.sim.effects import Compression, Effects, Optics
 from edge.sim.render import Renderer
@@ -64,7 +75,6 @@ STREAMS = (
     ("4:2:0", 70),
 )
 MARKER_CM = (21.5, 16.8)
-MARGIN_CM = 1.0
 
 
 def palette(name: str) -> dict[str, tuple[float, float, float]]:
@@ -169,8 +179,55 @@ def optics_weights(
     return weights
 
 
+TONES = {
+    "srgb": (edges_encoded.srgb_decode, edges_encoded.srgb_encode),
+    "gamma2.2": (lambda v: np.clip(v, 0, 1) ** 2.2, lambda x: np.clip(x, 0, 1) ** (1 / 2.2)),
+    "gamma2.0": (lambda v: np.clip(v, 0, 1) ** 2.0, lambda x: np.clip(x, 0, 1) ** (1 / 2.0)),
+    "gamma2.4": (lambda v: np.clip(v, 0, 1) ** 2.4, lambda x: np.clip(x, 0, 1) ** (1 / 2.4)),
+}
+TONE = ["srgb"]
+
+
+def half_crossings(profiles: list[edges_encoded.SideProfile], marker_ycc: np.ndarray) -> list[float]:
+    """The simple variant: per side, where the chroma projected on the marker's chroma (relative to the band
+    beyond the spread) first falls below half, from inside out (pixels along the normal)."""
+    out = []
+    for p in profiles:
+        band = (p.u_px > edges_encoded.BAND_PX[0]) & (p.u_px < edges_encoded.BAND_PX[1])
+        surround = p.ycc[band, 1:].mean(axis=0)
+        direction = marker_ycc[1:] - surround
+        q = (p.ycc[:, 1:] - surround) @ direction / float(direction @ direction)
+        below = np.nonzero((q < 0.5) & (p.u_px > -edges_encoded.REACH_IN_PX + 1))[0]
+        k = int(below[0]) if below.size else len(q) - 1
+        if k == 0:
+            out.append(float(p.u_px[0]))
+            continue
+        t = (q[k - 1] - 0.5) / (q[k - 1] - q[k])
+        out.append(float(p.u_px[k - 1] + t * (p.u_px[k] - p.u_px[k - 1])))
+    return out
+
+
+def edge_centres(
+    roi: np.ndarray, core: np.ndarray, offset: tuple[int, int], grid: PlaneGrid, start: tuple[float, float], th: float
+) -> list[tuple[float, float]]:
+    """The simple variant (:func:`half_crossings`, no optics offset) and the fitted edge model's centres
+    (``edge.edges_encoded``, tone curve ``--tone``), from the profiles around ``start`` (the default centre) along
+    the true axis ``th``."""
+    h, w = core.shape
+    xy = grid.xy_cm[:, offset[1] : offset[1] + h, offset[0] : offset[0] + w]
+    profiles = side_profiles(roi, xy, start, th, (MARKER_CM[0] / 2, MARKER_CM[1] / 2))
+    assert all(edges_encoded.has_band(p) for p in profiles)
+    marker_ycc = roi[erode(core, 2)].astype(np.float64).mean(axis=0) @ YCC_FROM_BGR.T
+    fit = fit_edges(profiles, marker_ycc, *TONES[TONE[0]])
+    return [edge_midpoint(start, th, u0, profiles) for u0 in (half_crossings(profiles, marker_ycc), fit.u0_px)]
+
+
 def centre_errors_cm(
-    image: np.ndarray, pose: tuple[float, float, float], grid: PlaneGrid, blur_px: float | None
+    image: np.ndarray,
+    pose: tuple[float, float, float],
+    grid: PlaneGrid,
+    blur_px: float | None,
+    edges: bool = False,
 ) -> tuple[tuple[float, float], ...]:
     """(x, y) error of the default centre of the marker at ``pose`` in ``image``; with ``blur_px`` (the true blur)
     also of the encoded-share centre and of that centre with the optics correction."""
@@ -195,6 +252,9 @@ def centre_errors_cm(
         blob = world_blob(weights, (x0, y0), grid)
         assert blob is not None
         errors.append((blob.x_cm - x, blob.y_cm - y))
+    if edges:
+        start = (errors[0][0] + x, errors[0][1] + y)
+        errors += [(ex - x, ey - y) for ex, ey in edge_centres(roi, core, (x0, y0), grid, start, th)]
     return tuple(errors)
 
 
@@ -205,13 +265,40 @@ def worst_colour(errors: np.ndarray, colour_of: list[str]) -> tuple[float, str]:
     return float(np.hypot(*means[worst])), worst
 
 
+def print_edges_row(name: str, centre: str, every: np.ndarray, colour_of: list[str], body_of: list[str]) -> None:
+    """One row of the ``--centre edges`` table: (N, 2) ``every`` errors of one centre on one stream."""
+    bias = every.mean(axis=0)
+    worst = worst_colour(every, colour_of)
+    groups = list(dict.fromkeys(body_of))
+    per_group = {}
+    for g in groups:
+        pick = [b == g for b in body_of]
+        per_group[g] = worst_colour(every[pick], [c for c, k in zip(colour_of, pick, strict=True) if k])
+    worst_group = max(groups, key=lambda g: per_group[g][0])
+    by_group = ", ".join(f"{every[[b == g for b in body_of]].mean(axis=0)[1]:+.3f}" for g in groups)
+    cells = [
+        name,
+        centre,
+        f"{bias[0]:+.3f}, {bias[1]:+.3f}",
+        f"{float(np.hypot(*every.T).mean()):.3f}",
+        f"{worst[0]:.3f} ({worst[1]})",
+        f"{per_group[worst_group][0]:.3f} ({worst_group}, {per_group[worst_group][1]})",
+        by_group,
+    ]
+    print("| " + " | ".join(cells) + " |", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--poses", type=int, default=4, help="random poses per body, blur and colour")
     parser.add_argument("--seed", type=int, default=2000)
     parser.add_argument("--palette", choices=("default", "eight"), default="default")
-    parser.add_argument("--centre", choices=("linear", "encoded"), default="linear")
+    parser.add_argument("--centre", choices=("linear", "encoded", "edges"), default="linear")
+    parser.add_argument("--streams", default="", help="only these rows, e.g. 'none,4:2:0 q90' (default: all)")
+    parser.add_argument("--tone", choices=tuple(TONES), default="srgb", help="the edge model's assumed tone curve")
+    parser.add_argument("--margins", default="1.0", help="the body's top around the marker, cm (comma-separated)")
     args = parser.parse_args()
+    TONE[0] = args.tone
     grid = PlaneGrid(CameraPlaneMapping(paper_camera()), (1280, 720))
     colours = palette(args.palette)
     rng = np.random.default_rng(args.seed)
@@ -219,10 +306,21 @@ def main() -> None:
         (float(rng.uniform(40, 380)), float(rng.uniform(60, 520)), float(rng.uniform(-math.pi, math.pi)))
         for _ in range(args.poses)
     ]
-    encoded = args.centre == "encoded"
+    encoded, edges = args.centre == "encoded", args.centre == "edges"
+    margins = [float(m) for m in args.margins.split(",")]
     print(f"# edge-ips chroma bias on static poses, {time.strftime('%Y-%m-%d %H:%M')}\n")
-    print(f"{args.poses} poses (seed {args.seed}) x bodies {', '.join(BODIES)} x blur {BLURS_PX} px x {args.palette}")
-    if encoded:
+    print(
+        f"{args.poses} poses (seed {args.seed}) x bodies {', '.join(BODIES)} x margins {margins} cm x blur "
+        f"{BLURS_PX} px x {args.palette}"
+    )
+    if edges:
+        print("palette; exact interior mask, true axis; the default centre, half crossings and the fitted edges.\n")
+        print(
+            "| stream | centre | bias x, y cm (all) | mean error cm | worst colour bias cm | worst body/margin "
+            "colour bias cm | bias y per body/margin |"
+        )
+        print("|---|---|---|---|---|---|---|")
+    elif encoded:
         print("palette; exact interior mask; the encoded-share centre and it with the optics correction (true blur).\n")
         print(
             "| stream | centre | bias x, y cm (all) | mean error cm | worst colour bias cm | bias y: black, dark "
@@ -238,17 +336,20 @@ def main() -> None:
         )
         print("|---|---|---|---|---|---|")
     uncompressed: np.ndarray | None = None
+    wanted = [w.strip() for w in args.streams.split(",") if w.strip()]
     for chroma, quality in STREAMS:
+        if wanted and ("none" if quality is None else f"{chroma} q{quality}") not in wanted:
+            continue
         body_of: list[str] = []
         colour_of: list[str] = []
         measured: list[tuple[tuple[float, float], ...]] = []
-        for body, blur, colour in itertools.product(BODIES, BLURS_PX, colours):
+        for body, margin, blur, colour in itertools.product(BODIES, margins, BLURS_PX, colours):
             look = RoverLook(
                 "r",
                 colours[colour],
                 body_bgr=BODIES[body],
-                body_length_cm=MARKER_CM[0] + 2 * MARGIN_CM,
-                body_width_cm=MARKER_CM[1] + 2 * MARGIN_CM,
+                body_length_cm=MARKER_CM[0] + 2 * margin,
+                body_width_cm=MARKER_CM[1] + 2 * margin,
             )
             compression = None if quality is None else Compression(quality, chroma)
             effects = Effects(
@@ -257,13 +358,17 @@ def main() -> None:
             renderer = Renderer(paper_camera(), Scene((look,)), effects)
             for pose in poses:
                 image = renderer.render(WorldState(0.0, (RoverState("r", *pose, 0.0, 0.0, 0.0),)), 0)
-                measured.append(centre_errors_cm(image, pose, grid, blur if encoded else None))
-                body_of.append(body)
+                measured.append(centre_errors_cm(image, pose, grid, blur if encoded else None, edges))
+                body_of.append(f"{body} {margin:g}" if edges else body)
                 colour_of.append(colour)
         errors = np.array(measured)  # (N, centres, 2)
         if uncompressed is None:
             uncompressed = errors
         name = "none" if quality is None else f"{chroma} q{quality}"
+        if edges:
+            for k, centre in enumerate(("linear", "half", "edges")):
+                print_edges_row(name, centre, errors[:, k], colour_of, body_of)
+            continue
         centres = ("encoded", "optics") if encoded else ("linear",)
         for k, centre in enumerate(centres, start=len(errors[0]) - len(centres)):
             every = errors[:, k]
