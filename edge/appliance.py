@@ -35,7 +35,7 @@ from edge.config_load import LoadedConfig
 from edge.errors import CalibrationError
 from edge.fusion.board import detection_builder_for
 from edge.mqttclient import TlsFiles
-from edge.publisher import MqttPublisher
+from edge.publisher import ConnectionHold, MqttPublisher
 from edge.runtime import EdgeRuntime
 from edge.sources import FrameSource, SimulatedScene, SourceInfo, camera_source, parse_source
 from edge.tracking import Tracker
@@ -201,15 +201,15 @@ def start_recorder(config: EdgeConfig) -> Recorder | None:
 
 
 class _OnConnected:
-    """The publisher's (re)connection: a retained stop (at start, and after a broker restart), and a fresh status
-    once the runtime runs."""
+    """The publisher's (re)connection: a retained stop (at start, and after a broker restart) that releases the
+    connection's poses once acknowledged, and a fresh status once the runtime runs."""
 
     def __init__(self, stop_at_start: StopAtStart) -> None:
         self.stop_at_start = stop_at_start
         self.runtime: EdgeRuntime | None = None
 
-    def __call__(self) -> None:
-        self.stop_at_start.on_connected()
+    def __call__(self, hold: ConnectionHold) -> None:
+        self.stop_at_start.on_connected(hold)
         if self.runtime is not None:
             self.runtime.status_now()
 
@@ -217,8 +217,9 @@ class _OnConnected:
 def start_publisher(
     config: EdgeConfig, target: BrokerTarget, tls: TlsFiles, recorder: Recorder | None, connect_timeout_s: float
 ) -> tuple[MqttPublisher, _OnConnected]:
-    """The edge's MQTT publisher, started; on its first connection a retained stop, so that after a restart every
-    rover halts until commanded again. Waits up to ``connect_timeout_s`` for both (the broker may come later:
+    """The edge's MQTT publisher, started; on each connection a retained stop, so that after a restart (the
+    edge's or the broker's) every rover halts until commanded again, with the poses held until it is acknowledged.
+    Waits up to ``connect_timeout_s`` for both (the broker may come later:
     the publisher keeps trying in the background)."""
     from edge.commands import StopAtStart
 
@@ -237,12 +238,13 @@ def start_publisher(
         tls=tls,
         tap=tap,
         on_connected=on_connected,
+        hold_poses=True,  # no pose on a connection before its stop is acknowledged (StopAtStart)
     )
     publisher.start()
     if not publisher.wait_connected(connect_timeout_s):
         log.warning("broker %s not reachable yet; retrying in the background", target.display())
     elif not stop_at_start.done.wait(connect_timeout_s):  # before any command can be taken (dashboard)
-        log.warning("the retained stop at start is not acknowledged yet; it is sent again on reconnect")
+        log.warning("the retained stop at start is not acknowledged yet: poses stay held until it is")
     return publisher, on_connected
 
 
