@@ -224,13 +224,14 @@ def start_publisher(
     from edge.commands import StopAtStart
 
     tap = recorder.record if recorder is not None else None
-    stop_at_start = StopAtStart(target, client_id=f"edge-ips-{config.edge.id}-stop", tls=tls, tap=tap)
+    poses = config.edge.publish == "poses"  # a board of several publishes detections, and no formation
+    stop_at_start = StopAtStart(target, client_id=f"edge-ips-{config.edge.id}-stop", tls=tls, tap=tap, retry=poses)
     on_connected = _OnConnected(stop_at_start)
     publisher = MqttPublisher(
         target,
         edge_id=config.edge.id,
         # a board of several calls nobody missing, in its last will too (the fuser knows who nobody sees)
-        rovers=[r.id for r in config.rovers] if config.edge.publish == "poses" else [],
+        rovers=[r.id for r in config.rovers] if poses else [],
         client_id=config.broker.client_id,
         keepalive_s=config.broker.keepalive_s,
         reconnect_min_s=config.broker.reconnect_min_s,
@@ -238,13 +239,13 @@ def start_publisher(
         tls=tls,
         tap=tap,
         on_connected=on_connected,
-        hold_poses=True,  # no pose on a connection before its stop is acknowledged (StopAtStart)
+        hold_poses=poses,  # no pose on a connection before its stop is acknowledged (StopAtStart)
     )
     publisher.start()
     if not publisher.wait_connected(connect_timeout_s):
         log.warning("broker %s not reachable yet; retrying in the background", target.display())
     elif not stop_at_start.done.wait(connect_timeout_s):  # before any command can be taken (dashboard)
-        log.warning("the retained stop at start is not acknowledged yet: poses stay held until it is")
+        log.warning("the retained stop at start is not acknowledged yet%s", ": poses stay held until it is" * poses)
     return publisher, on_connected
 
 

@@ -198,7 +198,9 @@ class StopAtStart:
     :meth:`on_connected`; the hold is released once the broker acknowledged the stop. A connection made while a
     stop is on its way gets one more after it. A failed attempt keeps the poses held and is made again every
     ``retry_min_s``, doubling up to ``retry_max_s``, while the connection lasts (and at the next one): releasing
-    them would let the fleet drive on whatever the broker holds, while held poses only keep it halted.
+    them would let the fleet drive on whatever the broker holds, while held poses only keep it halted. (A camera
+    board of several, ``retry=False``, publishes no poses and its broker takes formations from the central one
+    only: one attempt per connection, logged.)
     :attr:`done` is set once the broker acknowledged the first stop; ``tap(topic, payload, retain)`` is shown each
     (the recording, like everything the edge publishes).
     """
@@ -212,6 +214,7 @@ class StopAtStart:
         tap: Callable[[str, bytes, bool], None] | None = None,
         retry_min_s: float = RETRY_MIN_S,
         retry_max_s: float = RETRY_MAX_S,
+        retry: bool = True,
     ) -> None:
         self.target = target
         self.client_id = client_id
@@ -219,6 +222,7 @@ class StopAtStart:
         self.tap = tap
         self.retry_min_s = retry_min_s
         self.retry_max_s = retry_max_s
+        self.retry = retry
         self.done = threading.Event()
         self.attempts = 0  # stops tried, for the log and the tests
         self._lock = threading.Condition()
@@ -253,6 +257,9 @@ class StopAtStart:
             error = self._send(hold)
             if error is None:
                 hold.release()
+                return
+            if not self.retry:
+                log.warning("the retained stop was not published (%s); trying again at the next connection", error)
                 return
             if error != said:  # once per connection and cause, not at every retry
                 log.warning(
