@@ -124,6 +124,12 @@ CALIBRATION_CASES: list[tuple[str, Callable[[Json], object] | str | bytes, str]]
     ("distortion text", _set("intrinsics.dist_coeffs", "barrel"), "dist_coeffs"),
     ("rvec 2 values", _set("camera_pose.rvec", [0.1, 0.2]), "camera_pose.rvec"),
     ("tvec text", _set("camera_pose.tvec", ["a", "b", "c"]), "camera_pose.tvec.0"),
+    # finite, but cv2.Rodrigues makes a NaN rotation of it, and every pixel would map to NaN
+    ("rvec 1e308", _set("camera_pose.rvec", [1e308, 0.0, 0.0]), "camera_pose.rvec: length 1e+308 rad"),
+    ("rvec overflows", _set("camera_pose.rvec", [1e308, 1e308, 0.0]), "camera_pose.rvec"),
+    ("rvec infinite", _set("camera_pose.rvec", [float("inf"), 0.0, 0.0]), "camera_pose.rvec.0"),
+    ("rvec NaN", _set("camera_pose.rvec", [float("nan"), 0.0, 0.0]), "camera_pose.rvec.0"),
+    ("tvec 1e308", _set("camera_pose.tvec", [0.0, 0.0, 1e308]), "camera_pose.tvec: length 1e+308 cm"),
     ("pose without intrinsics", _set("intrinsics", None), "needs intrinsics"),
     ("width zero", _set("image_width_px", 0), "image_width_px"),
     ("width fractional", _set("image_width_px", 320.5), "image_width_px"),
@@ -230,6 +236,7 @@ CAMERA_CASES: list[tuple[str, Callable[[Json], object] | str | bytes, str]] = [
     ("K 3x2", _set("camera_matrix", [[300, 0], [0, 300], [0, 0]]), "camera_matrix.0"),
     ("K negative focal", _set("camera_matrix", [[-300, 0, 160], [0, 300, 120], [0, 0, 1]]), "focal"),
     ("rvec 4 values", _set("rvec", [0, 0, 0, 0]), "rvec"),
+    ("rvec 1e308", _set("rvec", [1e308, 1e308, 0.0]), "rvec: length 1.41e+308 rad"),
     ("tvec null", _set("tvec", None), "tvec"),
     ("width float", _set("width_px", 320.0), "width_px"),
 ]
