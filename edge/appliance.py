@@ -27,6 +27,7 @@ import signal
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from edge.broker.clients import SelectedBroker, select_broker
@@ -154,12 +155,11 @@ def with_sim_rovers(config: EdgeConfig, source: FrameSource) -> EdgeConfig:
     return config.model_copy(update={"rovers": rovers})
 
 
-def load_calibration_for(config: EdgeConfig, source: FrameSource, info: SourceInfo, where: str) -> Calibration:
-    """The calibration for a real source (required), or the simulator's own exact one."""
+def calibration_path(config: EdgeConfig, where: str) -> Path | None:
+    """The calibration file a real source needs (None for the simulator, which brings its own exact one);
+    :class:`CalibrationError` when none is configured or it is not there."""
     if parse_source(config.camera.source).kind == "sim":
-        if not isinstance(source, SimulatedScene):
-            raise CalibrationError("the simulated camera does not expose its camera model")
-        return source.exact_calibration()
+        return None
     path = config.calibration.path
     if path is None:
         raise CalibrationError(
@@ -168,6 +168,26 @@ def load_calibration_for(config: EdgeConfig, source: FrameSource, info: SourceIn
         )
     if not path.is_file():
         raise CalibrationError(f"{path}: calibration file not found (calibration.path in {where})")
+    return path
+
+
+def check_calibration(config: EdgeConfig, where: str) -> None:
+    """The calibration file read and validated, all but its image size (that needs the opened camera):
+    ``edge-ips start`` checks it before it makes anything (the dashboard's token), so a bad file stops it first."""
+    path = calibration_path(config, where)
+    if path is not None:
+        from edge.calibration import load_calibration
+
+        load_calibration(path)
+
+
+def load_calibration_for(config: EdgeConfig, source: FrameSource, info: SourceInfo, where: str) -> Calibration:
+    """The calibration for a real source (required), or the simulator's own exact one."""
+    path = calibration_path(config, where)
+    if path is None:
+        if not isinstance(source, SimulatedScene):
+            raise CalibrationError("the simulated camera does not expose its camera model")
+        return source.exact_calibration()
     from edge.calibration import load_calibration
 
     return load_calibration(path, expected_size=(info.width_px, info.height_px))

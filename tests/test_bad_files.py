@@ -162,6 +162,24 @@ def test_start_refuses_a_malformed_calibration_in_one_line(
     assert_one_line_error(result, str(bad), fragment)
 
 
+@pytest.mark.parametrize("broken", ["a malformed calibration", "a calibration that is not there"])
+def test_a_bad_calibration_stops_start_before_it_makes_the_dashboard_token(
+    kit: dict[str, Path], tmp_path: Path, private_state_dir: Path, broken: str
+) -> None:
+    # The token (made on a first start and printed with the page's address) is state: a start that is going to
+    # refuse its calibration must not leave one behind, nor print an address nobody can open.
+    d = kit["dir"]
+    bad = tmp_path / "calibration.json"
+    if broken == "a malformed calibration":
+        _with(d / "calibration.json", bad, _set("camera_pose.rvec", [1e308, 0.0, 0.0]))
+    config = tmp_path / "edge-ips.toml"
+    config.write_text(f'[camera]\nsource = "{d / "clip.avi"}"\n[calibration]\npath = "{bad}"\n')
+    result = run("start", "--config", config, "--http-port", "0", "--broker", "mqtt://127.0.0.1:9")
+    assert_one_line_error(result, str(bad))
+    assert "dashboard:" not in result.stdout
+    assert not private_state_dir.exists() or not any(private_state_dir.iterdir())
+
+
 @pytest.mark.parametrize(
     ("name", "mutate", "fragment"), CALIBRATION_CASES[:12], ids=[c[0] for c in CALIBRATION_CASES[:12]]
 )
