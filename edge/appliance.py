@@ -172,8 +172,11 @@ def calibration_path(config: EdgeConfig, where: str) -> Path | None:
 
 
 def check_calibration(config: EdgeConfig, where: str) -> None:
-    """The calibration file read and validated, all but its image size (that needs the opened camera):
-    ``edge-ips start`` checks it before it makes anything (the dashboard's token), so a bad file stops it first."""
+    """The configured calibration file read and validated, all but its image size (that needs the opened camera):
+    ``edge-ips start`` checks it before it makes anything (the dashboard's token), so a bad file stops it first.
+    None configured is said after the camera is opened, as a missing camera is the first thing to fix."""
+    if config.calibration.path is None:
+        return
     path = calibration_path(config, where)
     if path is not None:
         from edge.calibration import load_calibration

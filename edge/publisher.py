@@ -5,7 +5,7 @@ counted, never queued (paho queues nothing for QoS 0 without a socket, and its o
 on reconnect). Status is kept as "the latest" and re-published on every (re)connect. Reconnects run with
 exponential backoff on paho's network thread, so the tracker never waits for the network.
 
-With ``hold_poses``, every (re)connection also holds the poses back (dropped, counted in ``poses_held``) until the
+With ``hold_poses``, every (re)connection also holds the poses back (not sent, counted in ``poses_held``) until the
 :class:`ConnectionHold` handed to ``on_connected`` for that connection is released: the appliance releases it once
 its retained ``stop`` for the connection is acknowledged (:class:`edge.commands.StopAtStart`), so a rover that
 reconnects to a broker which brought back an older formation gets no fresh pose to drive it on.
