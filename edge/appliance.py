@@ -27,6 +27,7 @@ import signal
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from edge.broker.clients import SelectedBroker, select_broker
@@ -35,7 +36,7 @@ from edge.config_load import LoadedConfig
 from edge.errors import CalibrationError
 from edge.fusion.board import detection_builder_for
 from edge.mqttclient import TlsFiles
-from edge.publisher import MqttPublisher
+from edge.publisher import ConnectionHold, MqttPublisher
 from edge.runtime import EdgeRuntime
 from edge.sources import FrameSource, SimulatedScene, SourceInfo, camera_source, parse_source
 from edge.tracking import Tracker
@@ -154,12 +155,11 @@ def with_sim_rovers(config: EdgeConfig, source: FrameSource) -> EdgeConfig:
     return config.model_copy(update={"rovers": rovers})
 
 
-def load_calibration_for(config: EdgeConfig, source: FrameSource, info: SourceInfo, where: str) -> Calibration:
-    """The calibration for a real source (required), or the simulator's own exact one."""
+def calibration_path(config: EdgeConfig, where: str) -> Path | None:
+    """The calibration file a real source needs (None for the simulator, which brings its own exact one);
+    :class:`CalibrationError` when none is configured or it is not there."""
     if parse_source(config.camera.source).kind == "sim":
-        if not isinstance(source, SimulatedScene):
-            raise CalibrationError("the simulated camera does not expose its camera model")
-        return source.exact_calibration()
+        return None
     path = config.calibration.path
     if path is None:
         raise CalibrationError(
@@ -168,6 +168,29 @@ def load_calibration_for(config: EdgeConfig, source: FrameSource, info: SourceIn
         )
     if not path.is_file():
         raise CalibrationError(f"{path}: calibration file not found (calibration.path in {where})")
+    return path
+
+
+def check_calibration(config: EdgeConfig, where: str) -> None:
+    """The configured calibration file read and validated, all but its image size (that needs the opened camera):
+    ``edge-ips start`` checks it before it makes anything (the dashboard's token), so a bad file stops it first.
+    None configured is said after the camera is opened, as a missing camera is the first thing to fix."""
+    if config.calibration.path is None:
+        return
+    path = calibration_path(config, where)
+    if path is not None:
+        from edge.calibration import load_calibration
+
+        load_calibration(path)
+
+
+def load_calibration_for(config: EdgeConfig, source: FrameSource, info: SourceInfo, where: str) -> Calibration:
+    """The calibration for a real source (required), or the simulator's own exact one."""
+    path = calibration_path(config, where)
+    if path is None:
+        if not isinstance(source, SimulatedScene):
+            raise CalibrationError("the simulated camera does not expose its camera model")
+        return source.exact_calibration()
     from edge.calibration import load_calibration
 
     return load_calibration(path, expected_size=(info.width_px, info.height_px))
@@ -201,15 +224,15 @@ def start_recorder(config: EdgeConfig) -> Recorder | None:
 
 
 class _OnConnected:
-    """The publisher's (re)connection: a retained stop (at start, and after a broker restart), and a fresh status
-    once the runtime runs."""
+    """The publisher's (re)connection: a retained stop (at start, and after a broker restart) that releases the
+    connection's poses once acknowledged, and a fresh status once the runtime runs."""
 
     def __init__(self, stop_at_start: StopAtStart) -> None:
         self.stop_at_start = stop_at_start
         self.runtime: EdgeRuntime | None = None
 
-    def __call__(self) -> None:
-        self.stop_at_start.on_connected()
+    def __call__(self, hold: ConnectionHold) -> None:
+        self.stop_at_start.on_connected(hold)
         if self.runtime is not None:
             self.runtime.status_now()
 
@@ -217,19 +240,21 @@ class _OnConnected:
 def start_publisher(
     config: EdgeConfig, target: BrokerTarget, tls: TlsFiles, recorder: Recorder | None, connect_timeout_s: float
 ) -> tuple[MqttPublisher, _OnConnected]:
-    """The edge's MQTT publisher, started; on its first connection a retained stop, so that after a restart every
-    rover halts until commanded again. Waits up to ``connect_timeout_s`` for both (the broker may come later:
+    """The edge's MQTT publisher, started; on each connection a retained stop, so that after a restart (the
+    edge's or the broker's) every rover halts until commanded again, with the poses held until it is acknowledged.
+    Waits up to ``connect_timeout_s`` for both (the broker may come later:
     the publisher keeps trying in the background)."""
     from edge.commands import StopAtStart
 
     tap = recorder.record if recorder is not None else None
-    stop_at_start = StopAtStart(target, client_id=f"edge-ips-{config.edge.id}-stop", tls=tls, tap=tap)
+    poses = config.edge.publish == "poses"  # a board of several publishes detections, and no formation
+    stop_at_start = StopAtStart(target, client_id=f"edge-ips-{config.edge.id}-stop", tls=tls, tap=tap, retry=poses)
     on_connected = _OnConnected(stop_at_start)
     publisher = MqttPublisher(
         target,
         edge_id=config.edge.id,
         # a board of several calls nobody missing, in its last will too (the fuser knows who nobody sees)
-        rovers=[r.id for r in config.rovers] if config.edge.publish == "poses" else [],
+        rovers=[r.id for r in config.rovers] if poses else [],
         client_id=config.broker.client_id,
         keepalive_s=config.broker.keepalive_s,
         reconnect_min_s=config.broker.reconnect_min_s,
@@ -237,12 +262,13 @@ def start_publisher(
         tls=tls,
         tap=tap,
         on_connected=on_connected,
+        hold_poses=poses,  # no pose on a connection before its stop is acknowledged (StopAtStart)
     )
     publisher.start()
     if not publisher.wait_connected(connect_timeout_s):
         log.warning("broker %s not reachable yet; retrying in the background", target.display())
     elif not stop_at_start.done.wait(connect_timeout_s):  # before any command can be taken (dashboard)
-        log.warning("the retained stop at start is not acknowledged yet; it is sent again on reconnect")
+        log.warning("the retained stop at start is not acknowledged yet%s", ": poses stay held until it is" * poses)
     return publisher, on_connected
 
 

@@ -35,6 +35,27 @@ ImageSide = Annotated[int, Field(strict=True, gt=0, le=65535)]
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 300, 1e-9)
 
 
+MAX_ROTATION_RAD = 2.0 * math.pi  # a rotation vector's length is its angle: every rotation has one within pi
+MAX_TRANSLATION_CM = 1e6  # 10 km: no camera above a floor is further from the origin
+
+
+def pose_problem(rvec: FloatArray, tvec: FloatArray) -> str | None:
+    """What makes ``rvec``, ``tvec`` no camera pose, or None: said from the field's name on (``rvec: ...``).
+
+    Finite numbers are not enough: cv2.Rodrigues turns a rotation vector of length 1e308 (or one whose length
+    overflows) into a NaN matrix, and every pixel then maps to NaN.
+    """
+    for name, v, limit, unit in (("rvec", rvec, MAX_ROTATION_RAD, "rad"), ("tvec", tvec, MAX_TRANSLATION_CM, "cm")):
+        if v.shape != (3,):
+            return f"{name}: expected 3 numbers, got shape {v.shape}"
+        if not np.all(np.isfinite(v)):
+            return f"{name}: must be finite numbers"
+        length = math.hypot(*(float(x) for x in v))  # np.linalg.norm overflows to inf at 1e308
+        if not length <= limit:
+            return f"{name}: length {length:.3g} {unit} is not a camera pose (at most {limit:.3g} {unit})"
+    return None
+
+
 def camera_matrix_problem(k: FloatArray, width_px: int, height_px: int) -> str | None:
     """What makes ``k`` no camera matrix for ``width_px`` x ``height_px`` images, or None when it is one.
 
@@ -86,8 +107,11 @@ class PinholeCamera:
         object.__setattr__(self, "dist_coeffs", d)
         rvec = np.asarray(self.rvec, dtype=np.float64).reshape(3)
         tvec = np.asarray(self.tvec, dtype=np.float64).reshape(3)
-        if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec)) and np.all(np.isfinite(d))):
-            raise CalibrationError("camera pose and distortion must be finite numbers")
+        problem = pose_problem(rvec, tvec)
+        if problem is not None:
+            raise CalibrationError(problem)
+        if not np.all(np.isfinite(d)):
+            raise CalibrationError("distortion must be finite numbers")
         object.__setattr__(self, "rvec", rvec)
         object.__setattr__(self, "tvec", tvec)
         object.__setattr__(self, "rotation", cv2.Rodrigues(self.rvec)[0])

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import paho.mqtt.client as mqtt
 from pydantic import ValidationError
@@ -21,12 +21,17 @@ from edge.errors import BrokerError, EdgeIpsError, MessageError, describe_valida
 from edge.messages import FORMATION_TOPIC, FormationKind, FormationV1, dumps, next_seq, parse_formation
 from edge.mqttclient import TlsFiles, connect_blocking, make_client
 
+if TYPE_CHECKING:
+    from edge.publisher import ConnectionHold
+
 log = logging.getLogger("edge.commands")
 
 FORMATION_QOS = 1
 LINE_SPACING_CM = 60.0  # a line's distance between neighbours when the command names none
 TRIANGLE_SIDE_CM = 100.0  # a triangle's side when the command names none
 RETAINED_WAIT_S = 0.5  # how long a retained formation may take to arrive after subscribing (MQTT has no "none")
+RETRY_MIN_S = 0.5  # a stop at (re)connection the broker did not take is tried again after this...
+RETRY_MAX_S = 5.0  # ... doubling up to this, while the poses stay held
 
 
 def build_formation(
@@ -185,13 +190,19 @@ class StopAtStart:
     messages on a clean exit or every ``autosave_interval`` (30 min), so after a crash or power cut it brings back
     whatever it saved last (a ``line`` that the ``stop`` after it had replaced), and a rover that reconnects
     forgets its formation and applies that. The edge cannot tell such a replay from a command it missed, so it
-    halts the fleet.
+    halts the fleet; and until its stop is acknowledged, the connection's :class:`~edge.publisher.ConnectionHold`
+    keeps the poses back, so a rover that reconnected first has no fresh pose to drive the replay on (its safety
+    layer halts it ``stale``).
 
     Sent with :func:`send_formation` (its own short connection, seq after the retained one) from
-    :meth:`on_connected` (the edge's publisher reached the broker); a connection made while a stop is on its way
-    gets one more after it, a failed attempt is made again at the next connection. :attr:`done` is set once the
-    broker acknowledged the first stop; ``tap(topic, payload, retain)`` is shown each (the recording, like
-    everything the edge publishes).
+    :meth:`on_connected`; the hold is released once the broker acknowledged the stop. A connection made while a
+    stop is on its way gets one more after it. A failed attempt keeps the poses held and is made again every
+    ``retry_min_s``, doubling up to ``retry_max_s``, while the connection lasts (and at the next one): releasing
+    them would let the fleet drive on whatever the broker holds, while held poses only keep it halted. (A camera
+    board of several, ``retry=False``, publishes no poses and its broker takes formations from the central one
+    only: one attempt per connection, logged.)
+    :attr:`done` is set once the broker acknowledged the first stop; ``tap(topic, payload, retain)`` is shown each
+    (the recording, like everything the edge publishes).
     """
 
     def __init__(
@@ -201,20 +212,28 @@ class StopAtStart:
         client_id: str,
         tls: TlsFiles | None = None,
         tap: Callable[[str, bytes, bool], None] | None = None,
+        retry_min_s: float = RETRY_MIN_S,
+        retry_max_s: float = RETRY_MAX_S,
+        retry: bool = True,
     ) -> None:
         self.target = target
         self.client_id = client_id
         self.tls = tls
         self.tap = tap
+        self.retry_min_s = retry_min_s
+        self.retry_max_s = retry_max_s
+        self.retry = retry
         self.done = threading.Event()
-        self._lock = threading.Lock()
-        self._pending = False  # a connection that has not had its stop yet
+        self.attempts = 0  # stops tried, for the log and the tests
+        self._lock = threading.Condition()
+        self._pending: ConnectionHold | None = None  # the newest connection that has not had its stop yet
         self._thread: threading.Thread | None = None
 
-    def on_connected(self) -> None:
+    def on_connected(self, hold: ConnectionHold) -> None:
         """Send a stop for this connection, after the one on its way if any (any thread; returns at once)."""
         with self._lock:
-            self._pending = True
+            self._pending = hold
+            self._lock.notify_all()
             if self._thread is None:
                 self._thread = threading.Thread(target=self._run, name="stop-at-start", daemon=True)
                 self._thread.start()
@@ -222,21 +241,49 @@ class StopAtStart:
     def _run(self) -> None:
         while True:
             with self._lock:
-                if not self._pending:
+                hold = self._pending
+                if hold is None:
                     self._thread = None
                     return
-                self._pending = False
-            self._send()
+                self._pending = None
+            self._stop_for(hold)
 
-    def _send(self) -> None:
-        when = "after the broker connection came back" if self.done.is_set() else "at start"
+    def _stop_for(self, hold: ConnectionHold) -> None:
+        """Send until the broker takes the stop, then release the connection's poses; give up on a connection
+        that is gone (lost, or replaced by a newer one, which is handled next)."""
+        delay_s = self.retry_min_s
+        said = ""
+        while True:
+            error = self._send(hold)
+            if error is None:
+                hold.release()
+                return
+            if not self.retry:
+                log.warning("the retained stop was not published (%s); trying again at the next connection", error)
+                return
+            if error != said:  # once per connection and cause, not at every retry
+                log.warning(
+                    "the retained stop was not published (%s); poses stay held, trying again every %g-%g s",
+                    error,
+                    self.retry_min_s,
+                    self.retry_max_s,
+                )
+                said = error
+            with self._lock:
+                if self._lock.wait_for(lambda: self._pending is not None, delay_s) or not hold.current:
+                    return
+            delay_s = min(2 * delay_s, self.retry_max_s)
+
+    def _send(self, hold: ConnectionHold) -> str | None:
+        """One attempt: None when the broker took the stop, else why not."""
+        when = "at start" if hold.number == 1 else "after the broker connection came back"
+        self.attempts += 1
         try:
             sent = send_formation(
                 self.target, lambda seq: build_formation("stop", [], seq=seq), client_id=self.client_id, tls=self.tls
             )
         except EdgeIpsError as exc:
-            log.warning("the retained stop %s was not published (%s); trying again at the next connection", when, exc)
-            return
+            return str(exc)
         if self.tap is not None:
             self.tap(FORMATION_TOPIC, dumps(sent), True)
         self.done.set()
@@ -245,3 +292,4 @@ class StopAtStart:
             sent.seq,
             when,
         )
+        return None

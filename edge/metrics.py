@@ -132,6 +132,7 @@ class Snapshot:
     camera_reopens: int
     recording_lines: int
     recording_dropped: int
+    poses_held: int = 0  # after a broker (re)connection, until the edge's retained stop was acknowledged
 
     def health(self) -> dict[str, object]:
         """The /healthz body."""
@@ -218,6 +219,9 @@ def snapshot_metrics(s: Snapshot) -> Iterator[Metric]:
     yield _counter("broker_disconnects", "Broker connections lost.", s.broker_disconnects)
     yield _counter("poses_published", "Pose messages published.", s.poses_sent)
     yield _counter("poses_dropped", "Poses dropped while the broker was away.", s.poses_dropped)
+    yield _counter(
+        "poses_held", "Poses held back after a broker connection until the edge's stop was acknowledged.", s.poses_held
+    )
     yield _counter("poses_invalid", "Estimates the contract cannot carry.", s.poses_invalid)
     yield _counter("camera_failures", "Times the frame source failed.", s.camera_failures)
     yield _counter("camera_reopens", "Times the frame source was reopened.", s.camera_reopens)

@@ -5,6 +5,11 @@ counted, never queued (paho queues nothing for QoS 0 without a socket, and its o
 on reconnect). Status is kept as "the latest" and re-published on every (re)connect. Reconnects run with
 exponential backoff on paho's network thread, so the tracker never waits for the network.
 
+With ``hold_poses``, every (re)connection also holds the poses back (not sent, counted in ``poses_held``) until the
+:class:`ConnectionHold` handed to ``on_connected`` for that connection is released: the appliance releases it once
+its retained ``stop`` for the connection is acknowledged (:class:`edge.commands.StopAtStart`), so a rover that
+reconnects to a broker which brought back an older formation gets no fresh pose to drive it on.
+
 The formation command lives in :mod:`edge.commands`, the client set-up in :mod:`edge.mqttclient`; their names
 below are kept importable from here.
 """
@@ -39,6 +44,7 @@ class PublisherStats:
 
     poses_sent: int = 0
     poses_dropped: int = 0
+    poses_held: int = 0  # not sent: the connection's stop was not acknowledged yet (hold_poses)
     statuses_sent: int = 0
     connects: int = 0
     disconnects: int = 0
@@ -80,8 +86,28 @@ def offline_status(edge_id: str, rovers: Sequence[str], t: float | None = None) 
     )
 
 
+class ConnectionHold:
+    """One broker connection of an :class:`MqttPublisher` with ``hold_poses``: no pose goes out on it until
+    :meth:`release` (any thread; releasing a connection that was replaced since changes nothing)."""
+
+    def __init__(self, publisher: MqttPublisher, number: int) -> None:
+        self._publisher = publisher
+        self.number = number  # 1 for the first connection, +1 for each reconnection
+
+    @property
+    def current(self) -> bool:
+        """This connection is still the publisher's, and up."""
+        return self._publisher._connection == self.number and self._publisher.connected
+
+    def release(self) -> None:
+        self._publisher._release(self.number)
+
+
 class MqttPublisher:
-    """paho-mqtt v2 publisher with last will, status refresh on reconnect and drop-not-queue for poses."""
+    """paho-mqtt v2 publisher with last will, status refresh on reconnect and drop-not-queue for poses.
+
+    ``on_connected(hold)`` is called on paho's network thread after each successful CONNACK, with that connection's
+    :class:`ConnectionHold`; with ``hold_poses`` the poses wait for its release."""
 
     def __init__(
         self,
@@ -95,7 +121,8 @@ class MqttPublisher:
         reconnect_max_s: float = 2.0,
         tls: TlsFiles | None = None,
         tap: Tap | None = None,
-        on_connected: Callable[[], None] | None = None,
+        on_connected: Callable[[ConnectionHold], None] | None = None,
+        hold_poses: bool = False,
     ) -> None:
         self.target = target
         self.edge_id = edge_id
@@ -103,6 +130,14 @@ class MqttPublisher:
         self.keepalive_s = keepalive_s
         self.tap = tap
         self.on_connected = on_connected
+        self.hold_poses = hold_poses
+        # Connections are numbered; poses go out only while the current one is released. The lock makes a pose's
+        # check and its hand-over to paho one step, so no pose slips onto a connection that has just been made.
+        self._hold_lock = threading.Condition()
+        self._connection = 0
+        self._released = 0
+        self._held_since_mono = 0.0
+        self._held_at_connect = 0
         self.stats = PublisherStats()
         self._status_topic = edge_status_topic(edge_id)
         self._pose_topics = {r: pose_topic(r) for r in self.rovers}
@@ -143,15 +178,32 @@ class MqttPublisher:
         self.stats.connects += 1
         self.stats.connected_since_mono = time.monotonic()
         self._last_logged_error = ""
+        with self._hold_lock:  # before the connection counts as up: no pose goes out on it unheld
+            self._connection += 1
+            hold = ConnectionHold(self, self._connection)
+            self._held_since_mono = time.monotonic()
+            self._held_at_connect = self.stats.poses_held
         self._disconnected.clear()
         self._connected.set()
         self._first_connack.set()
-        log.info("connected to broker %s", self.target.display())
+        held = ", poses held until the edge's retained stop is acknowledged" if self.hold_poses else ""
+        log.info("connected to broker %s%s", self.target.display(), held)
         status = self._latest_status
         if status is not None:
             self._send_status(status)
         if self.on_connected is not None:
-            self.on_connected()
+            self.on_connected(hold)
+
+    def _release(self, number: int) -> None:
+        with self._hold_lock:
+            if number != self._connection or self._released == number:
+                return  # a connection replaced since (the newer one has its own stop coming), or released already
+            self._released = number
+            self._hold_lock.notify_all()
+            held = self.stats.poses_held - self._held_at_connect
+            waited_s = time.monotonic() - self._held_since_mono
+        if self.hold_poses:
+            log.info("poses resume: the retained stop is acknowledged (%d held over %.2f s)", held, waited_s)
 
     def _on_disconnect(self, client: mqtt.Client, userdata: Any, flags: Any, reason_code: Any, props: Any) -> None:
         was_connected = self._connected.is_set()
@@ -172,6 +224,14 @@ class MqttPublisher:
     def wait_disconnected(self, timeout_s: float) -> bool:
         """Wait until the connection is known to be lost (paho saw it go); False on timeout."""
         return self._disconnected.wait(timeout_s)
+
+    def wait_poses_released(self, timeout_s: float) -> bool:
+        """Wait until connected with the connection's poses released (``hold_poses``: its stop acknowledged);
+        False on timeout."""
+        if not self.hold_poses:
+            return self._connected.wait(timeout_s)
+        with self._hold_lock:
+            return self._hold_lock.wait_for(lambda: self._released == self._connection and self.connected, timeout_s)
 
     def start(self) -> None:
         """Begin connecting in the background (paho's network thread retries with backoff)."""
@@ -201,10 +261,17 @@ class MqttPublisher:
         return True
 
     def publish_pose(self, rover_id: str, payload: bytes) -> bool:
+        """Hand a pose to the broker connection: False (counted) while disconnected, or held (``hold_poses``)."""
         topic = self._pose_topics.get(rover_id) or pose_topic(rover_id)
-        if self.publish(topic, payload):
+        with self._hold_lock:
+            held = self.hold_poses and self._released != self._connection and self.connected
+            sent = not held and self.publish(topic, payload)
+        if sent:
             self.stats.poses_sent += 1
             return True
+        if held:
+            self.stats.poses_held += 1
+            return False
         self.stats.poses_dropped += 1
         self.stats.dropped_by_rover[rover_id] = self.stats.dropped_by_rover.get(rover_id, 0) + 1
         return False

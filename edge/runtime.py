@@ -381,4 +381,5 @@ class EdgeRuntime:
             camera_reopens=self.capture.reopens,
             recording_lines=0 if self.recorder is None else self.recorder.lines_written,
             recording_dropped=0 if self.recorder is None else self.recorder.lines_dropped,
+            poses_held=stats.poses_held,
         )

@@ -124,6 +124,12 @@ CALIBRATION_CASES: list[tuple[str, Callable[[Json], object] | str | bytes, str]]
     ("distortion text", _set("intrinsics.dist_coeffs", "barrel"), "dist_coeffs"),
     ("rvec 2 values", _set("camera_pose.rvec", [0.1, 0.2]), "camera_pose.rvec"),
     ("tvec text", _set("camera_pose.tvec", ["a", "b", "c"]), "camera_pose.tvec.0"),
+    # finite, but cv2.Rodrigues makes a NaN rotation of it, and every pixel would map to NaN
+    ("rvec 1e308", _set("camera_pose.rvec", [1e308, 0.0, 0.0]), "camera_pose.rvec: length 1e+308 rad"),
+    ("rvec overflows", _set("camera_pose.rvec", [1e308, 1e308, 0.0]), "camera_pose.rvec"),
+    ("rvec infinite", _set("camera_pose.rvec", [float("inf"), 0.0, 0.0]), "camera_pose.rvec.0"),
+    ("rvec NaN", _set("camera_pose.rvec", [float("nan"), 0.0, 0.0]), "camera_pose.rvec.0"),
+    ("tvec 1e308", _set("camera_pose.tvec", [0.0, 0.0, 1e308]), "camera_pose.tvec: length 1e+308 cm"),
     ("pose without intrinsics", _set("intrinsics", None), "needs intrinsics"),
     ("width zero", _set("image_width_px", 0), "image_width_px"),
     ("width fractional", _set("image_width_px", 320.5), "image_width_px"),
@@ -154,6 +160,24 @@ def test_start_refuses_a_malformed_calibration_in_one_line(
     config.write_text(f'[camera]\nsource = "{d / "clip.avi"}"\n[calibration]\npath = "{bad}"\n')
     result = run("start", "--config", config, "--no-dashboard", "--http-port", "0", "--broker", "mqtt://127.0.0.1:9")
     assert_one_line_error(result, str(bad), fragment)
+
+
+@pytest.mark.parametrize("broken", ["a malformed calibration", "a calibration that is not there"])
+def test_a_bad_calibration_stops_start_before_it_makes_the_dashboard_token(
+    kit: dict[str, Path], tmp_path: Path, private_state_dir: Path, broken: str
+) -> None:
+    # The token (made on a first start and printed with the page's address) is state: a start that is going to
+    # refuse its calibration must not leave one behind, nor print an address nobody can open.
+    d = kit["dir"]
+    bad = tmp_path / "calibration.json"
+    if broken == "a malformed calibration":
+        _with(d / "calibration.json", bad, _set("camera_pose.rvec", [1e308, 0.0, 0.0]))
+    config = tmp_path / "edge-ips.toml"
+    config.write_text(f'[camera]\nsource = "{d / "clip.avi"}"\n[calibration]\npath = "{bad}"\n')
+    result = run("start", "--config", config, "--http-port", "0", "--broker", "mqtt://127.0.0.1:9")
+    assert_one_line_error(result, str(bad))
+    assert "dashboard:" not in result.stdout
+    assert not private_state_dir.exists() or not any(private_state_dir.iterdir())
 
 
 @pytest.mark.parametrize(
@@ -230,6 +254,7 @@ CAMERA_CASES: list[tuple[str, Callable[[Json], object] | str | bytes, str]] = [
     ("K 3x2", _set("camera_matrix", [[300, 0], [0, 300], [0, 0]]), "camera_matrix.0"),
     ("K negative focal", _set("camera_matrix", [[-300, 0, 160], [0, 300, 120], [0, 0, 1]]), "focal"),
     ("rvec 4 values", _set("rvec", [0, 0, 0, 0]), "rvec"),
+    ("rvec 1e308", _set("rvec", [1e308, 1e308, 0.0]), "rvec: length 1.41e+308 rad"),
     ("tvec null", _set("tvec", None), "tvec"),
     ("width float", _set("width_px", 320.0), "width_px"),
 ]

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import logging
+import signal
+import threading
 from pathlib import Path
 
 import paho.mqtt.client as mqtt
@@ -13,11 +15,12 @@ import pytest
 from edge.commands import StopAtStart, build_formation, send_formation
 from edge.config import BrokerTarget
 from edge.dashboard.formation import FormationDesk
-from edge.messages import FORMATION_TOPIC, MAX_INT, dumps, next_seq
+from edge.messages import FORMATION_TOPIC, MAX_INT, dumps, encode_pose, next_seq
 from edge.publisher import MqttPublisher
 from tests.support.appliance import edge_config, running
 from tests.support.dashboard import FormationSubscriber
 from tests.support.mosquitto import Mosquitto, free_port
+from tests.support.runtime import MqttRecorder
 
 TOKEN = "s3cret-token"
 
@@ -166,3 +169,64 @@ def test_the_appliance_publishes_a_retained_stop_when_it_starts(mosquitto: Mosqu
         sub.close()
     assert [(d["kind"], d["seq"]) for d in seen] == [("line", 41), ("stop", 42)]
     assert retained(mosquitto) == seen[-1]
+
+
+class Said(logging.Handler):
+    """An event set when a log record says ``text``."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__(logging.WARNING)
+        self.text = text
+        self.event = threading.Event()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if self.text in record.getMessage():
+            self.event.set()
+
+    def wait(self, timeout_s: float) -> bool:
+        return self.event.wait(timeout_s)
+
+
+def test_poses_wait_for_the_stop_and_a_stop_the_broker_refuses_keeps_them_held_and_is_tried_again(
+    tmp_path: Path,
+) -> None:
+    # An ACL that does not (yet) let the edge's login write formations: the broker acknowledges and drops the stop.
+    acl = "user edge\ntopic write ips/v1/rovers/+/pose\ntopic readwrite ips/v1/edge/#\ntopic read ips/v1/formation\n"
+    admin = "user admin\ntopic readwrite #\n"
+    broker = Mosquitto(tmp_path / "acl", users={"edge": "edge-pw", "admin": "admin-pw"}, acl=admin + acl).start()
+    login = BrokerTarget(embedded=False, host=broker.host, port=broker.port, username="edge", password="edge-pw")
+    stop = StopAtStart(login, client_id="edge-t-stop", retry_min_s=0.05, retry_max_s=0.2)
+    publisher = MqttPublisher(login, edge_id="edge-t", rovers=["red"], on_connected=stop.on_connected, hold_poses=True)
+    watch = MqttRecorder(
+        broker.host,
+        broker.port,
+        topics=(FORMATION_TOPIC, "ips/v1/rovers/+/pose"),
+        username="admin",
+        password="admin-pw",
+    )
+    pose = encode_pose("red", 1, 1, 1.7e9, 10.0, 20.0, None, None, None, 1.0)
+    refused = Said("the retained stop was not published")
+    logging.getLogger("edge.commands").addHandler(refused)
+    try:
+        watch.start()
+        assert watch.wait_subscribed()
+        publisher.start()
+        assert publisher.wait_connected(30)
+        assert not publisher.publish_pose("red", pose)  # held: no stop taken for this connection
+        assert publisher.stats.poses_held == 1 and publisher.stats.poses_dropped == 0
+        assert refused.wait(60) and not stop.done.is_set()
+
+        assert broker.proc is not None
+        (broker.workdir / "acl").write_text(admin + acl + "topic write ips/v1/formation\n")
+        broker.proc.send_signal(signal.SIGHUP)  # Mosquitto reloads its ACL; the next attempt goes through
+        assert publisher.wait_poses_released(60)
+        assert stop.done.is_set() and stop.attempts >= 2
+        assert publisher.publish_pose("red", pose)
+        assert watch.wait_for(lambda m: any(x.topic.endswith("/pose") for x in m), 30)
+    finally:
+        logging.getLogger("edge.commands").removeHandler(refused)
+        publisher.stop()
+        watch.stop()
+        broker.stop()
+    kinds = [("pose" if m.topic.endswith("/pose") else json.loads(m.payload)["kind"]) for m in watch.messages]
+    assert kinds == ["stop", "pose"]  # nothing before the stop, and the stop before the first pose

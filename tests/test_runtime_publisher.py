@@ -14,7 +14,7 @@ import pytest
 from edge.config import parse_broker_url
 from edge.errors import BrokerError
 from edge.messages import StatusV1, edge_status_topic, encode_pose, parse_pose, parse_status, pose_topic
-from edge.publisher import MemoryPublisher, MqttPublisher
+from edge.publisher import ConnectionHold, MemoryPublisher, MqttPublisher
 from tests.support.mosquitto import Mosquitto
 from tests.support.runtime import MqttRecorder, poses
 
@@ -58,8 +58,8 @@ def test_poses_go_out_at_qos0_on_their_own_topic_with_the_exact_bytes(mosquitto:
 def test_status_is_retained_and_republished_after_a_broker_restart(mosquitto: Mosquitto) -> None:
     reconnected = threading.Event()
 
-    def on_connected() -> None:
-        if pub.stats.connects >= 2:
+    def on_connected(hold: ConnectionHold) -> None:
+        if hold.number >= 2:
             reconnected.set()
 
     pub = _publisher(mosquitto, on_connected=on_connected)

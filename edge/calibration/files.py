@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from edge.calibration.homography import apply_homography, homography_w
 from edge.calibration.lens import Intrinsics
-from edge.camera import Distortion, ImageSide, Matrix3x3, PinholeCamera, Vector3
+from edge.camera import Distortion, ImageSide, Matrix3x3, PinholeCamera, Vector3, pose_problem
 from edge.errors import CalibrationError, describe_validation
 
 FloatArray = NDArray[np.float64]
@@ -218,6 +218,9 @@ class CalibrationFile(_Strict):
         if self.camera_pose is not None:
             if intr is None:
                 raise CalibrationError("a camera pose needs intrinsics in the same file")
+            problem = pose_problem(np.asarray(self.camera_pose.rvec), np.asarray(self.camera_pose.tvec))
+            if problem is not None:
+                raise CalibrationError(f"camera_pose.{problem}")
             try:
                 cam = PinholeCamera(
                     intr.camera_matrix,

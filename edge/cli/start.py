@@ -76,6 +76,7 @@ def start(
         },
     )
     setup_logging(loaded.config.edge.log_level)
+    appliance.check_calibration(loaded.config, loaded.where)  # a bad file stops start before it makes any state
     loaded = first_start(loaded, after_kill, source_given=bool(source))
     appliance.start(loaded, source_given=bool(source), restart_argv=restart_argv())
 
