@@ -152,8 +152,8 @@ def test_no_rover_drives_on_the_formation_a_crashed_broker_brings_back(
     """``after_the_poses_went_stale``: the broker is back once every rover's last pose is older than its
     ``stale_ms`` (a broker down for more than 0.4 s): no rover's motors turn from its reconnection until the next
     command. ``at_once``: a rover back within ``stale_ms`` of its last pose still holds that pose, sent before the
-    crash; the firmware drives the replayed formation on it until it is ``stale_ms`` old (the edge cannot take a
-    pose back), never on a pose sent after the crash."""
+    crash; the firmware drives on no pose from before its connection (it drove the replay on it for 3-4 steps, the
+    first at full duty, before it learnt that), and the edge sends none after the crash before its stop."""
     broker = persistent
     target = BrokerTarget(embedded=False, host=broker.host, port=broker.port)
     # The edge reaches the broker through a link the test holds down after the crash, until every rover has
@@ -210,12 +210,9 @@ def test_no_rover_drives_on_the_formation_a_crashed_broker_brings_back(
         replayed = [x for x in window if x.formation in (None, ("line", OLD_LINE.seq))]
         assert {x.own_seq for x in replayed} == {before[-1].own_seq}, f"{rover} had a pose sent after the crash"
         drove[rover] = [x for x in window if driving(x)]
-        if restart == "at_once":  # on the pose from before the crash only, until it is stale
-            assert all(x.own_age_ms is not None and x.own_age_ms <= stale_ms for x in drove[rover]), drove[rover]
     record_property("poses_held", publisher.stats.poses_held)
     record_property("steps_driven_on_the_replay", {r: len(d) for r, d in drove.items()})
     record_property(
         "largest_duty_on_the_replay", {r: max((max(x.duties) for x in d), default=0) for r, d in drove.items()}
     )
-    if restart == "after_the_poses_went_stale":
-        assert not any(drove.values()), f"rovers drove between their reconnection and the next command: {drove}"
+    assert not any(drove.values()), f"rovers drove between their reconnection and the next command: {drove}"

@@ -11,6 +11,7 @@ import contextlib
 import importlib.util
 import io
 import json
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -65,9 +66,10 @@ class Script:
         self.lines.append("c")
         self.marks[name] = self.steps
 
-    def run(self, ms: int) -> None:
+    def run(self, ms: int, poses: bool = True) -> None:
+        """Steps of 20 ms, each after every rover's pose (none with ``poses`` False: the edge sends nothing)."""
         for _ in range(ms // 20):
-            for rid, (x, y, theta) in WORLD.items():
+            for rid, (x, y, theta) in WORLD.items() if poses else ():
                 t = 1.7e9 + self.t_ms / 1000  # captured now by the edge's clock: the rover dates poses by t
                 pose = messages.encode_pose(rid, self.frame, self.frame, t, x, y, theta, None, None, 1.0)
                 self.lines.append(f"m {self.t_ms} {messages.pose_topic(rid)} {pose.hex()}")
@@ -156,8 +158,40 @@ def test_commands_are_compared_whole_and_stop_always_applies(tmp_path: Path) -> 
             assert messages.dumps(messages.parse_rover_status(payload.encode())) == payload.encode()
 
 
-def test_micropython_applies_commands_exactly_as_cpython(tmp_path: Path) -> None:
-    s = scenario()
+def replay_scenario() -> Script:
+    """A broker that crashed and came back at once (systemd restarts it): the rover reconnects with its own pose
+    from before the crash still young, and the broker replays an older formation before the edge's stop."""
+    s = Script()
+    s.run(200)
+    s.command("line", formation(1))
+    s.run(200)
+    s.reconnect("reconnected")
+    s.command("the replayed line", formation(1))
+    s.run(200, poses=False)  # the edge holds its poses until the broker acknowledged its stop
+    s.command("the edge's stop", formation(2, "stop", []))
+    s.run(100)
+    s.command("the next command", formation(3))
+    s.run(100)
+    return s
+
+
+def test_a_reconnected_rover_does_not_drive_on_a_pose_from_before_the_connection(tmp_path: Path) -> None:
+    """Its pose from before the crash was young enough to drive the replayed formation for 3-4 steps (the first at
+    full duty) in the broker-crash end-to-end test; only a pose that arrived over the new connection is driven on."""
+    s = replay_scenario()
+    rows = rows_in_cpython(s, tmp_path)
+    at = {name: k for name, k in s.marks.items()}
+    assert rows[at["line"]][1] in DRIVING and rows[at["line"]][5:7] != [0.0, 0.0]
+    replay = rows[at["the replayed line"] : at["the edge's stop"]]
+    assert all(r[2:4] == ["line", 1] for r in replay)  # applied (the rover cannot tell it from a new command) ...
+    assert all(r[1] == "stale" and r[5:7] == [0.0, 0.0] for r in replay)  # ... but not driven on the old pose
+    assert rows[at["the edge's stop"]][1:4] == ["stop", "stop", 2]
+    assert rows[at["the next command"]][1] in DRIVING and rows[at["the next command"]][5:7] != [0.0, 0.0]
+
+
+@pytest.mark.parametrize("make", [scenario, replay_scenario])
+def test_micropython_applies_commands_exactly_as_cpython(tmp_path: Path, make: Callable[[], Script]) -> None:
+    s = make()
     want = rows_in_cpython(s, tmp_path)
     out = run_micropython("command.run('/input/data/events')", {"events": s.text().encode()})
     got = [json.loads(line) for line in out.splitlines()]

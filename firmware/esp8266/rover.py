@@ -212,6 +212,7 @@ class Rover:
         self._now = 0
         self._last_step = None
         self._news = False  # an own pose taken that the law has not used yet
+        self._own_since_connect = True  # no own pose from before the current connection (none at boot)
         self._law_for = None  # the formation the standing command was computed from
         self._status_halt = None  # what the last status said (None: none sent on this connection)
         self._status_for = None
@@ -247,6 +248,10 @@ class Rover:
         self._member_ids = []
         self._my_index = -1
         self._law_for = None
+        # A pose from before this connection is not driven on: a broker that crashed and came back at once (as
+        # systemd restarts it) replays an older formation, and the pose held from before the crash was young
+        # enough to drive it for a few steps. The edge sends no pose before its stop for the new connection.
+        self._own_since_connect = False
         self._stop(HALT_IDLE)
 
     def flush(self):
@@ -275,6 +280,7 @@ class Rover:
             stamp = (at - self.clock.own(at, p[msg.P_T])) & (_TICKS_PERIOD - 1)
             self._stamp[slot] = stamp
             self._news = True
+            self._own_since_connect = True
             # Its heading is fused at its age when captured, as of the last step (the turn history ends there).
             age = 0 if self._last_step is None else tdiff(self._last_step, stamp)
             self.heading.measured(p[msg.P_X], p[msg.P_Y], p[msg.P_THETA], (age if age > 0 else 0) + self.latency_ms)
@@ -399,7 +405,7 @@ class Rover:
         if self.formation is None or self._my_index < 0:
             return self._stop(HALT_IDLE)
         me = self._me
-        if not self._fresh(me, now_ms, self.stale_ms):
+        if not self._own_since_connect or not self._fresh(me, now_ms, self.stale_ms):
             if not self._fresh(me, now_ms, self.forget_ms):
                 self.heading.reset()  # lost for long: it may have been carried off; learn the heading anew
             return self._stop(HALT_STALE)
