@@ -86,8 +86,6 @@ def side_profiles(
     c, s = math.cos(theta_rad), math.sin(theta_rad)
     dx, dy = xy_cm[0] - centre_cm[0], xy_cm[1] - centre_cm[1]
     along, across = dx * c + dy * s, -dx * s + dy * c
-    ycc_all = bgr.reshape(-1, 3).astype(np.float64) @ YCC_FROM_BGR.T
-    profiles = []
     h, w = bgr.shape[:2]
     mid_v, mid_u = h // 2, w // 2
     # d(plane)/d(pixel) near the window's middle: the pixels per cm along each of the marker's axes
@@ -98,25 +96,38 @@ def side_profiles(
         ]
     )
     inv = np.linalg.inv(jac)
-    for normal_coord, tangent_coord, sign, half_n, half_t, n_vec in (
-        (along, across, 1.0, half_cm[0], half_cm[1], (c, s)),
-        (along, across, -1.0, half_cm[0], half_cm[1], (-c, -s)),
-        (across, along, 1.0, half_cm[1], half_cm[0], (-s, c)),
-        (across, along, -1.0, half_cm[1], half_cm[0], (s, -c)),
+    nbins = round((REACH_IN_PX + REACH_OUT_PX) / BIN_PX)
+    # each side's pixels and their bins (side * nbins + bin; a pixel may serve two sides), then one bincount per
+    # channel over all four sides
+    pixels, bins = [], []
+    scales, normals = [], []
+    for side, (normal_coord, tangent_coord, sign, half_n, half_t, n_vec) in enumerate(
+        (
+            (along, across, 1.0, half_cm[0], half_cm[1], (c, s)),
+            (along, across, -1.0, half_cm[0], half_cm[1], (-c, -s)),
+            (across, along, 1.0, half_cm[1], half_cm[0], (-s, c)),
+            (across, along, -1.0, half_cm[1], half_cm[0], (s, -c)),
+        )
     ):
         in_image = inv @ np.array(n_vec)
         px_per_cm = float(np.hypot(*in_image))
         u_px = (sign * normal_coord - half_n) * px_per_cm
         keep = (np.abs(tangent_coord) < SIDE_MIDDLE * half_t) & (u_px > -REACH_IN_PX) & (u_px < REACH_OUT_PX)
-        idx = np.floor((u_px[keep] + REACH_IN_PX) / BIN_PX).astype(np.int64)
-        nbins = round((REACH_IN_PX + REACH_OUT_PX) / BIN_PX)
-        count = np.bincount(idx, minlength=nbins)[:nbins]
-        sums = np.stack([np.bincount(idx, ycc_all[keep.ravel(), j], minlength=nbins)[:nbins] for j in range(3)], 1)
-        good = count > 0
-        centres: FloatArray = -REACH_IN_PX + (np.arange(nbins, dtype=np.float64) + 0.5) * BIN_PX
-        means: FloatArray = sums[good] / count[good, None]
-        normal = (float(in_image[0]) / px_per_cm, float(in_image[1]) / px_per_cm)
-        profiles.append(SideProfile(centres[good], means, px_per_cm, normal))
+        pixels.append(np.flatnonzero(keep))
+        bins.append(side * nbins + np.floor((u_px[keep] + REACH_IN_PX) / BIN_PX).astype(np.int64))
+        scales.append(px_per_cm)
+        normals.append((float(in_image[0]) / px_per_cm, float(in_image[1]) / px_per_cm))
+    idx = np.concatenate(bins)
+    ycc = bgr.reshape(-1, 3)[np.concatenate(pixels)].astype(np.float64) @ YCC_FROM_BGR.T
+    count = np.bincount(idx, minlength=4 * nbins)[: 4 * nbins].reshape(4, nbins)
+    sums = np.stack([np.bincount(idx, ycc[:, j], minlength=4 * nbins)[: 4 * nbins] for j in range(3)], 1)
+    sums = sums.reshape(4, nbins, 3)
+    centres: FloatArray = -REACH_IN_PX + (np.arange(nbins, dtype=np.float64) + 0.5) * BIN_PX
+    profiles = []
+    for side in range(4):
+        good = count[side] > 0
+        means: FloatArray = sums[side, good] / count[side, good, None]
+        profiles.append(SideProfile(centres[good], means, scales[side], normals[side]))
     return profiles
 
 
