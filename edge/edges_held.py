@@ -176,4 +176,4 @@ def _smoothing(k_px: float) -> FloatArray:
     rows = np.repeat(np.arange(n_grid), len(offsets))
     cols = np.clip(rows + np.tile(offsets, n_grid), 0, n_grid - 1)
     flat = np.bincount(rows * n_grid + cols, np.tile(taps, n_grid), minlength=n_grid * n_grid)
-    return flat.reshape(n_grid, n_grid)
+    return np.asarray(flat, dtype=np.float64).reshape(n_grid, n_grid)
