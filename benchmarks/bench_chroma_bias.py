@@ -252,12 +252,12 @@ def centre_errors_cm(
     blur_px: float | None,
     edges: bool = False,
     held: HeldEdges | None = None,
-    fits: list[tuple[EdgeFit, float]] | None = None,
+    fits: list[EdgeFit] | None = None,
 ) -> tuple[tuple[float, float], ...]:
     """(x, y) error of the default centre of the marker at ``pose`` in ``image``; with ``blur_px`` (the true blur)
     also of the encoded-share centre and of that centre with the optics correction; with ``edges`` of the half
-    crossings and the fitted edges (and with ``held`` of the edges on that held model; the full fit and the axis
-    are appended to ``fits`` when given)."""
+    crossings and the fitted edges (and with ``held`` of the edges on that held model; the full fit is appended
+    to ``fits`` when given)."""
     x, y, th = pose
     uv = paper_camera().project(np.array([[x, y, 13.0]]))[0]
     local = grid.at(*uv)
@@ -288,7 +288,7 @@ def centre_errors_cm(
         centres, fit = found
         errors += [(ex - x, ey - y) for ex, ey in centres]
         if fits is not None:
-            fits.append((fit, th))
+            fits.append(fit)
     return tuple(errors)
 
 
@@ -399,7 +399,7 @@ def main() -> None:
             renderer = Renderer(paper_camera(), Scene((look,)), effects)
             held = None
             if edges and args.held:  # the same rover and camera on other poses, its heading as found there
-                fits: list[tuple[EdgeFit, float]] = []
+                fits: list[EdgeFit] = []
                 while len(fits) < args.held:
                     pose = (
                         float(calibration_rng.uniform(40, 380)),
