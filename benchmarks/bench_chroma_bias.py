@@ -231,7 +231,7 @@ def edge_centres(
     held_fit = None
     marker_ycc = roi[erode(core, 2)].astype(np.float64).mean(axis=0) @ YCC_FROM_BGR.T
     if held is not None:
-        held_fit = fit_edges_held(profiles, marker_ycc, held, th, *TONES[TONE[0]])
+        held_fit = fit_edges_held(profiles, marker_ycc, held, *TONES[TONE[0]])
         HELD_MS.append(1e3 * (time.perf_counter() - tic))
     fit = fit_edges(profiles, marker_ycc, *TONES[TONE[0]])
     centres = [edge_midpoint(start, th, u0, profiles) for u0 in (half_crossings(profiles, marker_ycc), fit.u0_px)]
