@@ -14,6 +14,7 @@ or the body's visible side), each step blurred by the optics ``sigma``:
 encoded through the tone curve; the luma Y' (full resolution in every stream) is that, the chroma that convolved
 with a Gaussian of ``k`` pixels (the stream's spread). ``u0``, ``m`` per side and ``sigma``, ``k``, ``D``'s level
 are fitted to the four profiles at once (Levenberg-Marquardt); the centre is the middle of opposite edges.
+``edge.edges_held`` fits only the edges and margins per frame, the rest held from a few of these fits.
 """
 
 from __future__ import annotations
