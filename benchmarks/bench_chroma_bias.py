@@ -51,7 +51,8 @@ if importlib.util.find_spec("edge") is None:  # run from a checkout without the 
 from edge import edges_encoded
 from edge.camera import paper_camera
 from edge.coverage import coverage_weights
-from edge.edges_encoded import YCC_FROM_BGR, edge_midpoint, fit_edges, side_profiles
+from edge.edges_encoded import YCC_FROM_BGR, EdgeFit, edge_midpoint, fit_edges, side_profiles
+from edge.edges_held import HeldEdges, fit_edges_held, hold
 from edge.segmentation import LINEAR, dilate, erode
 from edge.sim.effects import Compression, Effects, Optics
 from edge.sim.render import Renderer
@@ -208,18 +209,40 @@ def half_crossings(profiles: list[edges_encoded.SideProfile], marker_ycc: np.nda
 
 
 def edge_centres(
-    roi: np.ndarray, core: np.ndarray, offset: tuple[int, int], grid: PlaneGrid, start: tuple[float, float], th: float
-) -> list[tuple[float, float]]:
+    roi: np.ndarray,
+    core: np.ndarray,
+    offset: tuple[int, int],
+    grid: PlaneGrid,
+    start: tuple[float, float],
+    th: float,
+    held: HeldEdges | None = None,
+) -> tuple[list[tuple[float, float]], EdgeFit] | None:
     """The simple variant (:func:`half_crossings`, no optics offset) and the fitted edge model's centres
     (``edge.edges_encoded``, tone curve ``--tone``), from the profiles around ``start`` (the default centre) along
-    the true axis ``th``."""
+    the true axis ``th``, and the full fit; with ``held`` also the centre on that held model (``edge.edges_held``;
+    the start where it refuses), its time per marker (profiles and fit) in ``HELD_MS``; None where a side's profile
+    does not reach the band beyond the spread."""
     h, w = core.shape
     xy = grid.xy_cm[:, offset[1] : offset[1] + h, offset[0] : offset[0] + w]
+    tic = time.perf_counter()
     profiles = side_profiles(roi, xy, start, th, (MARKER_CM[0] / 2, MARKER_CM[1] / 2))
-    assert all(edges_encoded.has_band(p) for p in profiles)
+    if not all(edges_encoded.has_band(p) for p in profiles):
+        return None
+    held_fit = None
     marker_ycc = roi[erode(core, 2)].astype(np.float64).mean(axis=0) @ YCC_FROM_BGR.T
+    if held is not None:
+        held_fit = fit_edges_held(profiles, marker_ycc, held, *TONES[TONE[0]])
+        HELD_MS.append(1e3 * (time.perf_counter() - tic))
     fit = fit_edges(profiles, marker_ycc, *TONES[TONE[0]])
-    return [edge_midpoint(start, th, u0, profiles) for u0 in (half_crossings(profiles, marker_ycc), fit.u0_px)]
+    centres = [edge_midpoint(start, th, u0, profiles) for u0 in (half_crossings(profiles, marker_ycc), fit.u0_px)]
+    if held is not None:
+        centres.append(start if held_fit is None else edge_midpoint(start, th, held_fit.u0_px, profiles))
+        REFUSED.append(held_fit is None)
+    return centres, fit
+
+
+HELD_MS: list[float] = []
+REFUSED: list[bool] = []
 
 
 def centre_errors_cm(
@@ -228,9 +251,13 @@ def centre_errors_cm(
     grid: PlaneGrid,
     blur_px: float | None,
     edges: bool = False,
+    held: HeldEdges | None = None,
+    fits: list[EdgeFit] | None = None,
 ) -> tuple[tuple[float, float], ...]:
     """(x, y) error of the default centre of the marker at ``pose`` in ``image``; with ``blur_px`` (the true blur)
-    also of the encoded-share centre and of that centre with the optics correction."""
+    also of the encoded-share centre and of that centre with the optics correction; with ``edges`` of the half
+    crossings and the fitted edges (and with ``held`` of the edges on that held model; the full fit is appended
+    to ``fits`` when given)."""
     x, y, th = pose
     uv = paper_camera().project(np.array([[x, y, 13.0]]))[0]
     local = grid.at(*uv)
@@ -254,7 +281,14 @@ def centre_errors_cm(
         errors.append((blob.x_cm - x, blob.y_cm - y))
     if edges:
         start = (errors[0][0] + x, errors[0][1] + y)
-        errors += [(ex - x, ey - y) for ex, ey in edge_centres(roi, core, (x0, y0), grid, start, th)]
+        found = edge_centres(roi, core, (x0, y0), grid, start, th, held)
+        if found is None and fits is not None:  # a pose to learn from, not one to measure
+            return tuple(errors)
+        assert found is not None
+        centres, fit = found
+        errors += [(ex - x, ey - y) for ex, ey in centres]
+        if fits is not None:
+            fits.append(fit)
     return tuple(errors)
 
 
@@ -297,6 +331,12 @@ def main() -> None:
     parser.add_argument("--streams", default="", help="only these rows, e.g. 'none,4:2:0 q90' (default: all)")
     parser.add_argument("--tone", choices=tuple(TONES), default="srgb", help="the edge model's assumed tone curve")
     parser.add_argument("--margins", default="1.0", help="the body's top around the marker, cm (comma-separated)")
+    parser.add_argument(
+        "--held",
+        type=int,
+        default=0,
+        help="with --centre edges: also the edges on a model held from this many full fits of other poses",
+    )
     args = parser.parse_args()
     TONE[0] = args.tone
     grid = PlaneGrid(CameraPlaneMapping(paper_camera()), (1280, 720))
@@ -307,6 +347,7 @@ def main() -> None:
         for _ in range(args.poses)
     ]
     encoded, edges = args.centre == "encoded", args.centre == "edges"
+    calibration_rng = np.random.default_rng(args.seed + 1)  # other poses than the measured ones
     margins = [float(m) for m in args.margins.split(",")]
     print(f"# edge-ips chroma bias on static poses, {time.strftime('%Y-%m-%d %H:%M')}\n")
     print(
@@ -356,9 +397,21 @@ def main() -> None:
                 auto_exposure=None, noise=None, motion_blur=False, optics=Optics(blur), compression=compression
             )
             renderer = Renderer(paper_camera(), Scene((look,)), effects)
+            held = None
+            if edges and args.held:  # the same rover and camera on other poses, its heading as found there
+                fits: list[EdgeFit] = []
+                while len(fits) < args.held:
+                    pose = (
+                        float(calibration_rng.uniform(40, 380)),
+                        float(calibration_rng.uniform(60, 520)),
+                        float(calibration_rng.uniform(-math.pi, math.pi)),
+                    )
+                    image = renderer.render(WorldState(0.0, (RoverState("r", *pose, 0.0, 0.0, 0.0),)), 0)
+                    centre_errors_cm(image, pose, grid, None, True, fits=fits)
+                held = hold(fits)
             for pose in poses:
                 image = renderer.render(WorldState(0.0, (RoverState("r", *pose, 0.0, 0.0, 0.0),)), 0)
-                measured.append(centre_errors_cm(image, pose, grid, blur if encoded else None, edges))
+                measured.append(centre_errors_cm(image, pose, grid, blur if encoded else None, edges, held))
                 body_of.append(f"{body} {margin:g}" if edges else body)
                 colour_of.append(colour)
         errors = np.array(measured)  # (N, centres, 2)
@@ -366,7 +419,7 @@ def main() -> None:
             uncompressed = errors
         name = "none" if quality is None else f"{chroma} q{quality}"
         if edges:
-            for k, centre in enumerate(("linear", "half", "edges")):
+            for k, centre in enumerate(("linear", "half", "edges", "held")[: errors.shape[1]]):
                 print_edges_row(name, centre, errors[:, k], colour_of, body_of)
             continue
         centres = ("encoded", "optics") if encoded else ("linear",)
@@ -398,6 +451,13 @@ def main() -> None:
                 ceiling,
             ]
             print("| " + " | ".join(cells) + " |")
+    if HELD_MS:
+        print(
+            f"\nheld model ({args.held} full fits of other poses per rover and camera): {sum(REFUSED)} of "
+            f"{len(REFUSED)} refused (the default centre kept); per marker (profiles and fit) median "
+            f"{float(np.median(HELD_MS)):.2f} ms, p95 {float(np.percentile(HELD_MS, 95)):.2f} ms "
+            "(to re-run on a quiet machine)"
+        )
 
 
 if __name__ == "__main__":

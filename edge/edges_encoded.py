@@ -14,6 +14,7 @@ or the body's visible side), each step blurred by the optics ``sigma``:
 encoded through the tone curve; the luma Y' (full resolution in every stream) is that, the chroma that convolved
 with a Gaussian of ``k`` pixels (the stream's spread). ``u0``, ``m`` per side and ``sigma``, ``k``, ``D``'s level
 are fitted to the four profiles at once (Levenberg-Marquardt); the centre is the middle of opposite edges.
+``edge.edges_held`` fits only the edges and margins per frame, the rest held from a few of these fits.
 """
 
 from __future__ import annotations
@@ -86,8 +87,6 @@ def side_profiles(
     c, s = math.cos(theta_rad), math.sin(theta_rad)
     dx, dy = xy_cm[0] - centre_cm[0], xy_cm[1] - centre_cm[1]
     along, across = dx * c + dy * s, -dx * s + dy * c
-    ycc_all = bgr.reshape(-1, 3).astype(np.float64) @ YCC_FROM_BGR.T
-    profiles = []
     h, w = bgr.shape[:2]
     mid_v, mid_u = h // 2, w // 2
     # d(plane)/d(pixel) near the window's middle: the pixels per cm along each of the marker's axes
@@ -98,25 +97,38 @@ def side_profiles(
         ]
     )
     inv = np.linalg.inv(jac)
-    for normal_coord, tangent_coord, sign, half_n, half_t, n_vec in (
-        (along, across, 1.0, half_cm[0], half_cm[1], (c, s)),
-        (along, across, -1.0, half_cm[0], half_cm[1], (-c, -s)),
-        (across, along, 1.0, half_cm[1], half_cm[0], (-s, c)),
-        (across, along, -1.0, half_cm[1], half_cm[0], (s, -c)),
+    nbins = round((REACH_IN_PX + REACH_OUT_PX) / BIN_PX)
+    # each side's pixels and their bins (side * nbins + bin; a pixel may serve two sides), then one bincount per
+    # channel over all four sides
+    pixels, bins = [], []
+    scales, normals = [], []
+    for side, (normal_coord, tangent_coord, sign, half_n, half_t, n_vec) in enumerate(
+        (
+            (along, across, 1.0, half_cm[0], half_cm[1], (c, s)),
+            (along, across, -1.0, half_cm[0], half_cm[1], (-c, -s)),
+            (across, along, 1.0, half_cm[1], half_cm[0], (-s, c)),
+            (across, along, -1.0, half_cm[1], half_cm[0], (s, -c)),
+        )
     ):
         in_image = inv @ np.array(n_vec)
         px_per_cm = float(np.hypot(*in_image))
         u_px = (sign * normal_coord - half_n) * px_per_cm
         keep = (np.abs(tangent_coord) < SIDE_MIDDLE * half_t) & (u_px > -REACH_IN_PX) & (u_px < REACH_OUT_PX)
-        idx = np.floor((u_px[keep] + REACH_IN_PX) / BIN_PX).astype(np.int64)
-        nbins = round((REACH_IN_PX + REACH_OUT_PX) / BIN_PX)
-        count = np.bincount(idx, minlength=nbins)[:nbins]
-        sums = np.stack([np.bincount(idx, ycc_all[keep.ravel(), j], minlength=nbins)[:nbins] for j in range(3)], 1)
-        good = count > 0
-        centres: FloatArray = -REACH_IN_PX + (np.arange(nbins, dtype=np.float64) + 0.5) * BIN_PX
-        means: FloatArray = sums[good] / count[good, None]
-        normal = (float(in_image[0]) / px_per_cm, float(in_image[1]) / px_per_cm)
-        profiles.append(SideProfile(centres[good], means, px_per_cm, normal))
+        pixels.append(np.flatnonzero(keep))
+        bins.append(side * nbins + np.floor((u_px[keep] + REACH_IN_PX) / BIN_PX).astype(np.int64))
+        scales.append(px_per_cm)
+        normals.append((float(in_image[0]) / px_per_cm, float(in_image[1]) / px_per_cm))
+    idx = np.concatenate(bins)
+    ycc = bgr.reshape(-1, 3)[np.concatenate(pixels)].astype(np.float64) @ YCC_FROM_BGR.T
+    count = np.bincount(idx, minlength=4 * nbins)[: 4 * nbins].reshape(4, nbins)
+    sums = np.stack([np.bincount(idx, ycc[:, j], minlength=4 * nbins)[: 4 * nbins] for j in range(3)], 1)
+    sums = sums.reshape(4, nbins, 3)
+    centres: FloatArray = -REACH_IN_PX + (np.arange(nbins, dtype=np.float64) + 0.5) * BIN_PX
+    profiles = []
+    for side in range(4):
+        good = count[side] > 0
+        means: FloatArray = sums[side, good] / count[side, good, None]
+        profiles.append(SideProfile(centres[good], means, scales[side], normals[side]))
     return profiles
 
 
@@ -131,9 +143,15 @@ def bgr_of_ycc(ycc: FloatArray) -> FloatArray:
     return np.asarray(ycc @ np.linalg.inv(YCC_FROM_BGR).T / 255.0)
 
 
-def _gauss_smooth(values: FloatArray, k_px: float) -> FloatArray:
-    """(n, c) values on the bin grid convolved with a Gaussian of ``k_px`` (edges padded by replication)."""
-    k_bins = max(k_px, 1e-3) / BIN_PX
+def beyond_level(profile: SideProfile, decode: ToneCurve) -> FloatArray:
+    """(3,) linear B, G, R of what lies beyond the side's spread: the profile's mean over :data:`BAND_PX`."""
+    band = (profile.u_px > BAND_PX[0]) & (profile.u_px < BAND_PX[1])
+    return decode(np.clip(bgr_of_ycc(profile.ycc[band].mean(axis=0)), 0, 1))
+
+
+def _gauss_smooth(values: FloatArray, k_px: float, step_px: float = BIN_PX) -> FloatArray:
+    """(n, c) values on a grid of ``step_px`` convolved with a Gaussian of ``k_px`` (edges padded by replication)."""
+    k_bins = max(k_px, 1e-3) / step_px
     half = math.ceil(3.5 * k_bins) + 1
     taps = np.exp(-0.5 * (np.arange(-half, half + 1) / k_bins) ** 2)
     taps /= taps.sum()
@@ -145,7 +163,9 @@ def _gauss_smooth(values: FloatArray, k_px: float) -> FloatArray:
 class EdgeFit:
     """The fit: ``u0_px`` (4,) edge of each side along its normal relative to the assumed one; ``margin_px`` (4,),
     ``sigma_px``, ``k_px`` the chroma's spread along image u and v, ``dark`` (the body top's level relative to the
-    brightest surround), the residual RMS (8-bit units)."""
+    brightest surround), the residual RMS (8-bit units); for holding them (``edge.edges_held``): ``dark_rel`` (3,)
+    the body top's linear B, G, R over the marker's (summed over channels) and ``margin_cm`` the median margin on
+    the plane."""
 
     u0_px: FloatArray
     margin_px: FloatArray
@@ -153,6 +173,8 @@ class EdgeFit:
     k_px: tuple[float, float]
     dark: float
     rms: float
+    dark_rel: FloatArray
+    margin_cm: float
 
 
 def _side_model(
@@ -168,14 +190,29 @@ def _side_model(
     encode: ToneCurve,
 ) -> FloatArray:
     """(n, 3) model Y'CbCr at ``u_px`` (evaluated on the regular ``grid_u`` and read off at the bins)."""
-    a = phi((u0 - grid_u) / sigma)
-    b = phi((grid_u - u0 - _bounded(margin, 20.0)) / sigma)
-    lin = a[:, None] * marker + (1.0 - a - b)[:, None] * dark + b[:, None] * beyond
-    ycc = (255.0 * encode(lin)) @ YCC_FROM_BGR.T
-    chroma = _gauss_smooth(ycc[:, 1:], k_px)
-    full = np.column_stack([ycc[:, :1], chroma])
+    full = profile_model(grid_u - u0, marker, dark, beyond, _bounded(margin, 20.0), sigma, k_px, encode)
     idx = np.clip(np.round((u_px - grid_u[0]) / BIN_PX).astype(np.int64), 0, len(grid_u) - 1)
     return full[idx]
+
+
+def profile_model(
+    u_px: FloatArray,
+    marker: FloatArray,
+    dark: FloatArray,
+    beyond: FloatArray,
+    margin: float,
+    sigma: float,
+    k_px: float,
+    encode: ToneCurve,
+) -> FloatArray:
+    """(n, 3) the model's Y'CbCr (8-bit units) with the edge at 0 on the regular grid ``u_px`` (its step the
+    chroma spread's unit): the module docstring's ``L(u)`` encoded, its chroma spread by ``k_px``."""
+    a = phi(-u_px / sigma)
+    b = phi((u_px - margin) / sigma)
+    lin = a[:, None] * marker + (1.0 - a - b)[:, None] * dark + b[:, None] * beyond
+    ycc = (255.0 * encode(lin)) @ YCC_FROM_BGR.T
+    chroma = _gauss_smooth(ycc[:, 1:], k_px, float(u_px[1] - u_px[0]))
+    return np.column_stack([ycc[:, :1], chroma])
 
 
 def fit_edges(
@@ -188,10 +225,7 @@ def fit_edges(
 ) -> EdgeFit:
     """Fit the model of the module docstring to the four profiles (``marker_ycc``: the interior's mean Y'CbCr)."""
     marker = decode(np.clip(bgr_of_ycc(marker_ycc), 0, 1))
-    beyond = []
-    for p in profiles:
-        band = (p.u_px > BAND_PX[0]) & (p.u_px < BAND_PX[1])
-        beyond.append(decode(np.clip(bgr_of_ycc(p.ycc[band].mean(axis=0)), 0, 1)))
+    beyond = [beyond_level(p, decode) for p in profiles]
     brightest = max(beyond, key=lambda v: float(v.sum()))
     grid_u = np.arange(-REACH_IN_PX + BIN_PX / 2, REACH_OUT_PX, BIN_PX)
     weights = np.array([luma_weight, 1.0, 1.0])
@@ -217,6 +251,8 @@ def fit_edges(
         (_bounded(x[1], 3.0), _bounded(x[13], 3.0)),
         float(np.abs(x[2:5]).sum() / brightest.sum()),
         math.sqrt(cost / r.size),
+        np.abs(x[2:5]) / float(marker.sum()),
+        float(np.median([_bounded(m, 20.0) / p.px_per_cm for m, p in zip(x[9:13], profiles, strict=True)])),
     )
 
 
