@@ -22,8 +22,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import pytest
-
 from edge.broker.access import rights_acl_text
 from edge.broker.bridge import central_rights
 from edge.broker.mosquitto import write_password_file
