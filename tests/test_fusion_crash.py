@@ -107,6 +107,10 @@ class Observer(MqttRecorder):
             self.starts.append(len(self.messages))
         super()._on_connect(c, u, flags, rc, props)
 
+    def __enter__(self) -> Observer:
+        self.start()
+        return self
+
     def session(self) -> list[str]:
         """The latest connection's messages: ``pose``, or the formation's kind and seq (``stop 42``)."""
         with self._cond:
@@ -136,7 +140,7 @@ def board(c: Central, cwd: Path) -> Iterator[subprocess.Popen[str]]:
         assert proc.stdout is not None and proc.stdout.readline().strip() == "ready"
         yield proc
     finally:
-        stop_process(proc)  # type: ignore[arg-type]
+        stop_process(proc)
 
 
 @contextmanager
