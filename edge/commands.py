@@ -8,10 +8,11 @@ must never fail because of what is retained (a hostile seq, a foreign payload, a
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import paho.mqtt.client as mqtt
 from pydantic import ValidationError
@@ -20,9 +21,6 @@ from edge.config import BrokerTarget, EdgeConfig
 from edge.errors import BrokerError, EdgeIpsError, MessageError, describe_validation
 from edge.messages import FORMATION_TOPIC, FormationKind, FormationV1, dumps, next_seq, parse_formation
 from edge.mqttclient import TlsFiles, connect_blocking, make_client
-
-if TYPE_CHECKING:
-    from edge.publisher import ConnectionHold
 
 log = logging.getLogger("edge.commands")
 
@@ -104,12 +102,32 @@ def send_formation(
     retained_wait_s: float = RETAINED_WAIT_S,
 ) -> FormationV1:
     """Publish a retained formation whose ``seq`` follows the one currently retained (:func:`next_seq`: 1 if none
-    or if it breaks the contract, and 999999999 is followed by 1).
+    or if it breaks the contract, and 999999999 is followed by 1), on a connection of its own.
 
     ``make(seq)`` builds the message. Returns what was published once the broker acknowledged it. Rovers compare
     whole commands, so two writers at once may publish the same seq: both are applied, in the broker's order.
     """
     client = make_client(target, client_id, tls=tls)
+    connect_blocking(client, target, timeout_s)
+    try:
+        return send_formation_on(client, target, make, timeout_s=timeout_s, retained_wait_s=retained_wait_s)
+    finally:
+        client.disconnect()
+        client.loop_stop()
+
+
+def send_formation_on(
+    client: mqtt.Client,
+    target: BrokerTarget,
+    make: Callable[[int], FormationV1],
+    *,
+    timeout_s: float = 5.0,
+    retained_wait_s: float = RETAINED_WAIT_S,
+) -> FormationV1:
+    """:func:`send_formation` on a connection that is up already, its network loop running (``target`` names the
+    broker in errors): the fuser's own, where a second connection with its login would take over its session (the
+    central broker's client ids are the user names). The formation topic's messages go to this call only while it
+    runs (paho's per-topic callback); it blocks, so never call it on the network thread."""
     current: list[FormationV1 | None] = []
     got = threading.Event()
 
@@ -126,14 +144,16 @@ def send_formation(
         client.unsubscribe(FORMATION_TOPIC)
         return current[-1] if current else None
 
-    client.on_message = on_message
-    connect_blocking(client, target, timeout_s)
+    client.message_callback_add(FORMATION_TOPIC, on_message)
     try:
         retained = retained_now(retained_wait_s)
         seq = next_seq(retained.seq if retained is not None else None)
         message = make(seq)
         info = client.publish(FORMATION_TOPIC, dumps(message), qos=FORMATION_QOS, retain=True)
-        info.wait_for_publish(timeout_s)
+        try:
+            info.wait_for_publish(timeout_s)
+        except (RuntimeError, ValueError) as exc:  # not connected (any more), paho's queue full
+            raise BrokerError(f"broker {target.display()}: the formation was not sent: {exc}") from exc
         if not info.is_published():
             raise BrokerError(f"broker {target.display()} did not acknowledge the formation within {timeout_s:g} s")
         # read it back: an MQTT 3.1.1 broker acknowledges a publish its ACL drops, and a command (a STOP) that
@@ -146,8 +166,7 @@ def send_formation(
             )
         return message
     finally:
-        client.disconnect()
-        client.loop_stop()
+        client.message_callback_remove(FORMATION_TOPIC)
 
 
 def publish_formation(
@@ -182,43 +201,70 @@ def publish_formation(
     )
 
 
+FormationSender = Callable[[Callable[[int], FormationV1]], FormationV1]
+"""Publishes ``make(seq)`` retained after the retained formation (:func:`send_formation`'s contract): raises
+:class:`EdgeIpsError` when the broker did not take it."""
+
+
+class HeldConnection(Protocol):
+    """A broker connection whose poses wait for its stop: :class:`edge.publisher.ConnectionHold` (the edge's
+    publisher), the fuser's connection (:class:`edge.fusion.service.FuserService`)."""
+
+    @property
+    def number(self) -> int:
+        """1 for the first connection, +1 for each reconnection."""
+        ...
+
+    @property
+    def current(self) -> bool:
+        """This connection is still its owner's, and up."""
+        ...
+
+    def release(self) -> None:
+        """Let the poses out on this connection (any thread; a connection replaced since changes nothing)."""
+        ...
+
+
 class StopAtStart:
-    """The appliance's retained ``stop`` whenever its publisher (re)connects, so that after an edge restart, crash
-    or power cut, and after a broker restart, every rover halts until someone commands again.
+    """The retained ``stop`` whenever the edge's publisher or a fuser (re)connects, so that after an edge restart,
+    crash or power cut, and after a broker restart, every rover halts until someone commands again.
 
     A broker that comes back may hold an older formation than the last command: Mosquitto saves its retained
     messages on a clean exit or every ``autosave_interval`` (30 min), so after a crash or power cut it brings back
     whatever it saved last (a ``line`` that the ``stop`` after it had replaced), and a rover that reconnects
-    forgets its formation and applies that. The edge cannot tell such a replay from a command it missed, so it
-    halts the fleet; and until its stop is acknowledged, the connection's :class:`~edge.publisher.ConnectionHold`
+    forgets its formation and applies that. The edge (or the fuser) cannot tell such a replay from a command it
+    missed, so it halts the fleet; and until its stop is acknowledged, the connection's :class:`HeldConnection`
     keeps the poses back, so a rover that reconnected first has no fresh pose to drive the replay on (its safety
     layer halts it ``stale``).
 
-    Sent with :func:`send_formation` (its own short connection, seq after the retained one) from
-    :meth:`on_connected`; the hold is released once the broker acknowledged the stop. A connection made while a
-    stop is on its way gets one more after it. A failed attempt keeps the poses held and is made again every
-    ``retry_min_s``, doubling up to ``retry_max_s``, while the connection lasts (and at the next one): releasing
-    them would let the fleet drive on whatever the broker holds, while held poses only keep it halted. (A camera
-    board of several, ``retry=False``, publishes no poses and its broker takes formations from the central one
-    only: one attempt per connection, logged.)
+    Sent with :func:`send_formation` (its own short connection, seq after the retained one), or with ``send`` (the
+    fuser's: :func:`send_formation_on` its own connection), from :meth:`on_connected`; the hold is released once the
+    broker acknowledged the stop. A connection made while a stop is on its way gets one more after it. A failed
+    attempt keeps the poses held and is made again every ``retry_min_s``, doubling up to ``retry_max_s``, while the
+    connection lasts (and at the next one): releasing them would let the fleet drive on whatever the broker holds,
+    while held poses only keep it halted. (A camera board of several, ``retry=False``, publishes no poses and its
+    broker takes formations from the central one only: one attempt per connection, logged.)
     :attr:`done` is set once the broker acknowledged the first stop; ``tap(topic, payload, retain)`` is shown each
     (the recording, like everything the edge publishes).
     """
 
     def __init__(
         self,
-        target: BrokerTarget,
+        target: BrokerTarget | None = None,
         *,
-        client_id: str,
+        client_id: str = "",
         tls: TlsFiles | None = None,
+        send: FormationSender | None = None,
         tap: Callable[[str, bytes, bool], None] | None = None,
         retry_min_s: float = RETRY_MIN_S,
         retry_max_s: float = RETRY_MAX_S,
         retry: bool = True,
     ) -> None:
-        self.target = target
-        self.client_id = client_id
-        self.tls = tls
+        if send is None:
+            if target is None:
+                raise TypeError("StopAtStart needs the broker's target or a send function")
+            send = functools.partial(send_formation, target, client_id=client_id, tls=tls)
+        self.send = send
         self.tap = tap
         self.retry_min_s = retry_min_s
         self.retry_max_s = retry_max_s
@@ -226,10 +272,10 @@ class StopAtStart:
         self.done = threading.Event()
         self.attempts = 0  # stops tried, for the log and the tests
         self._lock = threading.Condition()
-        self._pending: ConnectionHold | None = None  # the newest connection that has not had its stop yet
+        self._pending: HeldConnection | None = None  # the newest connection that has not had its stop yet
         self._thread: threading.Thread | None = None
 
-    def on_connected(self, hold: ConnectionHold) -> None:
+    def on_connected(self, hold: HeldConnection) -> None:
         """Send a stop for this connection, after the one on its way if any (any thread; returns at once)."""
         with self._lock:
             self._pending = hold
@@ -248,7 +294,7 @@ class StopAtStart:
                 self._pending = None
             self._stop_for(hold)
 
-    def _stop_for(self, hold: ConnectionHold) -> None:
+    def _stop_for(self, hold: HeldConnection) -> None:
         """Send until the broker takes the stop, then release the connection's poses; give up on a connection
         that is gone (lost, or replaced by a newer one, which is handled next)."""
         delay_s = self.retry_min_s
@@ -274,14 +320,12 @@ class StopAtStart:
                     return
             delay_s = min(2 * delay_s, self.retry_max_s)
 
-    def _send(self, hold: ConnectionHold) -> str | None:
+    def _send(self, hold: HeldConnection) -> str | None:
         """One attempt: None when the broker took the stop, else why not."""
         when = "at start" if hold.number == 1 else "after the broker connection came back"
         self.attempts += 1
         try:
-            sent = send_formation(
-                self.target, lambda seq: build_formation("stop", [], seq=seq), client_id=self.client_id, tls=self.tls
-            )
+            sent = self.send(lambda seq: build_formation("stop", [], seq=seq))
         except EdgeIpsError as exc:
             return str(exc)
         if self.tap is not None:

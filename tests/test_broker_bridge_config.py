@@ -266,3 +266,32 @@ def test_a_formation_a_boards_broker_drops_is_an_error_not_a_command_sent(tmp_pa
         target = parse_broker_url(f"mqtt://edge:{central_edge}@127.0.0.1:{central.port}")
         assert send_formation(target, stop).kind == "stop"
         assert send_formation(target, stop).seq == 2  # read back, and the next one follows it
+
+
+def test_at_the_central_broker_each_fuser_may_publish_its_stop_and_the_viewer_may_not(tmp_path: Path) -> None:
+    """A fuser publishes a retained stop on every connection (a crashed central broker brings back an older
+    formation): its login may write the formation at the central broker, with the ACL written there; the viewer's
+    may not (Mosquitto acknowledges and drops it: read back, an error)."""
+    from edge.commands import build_formation, send_formation
+    from edge.config import BrokerTarget
+
+    files = write_bridge_configs(tmp_path / "brokers", boards=BOARDS, rovers=["r1"])
+    logins = tomllib.loads((files.central / "credentials.toml").read_text())
+
+    def stop(seq: int) -> FormationV1:
+        return build_formation("stop", [], seq=seq)
+
+    with Mosquitto(tmp_path / "run", conf_path=files.central / "mosquitto.conf") as central:
+
+        def login(table: dict[str, str]) -> BrokerTarget:
+            return BrokerTarget(
+                embedded=False,
+                host="127.0.0.1",
+                port=central.ports[1883],  # the network listener, where fusers connect
+                username=table["username"],
+                password=table["password"],
+            )
+
+        assert [send_formation(login(logins["fusers"][f]), stop).seq for f in ("fuser-a", "fuser-b")] == [1, 2]
+        with pytest.raises(BrokerError, match="did not take it"):
+            send_formation(login(logins["viewer"]), stop, timeout_s=2.0)

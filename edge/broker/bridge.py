@@ -21,8 +21,9 @@ Nothing stale crosses a bridge that comes back: ``cleansession true`` (the board
 the link drops, so it queues nothing for it; the central drops what it had queued for the board when it reconnects),
 detections at QoS 0, and the fuser drops anything older than its age limit by capture time anyway.
 
-Logins at the central broker: each fuser (``fuser-...``), each rover, the operators' ``edge`` login (formation
-commands, ``doctor``) and a read-only ``viewer``. At each board: its ``edge`` (the board's edge-ips), its rovers, the
+Logins at the central broker: each fuser (``fuser-...``: poses, its status, the lease, and the formation for its
+retained stop on every connection), each rover, the operators' ``edge`` login (formation commands, ``doctor``) and a
+read-only ``viewer``. At each board: its ``edge`` (the board's edge-ips), its rovers, the
 ``viewer``, and ``central``, the central broker's bridge, which may read the board's detections, status and rover
 statuses and write the poses, the fusers' statuses and the formation, nothing else (its own password per board).
 Client id = user name on the network listeners, so a login cannot take another's session. With ``tls``, each board
@@ -117,10 +118,14 @@ def parse_board(text: str) -> tuple[str, BoardAddress]:
 
 
 def central_rights(fusers: Sequence[str], rovers: Sequence[str]) -> dict[str, Rights]:
-    """Who may do what on the central broker (its bridges to the boards are its own, not logins)."""
+    """Who may do what on the central broker (its bridges to the boards are its own, not logins). A fuser publishes
+    the formation too: its retained stop on every connection (:mod:`edge.fusion.service`), for a central broker that
+    crashed comes back with the formation it last saved."""
     table = {EDGE_USER: Rights(publish=(FORMATION_TOPIC,), read=(ALL_TOPICS,))}
     for fuser in fusers:
-        table[fuser] = Rights(publish=(POSE_WILDCARD, fuser_status_topic(fuser), LEASE_TOPIC), read=(ALL_TOPICS,))
+        table[fuser] = Rights(
+            publish=(POSE_WILDCARD, fuser_status_topic(fuser), LEASE_TOPIC, FORMATION_TOPIC), read=(ALL_TOPICS,)
+        )
     table.update({rover: rover_rights(rover) for rover in rovers})
     table[VIEWER_USER] = VIEWER_RIGHTS
     return table

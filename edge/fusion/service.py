@@ -6,6 +6,12 @@ it holds the lease (:mod:`edge.fusion.lease`), publishes the canonical ``ips/v1/
 ``frame`` counted on the shared clock: ``round(t * fps)``) and its retained status on ``ips/v1/fuser/<id>/status``.
 A standby fuses too, so its filters are warm when it takes over.
 
+On every connection, active or standby, it publishes a retained ``stop`` (:class:`edge.commands.StopAtStart`) and
+no pose on that connection until the broker took it, as the single-camera edge does: a central broker that crashed
+comes back with the formation it last saved, which may be older than the last command, and the rovers that
+reconnect apply it (``shared/schema/README.md``, "Commands", rule 4). The stop goes over the fuser's own
+connection: the central broker's client id is the login's name, so a second connection would take over its session.
+
 Threads: paho's network thread receives and fuses each detections message and publishes the poses it gives at once
 (the shortest path from a board's grab to a rover), the clocks learning from the frames when no other message waits;
 the ``lease`` thread sends beats and claims and the status. The fuser's state is shared under one lock.
@@ -25,6 +31,7 @@ import paho.mqtt.client as mqtt
 from pydantic import ValidationError
 
 from edge.board_messages import DETECTIONS_WILDCARD, BoardStateV1, FuserStatusV1, fuser_status_topic, parse_detections
+from edge.commands import StopAtStart, send_formation_on
 from edge.config import BrokerTarget, EdgeConfig, broker_target
 from edge.errors import BrokerError, MessageError
 from edge.fusion.core import FusedPose, Fuser, FusionSettings, FusionStatus
@@ -32,7 +39,7 @@ from edge.fusion.detections import from_message
 from edge.fusion.fusedmap import map_state
 from edge.fusion.lease import LEASE_QOS, LEASE_TOPIC, Lease, LeaseMessage, LeaseSettings
 from edge.fusion.offline import pose_line
-from edge.messages import dumps, edge_status_topic, parse_status, pose_topic
+from edge.messages import FormationV1, dumps, edge_status_topic, parse_status, pose_topic
 from edge.mqttclient import TlsFiles, connect_host, make_client
 
 if TYPE_CHECKING:
@@ -51,8 +58,25 @@ class ServiceStats:
     invalid: int = 0
     poses_sent: int = 0
     poses_withheld: int = 0  # fused while standby (or with the lease lapsed)
+    poses_held: int = 0  # fused while holding the lease, before the broker took this connection's stop
     connects: int = 0
     seq: dict[str, int] = field(default_factory=dict)
+
+
+class FuserConnection:
+    """One broker connection of a :class:`FuserService`: no pose goes out on it until :meth:`release` (its stop
+    taken). An :class:`edge.commands.HeldConnection`."""
+
+    def __init__(self, service: FuserService, number: int) -> None:
+        self._service = service
+        self.number = number
+
+    @property
+    def current(self) -> bool:
+        return self._service._connection == self.number and self._service._connected.is_set()
+
+    def release(self) -> None:
+        self._service._release(self.number)
 
 
 class FuserService:
@@ -85,11 +109,15 @@ class FuserService:
         self.on_pose = on_pose
         self.dashboards = dashboards or {}  # board -> its dashboard's address (the map shows its camera image)
         self._mono, self._wall = mono, wall
-        self._lock = threading.Lock()
+        self._lock = threading.Condition()
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._connected = threading.Event()
         self._thread: threading.Thread | None = None
+        # connections are numbered; poses go out only on the released one (its stop taken), checked under _lock
+        self._connection = 0
+        self._released = 0
+        self.stop_at_start = StopAtStart(send=self._send_formation, retry=True)
         self._status_topic = fuser_status_topic(fuser_id)
         self._latest: dict[str, FusedPose] = {}  # each rover's newest fused pose, published or not (the map)
         self._client = make_client(target, client_id or f"edge-ips-fuser-{fuser_id}", tls=tls)
@@ -143,11 +171,37 @@ class FuserService:
             return
         with self._lock:
             self.lease.join(self._mono(), self.lease.session)
+            self._connection += 1
+            hold = FuserConnection(self, self._connection)
         self.stats.connects += 1
         client.subscribe([(LEASE_TOPIC, LEASE_QOS), (DETECTIONS_WILDCARD, 0), (EDGE_STATUS_WILDCARD, 1)])
         self._connected.set()
         self._wake.set()
-        log.info("fuser %s connected to %s (standby until it holds the lease)", self.fuser_id, self.target.display())
+        log.info(
+            "fuser %s connected to %s (standby until it holds the lease; no pose before its retained stop is taken)",
+            self.fuser_id,
+            self.target.display(),
+        )
+        self.stop_at_start.on_connected(hold)
+
+    def _send_formation(self, make: Callable[[int], FormationV1]) -> FormationV1:
+        return send_formation_on(self._client, self.target, make)
+
+    def _release(self, number: int) -> None:
+        with self._lock:
+            if number != self._connection:
+                return  # replaced since: the newer connection has its own stop coming
+            self._released = number
+            self._lock.notify_all()
+        log.info("fuser %s: its retained stop is taken; poses may go out on this connection", self.fuser_id)
+
+    def wait_poses_released(self, timeout_s: float) -> bool:
+        """Wait until connected with this connection's stop taken (poses may go out); False on timeout."""
+        with self._lock:
+            return self._lock.wait_for(self._poses_released, timeout_s)
+
+    def _poses_released(self) -> bool:
+        return self._released == self._connection and self._connected.is_set()
 
     def _on_disconnect(self, client: mqtt.Client, userdata: Any, flags: Any, reason_code: Any, props: Any) -> None:
         self._connected.clear()
@@ -192,15 +246,18 @@ class FuserService:
                 self._latest[pose.rover_id] = pose
                 n = self.stats.seq.get(pose.rover_id, 0)
                 line = pose_line(pose, n)
-                # asked right before each publish: a fuser that lost the lease (or was paused past it) stays quiet
-                if self.lease.may_publish(self._mono()):
+                # asked right before each publish: a fuser that lost the lease (or was paused past it) stays quiet,
+                # and none goes out on a connection before the broker took its stop
+                if not self.lease.may_publish(self._mono()):
+                    self.stats.poses_withheld += 1
+                elif self._released != self._connection:
+                    self.stats.poses_held += 1
+                else:
                     self._client.publish(pose_topic(pose.rover_id), line, qos=0)
                     self.stats.seq[pose.rover_id] = n + 1
                     self.stats.poses_sent += 1
                     if self.on_pose is not None:
                         self.on_pose(pose, line)
-                else:
-                    self.stats.poses_withheld += 1
 
     def _learn(self) -> None:
         """The clocks' evidence, after the poses are queued and not while another message waits: four boards'
