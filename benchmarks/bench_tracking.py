@@ -314,6 +314,7 @@ def bench_family(
     outline_fit: bool = False,
     chroma: str | None = None,
     quality: int | None = None,
+    edge_offsets: bool = False,
 ) -> None:
     """Render each scenario and seed once through the family's camera, track it with each calibration, print a
     table per calibration."""
@@ -323,9 +324,10 @@ def bench_family(
             clip = family_clip(name, seed, frames, chroma, quality)
             about = SimpleNamespace(name=name, seed=seed, camera_name=clip.camera_name, bodies=clip.bodies)  # type: ignore[attr-defined]
             for c in calibrations:
-                runs[c].append((about, run_clip(clip, "particles", calibration=c, outline_fit=outline_fit)))  # type: ignore[arg-type]
+                score = run_clip(clip, "particles", calibration=c, outline_fit=outline_fit, edge_offsets=edge_offsets)  # type: ignore[arg-type]
+                runs[c].append((about, score))
             print(f"{name} seed {seed}: {clip.camera_name}", file=sys.stderr, flush=True)  # type: ignore[attr-defined]
-    print(f"tracker setting outline_fit = {str(outline_fit).lower()}\n")
+    print(f"tracker settings outline_fit = {str(outline_fit).lower()}, edge_offsets = {str(edge_offsets).lower()}\n")
     for c in calibrations:
         family_table(runs[c], seeds, frames, c, detail)
         print()
@@ -416,6 +418,9 @@ def main() -> None:
     parser.add_argument(
         "--outline-fit", action="store_true", help="stages, family: track with outline_fit = true (default: false)"
     )
+    parser.add_argument(
+        "--edge-offsets", action="store_true", help="family: track with edge_offsets = true (default: false)"
+    )
     parser.add_argument("--detail", action="store_true", help="family: a row per scenario, camera and colour")
     parser.add_argument(
         "--baseline",
@@ -460,7 +465,15 @@ def main() -> None:
         scenarios = args.scenarios.split(",") if args.scenarios != ",".join(SCENARIOS) else list(FAMILY_SCENARIOS)
         calibrations = ["camera", "points"] if args.calibration == "both" else [args.calibration]
         bench_family(
-            scenarios, seeds, args.frames, calibrations, args.detail, args.outline_fit, args.chroma, args.quality
+            scenarios,
+            seeds,
+            args.frames,
+            calibrations,
+            args.detail,
+            args.outline_fit,
+            args.chroma,
+            args.quality,
+            args.edge_offsets,
         )
 
 

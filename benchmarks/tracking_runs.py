@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from edge.centre_offsets import InlineFits
 from edge.tracker_config import TrackerConfig
 from edge.trackers.base import CameraPlaneMapping
 from edge.trackers.factory import build_tracker
@@ -233,14 +234,28 @@ def plane_mapping(clip: Clip, calibration: str) -> object:
 
 
 def run_clip(
-    clip: Clip, method: str, use_background: bool | None = None, calibration: str = "camera", outline_fit: bool = False
+    clip: Clip,
+    method: str,
+    use_background: bool | None = None,
+    calibration: str = "camera",
+    outline_fit: bool = False,
+    edge_offsets: bool = False,
 ) -> Score:
     """Track ``clip`` with ``method`` (the paper baseline gets the empty-scene reference; the others learn it
-    unless ``use_background``; ``outline_fit``: the tracker setting of that name) and score it."""
-    config = TrackerConfig(rovers=clip.rovers, method=method, fps=clip.fps, outline_fit=outline_fit)  # type: ignore[arg-type]
+    unless ``use_background``; ``outline_fit``, ``edge_offsets``: the tracker settings of those names, the edge fits
+    in the frame loop with their results held back as a worker would deliver them, ``edge.centre_offsets.InlineFits``)
+    and score it."""
+    config = TrackerConfig(
+        rovers=clip.rovers,  # type: ignore[arg-type]
+        method=method,  # type: ignore[arg-type]
+        fps=clip.fps,
+        outline_fit=outline_fit,
+        edge_offsets=edge_offsets,
+    )
     mapping = plane_mapping(clip, calibration)
     with_bg = (method == "paper") if use_background is None else use_background
-    tracker = build_tracker(config, mapping, clip.background if with_bg else None)  # type: ignore[arg-type]
+    fits = InlineFits(config.edge_offsets_every) if edge_offsets else None
+    tracker = build_tracker(config, mapping, clip.background if with_bg else None, fits=fits)  # type: ignore[arg-type]
     score = Score()
     for i, image in enumerate(clip.frames):
         t0 = time.perf_counter()

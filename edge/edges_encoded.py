@@ -33,6 +33,7 @@ BIN_PX = 0.25
 REACH_IN_PX = 4.0
 REACH_OUT_PX = 7.0
 BAND_PX = (5.5, 7.0)  # the surround beyond the spread, relative to the edge
+INNER_PX = 2.5  # bins this far inside a side are the marker's own light there (the optics' blur is <= 1.2 px)
 SIDE_MIDDLE = 0.7  # the share of each side's length that counts (corners mix two sides)
 # BT.601 full range, as JPEG decodes (rows: Y', Cb, Cr; columns B', G', R')
 YCC_FROM_BGR = np.array(
@@ -222,9 +223,22 @@ def fit_edges(
     encode: ToneCurve = srgb_encode,
     luma_weight: float = 1.0,
     iterations: int = 25,
+    side_levels: bool = False,
 ) -> EdgeFit:
-    """Fit the model of the module docstring to the four profiles (``marker_ycc``: the interior's mean Y'CbCr)."""
+    """Fit the model of the module docstring to the four profiles (``marker_ycc``: the interior's mean Y'CbCr).
+
+    ``side_levels``: the marker's light per side scaled by its luma just inside that side (bins :data:`INNER_PX`
+    in) over the interior's: a marker under a gradient of light (vignetting, a lamp's fall-off, a sunlit patch's
+    border) is darker at one side than its mean, which would read as that edge moved in."""
     marker = decode(np.clip(bgr_of_ycc(marker_ycc), 0, 1))
+    markers = [marker] * len(profiles)
+    if side_levels:
+        mid = float(decode(np.full(1, marker_ycc[0] / 255.0))[0])
+        markers = []
+        for p in profiles:
+            inner = p.u_px <= -INNER_PX
+            level = float(decode(np.full(1, p.ycc[inner, 0].mean() / 255.0))[0]) if inner.any() else mid
+            markers.append(marker * (level / mid if mid > 0 else 1.0))
     beyond = [beyond_level(p, decode) for p in profiles]
     brightest = max(beyond, key=lambda v: float(v.sum()))
     grid_u = np.arange(-REACH_IN_PX + BIN_PX / 2, REACH_OUT_PX, BIN_PX)
@@ -235,7 +249,7 @@ def fit_edges(
         res = []
         for j, p in enumerate(profiles):
             k_px = math.hypot(k_u * p.normal_px[0], k_v * p.normal_px[1])
-            model = _side_model(p.u_px, grid_u, marker, dark, beyond[j], x[5 + j], x[9 + j], sigma, k_px, encode)
+            model = _side_model(p.u_px, grid_u, markers[j], dark, beyond[j], x[5 + j], x[9 + j], sigma, k_px, encode)
             res.append(((model - p.ycc) * weights).ravel())
         return np.concatenate(res)
 
@@ -295,6 +309,7 @@ def encoded_edge_centre(
     centre_cm: tuple[float, float],
     theta_rad: float,
     size_cm: tuple[float, float],
+    side_levels: bool = False,
 ) -> tuple[tuple[float, float], EdgeFit] | None:
     """The marker's centre on the plane from its four fitted edges, and the fit; None when the window does not hold
     every side's profile out to the band beyond the spread (:data:`BAND_PX`).
@@ -303,12 +318,12 @@ def encoded_edge_centre(
     ``interior`` (h, w) pixels well inside the marker (its colour), ``centre_cm`` and ``theta_rad`` a first centre
     and the marker's long axis (the sides are sampled around them), ``size_cm`` the marker's length and width. Each
     edge is found along its own normal on the plane, so the centre is the middle of opposite edges on the plane, not
-    in the image."""
+    in the image. ``side_levels``: as :func:`fit_edges`."""
     profiles = side_profiles(bgr, xy_cm, centre_cm, theta_rad, (size_cm[0] / 2, size_cm[1] / 2))
     if not all(has_band(p) for p in profiles):
         return None
     marker_ycc = bgr[interior].astype(np.float64).mean(axis=0) @ YCC_FROM_BGR.T
-    fit = fit_edges(profiles, marker_ycc)
+    fit = fit_edges(profiles, marker_ycc, side_levels=side_levels)
     return edge_midpoint(centre_cm, theta_rad, fit.u0_px, profiles), fit
 
 

@@ -59,6 +59,11 @@ class ConstantVelocityFilter:
         self.x = [x, y, vx, vy]
         self.p = [r00, r01, 0.0, 0.0, r10, r11, 0.0, 0.0, 0.0, 0.0, speed2, 0.0, 0.0, 0.0, 0.0, speed2]
 
+    def shift(self, dx_cm: float, dy_cm: float) -> None:
+        """Move the position estimate by (dx, dy): the measurements' reference moved (a centre correction was
+        learned, ``edge.centre_offsets``), not the rover; the next measurement is then no spike."""
+        self.x = [self.x[0] + dx_cm, self.x[1] + dy_cm, self.x[2], self.x[3]]
+
     # -- state ------------------------------------------------------------------------------------------------
     @property
     def position(self) -> tuple[float, float]:

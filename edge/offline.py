@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.calibration import load_calibration
+from edge.centre_offsets import InlineFits
 from edge.errors import CalibrationError, ConfigError, SourceError
 from edge.fusion.detections import encode_detections
 from edge.fusion.uncertainty import DetectionBuilder, calibration_error_model
@@ -217,7 +218,9 @@ def open_track_job(video: Path, calibration: Path, config: TrackerConfig, backgr
     try:
         mapping = load_plane_mapping(calibration, frames.size)
         empty = read_background(background, frames.size) if background is not None else None
-        tracker = build_tracker(config, mapping, empty)
+        # the edge fits (edge_offsets) in the frame loop: a video's poses come out the same on every run
+        fits = InlineFits(config.edge_offsets_every) if config.edge_offsets else None
+        tracker = build_tracker(config, mapping, empty, fits=fits)
     except BaseException:
         frames.close()
         raise

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.acquisition import acquisition_scale, candidates, low_resolution_classes
+from edge.centre_offsets import CentreOffsets, EdgeJob, Fits, ProcessFits
 from edge.errors import ConfigError, SourceError
 from edge.filtering import FilterFactory, axis_heading, checked_axis
 from edge.rover_track import Observation, RoverTrack
@@ -46,6 +47,7 @@ from edge.white import LocalWhite
 
 FloatArray = NDArray[np.float64]
 SIDEWAYS_MIN_SPEED_CM_S = 10.0  # motion that checks a two-tone marker's axis (edge.two_tone.TwoToneHeading.update)
+EDGE_JOB_MIN_COHERENCE = 0.5  # a window goes to the edge fits only when its marker's edges showed the axis clearly
 
 
 class Pipeline:
@@ -55,7 +57,8 @@ class Pipeline:
     ``background``: an empty-scene frame (the paper's reference), or None to learn the reference from the video.
     ``tracker``, ``acquirer``, ``filters``: the window tracker, the one that finds lost rovers and the filters'
     factory; by default those ``config`` names, with its settings (``edge.trackers.make_tracker``,
-    ``make_filters``).
+    ``make_filters``). ``fits``: where the edge fits of the ``edge_offsets`` setting run (``edge.centre_offsets``;
+    by default a worker process, started on the first fit); unused without that setting.
     """
 
     def __init__(
@@ -67,6 +70,7 @@ class Pipeline:
         *,
         acquirer: WindowTracker | None = None,
         filters: FilterFactory | None = None,
+        fits: Fits | None = None,
     ) -> None:
         if config.method == "paper":
             raise ConfigError("method 'paper' is the full-frame baseline: build it with build_tracker()")
@@ -85,7 +89,16 @@ class Pipeline:
             raise ConfigError(f"rovers: {exc}") from exc
         self._nominal_levels = [math.hypot(*chroma_of_bgr(c)[:2]) for c in colors]
         self._empty_scene = background
+        self.offsets: CentreOffsets | None = None
+        if config.edge_offsets:
+            self.offsets = CentreOffsets(fits if fits is not None else ProcessFits(config.edge_offsets_every))
+        self._edge_pick: int | None = None
         self.reset()
+
+    def close(self) -> None:
+        """Stop the edge fits' worker, if one was started."""
+        if self.offsets is not None:
+            self.offsets.close()
 
     def reset(self) -> None:
         """Forget every rover and the background: the next frame starts tracking afresh, at its own size."""
@@ -100,6 +113,8 @@ class Pipeline:
         self._last_t: float | None = None
         self._frames = 0
         self._time_s = 0.0  # the stream's time: the sum of frame intervals (nominal ones where stamps are unusable)
+        if self.offsets is not None:
+            self.offsets.reset()
 
     # -- the frame loop -----------------------------------------------------------------------------------------
     def process(self, frame: Frame) -> FrameResult:
@@ -123,6 +138,13 @@ class Pipeline:
             if tr.filter is not None:
                 tr.filter.predict(dt)
         clock.add("filter", time.perf_counter() - t0)
+
+        if self.offsets is not None:
+            t0 = time.perf_counter()
+            self.offsets.collect(self._frames)
+            one_colour = [tr.index for tr in self.tracks if tr.filter is not None and tr.config.front_color_bgr is None]
+            self._edge_pick = self.offsets.pick(self._frames, one_colour)
+            clock.add("offsets", time.perf_counter() - t0)
 
         measured: dict[int, Observation] = {}
         for tr in self.tracks:
@@ -242,7 +264,37 @@ class Pipeline:
             if two_tone is None:
                 return None  # without a heading the centre of a two-tone marker is not known
             m = two_tone
+        elif self.offsets is not None:
+            t0 = time.perf_counter()
+            m = self._edge_offset(window, m, tr)
+            clock.add("offsets", time.perf_counter() - t0)
         return Observation(m, measurement_covariance(jac, self.config.measurement_sigma_px))
+
+    def _edge_offset(self, window: Window, m: Measurement, tr: RoverTrack) -> Measurement:
+        """A one-colour marker's centre moved by its learned offset (``edge.centre_offsets``); this frame's window
+        handed to the edge fits when it is this rover's turn."""
+        assert self.offsets is not None and self.maps is not None
+        if tr.index == self._edge_pick and m.axis_coherence >= EDGE_JOB_MIN_COHERENCE:
+            x0, y0, x1, y1 = window.box
+            raw = window.raw if window.raw is not None else window.bgr
+            job = EdgeJob(
+                index=tr.index,
+                frame=self._frames,
+                raw=np.array(raw, dtype=np.uint8, copy=True),
+                xy_cm=np.stack([self.maps.x_cm[y0:y1, x0:x1], self.maps.y_cm[y0:y1, x0:x1]]).astype(np.float64),
+                centre_cm=m.xy_cm,
+                axis_rad=m.axis_rad,
+                size_cm=(self.config.marker_length_cm, self.config.marker_width_cm),
+            )
+            self.offsets.submit(job)
+            self._edge_pick = None
+        shift = self.offsets.offset(tr.index, *m.xy_cm)
+        if shift is None:
+            return m
+        if tr.filter is not None:  # the filter follows the step where the correction changes (no spike)
+            tr.filter.shift(shift[0] - tr.offset_cm[0], shift[1] - tr.offset_cm[1])
+        tr.offset_cm = shift
+        return replace(m, xy_cm=(m.xy_cm[0] + shift[0], m.xy_cm[1] + shift[1]))
 
     def _two_tone(self, window: Window, m: Measurement, tr: RoverTrack, jacobian: FloatArray) -> Measurement | None:
         """A two-tone marker (``edge.two_tone``): the heading from the coloured part's edges and the light end, and

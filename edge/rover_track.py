@@ -41,6 +41,7 @@ class RoverTrack:
     theta_rad: float | None = None
     two_tone: TwoToneHeading = field(default_factory=TwoToneHeading)  # a two-tone marker's heading through time
     seen: tuple[float, float, float] | None = None  # where (cm) and when (s, the stream's time) it was last measured
+    offset_cm: tuple[float, float] = (0.0, 0.0)  # the centre correction last applied (edge.centre_offsets)
 
     @property
     def lost(self) -> bool:

@@ -122,6 +122,16 @@ class TrackerSettings(BaseModel):
         "coverage centroid: less colour-dependent bias on some cameras, but about 3.5x the tracking time per frame; a "
         "fitted marker skips the area and shape checks (its edges showed its size).",
     )
+    edge_offsets: bool = Field(
+        default=False,
+        description="Move each one-colour marker's coverage centre by the offset that full fits of its edges in the "
+        "camera's encoded chroma find (edge.centre_offsets: a fit of one rover's window every edge_offsets_every "
+        "frames, in a worker process): takes out the bias a stream's chroma subsampling (4:2:0) puts in the centre. "
+        "A rover's centre moves once it has three fits.",
+    )
+    edge_offsets_every: int = Field(
+        default=10, ge=1, le=1000, description="Frames between two edge fits (each one rover's window, in turn)."
+    )
     heading_min_speed_cm_s: float = Field(default=3.0, ge=0.0, description="Slowest motion that gives a heading.")
     accel_sigma_cm_s2: float = Field(default=40.0, gt=0.0, description="Filter process noise (acceleration).")
     measurement_sigma_px: float = Field(default=0.15, gt=0.0, description="Marker centre noise in pixels.")

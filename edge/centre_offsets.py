@@ -1,0 +1,284 @@
+"""Centres referred to the marker's fitted edges: the fast centre's camera-dependent offset, learned off the frame
+thread from occasional full edge fits (the ``edge_offsets`` tracker setting; ``docs/tracking.md``).
+
+The coverage centre (``edge.coverage``) is cheap and steady, but a stream's chroma spread (4:2:0, coarse chroma
+quantisation) moves it by 0.1-0.4 cm, by an amount the camera, the marker's colour and the rover's body decide: it
+changes slowly across the floor and not at all from frame to frame. The full fit of the marker's edges in the
+camera's encoded chroma (``edge.edges_encoded``) takes that spread out, but costs about 0.2 s per marker. So every
+``every_frames`` frames one rover's window (as the camera gave it) goes to a worker that fits its edges; the fitted
+centre minus the fast centre of that frame is a sample of the rover's offset at that place. Each frame the rover's
+fast centre moves by what its samples say there: the samples' mean weighted by their distance on the floor,
+shrunk to the rover's median offset where few are near. Nothing moves before a rover has :data:`MIN_SAMPLES`
+samples, and a sample far from the rover's others (another rover in the band beyond the edges, a fit run off) is
+not used.
+
+The fits run in another process (:class:`ProcessFits`: the frame loop keeps its time) or, for benchmarks and
+offline runs that must repeat exactly, in the frame loop with their results held back as long as a worker would
+take (:class:`InlineFits`).
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+from collections import deque
+from concurrent.futures import Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from edge.edges_encoded import encoded_edge_centre
+
+FloatArray = NDArray[np.float64]
+
+MIN_SAMPLES = 3  # samples of a rover before its centre moves
+MAX_OFFSET_CM = 1.0  # a fitted centre farther than this from the fast one is a failed fit, not an offset
+MAX_RMS = 12.0  # a fit whose residual (8-bit units) is larger did not find a marker's edges
+NEAR_CM = 60.0  # the floor distance over which an offset is taken to hold (the kernel's sigma)
+PRIOR_WEIGHT = 1.0  # the rover's median offset counts as this many samples at the place asked about
+OUTLIER_CM = 0.25  # a sample this far from the rover's median offset (and 3 spreads) is not used
+KEEP = 200  # samples kept per rover (the newest)
+INSET_CM = 2.0  # the marker's colour is read this far inside its nominal outline (at most a quarter of its width)
+MIN_INTERIOR_PX = 20
+HELD_BACK_FRAMES = 15  # InlineFits: a result reaches the tracker this late, as from a worker (~0.2-0.5 s per fit)
+
+
+@dataclass(frozen=True)
+class EdgeJob:
+    """One rover's window for a full edge fit: ``raw`` (h, w, 3) the crop as the camera gave it, ``xy_cm`` (2, h, w)
+    its pixels' centres on the marker plane, ``centre_cm`` the fast centre and ``axis_rad`` the long axis of that
+    frame, ``size_cm`` the marker's length and width; ``index`` the rover, ``frame`` the frame's number."""
+
+    index: int
+    frame: int
+    raw: NDArray[np.uint8]
+    xy_cm: FloatArray
+    centre_cm: tuple[float, float]
+    axis_rad: float
+    size_cm: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class EdgeSample:
+    """A fit's result: rover ``index`` at ``xy_cm`` (the fast centre), its ``offset_cm`` (fitted minus fast), the
+    frame it came from."""
+
+    index: int
+    frame: int
+    xy_cm: tuple[float, float]
+    offset_cm: tuple[float, float]
+
+
+def fit_offset(job: EdgeJob) -> EdgeSample | None:
+    """The full edge fit of ``job`` as a sample, or None when the window does not show every side out to the band
+    beyond the chroma's spread, or the fit did not find edges (its residual, or a centre beyond
+    :data:`MAX_OFFSET_CM`). Runs in the worker: a pure function of the job.
+
+    The marker's colour is the mean of the pixels :data:`INSET_CM` inside its outline placed at the fast centre
+    along its axis, not of the pixels classified as its hue: at 4:2:0 the marker's chroma spills onto a dark body,
+    whose pixels then take the marker's hue at a fraction of its brightness."""
+    c, s = math.cos(job.axis_rad), math.sin(job.axis_rad)
+    dx0, dy0 = job.xy_cm[0] - job.centre_cm[0], job.xy_cm[1] - job.centre_cm[1]
+    inset = min(INSET_CM, 0.25 * min(job.size_cm))
+    interior = (np.abs(dx0 * c + dy0 * s) < job.size_cm[0] / 2 - inset) & (
+        np.abs(dy0 * c - dx0 * s) < job.size_cm[1] / 2 - inset
+    )
+    if int(np.count_nonzero(interior)) < MIN_INTERIOR_PX:
+        return None
+    fitted = encoded_edge_centre(
+        job.raw, job.xy_cm, interior, job.centre_cm, job.axis_rad, job.size_cm, side_levels=True
+    )
+    if fitted is None:
+        return None
+    (x, y), fit = fitted
+    dx, dy = x - job.centre_cm[0], y - job.centre_cm[1]
+    if not (math.isfinite(dx) and math.isfinite(dy)) or math.hypot(dx, dy) > MAX_OFFSET_CM or fit.rms > MAX_RMS:
+        return None
+    return EdgeSample(job.index, job.frame, job.centre_cm, (dx, dy))
+
+
+class OffsetMap:
+    """One rover's offset samples and the offset they give at a place on the floor."""
+
+    def __init__(self) -> None:
+        self.samples: deque[EdgeSample] = deque(maxlen=KEEP)
+        self._cache: tuple[FloatArray, FloatArray, FloatArray] | None = None
+
+    def add(self, sample: EdgeSample) -> None:
+        self.samples.append(sample)
+        self._cache = None
+
+    def _usable(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(n, 2) places, (n, 2) offsets of the samples that agree with the rover's others, and the median offset."""
+        if self._cache is None:
+            xy = np.array([s.xy_cm for s in self.samples], dtype=np.float64).reshape(-1, 2)
+            d = np.array([s.offset_cm for s in self.samples], dtype=np.float64).reshape(-1, 2)
+            median = np.median(d, axis=0)
+            far = np.hypot(*(d - median).T)
+            spread = float(np.median(far)) * 1.4826
+            keep = far <= max(OUTLIER_CM, 3.0 * spread)
+            self._cache = (xy[keep], d[keep], median)
+        return self._cache
+
+    def offset(self, x_cm: float, y_cm: float) -> tuple[float, float] | None:
+        """The offset to add to a fast centre at (x, y), or None before :data:`MIN_SAMPLES` samples."""
+        if len(self.samples) < MIN_SAMPLES:
+            return None
+        xy, d, median = self._usable()
+        if len(xy) == 0:
+            return None
+        w = np.exp(-((xy[:, 0] - x_cm) ** 2 + (xy[:, 1] - y_cm) ** 2) / (2.0 * NEAR_CM * NEAR_CM))
+        total = float(w.sum()) + PRIOR_WEIGHT
+        dx = (float(w @ d[:, 0]) + PRIOR_WEIGHT * float(median[0])) / total
+        dy = (float(w @ d[:, 1]) + PRIOR_WEIGHT * float(median[1])) / total
+        return dx, dy
+
+
+class Fits(Protocol):
+    """Where the fits run: jobs in, samples out."""
+
+    def ready(self, frame: int, hurry: bool = False) -> bool:
+        """May a job be handed over at ``frame``? ``hurry``: a rover has too few samples for its centre to move yet
+        (the next fit as soon as the worker is free)."""
+        ...
+
+    def submit(self, job: EdgeJob) -> None: ...
+
+    def collect(self, frame: int) -> list[EdgeSample]:
+        """The samples whose fits have finished by ``frame`` (each once)."""
+        ...
+
+    def close(self) -> None: ...
+
+
+class InlineFits:
+    """Fits in the frame loop, one every ``every_frames`` frames, each result released ``delay_frames`` after its
+    job as if a worker had taken that long: runs that repeat exactly (benchmarks, ``edge-ips track``)."""
+
+    def __init__(self, every_frames: int = 10, delay_frames: int = HELD_BACK_FRAMES) -> None:
+        self.every_frames = every_frames
+        self.delay_frames = delay_frames
+        self._last: int | None = None
+        self._pending: deque[tuple[int, EdgeSample]] = deque()
+
+    def ready(self, frame: int, hurry: bool = False) -> bool:
+        return self._last is None or frame - self._last >= (1 if hurry else self.every_frames)
+
+    def submit(self, job: EdgeJob) -> None:
+        self._last = job.frame
+        sample = fit_offset(job)
+        if sample is not None:
+            self._pending.append((job.frame + self.delay_frames, sample))
+
+    def collect(self, frame: int) -> list[EdgeSample]:
+        out = []
+        while self._pending and self._pending[0][0] <= frame:
+            out.append(self._pending.popleft()[1])
+        return out
+
+    def close(self) -> None:
+        self._pending.clear()
+
+
+class ProcessFits:
+    """Fits in one worker process (started on the first job), one job at a time and at most one every
+    ``every_frames`` frames: the frame loop only copies a window and collects what has finished."""
+
+    def __init__(self, every_frames: int = 10) -> None:
+        self.every_frames = every_frames
+        self.failed = 0  # jobs whose worker raised or died
+        self._last: int | None = None
+        self._pool: ProcessPoolExecutor | None = None
+        self._running: Future[EdgeSample | None] | None = None
+        self._done: list[EdgeSample] = []
+
+    def ready(self, frame: int, hurry: bool = False) -> bool:
+        if self._running is not None and not self._running.done():
+            return False
+        return self._last is None or frame - self._last >= (1 if hurry else self.every_frames)
+
+    def submit(self, job: EdgeJob) -> None:
+        self._harvest()
+        if self._pool is None:
+            # spawn: the appliance runs threads (MQTT, HTTP), which a forked child would inherit half-way
+            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+        self._last = job.frame
+        self._running = self._pool.submit(fit_offset, job)
+
+    def _harvest(self) -> None:
+        running = self._running
+        if running is None or not running.done():
+            return
+        self._running = None
+        try:
+            sample = running.result()
+        except Exception:  # a worker that died or a fit that raised: no sample, counted
+            self.failed += 1
+            return
+        if sample is not None:
+            self._done.append(sample)
+
+    def collect(self, frame: int) -> list[EdgeSample]:
+        self._harvest()
+        out, self._done = self._done, []
+        return out
+
+    def wait(self, timeout_s: float) -> bool:
+        """Block until the running fit (if any) has finished; False on timeout."""
+        running = self._running
+        if running is None:
+            return True
+        done, _ = wait([running], timeout=timeout_s)
+        return bool(done)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+        self._running = None
+
+
+class CentreOffsets:
+    """The offsets of every rover, and which rover's window goes to the fits next (the one sampled longest ago)."""
+
+    def __init__(self, fits: Fits) -> None:
+        self.fits = fits
+        self.maps: dict[int, OffsetMap] = {}
+        self._last_job: dict[int, int] = {}
+
+    def pick(self, frame: int, candidates: list[int]) -> int | None:
+        """The rover whose window should go to the fits this frame, among ``candidates`` (being tracked)."""
+        if not candidates:
+            return None
+        hurry = any(self.samples(i) < MIN_SAMPLES for i in candidates)
+        if not self.fits.ready(frame, hurry):
+            return None
+        return min(candidates, key=lambda i: (self.samples(i) >= MIN_SAMPLES, self._last_job.get(i, -1), i))
+
+    def submit(self, job: EdgeJob) -> None:
+        self._last_job[job.index] = job.frame
+        self.fits.submit(job)
+
+    def collect(self, frame: int) -> int:
+        """Take in the fits finished by ``frame``; the number of samples taken."""
+        samples = self.fits.collect(frame)
+        for s in samples:
+            self.maps.setdefault(s.index, OffsetMap()).add(s)
+        return len(samples)
+
+    def offset(self, index: int, x_cm: float, y_cm: float) -> tuple[float, float] | None:
+        offsets = self.maps.get(index)
+        return None if offsets is None else offsets.offset(x_cm, y_cm)
+
+    def samples(self, index: int) -> int:
+        offsets = self.maps.get(index)
+        return 0 if offsets is None else len(offsets.samples)
+
+    def reset(self) -> None:
+        self.maps.clear()
+        self._last_job.clear()
+
+    def close(self) -> None:
+        self.fits.close()

@@ -1,0 +1,247 @@
+"""Centres referred to the marker's fitted edges (edge.centre_offsets, the ``edge_offsets`` tracker setting): the
+fits' samples, the offset they give across the floor, where the fits run (in the loop, in a worker process that
+can fail), and the pipeline's centres on a 4:2:0 stream with and without them."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from edge.camera import paper_camera
+from edge.centre_offsets import (
+    MIN_SAMPLES,
+    CentreOffsets,
+    EdgeJob,
+    EdgeSample,
+    InlineFits,
+    OffsetMap,
+    ProcessFits,
+    fit_offset,
+)
+from edge.coverage import coverage_weights
+from edge.sim.effects import Compression, Effects, Optics
+from edge.sim.render import Renderer
+from edge.sim.scene import GREEN_BGR, RED_BGR, RoverLook, Scene
+from edge.sim.world import RoverState, WorldState
+from edge.tracker_config import RoverConfig, TrackerConfig
+from edge.trackers.base import CameraPlaneMapping, PlaneGrid
+from edge.trackers.factory import build_tracker
+from edge.trackers.plane import world_blob
+from edge.tracking import Frame
+
+SIZE_CM = (21.5, 16.8)
+BLACK = (0.035, 0.034, 0.032)
+STREAM = Effects(
+    auto_exposure=None, noise=None, motion_blur=False, optics=Optics(0.9), compression=Compression(90, "4:2:0")
+)
+
+
+@pytest.fixture(scope="module")
+def grid() -> PlaneGrid:
+    return PlaneGrid(CameraPlaneMapping(paper_camera()), (1280, 720))
+
+
+def _job(
+    grid: PlaneGrid, pose: tuple[float, float, float], color=GREEN_BGR, half_px: int = 60
+) -> tuple[EdgeJob, tuple]:
+    """A 4:2:0 frame's window around a rover on a black body at ``pose``, its fast (coverage) centre, the job."""
+    look = RoverLook("r", color, body_bgr=BLACK)
+    image = Renderer(paper_camera(), Scene((look,)), STREAM).render(
+        WorldState(0.0, (RoverState("r", *pose, 0, 0, 0),)), 0
+    )
+    x, y, th = pose
+    uv = paper_camera().project(np.array([[x, y, 13.0]]))[0]
+    x0, y0 = int(uv[0]) - half_px, int(uv[1]) - half_px
+    rows, cols = slice(y0, y0 + 2 * half_px), slice(x0, x0 + 2 * half_px)
+    xy = grid.xy_cm[:, rows, cols]
+    along = (xy[0] - x) * math.cos(th) + (xy[1] - y) * math.sin(th)
+    across = (xy[1] - y) * math.cos(th) - (xy[0] - x) * math.sin(th)
+    core = (np.abs(along) < SIZE_CM[0] / 2) & (np.abs(across) < SIZE_CM[1] / 2)
+    roi = np.ascontiguousarray(image[rows, cols])
+    blob = world_blob(coverage_weights(roi, core, 2, pure=core), (x0, y0), grid)
+    assert blob is not None
+    job = EdgeJob(0, 0, roi, np.asarray(xy, np.float64), (blob.x_cm, blob.y_cm), th, SIZE_CM)
+    return job, pose
+
+
+@pytest.mark.parametrize("pose", [(205.0, 330.0, 2.6), (120.0, 210.0, 1.2)])
+def test_a_fit_of_a_4_2_0_window_gives_the_offset_that_puts_the_centre_on_the_marker(grid, pose):
+    job, (x, y, _) = _job(grid, pose)
+    sample = fit_offset(job)
+    assert sample is not None
+    fast_error = math.hypot(job.centre_cm[0] - x, job.centre_cm[1] - y)
+    fitted = (job.centre_cm[0] + sample.offset_cm[0], job.centre_cm[1] + sample.offset_cm[1])
+    fitted_error = math.hypot(fitted[0] - x, fitted[1] - y)
+    assert fast_error > 0.1  # the stream's chroma spread moved the fast centre
+    assert fitted_error < 0.5 * fast_error and fitted_error < 0.08
+    assert sample.xy_cm == job.centre_cm and sample.index == job.index
+
+
+def test_a_window_too_small_to_show_the_band_beyond_the_edges_gives_no_sample(grid):
+    job, _ = _job(grid, (200.0, 300.0, 0.3), half_px=13)
+    assert fit_offset(job) is None
+
+
+def test_a_fit_that_lands_far_from_the_fast_centre_is_no_sample(grid):
+    job, _ = _job(grid, (200.0, 300.0, 0.3))
+    # the fast centre 4 cm off: the window's sides are sampled where the marker is not
+    assert fit_offset(replace(job, centre_cm=(job.centre_cm[0] + 4.0, job.centre_cm[1]))) is None
+
+
+def _sample(x: float, y: float, dx: float, dy: float, frame: int = 0) -> EdgeSample:
+    return EdgeSample(0, frame, (x, y), (dx, dy))
+
+
+def test_no_offset_before_enough_samples_then_the_near_samples_count_most():
+    offsets = OffsetMap()
+    for k in range(MIN_SAMPLES - 1):
+        offsets.add(_sample(0.0, 0.0, 0.2, 0.0, k))
+    assert offsets.offset(0.0, 0.0) is None
+    offsets.add(_sample(0.0, 10.0, 0.2, 0.0))
+    for k in range(3):
+        offsets.add(_sample(300.0, 0.0, -0.1, 0.1, k))
+    here = offsets.offset(0.0, 0.0)
+    there = offsets.offset(300.0, 0.0)
+    assert here is not None and there is not None
+    assert here[0] > 0.15 and there[0] < -0.05  # each place its own offset, shrunk a little to the median
+    assert there[1] > 0.05 and abs(here[1]) < 0.05
+
+
+def test_a_sample_far_from_the_rovers_others_is_not_used():
+    offsets = OffsetMap()
+    for k in range(6):
+        offsets.add(_sample(100.0 + k, 100.0, 0.1, -0.2, k))
+    offsets.add(_sample(100.0, 100.0, 0.9, 0.9))  # another rover in the band beyond an edge, a fit run off
+    dx, dy = offsets.offset(100.0, 100.0) or (math.nan, math.nan)
+    assert dx == pytest.approx(0.1, abs=1e-9) and dy == pytest.approx(-0.2, abs=1e-9)
+
+
+def test_fits_in_the_loop_come_back_as_late_as_from_a_worker_and_no_more_often_than_set(grid):
+    job, _ = _job(grid, (150.0, 250.0, 1.0))
+    fits = InlineFits(every_frames=10, delay_frames=15)
+    assert fits.ready(0)
+    fits.submit(replace(job, frame=0))
+    assert not fits.ready(9) and fits.ready(10) and fits.ready(1, hurry=True)
+    assert fits.collect(14) == []
+    (sample,) = fits.collect(15)
+    assert sample == fit_offset(job)
+    assert fits.collect(16) == []
+
+
+def test_the_rover_sampled_longest_ago_is_next_and_a_rover_without_enough_samples_first():
+    offsets = CentreOffsets(InlineFits(every_frames=10, delay_frames=0))
+    offsets._last_job = {0: 5, 1: 3, 2: 8}
+    assert offsets.pick(20, [0, 1, 2]) == 1  # none has samples yet: the oldest job
+    for k in range(MIN_SAMPLES):
+        offsets.maps.setdefault(1, OffsetMap()).add(_sample(0, 0, 0, 0, k))
+    assert offsets.pick(20, [0, 1, 2]) == 0  # rover 1 has its samples: the others first
+    assert offsets.pick(20, []) is None
+
+
+def test_fits_in_a_worker_process_give_the_same_sample_and_a_fit_that_raises_costs_nothing(grid):
+    job, _ = _job(grid, (150.0, 250.0, 1.0))
+    fits = ProcessFits(every_frames=1)
+    try:
+        fits.submit(job)
+        assert not fits.ready(0)  # one at a time
+        assert fits.wait(120.0)
+        assert fits.collect(1) == [fit_offset(job)]
+        broken = replace(job, frame=2, raw=np.zeros((4, 4), np.uint8))  # a job the fit cannot read: raises there
+        assert fits.ready(2)
+        fits.submit(broken)
+        assert fits.wait(120.0)
+        assert fits.collect(3) == [] and fits.failed == 1
+        fits.submit(replace(job, frame=4))  # the worker still serves
+        assert fits.wait(120.0)
+        assert len(fits.collect(5)) == 1
+    finally:
+        fits.close()
+
+
+def _still_rover_frames(n: int) -> list[np.ndarray]:
+    """``n`` frames of a 4:2:0 q75 stream (noise on) of a red and a green rover on black bodies, standing."""
+    looks = (RoverLook("red", RED_BGR, body_bgr=BLACK), RoverLook("green", GREEN_BGR, body_bgr=BLACK))
+    effects = replace(STREAM, noise=Effects().noise, compression=Compression(75, "4:2:0"))
+    renderer = Renderer(paper_camera(), Scene(looks), effects, seed=3)
+    state = WorldState(
+        0.0, (RoverState("red", 120.0, 210.0, 1.2, 0, 0, 0), RoverState("green", 205.0, 330.0, 2.6, 0, 0, 0))
+    )
+    return [renderer.render(state, k) for k in range(n)]
+
+
+def _mean_error(estimates: list[tuple[str, float, float]], truth: dict[str, tuple[float, float]]) -> dict[str, float]:
+    out = {}
+    for rid, (tx, ty) in truth.items():
+        own = np.array([(x - tx, y - ty) for r, x, y in estimates if r == rid])
+        out[rid] = float(np.hypot(*own.mean(axis=0)))
+    return out
+
+
+def test_the_pipeline_with_edge_offsets_takes_the_4_2_0_bias_out_of_the_reported_centres():
+    frames = _still_rover_frames(60)
+    rovers = (RoverConfig(id="red", color_bgr=(40, 40, 200)), RoverConfig(id="green", color_bgr=(60, 170, 40)))
+    truth = {"red": (120.0, 210.0), "green": (205.0, 330.0)}
+    biases = {}
+    for on in (False, True):
+        config = TrackerConfig(rovers=rovers, edge_offsets=on, edge_offsets_every=3)
+        fits = InlineFits(config.edge_offsets_every, delay_frames=2) if on else None
+        tracker = build_tracker(config, CameraPlaneMapping(paper_camera()), None, fits=fits)
+        got = []
+        for k, image in enumerate(frames):
+            result = tracker.process(Frame(image, k, k / 30.0, k / 30.0))
+            if k >= 40:
+                got += [(e.rover_id, e.measured_xy_cm[0], e.measured_xy_cm[1]) for e in result.estimates]
+        assert {r for r, _, _ in got} == {"red", "green"}
+        biases[on] = _mean_error(got, truth)
+        if on:
+            assert all(tracker.offsets.samples(i) >= MIN_SAMPLES for i in (0, 1))  # type: ignore[attr-defined]
+    assert min(biases[False].values()) > 0.1  # the stream's bias, there to take out
+    for rid in truth:
+        assert biases[True][rid] < 0.65 * biases[False][rid]
+    assert max(biases[True].values()) < 0.1
+
+
+def test_a_two_tone_marker_is_never_sent_to_the_edge_fits():
+    frames = _still_rover_frames(20)
+    rovers = (
+        RoverConfig(id="red", color_bgr=(40, 40, 200), front_color_bgr=(200, 200, 200)),
+        RoverConfig(id="green", color_bgr=(60, 170, 40)),
+    )
+    sent: list[int] = []
+    fits = InlineFits(every_frames=1, delay_frames=0)
+    submit = fits.submit
+    fits.submit = lambda job: (sent.append(job.index), submit(job))  # type: ignore[method-assign]
+    tracker = build_tracker(
+        TrackerConfig(rovers=rovers, edge_offsets=True), CameraPlaneMapping(paper_camera()), fits=fits
+    )
+    for k, image in enumerate(frames):
+        tracker.process(Frame(image, k, k / 30.0, k / 30.0))
+    assert sent and set(sent) == {1}
+
+
+def test_the_appliances_tracker_fits_in_a_worker_process_and_close_stops_it():
+    frames = _still_rover_frames(12)
+    rovers = (RoverConfig(id="red", color_bgr=(40, 40, 200)), RoverConfig(id="green", color_bgr=(60, 170, 40)))
+    tracker = build_tracker(TrackerConfig(rovers=rovers, edge_offsets=True), CameraPlaneMapping(paper_camera()))
+    offsets = tracker.offsets  # type: ignore[attr-defined]
+    fits = offsets.fits
+    assert isinstance(fits, ProcessFits)  # the default: the frame loop is not held up by a fit
+    for k, image in enumerate(frames):
+        tracker.process(Frame(image, k, k / 30.0, k / 30.0))
+    assert fits.wait(120.0)
+    tracker.process(Frame(frames[-1], len(frames), len(frames) / 30.0, len(frames) / 30.0))
+    assert sum(offsets.samples(i) for i in (0, 1)) >= 1 and fits.failed == 0
+    tracker.close()  # type: ignore[attr-defined]
+    assert fits._pool is None
+
+
+def test_the_settings_reach_the_tracker():
+    rovers = (RoverConfig(id="red", color_bgr=(40, 40, 200)),)
+    mapping = CameraPlaneMapping(paper_camera())
+    assert build_tracker(TrackerConfig(rovers=rovers), mapping).offsets is None  # type: ignore[attr-defined]
+    tracker = build_tracker(TrackerConfig(rovers=rovers, edge_offsets=True, edge_offsets_every=7), mapping)
+    assert tracker.offsets.fits.every_frames == 7  # type: ignore[attr-defined]
+    tracker.close()  # type: ignore[attr-defined]
