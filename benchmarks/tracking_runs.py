@@ -239,22 +239,22 @@ def run_clip(
     use_background: bool | None = None,
     calibration: str = "camera",
     outline_fit: bool = False,
-    edge_offsets: bool = False,
+    edge_offsets: bool | str = False,
 ) -> Score:
     """Track ``clip`` with ``method`` (the paper baseline gets the empty-scene reference; the others learn it
     unless ``use_background``; ``outline_fit``, ``edge_offsets``: the tracker settings of those names, the edge fits
-    in the frame loop with their results held back as a worker would deliver them, ``edge.centre_offsets.InlineFits``)
-    and score it."""
+    in the frame loop with their results held back as a worker would deliver them, ``edge.centre_offsets.InlineFits``;
+    ``edge_offsets="worker"``: in their worker process, as the appliance runs them) and score it."""
     config = TrackerConfig(
         rovers=clip.rovers,  # type: ignore[arg-type]
         method=method,  # type: ignore[arg-type]
         fps=clip.fps,
         outline_fit=outline_fit,
-        edge_offsets=edge_offsets,
+        edge_offsets=bool(edge_offsets),
     )
     mapping = plane_mapping(clip, calibration)
     with_bg = (method == "paper") if use_background is None else use_background
-    fits = InlineFits(config.edge_offsets_every) if edge_offsets else None
+    fits = InlineFits(config.edge_offsets_every) if edge_offsets is True else None
     tracker = build_tracker(config, mapping, clip.background if with_bg else None, fits=fits)  # type: ignore[arg-type]
     score = Score()
     for i, image in enumerate(clip.frames):
@@ -263,6 +263,9 @@ def run_clip(
         score.ms.append((time.perf_counter() - t0) * 1e3)
         score.stages.append(dict(result.stage_ms))
         _score_frame(score, clip.truth[i], {e.rover_id: e for e in result.estimates})
+    close = getattr(tracker, "close", None)
+    if close is not None:
+        close()
     return score
 
 

@@ -40,6 +40,7 @@ NEAR_CM = 60.0  # the floor distance over which an offset is taken to hold (the 
 PRIOR_WEIGHT = 1.0  # the rover's median offset counts as this many samples at the place asked about
 OUTLIER_CM = 0.25  # a sample this far from the rover's median offset (and 3 spreads) is not used
 KEEP = 200  # samples kept per rover (the newest)
+TRUST_CM = 0.05  # the fits' own error on some cameras and bodies: this much of an offset is not applied
 INSET_CM = 2.0  # the marker's colour is read this far inside its nominal outline (at most a quarter of its width)
 MIN_INTERIOR_PX = 20
 HELD_BACK_FRAMES = 15  # InlineFits: a result reaches the tracker this late, as from a worker (~0.2-0.5 s per fit)
@@ -133,7 +134,9 @@ class OffsetMap:
         total = float(w.sum()) + PRIOR_WEIGHT
         dx = (float(w @ d[:, 0]) + PRIOR_WEIGHT * float(median[0])) / total
         dy = (float(w @ d[:, 1]) + PRIOR_WEIGHT * float(median[1])) / total
-        return dx, dy
+        size = math.hypot(dx, dy)
+        keep = max(0.0, 1.0 - TRUST_CM / size) if size > 0 else 0.0
+        return dx * keep, dy * keep
 
 
 class Fits(Protocol):
