@@ -60,6 +60,7 @@ if importlib.util.find_spec("edge") is None:  # run from a checkout without the 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from tracking_runs import Score, frame_of, render_clip, run_clip, summary  # noqa: E402
 
+from edge.centre_offsets import KEEP, EdgeSample, OffsetMap  # noqa: E402
 from edge.tracker_config import TrackerConfig  # noqa: E402
 from edge.trackers.base import CameraPlaneMapping  # noqa: E402
 from edge.trackers.factory import build_tracker  # noqa: E402
@@ -135,6 +136,31 @@ def bench_stages(frames: int, seed: int, outline_fit: bool, edge_offsets: bool =
     else:
         print()
     print(f"speed-up over the full-frame paper pipeline: {np.median(paper.ms) / np.median(score.ms):.1f}x")
+    if edge_offsets:
+        offset_cost()
+        inline = run_clip(clip, "particles", use_background=False, outline_fit=outline_fit, edge_offsets=True)
+        fits = [f["offsets"] for f in inline.stages if f.get("offsets", 0.0) > 10.0]  # the frames that ran a fit
+        if fits:
+            print(
+                f"one edge fit (what the worker does per job; here in the loop): median {np.median(fits):.0f} ms, "
+                f"p95 {np.percentile(fits, 95):.0f} ms, {len(fits)} fits in {len(inline.stages)} frames"
+            )
+
+
+def offset_cost() -> None:
+    """The per-rover, per-frame cost of applying a learned offset once a rover has its full store of samples (the
+    stages run above is over before the worker's first fits come back)."""
+    rng = np.random.default_rng(0)
+    offsets = OffsetMap()
+    for k in range(KEEP):
+        xy = rng.uniform(0.0, 400.0, 2)
+        offsets.add(EdgeSample(0, k, (float(xy[0]), float(xy[1])), (0.1, -0.2 + 0.05 * float(rng.standard_normal()))))
+    offsets.offset(200.0, 200.0)  # the samples' arrays are built once after each new sample
+    t0 = time.perf_counter()
+    for k in range(1000):
+        offsets.offset(100.0 + 0.1 * k, 200.0)
+    per_call = (time.perf_counter() - t0) / 1000 * 1e3
+    print(f"applying a learned offset ({KEEP} samples): {per_call:.4f} ms per rover per frame")
 
 
 def compare_stages(frames: int, seed: int, baseline: str, reps: int) -> None:
