@@ -19,10 +19,12 @@ take (:class:`InlineFits`).
 
 from __future__ import annotations
 
+import logging
 import math
 import multiprocessing
 from collections import deque
 from concurrent.futures import Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -32,6 +34,7 @@ from numpy.typing import NDArray
 from edge.edges_encoded import encoded_edge_centre
 
 FloatArray = NDArray[np.float64]
+log = logging.getLogger(__name__)
 
 MIN_SAMPLES = 3  # samples of a rover before its centre moves
 MAX_OFFSET_CM = 1.0  # a fitted centre farther than this from the fast one is a failed fit, not an offset
@@ -43,6 +46,7 @@ KEEP = 200  # samples kept per rover (the newest)
 TRUST_CM = 0.05  # the fits' own error on some cameras and bodies: this much of an offset is not applied
 INSET_CM = 2.0  # the marker's colour is read this far inside its nominal outline (at most a quarter of its width)
 MIN_INTERIOR_PX = 20
+STALL_FRAMES = 300  # ProcessFits: a fit running this long (10 s at 30 fps; one takes ~0.2 s) is abandoned
 HELD_BACK_FRAMES = 15  # InlineFits: a result reaches the tracker this late, as from a worker (~0.2-0.5 s per fit)
 
 
@@ -187,44 +191,79 @@ class InlineFits:
 
 class ProcessFits:
     """Fits in one worker process (started on the first job), one job at a time and at most one every
-    ``every_frames`` frames: the frame loop only copies a window and collects what has finished."""
+    ``every_frames`` frames: the frame loop only copies a window and collects what has finished.
+
+    The worker can fail as a process does: a fit that raises costs that sample; a worker that dies (killed, out of
+    memory) or cannot be started costs the job, and the next job starts a new one after a pause that doubles with
+    each failure in a row (``every_frames`` times 2, 4, ... 64); a fit still running after
+    :data:`STALL_FRAMES` frames (a stopped or stuck worker) is abandoned and its worker terminated. Every failure is
+    counted in ``failed`` and logged; the tracker keeps the offsets it has."""
 
     def __init__(self, every_frames: int = 10) -> None:
         self.every_frames = every_frames
-        self.failed = 0  # jobs whose worker raised or died
+        self.failed = 0  # jobs lost: a fit that raised, a worker that died, stalled or could not start
         self._last: int | None = None
         self._pool: ProcessPoolExecutor | None = None
         self._running: Future[EdgeSample | None] | None = None
+        self._started = 0  # the frame the running job was handed over
         self._done: list[EdgeSample] = []
+        self._failures_in_a_row = 0
+        self._pause_until = 0
 
     def ready(self, frame: int, hurry: bool = False) -> bool:
         if self._running is not None and not self._running.done():
+            if frame - self._started < STALL_FRAMES:
+                return False
+            log.warning(
+                "edge fits: a fit has run for %d frames; its worker is stopped and a new one started",
+                frame - self._started,
+            )
+            self._lost(frame)
+        if frame < self._pause_until:
             return False
         return self._last is None or frame - self._last >= (1 if hurry else self.every_frames)
 
     def submit(self, job: EdgeJob) -> None:
-        self._harvest()
-        if self._pool is None:
-            # spawn: the appliance runs threads (MQTT, HTTP), which a forked child would inherit half-way
-            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+        self._harvest(job.frame)
         self._last = job.frame
-        self._running = self._pool.submit(fit_offset, job)
+        try:
+            if self._pool is None:
+                # spawn: the appliance runs threads (MQTT, HTTP), which a forked child would inherit half-way
+                self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+            self._running = self._pool.submit(fit_offset, job)
+            self._started = job.frame
+        except Exception as exc:  # the pool cannot start or is broken (its worker died before this job)
+            log.warning("edge fits: the worker process could not take a job (%s)", exc)
+            self._lost(job.frame)
 
-    def _harvest(self) -> None:
+    def _lost(self, frame: int) -> None:
+        """A job lost with its worker: stop the worker, count it, pause before the next."""
+        self.failed += 1
+        self._failures_in_a_row += 1
+        self._pause_until = frame + self.every_frames * 2 ** min(self._failures_in_a_row, 6)
+        self._stop_pool()
+
+    def _harvest(self, frame: int = 0) -> None:
         running = self._running
         if running is None or not running.done():
             return
         self._running = None
         try:
             sample = running.result()
-        except Exception:  # a worker that died or a fit that raised: no sample, counted
+        except BrokenProcessPool:
+            log.warning("edge fits: the worker process died; a new one starts with a later job")
+            self._lost(frame)
+            return
+        except Exception as exc:  # the fit raised: that sample is lost, the worker serves on
+            log.warning("edge fits: a fit failed (%s)", exc)
             self.failed += 1
             return
+        self._failures_in_a_row = 0
         if sample is not None:
             self._done.append(sample)
 
     def collect(self, frame: int) -> list[EdgeSample]:
-        self._harvest()
+        self._harvest(frame)
         out, self._done = self._done, []
         return out
 
@@ -236,11 +275,22 @@ class ProcessFits:
         done, _ = wait([running], timeout=timeout_s)
         return bool(done)
 
+    def worker_pids(self) -> list[int]:
+        """The worker's process id (none before the first job or after a failure)."""
+        processes = getattr(self._pool, "_processes", None) or {}
+        return [p.pid for p in processes.values() if p.pid is not None]
+
+    def _stop_pool(self) -> None:
+        pool, self._pool, self._running = self._pool, None, None
+        if pool is None:
+            return
+        # a stuck or stopped worker does not end on shutdown: kill it (the executor has no public way to)
+        for process in list((getattr(pool, "_processes", None) or {}).values()):
+            process.kill()  # SIGKILL: a stopped process would hold a SIGTERM until continued
+        pool.shutdown(wait=False, cancel_futures=True)
+
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._pool = None
-        self._running = None
+        self._stop_pool()
 
 
 class CentreOffsets:

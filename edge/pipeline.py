@@ -22,6 +22,7 @@ full-frame baseline, ``edge.trackers.paper``).
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import replace
@@ -46,6 +47,7 @@ from edge.two_tone import MarkerPixels, TwoToneGeometry, inner_edge_weights, vie
 from edge.white import LocalWhite
 
 FloatArray = NDArray[np.float64]
+log = logging.getLogger(__name__)
 SIDEWAYS_MIN_SPEED_CM_S = 10.0  # motion that checks a two-tone marker's axis (edge.two_tone.TwoToneHeading.update)
 EDGE_JOB_MIN_COHERENCE = 0.5  # a window goes to the edge fits only when its marker's edges showed the axis clearly
 
@@ -293,6 +295,13 @@ class Pipeline:
             return m
         if tr.filter is not None:  # the filter follows the step where the correction changes (no spike)
             tr.filter.shift(shift[0] - tr.offset_cm[0], shift[1] - tr.offset_cm[1])
+        if math.hypot(*tr.offset_cm) < 0.01 <= math.hypot(*shift):
+            log.info(
+                "rover %s: centre corrected by (%+.2f, %+.2f) cm from %d edge fits",
+                tr.config.id,
+                *shift,
+                self.offsets.samples(tr.index),
+            )
         tr.offset_cm = shift
         return replace(m, xy_cm=(m.xy_cm[0] + shift[0], m.xy_cm[1] + shift[1]))
 

@@ -5,6 +5,8 @@ can fail), and the pipeline's centres on a 4:2:0 stream with and without them.""
 from __future__ import annotations
 
 import math
+import os
+import signal
 from dataclasses import replace
 
 import numpy as np
@@ -13,6 +15,7 @@ import pytest
 from edge.camera import paper_camera
 from edge.centre_offsets import (
     MIN_SAMPLES,
+    STALL_FRAMES,
     TRUST_CM,
     CentreOffsets,
     EdgeJob,
@@ -256,3 +259,39 @@ def test_the_settings_reach_the_tracker():
     tracker = build_tracker(TrackerConfig(rovers=rovers, edge_offsets=True, edge_offsets_every=7), mapping)
     assert tracker.offsets.fits.every_frames == 7  # type: ignore[attr-defined]
     tracker.close()  # type: ignore[attr-defined]
+
+
+def test_a_worker_killed_mid_fit_costs_that_fit_and_a_new_one_serves_after_a_pause(grid):
+    job, _ = _job(grid, (150.0, 250.0, 1.0))
+    fits = ProcessFits(every_frames=5)
+    try:
+        fits.submit(replace(job, frame=0))
+        (pid,) = fits.worker_pids()
+        os.kill(pid, signal.SIGKILL)
+        assert fits.wait(120.0)
+        assert fits.collect(1) == [] and fits.failed == 1 and fits.worker_pids() == []
+        assert not fits.ready(5) and not fits.ready(10)  # a pause of twice the cadence from when the loss was seen
+        assert fits.ready(11)
+        fits.submit(replace(job, frame=11))
+        assert fits.wait(120.0)
+        assert fits.collect(12) == [fit_offset(replace(job, frame=11))]
+    finally:
+        fits.close()
+
+
+def test_a_stalled_worker_is_killed_and_replaced(grid):
+    job, _ = _job(grid, (150.0, 250.0, 1.0))
+    fits = ProcessFits(every_frames=5)
+    try:
+        fits.submit(replace(job, frame=0))
+        (pid,) = fits.worker_pids()
+        os.kill(pid, signal.SIGSTOP)  # a worker that never finishes its fit
+        assert not fits.ready(STALL_FRAMES - 1)
+        assert not fits.ready(STALL_FRAMES)  # abandoned now, then a pause
+        assert fits.failed == 1 and fits.worker_pids() == []
+        assert fits.ready(STALL_FRAMES + 10)
+        fits.submit(replace(job, frame=STALL_FRAMES + 10))
+        assert fits.wait(120.0)
+        assert fits.collect(STALL_FRAMES + 11) == [fit_offset(replace(job, frame=STALL_FRAMES + 10))]
+    finally:
+        fits.close()
