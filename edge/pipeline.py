@@ -117,6 +117,7 @@ class Pipeline:
         self._time_s = 0.0  # the stream's time: the sum of frame intervals (nominal ones where stamps are unusable)
         if self.offsets is not None:
             self.offsets.reset()
+        self._offsets_logged: set[int] = set()
 
     # -- the frame loop -----------------------------------------------------------------------------------------
     def process(self, frame: Frame) -> FrameResult:
@@ -295,7 +296,8 @@ class Pipeline:
             return m
         if tr.filter is not None:  # the filter follows the step where the correction changes (no spike)
             tr.filter.shift(shift[0] - tr.offset_cm[0], shift[1] - tr.offset_cm[1])
-        if math.hypot(*tr.offset_cm) < 0.01 <= math.hypot(*shift):
+        if tr.index not in self._offsets_logged and math.hypot(*shift) >= 0.01:  # once per rover
+            self._offsets_logged.add(tr.index)
             log.info(
                 "rover %s: centre corrected by (%+.2f, %+.2f) cm from %d edge fits",
                 tr.config.id,
