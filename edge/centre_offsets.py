@@ -2,15 +2,16 @@
 thread from occasional full edge fits (the ``edge_offsets`` tracker setting; ``docs/tracking.md``).
 
 The coverage centre (``edge.coverage``) is cheap and steady, but a stream's chroma spread (4:2:0, coarse chroma
-quantisation) moves it by 0.1-0.4 cm, by an amount the camera, the marker's colour and the rover's body decide: it
-changes slowly across the floor and not at all from frame to frame. The full fit of the marker's edges in the
+quantisation) moves it by 0.1-0.4 cm, by an amount the camera, the marker's colour and the rover's body decide: most
+of it changes slowly across the floor (what changes faster, as a rover stops or turns on the spot, is left). The
+full fit of the marker's edges in the
 camera's encoded chroma (``edge.edges_encoded``) takes that spread out, but costs about 0.2 s per marker. So every
 ``every_frames`` frames one rover's window (as the camera gave it) goes to a worker that fits its edges; the fitted
 centre minus the fast centre of that frame is a sample of the rover's offset at that place. Each frame the rover's
 fast centre moves by what its samples say there: the samples' mean weighted by their distance on the floor,
 shrunk to the rover's median offset where few are near. Nothing moves before a rover has :data:`MIN_SAMPLES`
-samples, and a sample far from the rover's others (another rover in the band beyond the edges, a fit run off) is
-not used.
+samples, a sample far from the rover's others (another rover in the band beyond the edges, a fit run off) is not
+used, and :data:`TRUST_CM` of every offset is held back (the fits' own error on some bodies and cameras).
 
 The fits run in another process (:class:`ProcessFits`: the frame loop keeps its time) or, for benchmarks and
 offline runs that must repeat exactly, in the frame loop with their results held back as long as a worker would
