@@ -259,3 +259,68 @@ def _inv2(a: float, b: float, c: float, d: float) -> tuple[float, float, float, 
     """Inverse of the 2x2 matrix ``[[a, b], [c, d]]``, row by row."""
     det = a * d - b * c
     return d / det, -b / det, -c / det, a / det
+
+
+HEADING_ACCEL_SIGMA_RAD_S2 = 4.0  # how fast a rover's turn rate may change (a turn starts or ends in about 0.2 s)
+HEADING_RESET_RAD = math.radians(60.0)  # a heading this far from the filtered one starts the filter afresh
+
+
+def heading_sigma_rad(coherence: float) -> float:
+    """The scatter of one frame's heading from a one-colour marker: from clearly coherent edges a degree or two, from
+    weakly coherent ones a few, from the blob's axis or the direction of motion (which stand in for them below
+    ``MIN_EDGE_COHERENCE``, ``checked_axis``) several."""
+    if coherence >= STRONG_EDGE_COHERENCE:
+        return math.radians(1.5)
+    if coherence >= MIN_EDGE_COHERENCE:
+        return math.radians(4.0)
+    return math.radians(8.0)
+
+
+class HeadingFilter:
+    """A one-colour marker's heading through time: angle and turn rate, a Kalman filter whose measurements are each
+    frame's heading with the scatter of where it came from (:func:`heading_sigma_rad`).
+
+    One frame's axis from a far-side marker through a harsh stream is 10-20 degrees off now and then while its edges
+    still look coherent; the rover's heading cannot move that much in a frame. The turn rate follows turns (no lag
+    once a turn is under way), and a heading more than :data:`HEADING_RESET_RAD` from the filtered one (the rover
+    reversed, or was lost and found turned) starts it afresh."""
+
+    def __init__(self, accel_sigma_rad_s2: float = HEADING_ACCEL_SIGMA_RAD_S2) -> None:
+        self.q = accel_sigma_rad_s2**2
+        self.angle: float | None = None
+        self.rate = 0.0
+        self.p = [0.0, 0.0, 0.0, 0.0]
+        self.t_s = 0.0
+
+    def update(self, z_rad: float, sigma_rad: float, t_s: float) -> float:
+        """Take the heading ``z_rad`` measured at the stream's time ``t_s``; the filtered heading."""
+        r = sigma_rad * sigma_rad
+        if self.angle is None or abs(math.remainder(z_rad - self._predicted(t_s), math.tau)) > HEADING_RESET_RAD:
+            self.angle, self.rate, self.p, self.t_s = z_rad, 0.0, [r, 0.0, 0.0, 1.0], t_s
+            return z_rad
+        dt = max(0.0, t_s - self.t_s)
+        p00, p01, p10, p11 = self.p
+        # predict (constant turn rate, white angular acceleration)
+        angle = self.angle + self.rate * dt
+        p00, p01, p10, p11 = (
+            p00 + dt * (p10 + p01) + dt * dt * p11 + self.q * dt**4 / 4,
+            p01 + dt * p11 + self.q * dt**3 / 2,
+            p10 + dt * p11 + self.q * dt**3 / 2,
+            p11 + self.q * dt * dt,
+        )
+        # update
+        innovation = math.remainder(z_rad - angle, math.tau)
+        s = p00 + r
+        k0, k1 = p00 / s, p10 / s
+        self.angle = math.remainder(angle + k0 * innovation, math.tau)
+        self.rate += k1 * innovation
+        self.p = [(1 - k0) * p00, (1 - k0) * p01, p10 - k1 * p00, p11 - k1 * p01]
+        self.t_s = t_s
+        return self.angle
+
+    def _predicted(self, t_s: float) -> float:
+        assert self.angle is not None
+        return self.angle + self.rate * max(0.0, t_s - self.t_s)
+
+    def reset(self) -> None:
+        self.angle = None

@@ -33,7 +33,13 @@ from numpy.typing import NDArray
 from edge.acquisition import acquisition_scale, candidates, low_resolution_classes
 from edge.centre_offsets import CentreOffsets, EdgeJob, Fits, ProcessFits
 from edge.errors import ConfigError, SourceError
-from edge.filtering import FilterFactory, axis_heading, checked_axis
+from edge.filtering import (
+    MOTION_AXIS_MIN_SPEED_CM_S,
+    FilterFactory,
+    axis_heading,
+    checked_axis,
+    heading_sigma_rad,
+)
 from edge.rover_track import Observation, RoverTrack
 from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr
 from edge.tracker_config import TrackerConfig
@@ -48,6 +54,7 @@ from edge.white import LocalWhite
 
 FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
+MOTION_HEADING_SIGMA_RAD = math.radians(5.0)
 SIDEWAYS_MIN_SPEED_CM_S = 10.0  # motion that checks a two-tone marker's axis (edge.two_tone.TwoToneHeading.update)
 EDGE_JOB_MIN_COHERENCE = 0.5  # a window goes to the edge fits only when its marker's edges showed the axis clearly
 
@@ -441,6 +448,7 @@ class Pipeline:
         tr.box = None
         tr.uv = None
         tr.theta_rad = None
+        tr.heading.reset()
         tr.two_tone.reset()
         self.tracker.reset(tr.index)
 
@@ -502,7 +510,16 @@ class Pipeline:
             return tr.two_tone.heading_rad if tr.two_tone.confident else None
         square = abs(self.config.marker_length_cm - self.config.marker_width_cm) < 0.05 * self.config.marker_length_cm
         axis = None if square else checked_axis(m.axis_rad, m.axis_coherence, vel)
-        tr.theta_rad = axis_heading(axis, vel, tr.theta_rad, self.config.heading_min_speed_cm_s)
+        heading = axis_heading(axis, vel, tr.theta_rad, self.config.heading_min_speed_cm_s)
+        if heading is None:
+            tr.heading.reset()
+            tr.theta_rad = None
+            return None
+        sigma = heading_sigma_rad(m.axis_coherence if axis is not None else 0.0)
+        tr.theta_rad = tr.heading.update(heading, sigma, self._time_s)  # one frame's axis can be 10-20 deg off
+        if axis is not None and vel is not None and math.hypot(*vel) >= MOTION_AXIS_MIN_SPEED_CM_S:
+            motion = math.atan2(vel[1], vel[0])
+            tr.theta_rad = tr.heading.update(motion, MOTION_HEADING_SIGMA_RAD, self._time_s)
         return tr.theta_rad
 
     def _exclusion_box(self, box: tuple[int, int, int, int], shape: tuple[int, ...]) -> tuple[int, int, int, int]:

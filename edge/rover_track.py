@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.filtering import ConstantVelocityFilter
+from edge.filtering import ConstantVelocityFilter, HeadingFilter
 from edge.tracker_config import RoverConfig
 from edge.trackers.base import Measurement
 from edge.two_tone import TwoToneHeading
@@ -39,6 +39,7 @@ class RoverTrack:
     box: tuple[int, int, int, int] | None = None
     uv: tuple[float, float] | None = None
     theta_rad: float | None = None
+    heading: HeadingFilter = field(default_factory=HeadingFilter)  # a one-colour marker's heading through time
     two_tone: TwoToneHeading = field(default_factory=TwoToneHeading)  # a two-tone marker's heading through time
     seen: tuple[float, float, float] | None = None  # where (cm) and when (s, the stream's time) it was last measured
     offset_cm: tuple[float, float] = (0.0, 0.0)  # the centre correction last applied (edge.centre_offsets)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from edge.filtering import ConstantVelocityFilter, FilterSettings, checked_axis
+from edge.filtering import ConstantVelocityFilter, FilterSettings, HeadingFilter, checked_axis, heading_sigma_rad
 
 DT = 1.0 / 30.0
 R = np.eye(2) * 0.04  # 0.2 cm measurement sigma
@@ -195,3 +195,31 @@ def test_standing_or_crawling_the_measurement_is_all_there_is(velocity):
     """Standing, turning on the spot or crawling (the filter's direction scatters at a few cm/s), even the blob's
     axis is kept: the motion says nothing about the axis then."""
     assert _axis_deg(checked_axis(math.radians(-58.0), 0.0, velocity)) == pytest.approx(-58.0)
+
+
+def test_the_heading_filter_keeps_one_frames_wrong_axis_from_the_heading_and_follows_a_turn() -> None:
+    f = HeadingFilter()
+    rng = np.random.default_rng(5)
+    worst_spike, worst_turn = 0.0, 0.0
+    for k in range(300):
+        t = k / 30.0
+        truth = 0.3 + (1.0 * (t - 5.0) if t > 5.0 else 0.0)  # straight for 5 s, then a turn at 1 rad/s
+        z = truth + math.radians(1.0) * rng.standard_normal()
+        coherence = 0.7
+        if k % 25 == 0:  # a coherent-looking but weak edge 15 degrees off, now and then
+            z, coherence = truth + math.radians(15.0), 0.4
+        got = f.update(z, heading_sigma_rad(coherence), t)
+        err = abs(math.degrees(math.remainder(got - truth, math.tau)))
+        if k % 25 == 0 and k > 30:
+            worst_spike = max(worst_spike, err)
+        if t > 5.5 and k % 25 != 0:
+            worst_turn = max(worst_turn, err)
+    assert worst_spike < 8.0  # the 15 degree frames come through at about half or less
+    assert worst_turn < 3.0  # half a second into a 1 rad/s turn it follows without lag
+
+
+def test_the_heading_filter_starts_afresh_when_the_rover_reverses() -> None:
+    f = HeadingFilter()
+    for k in range(30):
+        f.update(0.5, math.radians(1.5), k / 30.0)
+    assert f.update(0.5 + math.pi, math.radians(1.5), 1.0) == pytest.approx(0.5 + math.pi)
