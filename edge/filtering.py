@@ -292,9 +292,16 @@ class HeadingFilter:
         self.p = [0.0, 0.0, 0.0, 0.0]
         self.t_s = 0.0
 
-    def update(self, z_rad: float, sigma_rad: float, t_s: float) -> float:
-        """Take the heading ``z_rad`` measured at the stream's time ``t_s``; the filtered heading."""
+    def update(self, z_rad: float, sigma_rad: float, t_s: float, gate_rad: float | None = None) -> float:
+        """Take the heading ``z_rad`` measured at the stream's time ``t_s``; the filtered heading. With ``gate_rad``
+        a measurement farther than that from the filtered heading is ignored instead of starting the filter afresh
+        (the direction of motion of a rover pushed sideways is not its heading)."""
         r = sigma_rad * sigma_rad
+        if gate_rad is not None:
+            if self.angle is None:
+                return z_rad
+            if abs(math.remainder(z_rad - self._predicted(t_s), math.tau)) > gate_rad:
+                return self.angle
         if self.angle is None or abs(math.remainder(z_rad - self._predicted(t_s), math.tau)) > HEADING_RESET_RAD:
             self.angle, self.rate, self.p, self.t_s = z_rad, 0.0, [r, 0.0, 0.0, 1.0], t_s
             return z_rad

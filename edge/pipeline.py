@@ -54,7 +54,8 @@ from edge.white import LocalWhite
 
 FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
-MOTION_HEADING_SIGMA_RAD = math.radians(5.0)
+MOTION_HEADING_SIGMA_RAD = math.radians(5.0)  # the direction of motion as a heading at 6-20 cm/s: a few degrees
+MOTION_HEADING_GATE_RAD = math.radians(30.0)  # farther off, the rover is not driving along its axis (pushed, skidding)
 SIDEWAYS_MIN_SPEED_CM_S = 10.0  # motion that checks a two-tone marker's axis (edge.two_tone.TwoToneHeading.update)
 EDGE_JOB_MIN_COHERENCE = 0.5  # a window goes to the edge fits only when its marker's edges showed the axis clearly
 
@@ -519,7 +520,7 @@ class Pipeline:
         tr.theta_rad = tr.heading.update(heading, sigma, self._time_s)  # one frame's axis can be 10-20 deg off
         if axis is not None and vel is not None and math.hypot(*vel) >= MOTION_AXIS_MIN_SPEED_CM_S:
             motion = math.atan2(vel[1], vel[0])
-            tr.theta_rad = tr.heading.update(motion, MOTION_HEADING_SIGMA_RAD, self._time_s)
+            tr.theta_rad = tr.heading.update(motion, MOTION_HEADING_SIGMA_RAD, self._time_s, MOTION_HEADING_GATE_RAD)
         return tr.theta_rad
 
     def _exclusion_box(self, box: tuple[int, int, int, int], shape: tuple[int, ...]) -> tuple[int, int, int, int]:

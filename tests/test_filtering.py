@@ -223,3 +223,12 @@ def test_the_heading_filter_starts_afresh_when_the_rover_reverses() -> None:
     for k in range(30):
         f.update(0.5, math.radians(1.5), k / 30.0)
     assert f.update(0.5 + math.pi, math.radians(1.5), 1.0) == pytest.approx(0.5 + math.pi)
+
+
+def test_a_direction_of_motion_far_from_the_heading_is_ignored_not_taken() -> None:
+    f = HeadingFilter()
+    for k in range(30):
+        f.update(0.5, math.radians(1.5), k / 30.0)
+    # a rover pushed sideways: its motion 90 degrees off its axis
+    assert f.update(0.5 + math.pi / 2, math.radians(5.0), 1.0, gate_rad=math.radians(30.0)) == pytest.approx(0.5)
+    assert f.update(0.5, math.radians(1.5), 1.0 + 1 / 30) == pytest.approx(0.5, abs=1e-6)
