@@ -166,3 +166,25 @@ def test_poses_dropped_while_disconnected_do_not_advance_seq() -> None:
     finally:
         runtime.stop()
     assert [parse_pose(p).seq for p in pub.on(pose_topic("red"))[:3]] == [0, 1, 2]
+
+
+class ClosingTracker(ScriptedTracker):
+    """A tracker with a worker to stop (``edge.pipeline.Pipeline.close``: the edge fits' process)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.closed = threading.Event()
+
+    def close(self) -> None:
+        self.closed.set()
+
+
+def test_stopping_the_runtime_stops_the_trackers_worker() -> None:
+    source, tracker, pub = GatedSource(ManualClock()), ClosingTracker(), MemoryPublisher()
+    runtime = _runtime(source, tracker, pub).start()
+    try:
+        _wait_status(pub, lambda s: s["state"] == "online")
+        assert not tracker.closed.is_set()
+    finally:
+        runtime.stop()
+    assert tracker.closed.is_set()
