@@ -180,8 +180,9 @@ class ClosingTracker(ScriptedTracker):
 
 
 def test_stopping_the_runtime_stops_the_trackers_worker() -> None:
-    source, tracker, pub = GatedSource(ManualClock()), ClosingTracker(), MemoryPublisher()
-    runtime = _runtime(source, tracker, pub).start()
+    clock = ManualClock()
+    source, tracker, pub = GatedSource(clock), ClosingTracker(), MemoryPublisher()
+    runtime = _runtime(source, tracker, pub, clock).start()
     try:
         _wait_status(pub, lambda s: s["state"] == "online")
         assert not tracker.closed.is_set()
