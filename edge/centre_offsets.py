@@ -301,6 +301,12 @@ class CentreOffsets:
         self.fits = fits
         self.maps: dict[int, OffsetMap] = {}
         self._last_job: dict[int, int] = {}
+        self._refs: dict[tuple[int, int], tuple[float, float]] = {}
+
+    def note_reference(self, index: int, frame: int, xy_cm: tuple[float, float]) -> None:
+        """The rover's filtered (uncorrected) position in the frame its window went to the fits: the sample is taken
+        against it rather than against that frame's single measurement, whose own scatter would ride along."""
+        self._refs[(index, frame)] = xy_cm
 
     def pick(self, frame: int, candidates: list[int]) -> int | None:
         """The rover whose window should go to the fits this frame, among ``candidates`` (being tracked)."""
@@ -319,7 +325,13 @@ class CentreOffsets:
         """Take in the fits finished by ``frame``; the number of samples taken."""
         samples = self.fits.collect(frame)
         for s in samples:
+            ref = self._refs.pop((s.index, s.frame), None)
+            if ref is not None:
+                fitted = (s.xy_cm[0] + s.offset_cm[0], s.xy_cm[1] + s.offset_cm[1])
+                s = EdgeSample(s.index, s.frame, ref, (fitted[0] - ref[0], fitted[1] - ref[1]))
             self.maps.setdefault(s.index, OffsetMap()).add(s)
+        for key in [k for k in self._refs if k[1] < frame - STALL_FRAMES]:
+            del self._refs[key]
         return len(samples)
 
     def offset(self, index: int, x_cm: float, y_cm: float) -> tuple[float, float] | None:
@@ -333,6 +345,7 @@ class CentreOffsets:
     def reset(self) -> None:
         self.maps.clear()
         self._last_job.clear()
+        self._refs.clear()
 
     def close(self) -> None:
         self.fits.close()

@@ -126,6 +126,7 @@ class Pipeline:
         if self.offsets is not None:
             self.offsets.reset()
         self._offsets_logged: set[int] = set()
+        self._edge_job_rover: int | None = None  # whose window went to the edge fits this frame
 
     # -- the frame loop -----------------------------------------------------------------------------------------
     def process(self, frame: Frame) -> FrameResult:
@@ -150,6 +151,7 @@ class Pipeline:
                 tr.filter.predict(dt)
         clock.add("filter", time.perf_counter() - t0)
 
+        self._edge_job_rover = None
         if self.offsets is not None:
             t0 = time.perf_counter()
             self.offsets.collect(self._frames)
@@ -299,6 +301,7 @@ class Pipeline:
             )
             self.offsets.submit(job)
             self._edge_pick = None
+            self._edge_job_rover = tr.index
         shift = self.offsets.offset(tr.index, *m.xy_cm)
         if shift is None:
             return m
@@ -476,6 +479,9 @@ class Pipeline:
             else:
                 continue
             assert tr.filter is not None
+            if self.offsets is not None and tr.index == self._edge_job_rover:
+                fx, fy = tr.filter.position  # the sample against the filtered centre, before this frame's offset
+                self.offsets.note_reference(tr.index, self._frames, (fx - tr.offset_cm[0], fy - tr.offset_cm[1]))
             tr.misses = 0
             tr.uv = m.uv_px
             tr.seen = (m.xy_cm[0], m.xy_cm[1], self._time_s)

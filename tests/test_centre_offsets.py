@@ -295,3 +295,18 @@ def test_a_stalled_worker_is_killed_and_replaced(grid):
         assert fits.collect(STALL_FRAMES + 11) == [fit_offset(replace(job, frame=STALL_FRAMES + 10))]
     finally:
         fits.close()
+
+
+def test_a_sample_is_taken_against_the_filtered_centre_noted_for_its_frame(grid):
+    job, _ = _job(grid, (150.0, 250.0, 1.0))
+    offsets = CentreOffsets(InlineFits(every_frames=1, delay_frames=0))
+    offsets.submit(replace(job, frame=4))
+    smoothed = (job.centre_cm[0] + 0.03, job.centre_cm[1] - 0.02)  # the filter's centre that frame
+    offsets.note_reference(0, 4, smoothed)
+    assert offsets.collect(4) == 1
+    (sample,) = offsets.maps[0].samples
+    direct = fit_offset(job)
+    assert direct is not None
+    fitted = (job.centre_cm[0] + direct.offset_cm[0], job.centre_cm[1] + direct.offset_cm[1])
+    assert sample.xy_cm == smoothed
+    assert sample.offset_cm == pytest.approx((fitted[0] - smoothed[0], fitted[1] - smoothed[1]), abs=1e-12)
