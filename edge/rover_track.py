@@ -18,7 +18,7 @@ from edge.two_tone import TwoToneHeading
 
 FloatArray = NDArray[np.float64]
 LOWEST_AREA_FRACTION = 0.75  # no evidence but the area makes a blob showing less than this share a whole marker
-STEADY_FRAMES = 6  # the consecutive frames whose areas show a whole marker's area level (steady_areas)
+STEADY_FRAMES = 8  # the consecutive frames whose areas show a whole marker's area level (steady_areas)
 STEADY_SLOPE = 0.01  # the most those areas may rise or fall per frame, as a share of the learned area
 STEADY_STEP = 0.06  # the most the last area may differ from the median of the frames before it (same share)
 STEADY_SCATTERS = 5.0  # a steady area may lie this many of the rover's own area scatters below its learned area

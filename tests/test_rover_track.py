@@ -4,19 +4,19 @@ from __future__ import annotations
 
 import pytest
 
-from edge.rover_track import STEADY_SLOPE, STEADY_STEP, RoverTrack, steady_areas
+from edge.rover_track import STEADY_FRAMES, STEADY_SLOPE, STEADY_STEP, RoverTrack, steady_areas
 from edge.tracker_config import RoverConfig
 
-LEVEL = [0.84, 0.86, 0.83, 0.85, 0.84, 0.86]  # a whole marker's area settled below its learned one, 1 % scatter
+LEVEL = [0.85, 0.84, 0.86, 0.83, 0.85, 0.84, 0.86, 0.85]  # a whole marker's area settled lower, 1 % scatter
 
 
 @pytest.mark.parametrize(
     ("ratios", "level"),
     [
         (LEVEL, True),
-        ([0.96, 0.94, 0.92, 0.90, 0.88, 0.86], False),  # hidden 2 % more of the marker each frame
-        ([0.80, 0.81, 0.83, 0.84, 0.86, 0.87], False),  # coming out from behind a leg
-        ([1.0, 0.99, 1.01, 1.0, 1.0, 0.86], False),  # hidden at once
+        ([1.0, 0.98, 0.96, 0.94, 0.92, 0.90, 0.88, 0.86], False),  # hidden 2 % more of the marker each frame
+        ([0.77, 0.79, 0.80, 0.81, 0.83, 0.84, 0.86, 0.87], False),  # coming out from behind a leg
+        ([1.0, 1.0, 1.0, 0.99, 1.01, 1.0, 1.0, 0.86], False),  # hidden at once
         (LEVEL[:2], False),  # too few frames to tell
     ],
 )
@@ -42,11 +42,13 @@ def test_the_band_is_widened_by_the_scatter_above_the_learned_area_which_the_ban
 
 
 def test_a_rovers_areas_are_level_only_over_consecutive_measured_frames() -> None:
+    assert len(LEVEL) == STEADY_FRAMES
     track = _track([1.0] * 31)
     for frame, ratio in enumerate(LEVEL):
         track.measured(frame if frame < 3 else frame + 1, ratio)  # frame 3 was not measured
-    assert not track.steady(6, 1.0)
-    for frame, ratio in enumerate(LEVEL, start=7):
+    assert not track.steady(STEADY_FRAMES, 1.0)
+    start = STEADY_FRAMES + 1
+    for frame, ratio in enumerate(LEVEL, start=start):
         track.measured(frame, 0.5)
         track.measured(frame, ratio)  # the last blob measured in a frame counts
-    assert track.steady(12, 1.0)
+    assert track.steady(start + STEADY_FRAMES - 1, 1.0)

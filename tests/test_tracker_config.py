@@ -215,7 +215,7 @@ def test_a_whole_marker_whose_area_settles_lower_in_a_scattering_stream_is_kept_
     before); on a clean camera (no scatter) a marker hidden at once stays refused however long it stays level
     (test_a_partly_hidden_marker_is_refused_whether_hidden_at_once_or_a_little_more_each_frame)."""
     settled = _red_with_a_scattered_area(0.87)
-    assert settled[:14] == [True] * 14 and all(settled[20:])  # refused for at most the frames that show it level
+    assert settled[:14] == [True] * 14 and all(settled[22:])  # refused for at most the frames that show it level
     crept = _red_with_a_scattered_area(1.0, creep=True)
     assert crept[:14] == [True] * 14 and not any(crept[21:])  # from 0.84 of the marker showing (frame 21) on
 
