@@ -40,7 +40,7 @@ from edge.filtering import (
     checked_axis,
     heading_sigma_rad,
 )
-from edge.rover_track import Observation, RoverTrack
+from edge.rover_track import STEADY_SCATTERS, Observation, RoverTrack
 from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr
 from edge.tracker_config import TrackerConfig
 from edge.trackers import make_filters, make_tracker
@@ -399,12 +399,29 @@ class Pipeline:
             if learned
             else self.config.acquire_area_range
         )
-        if not low <= ratio <= high:
+        if learned:
+            tr.measured(self._frames, m.area_cm2)
+        if not low <= ratio <= high and not (learned and ratio < low and self._steady(ratio, expected_area_cm2, tr)):
             return False
         aspect = max(self.config.marker_length_cm, self.config.marker_width_cm) / min(
             self.config.marker_length_cm, self.config.marker_width_cm
         )
         return m.elongation <= aspect * self.config.max_elongation_factor
+
+    def _steady(self, ratio: float, expected_area_cm2: float, tr: RoverTrack) -> bool:
+        """Is a blob showing less than the area band's share of the learned area a whole marker all the same?
+
+        In a stream that scatters a whole marker's area from frame to frame (4:2:0 chroma at low JPEG quality moves
+        its boundary's coverage), the area also settles at other levels for a while, below the learned one by a few
+        of those scatters. A marker a leg hides a little more each frame does not stay level; one hidden at once
+        steps down first. A blob is taken when the last frames' areas are level (``RoverTrack.steady``) and it is
+        within :data:`STEADY_SCATTERS` of the rover's own scatters below its learned area; where the stream scatters
+        the area little (a clean camera) that is no wider than the band, and a partly hidden marker stays refused.
+        """
+        low, _ = tr.area_band(
+            expected_area_cm2, self.config.min_area_fraction, self.config.max_area_fraction, STEADY_SCATTERS
+        )
+        return ratio >= low and tr.steady(self._frames, expected_area_cm2)
 
     # -- acquisition (low resolution) ---------------------------------------------------------------------------
     def _acquire(self, image: NDArray[np.uint8], clock: StageTimes) -> dict[int, Observation]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import statistics
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,6 +17,11 @@ from edge.trackers.base import Measurement
 from edge.two_tone import TwoToneHeading
 
 FloatArray = NDArray[np.float64]
+LOWEST_AREA_FRACTION = 0.75  # no evidence but the area makes a blob showing less than this share a whole marker
+STEADY_FRAMES = 8  # the consecutive frames whose areas show a whole marker's area level (steady_areas)
+STEADY_SLOPE = 0.01  # the most those areas may rise or fall per frame, as a share of the learned area
+STEADY_STEP = 0.06  # the most the last area may differ from the median of the frames before it (same share)
+STEADY_SCATTERS = 5.0  # a steady area may lie this many of the rover's own area scatters below its learned area
 
 
 @dataclass(frozen=True)
@@ -36,6 +42,7 @@ class RoverTrack:
     misses: int = 0
     level: float = 0.0
     areas: deque[float] = field(default_factory=lambda: deque(maxlen=31))
+    sizes: deque[tuple[int, float]] = field(default_factory=lambda: deque(maxlen=STEADY_FRAMES))  # (frame, area)
     box: tuple[int, int, int, int] | None = None
     uv: tuple[float, float] | None = None
     theta_rad: float | None = None
@@ -61,14 +68,37 @@ class RoverTrack:
             return min(max(learned, 0.5 * nominal_cm2), 2.0 * nominal_cm2)
         return nominal_cm2
 
-    def area_band(self, expected_cm2: float, min_fraction: float, max_fraction: float) -> tuple[float, float]:
+    def area_band(
+        self, expected_cm2: float, min_fraction: float, max_fraction: float, scatters: float = 3.0
+    ) -> tuple[float, float]:
         """The accepted blob area, as a share of the learned one: ``min_fraction``..``max_fraction``, widened to
-        three robust standard deviations of this rover's own recent areas (a compressed stream's far-side areas
-        scatter by 10 %; a marker a leg hides loses far more); the scatter widens the lower end to 0.75 at most,
-        ``min_fraction`` below that lowers it further."""
-        spread = 1.4826 * float(statistics.median(abs(a - expected_cm2) for a in self.areas)) / expected_cm2
-        low = min(min_fraction, max(1.0 - 3.0 * spread, 0.75))
+        ``scatters`` (three: the upper end always) robust standard deviations of this rover's own recent areas (a
+        compressed stream's far-side areas scatter by 10 %; a marker a leg hides loses far more); the scatter widens
+        the lower end to :data:`LOWEST_AREA_FRACTION` at most, ``min_fraction`` below that lowers it further.
+
+        The scatter is the larger of the areas' absolute deviations' median and that of the deviations above the
+        learned area: areas below the band are never learned, so the scatter below it looks smaller than the
+        stream's (and the band, cut there, stays too narrow); above it nothing is cut and a hidden part adds
+        nothing."""
+        deviations = [a - expected_cm2 for a in self.areas]
+        above = [d for d in deviations if d > 0.0]
+        mad = max(statistics.median(map(abs, deviations)), statistics.median(above) if above else 0.0)
+        spread = 1.4826 * float(mad) / expected_cm2
+        low = min(min_fraction, max(1.0 - scatters * spread, LOWEST_AREA_FRACTION))
         return low, max(max_fraction, 1.0 + 3.0 * spread)
+
+    def measured(self, frame: int, area_cm2: float) -> None:
+        """Note the area of the blob measured for this rover in ``frame`` (whole or not; the last one of a frame)."""
+        if self.sizes and self.sizes[-1][0] == frame:
+            self.sizes.pop()
+        self.sizes.append((frame, area_cm2))
+
+    def steady(self, frame: int, expected_cm2: float) -> bool:
+        """Have the blobs of the last :data:`STEADY_FRAMES` frames up to ``frame`` (each measured, none missed) shown
+        one level of area (:func:`steady_areas`)?"""
+        if len(self.sizes) < STEADY_FRAMES or self.sizes[0][0] != frame - STEADY_FRAMES + 1:
+            return False
+        return steady_areas([a / expected_cm2 for _, a in self.sizes], STEADY_SLOPE, STEADY_STEP)
 
     def within_reach(self, xy_cm: tuple[float, float], t_s: float, max_speed_cm_s: float, slack_cm: float) -> bool:
         """Could the rover be at ``xy_cm`` at ``t_s``, driving at most ``max_speed_cm_s`` since it was last seen
@@ -77,3 +107,21 @@ class RoverTrack:
             return True
         x, y, t = self.seen
         return math.hypot(xy_cm[0] - x, xy_cm[1] - y) <= max_speed_cm_s * max(0.0, t_s - t) + slack_cm
+
+
+def steady_areas(ratios: Sequence[float], max_slope: float, max_step: float) -> bool:
+    """Do consecutive frames' blob areas (``ratios``: shares of the learned area, oldest first) stay at one level?
+
+    A marker a leg or a person hides shows less of its area from frame to frame (the visible share falls or, as it
+    comes out, rises, by a few percent a frame), or at once; a whole marker's area in a compressed stream moves
+    with the stream's chroma at its boundary: it may settle below its learned area for a while (the marker turns,
+    its surround changes), scattered by a few percent a frame, but does not keep falling. Level: the least-squares
+    slope over the frames is within ``max_slope`` per frame and the last ratio within ``max_step`` of the median of
+    the ones before it."""
+    n = len(ratios)
+    if n < 3:
+        return False
+    mean_t = 0.5 * (n - 1)
+    mean_r = sum(ratios) / n
+    slope = sum((t - mean_t) * (r - mean_r) for t, r in enumerate(ratios)) / sum((t - mean_t) ** 2 for t in range(n))
+    return abs(slope) <= max_slope and abs(ratios[-1] - statistics.median(ratios[:-1])) <= max_step
