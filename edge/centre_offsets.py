@@ -68,8 +68,9 @@ class EdgeJob:
 
 @dataclass(frozen=True)
 class EdgeSample:
-    """A fit's result: rover ``index`` at ``xy_cm`` (the fast centre), its ``offset_cm`` (fitted minus fast), the
-    frame it came from."""
+    """A fit's result: rover ``index`` at ``xy_cm``, its ``offset_cm`` (the fitted centre minus ``xy_cm``), the frame
+    it came from. From the fit, ``xy_cm`` is that frame's fast centre; :meth:`CentreOffsets.collect` refers it to the
+    rover's filtered centre of that frame where the tracker noted one."""
 
     index: int
     frame: int

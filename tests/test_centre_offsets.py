@@ -7,6 +7,8 @@ from __future__ import annotations
 import math
 import os
 import signal
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 
 import numpy as np
@@ -261,13 +263,22 @@ def test_the_settings_reach_the_tracker():
     tracker.close()  # type: ignore[attr-defined]
 
 
-def test_a_worker_killed_mid_fit_costs_that_fit_and_a_new_one_serves_after_a_pause(grid):
+@contextmanager
+def _worker_hit_by(grid: PlaneGrid, sig: int) -> Iterator[tuple[EdgeJob, ProcessFits]]:
+    """A worker given a job at frame 0, then sent ``sig``; closed after."""
     job, _ = _job(grid, (150.0, 250.0, 1.0))
     fits = ProcessFits(every_frames=5)
     try:
         fits.submit(replace(job, frame=0))
         (pid,) = fits.worker_pids()
-        os.kill(pid, signal.SIGKILL)
+        os.kill(pid, sig)
+        yield job, fits
+    finally:
+        fits.close()
+
+
+def test_a_worker_killed_mid_fit_costs_that_fit_and_a_new_one_serves_after_a_pause(grid):
+    with _worker_hit_by(grid, signal.SIGKILL) as (job, fits):
         assert fits.wait(120.0)
         assert fits.collect(1) == [] and fits.failed == 1 and fits.worker_pids() == []
         assert not fits.ready(5) and not fits.ready(10)  # a pause of twice the cadence from when the loss was seen
@@ -275,17 +286,10 @@ def test_a_worker_killed_mid_fit_costs_that_fit_and_a_new_one_serves_after_a_pau
         fits.submit(replace(job, frame=11))
         assert fits.wait(120.0)
         assert fits.collect(12) == [fit_offset(replace(job, frame=11))]
-    finally:
-        fits.close()
 
 
 def test_a_stalled_worker_is_killed_and_replaced(grid):
-    job, _ = _job(grid, (150.0, 250.0, 1.0))
-    fits = ProcessFits(every_frames=5)
-    try:
-        fits.submit(replace(job, frame=0))
-        (pid,) = fits.worker_pids()
-        os.kill(pid, signal.SIGSTOP)  # a worker that never finishes its fit
+    with _worker_hit_by(grid, signal.SIGSTOP) as (job, fits):  # a worker that never finishes its fit
         assert not fits.ready(STALL_FRAMES - 1)
         assert not fits.ready(STALL_FRAMES)  # abandoned now, then a pause
         assert fits.failed == 1 and fits.worker_pids() == []
@@ -293,8 +297,6 @@ def test_a_stalled_worker_is_killed_and_replaced(grid):
         fits.submit(replace(job, frame=STALL_FRAMES + 10))
         assert fits.wait(120.0)
         assert fits.collect(STALL_FRAMES + 11) == [fit_offset(replace(job, frame=STALL_FRAMES + 10))]
-    finally:
-        fits.close()
 
 
 def test_a_sample_is_taken_against_the_filtered_centre_noted_for_its_frame(grid):
