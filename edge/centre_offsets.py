@@ -26,18 +26,23 @@ import multiprocessing
 from collections import deque
 from concurrent.futures import Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from edge.edges_encoded import encoded_edge_centre
+from edge.rover_track import RoverTrack
+from edge.trackers.base import Measurement
+from edge.trackers.plane import PlaneGrid
+from edge.trackers.window import Window
 
 FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
 
 MIN_SAMPLES = 3  # samples of a rover before its centre moves
+JOB_MIN_COHERENCE = 0.5  # a window goes to the fits only when its marker's edges showed the axis clearly
 MAX_OFFSET_CM = 1.0  # a fitted centre farther than this from the fast one is a failed fit, not an offset
 MAX_RMS = 12.0  # a fit whose residual (8-bit units) is larger did not find a marker's edges
 NEAR_CM = 60.0  # the floor distance over which an offset is taken to hold (the kernel's sigma)
@@ -296,13 +301,65 @@ class ProcessFits:
 
 
 class CentreOffsets:
-    """The offsets of every rover, and which rover's window goes to the fits next (the one sampled longest ago)."""
+    """The offsets of every rover, which rover's window goes to the fits next (the one sampled longest ago), and the
+    pipeline's steps with them each frame: :meth:`start_frame`, :meth:`corrected` per one-colour measurement,
+    :meth:`filtered` once the rover's filter has taken it."""
 
     def __init__(self, fits: Fits) -> None:
         self.fits = fits
         self.maps: dict[int, OffsetMap] = {}
         self._last_job: dict[int, int] = {}
         self._refs: dict[tuple[int, int], tuple[float, float]] = {}
+        self._frame = 0
+        self._pick: int | None = None  # whose window goes to the fits this frame
+        self._sent: int | None = None  # whose window went
+        self._logged: set[int] = set()
+
+    def start_frame(self, frame: int, tracks: list[RoverTrack]) -> None:
+        """Take in the finished fits and choose this frame's window among the tracked one-colour rovers."""
+        self._frame, self._sent = frame, None
+        self.collect(frame)
+        one_colour = [tr.index for tr in tracks if tr.filter is not None and tr.config.front_color_bgr is None]
+        self._pick = self.pick(frame, one_colour)
+
+    def corrected(
+        self, window: Window, m: Measurement, tr: RoverTrack, grid: PlaneGrid, size_cm: tuple[float, float]
+    ) -> Measurement:
+        """A one-colour marker's measurement with its centre moved by the rover's learned offset; its window handed to
+        the fits when it is this rover's turn. The rover's filter is shifted with each change of the offset (a new
+        offset is no spike)."""
+        if tr.index == self._pick and m.axis_coherence >= JOB_MIN_COHERENCE:
+            x0, y0, x1, y1 = window.box
+            raw = window.raw if window.raw is not None else window.bgr
+            xy = np.stack([grid.x_cm[y0:y1, x0:x1], grid.y_cm[y0:y1, x0:x1]]).astype(np.float64)
+            self.submit(
+                EdgeJob(
+                    tr.index, self._frame, np.array(raw, dtype=np.uint8, copy=True), xy, m.xy_cm, m.axis_rad, size_cm
+                )
+            )
+            self._pick, self._sent = None, tr.index
+        shift = self.offset(tr.index, *m.xy_cm)
+        if shift is None:
+            return m
+        if tr.filter is not None:
+            tr.filter.shift(shift[0] - tr.offset_cm[0], shift[1] - tr.offset_cm[1])
+        if tr.index not in self._logged and math.hypot(*shift) >= 0.01:  # once per rover
+            self._logged.add(tr.index)
+            log.info(
+                "rover %s: centre corrected by (%+.2f, %+.2f) cm from %d edge fits",
+                tr.config.id,
+                *shift,
+                self.samples(tr.index),
+            )
+        tr.offset_cm = shift
+        return replace(m, xy_cm=(m.xy_cm[0] + shift[0], m.xy_cm[1] + shift[1]))
+
+    def filtered(self, tr: RoverTrack) -> None:
+        """The rover's filter has taken this frame's measurement: if its window went to the fits, the fit's sample is
+        taken against the filtered (uncorrected) centre (:meth:`note_reference`)."""
+        if tr.index == self._sent and tr.filter is not None:
+            fx, fy = tr.filter.position
+            self.note_reference(tr.index, self._frame, (fx - tr.offset_cm[0], fy - tr.offset_cm[1]))
 
     def note_reference(self, index: int, frame: int, xy_cm: tuple[float, float]) -> None:
         """The rover's filtered (uncorrected) position in the frame its window went to the fits: the sample is taken
@@ -347,6 +404,8 @@ class CentreOffsets:
         self.maps.clear()
         self._last_job.clear()
         self._refs.clear()
+        self._logged.clear()
+        self._pick = self._sent = None
 
     def close(self) -> None:
         self.fits.close()

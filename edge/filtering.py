@@ -331,3 +331,33 @@ class HeadingFilter:
 
     def reset(self) -> None:
         self.angle = None
+
+
+MOTION_HEADING_SIGMA_RAD = math.radians(5.0)  # the direction of motion as a heading at 6-20 cm/s: a few degrees
+MOTION_HEADING_GATE_RAD = math.radians(30.0)  # farther off, the rover is not driving along its axis (pushed, skidding)
+
+
+def one_colour_heading(
+    heading: HeadingFilter,
+    axis_rad: float | None,
+    coherence: float,
+    velocity_cm_s: tuple[float, float] | None,
+    last_heading_rad: float | None,
+    min_speed_cm_s: float,
+    t_s: float,
+) -> float | None:
+    """A one-colour marker's heading at the stream's time ``t_s``: its long axis ``axis_rad`` (None for a square
+    marker) checked against the motion (:func:`checked_axis`), pointed the way the rover drives or kept from the last
+    heading (:func:`axis_heading`), through the rover's ``heading`` filter with the scatter of its source, and the
+    direction of motion as a second measurement while the rover drives (one frame's axis can be 10-20 deg off);
+    None (and the filter reset) when there is nothing to tell it by."""
+    axis = None if axis_rad is None else checked_axis(axis_rad, coherence, velocity_cm_s)
+    theta = axis_heading(axis, velocity_cm_s, last_heading_rad, min_speed_cm_s)
+    if theta is None:
+        heading.reset()
+        return None
+    theta = heading.update(theta, heading_sigma_rad(coherence if axis is not None else 0.0), t_s)
+    if axis is not None and velocity_cm_s is not None and math.hypot(*velocity_cm_s) >= MOTION_AXIS_MIN_SPEED_CM_S:
+        motion = math.atan2(velocity_cm_s[1], velocity_cm_s[0])
+        theta = heading.update(motion, MOTION_HEADING_SIGMA_RAD, t_s, MOTION_HEADING_GATE_RAD)
+    return theta

@@ -22,7 +22,6 @@ full-frame baseline, ``edge.trackers.paper``).
 
 from __future__ import annotations
 
-import logging
 import math
 import time
 from dataclasses import replace
@@ -31,16 +30,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.acquisition import acquisition_scale, candidates, low_resolution_classes
-from edge.centre_offsets import CentreOffsets, EdgeJob, Fits, ProcessFits
+from edge.centre_offsets import CentreOffsets, Fits, ProcessFits
 from edge.errors import ConfigError, SourceError
-from edge.filtering import (
-    MOTION_AXIS_MIN_SPEED_CM_S,
-    FilterFactory,
-    axis_heading,
-    checked_axis,
-    heading_sigma_rad,
-)
-from edge.rover_track import STEADY_SCATTERS, Observation, RoverTrack
+from edge.filtering import FilterFactory, one_colour_heading
+from edge.rover_track import Observation, RoverTrack
 from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr
 from edge.tracker_config import TrackerConfig
 from edge.trackers import make_filters, make_tracker
@@ -53,11 +46,7 @@ from edge.two_tone import MarkerPixels, TwoToneGeometry, inner_edge_weights, vie
 from edge.white import LocalWhite
 
 FloatArray = NDArray[np.float64]
-log = logging.getLogger(__name__)
-MOTION_HEADING_SIGMA_RAD = math.radians(5.0)  # the direction of motion as a heading at 6-20 cm/s: a few degrees
-MOTION_HEADING_GATE_RAD = math.radians(30.0)  # farther off, the rover is not driving along its axis (pushed, skidding)
 SIDEWAYS_MIN_SPEED_CM_S = 10.0  # motion that checks a two-tone marker's axis (edge.two_tone.TwoToneHeading.update)
-EDGE_JOB_MIN_COHERENCE = 0.5  # a window goes to the edge fits only when its marker's edges showed the axis clearly
 
 
 class Pipeline:
@@ -102,7 +91,6 @@ class Pipeline:
         self.offsets: CentreOffsets | None = None
         if config.edge_offsets:
             self.offsets = CentreOffsets(fits if fits is not None else ProcessFits(config.edge_offsets_every))
-        self._edge_pick: int | None = None
         self.reset()
 
     def close(self) -> None:
@@ -125,8 +113,6 @@ class Pipeline:
         self._time_s = 0.0  # the stream's time: the sum of frame intervals (nominal ones where stamps are unusable)
         if self.offsets is not None:
             self.offsets.reset()
-        self._offsets_logged: set[int] = set()
-        self._edge_job_rover: int | None = None  # whose window went to the edge fits this frame
 
     # -- the frame loop -----------------------------------------------------------------------------------------
     def process(self, frame: Frame) -> FrameResult:
@@ -151,12 +137,9 @@ class Pipeline:
                 tr.filter.predict(dt)
         clock.add("filter", time.perf_counter() - t0)
 
-        self._edge_job_rover = None
         if self.offsets is not None:
             t0 = time.perf_counter()
-            self.offsets.collect(self._frames)
-            one_colour = [tr.index for tr in self.tracks if tr.filter is not None and tr.config.front_color_bgr is None]
-            self._edge_pick = self.offsets.pick(self._frames, one_colour)
+            self.offsets.start_frame(self._frames, self.tracks)
             clock.add("offsets", time.perf_counter() - t0)
 
         measured: dict[int, Observation] = {}
@@ -270,7 +253,9 @@ class Pipeline:
             refine = refine_outline if self.config.outline_fit else refine_axis
             m = refine(window, m, size, tr.index, jacobian=jac)
             clock.add("outline", time.perf_counter() - t0)
-        if not self._plausible(m, model.marker_area_cm2, learned, tr):
+        if not tr.whole_marker(
+            m, model.marker_area_cm2, learned, self.config, self._nominal_levels[tr.index], self._frames
+        ):
             return None
         if tr.config.front_color_bgr is not None:
             two_tone = self._two_tone(window, m, tr, jac)
@@ -278,45 +263,12 @@ class Pipeline:
                 return None  # without a heading the centre of a two-tone marker is not known
             m = two_tone
         elif self.offsets is not None:
+            assert self.maps is not None
             t0 = time.perf_counter()
-            m = self._edge_offset(window, m, tr)
+            size = (self.config.marker_length_cm, self.config.marker_width_cm)
+            m = self.offsets.corrected(window, m, tr, self.maps, size)  # edge.centre_offsets
             clock.add("offsets", time.perf_counter() - t0)
         return Observation(m, measurement_covariance(jac, self.config.measurement_sigma_px))
-
-    def _edge_offset(self, window: Window, m: Measurement, tr: RoverTrack) -> Measurement:
-        """A one-colour marker's centre moved by its learned offset (``edge.centre_offsets``); this frame's window
-        handed to the edge fits when it is this rover's turn."""
-        assert self.offsets is not None and self.maps is not None
-        if tr.index == self._edge_pick and m.axis_coherence >= EDGE_JOB_MIN_COHERENCE:
-            x0, y0, x1, y1 = window.box
-            raw = window.raw if window.raw is not None else window.bgr
-            job = EdgeJob(
-                index=tr.index,
-                frame=self._frames,
-                raw=np.array(raw, dtype=np.uint8, copy=True),
-                xy_cm=np.stack([self.maps.x_cm[y0:y1, x0:x1], self.maps.y_cm[y0:y1, x0:x1]]).astype(np.float64),
-                centre_cm=m.xy_cm,
-                axis_rad=m.axis_rad,
-                size_cm=(self.config.marker_length_cm, self.config.marker_width_cm),
-            )
-            self.offsets.submit(job)
-            self._edge_pick = None
-            self._edge_job_rover = tr.index
-        shift = self.offsets.offset(tr.index, *m.xy_cm)
-        if shift is None:
-            return m
-        if tr.filter is not None:  # the filter follows the step where the correction changes (no spike)
-            tr.filter.shift(shift[0] - tr.offset_cm[0], shift[1] - tr.offset_cm[1])
-        if tr.index not in self._offsets_logged and math.hypot(*shift) >= 0.01:  # once per rover
-            self._offsets_logged.add(tr.index)
-            log.info(
-                "rover %s: centre corrected by (%+.2f, %+.2f) cm from %d edge fits",
-                tr.config.id,
-                *shift,
-                self.offsets.samples(tr.index),
-            )
-        tr.offset_cm = shift
-        return replace(m, xy_cm=(m.xy_cm[0] + shift[0], m.xy_cm[1] + shift[1]))
 
     def _two_tone(self, window: Window, m: Measurement, tr: RoverTrack, jacobian: FloatArray) -> Measurement | None:
         """A two-tone marker (``edge.two_tone``): the heading from the coloured part's edges and the light end, and
@@ -371,57 +323,6 @@ class Pipeline:
         if vel is None or math.hypot(*vel) < SIDEWAYS_MIN_SPEED_CM_S:
             return None
         return math.atan2(vel[1], vel[0])
-
-    def _plausible(self, m: Measurement, expected_area_cm2: float, learned: bool, tr: RoverTrack) -> bool:
-        """Is this blob the whole marker? Its area on the plane, its shape, its colour's strength, and not cut off
-        by the image border.
-
-        A partly hidden or cut-off marker would give a biased centre, and a blob of the right hue but the wrong
-        size, shape or colour strength (dark clothes, a poster, a reflection) is not a marker: both are reported
-        as missing instead. A marker whose outline was fitted (``Measurement.outlined``) has shown its size and shape
-        edge by edge; the blob's area, noisier in a compressed stream, is then not needed. The colour strength (the
-        marker's level in its plane) may follow the light within ``level_range`` of the configured colour, and from
-        frame to frame within a factor of two.
-        """
-        if m.at_image_edge:
-            return False
-        nominal = self._nominal_levels[tr.index]
-        low_level, high_level = self.config.level_range
-        if nominal > 0 and not low_level <= m.level / nominal <= high_level:
-            return False
-        if tr.level > 0 and not 0.5 <= m.level / tr.level <= 2.0:
-            return False
-        if m.outlined:
-            return True  # its four edges were found where a whole marker of its size has them
-        ratio = m.area_cm2 / expected_area_cm2
-        low, high = (
-            tr.area_band(expected_area_cm2, self.config.min_area_fraction, self.config.max_area_fraction)
-            if learned
-            else self.config.acquire_area_range
-        )
-        if learned:
-            tr.measured(self._frames, m.area_cm2)
-        if not low <= ratio <= high and not (learned and ratio < low and self._steady(ratio, expected_area_cm2, tr)):
-            return False
-        aspect = max(self.config.marker_length_cm, self.config.marker_width_cm) / min(
-            self.config.marker_length_cm, self.config.marker_width_cm
-        )
-        return m.elongation <= aspect * self.config.max_elongation_factor
-
-    def _steady(self, ratio: float, expected_area_cm2: float, tr: RoverTrack) -> bool:
-        """Is a blob showing less than the area band's share of the learned area a whole marker all the same?
-
-        In a stream that scatters a whole marker's area from frame to frame (4:2:0 chroma at low JPEG quality moves
-        its boundary's coverage), the area also settles at other levels for a while, below the learned one by a few
-        of those scatters. A marker a leg hides a little more each frame does not stay level; one hidden at once
-        steps down first. A blob is taken when the last frames' areas are level (``RoverTrack.steady``) and it is
-        within :data:`STEADY_SCATTERS` of the rover's own scatters below its learned area; where the stream scatters
-        the area little (a clean camera) that is no wider than the band, and a partly hidden marker stays refused.
-        """
-        low, _ = tr.area_band(
-            expected_area_cm2, self.config.min_area_fraction, self.config.max_area_fraction, STEADY_SCATTERS
-        )
-        return ratio >= low and tr.steady(self._frames, expected_area_cm2)
 
     # -- acquisition (low resolution) ---------------------------------------------------------------------------
     def _acquire(self, image: NDArray[np.uint8], clock: StageTimes) -> dict[int, Observation]:
@@ -496,9 +397,8 @@ class Pipeline:
             else:
                 continue
             assert tr.filter is not None
-            if self.offsets is not None and tr.index == self._edge_job_rover:
-                fx, fy = tr.filter.position  # the sample against the filtered centre, before this frame's offset
-                self.offsets.note_reference(tr.index, self._frames, (fx - tr.offset_cm[0], fy - tr.offset_cm[1]))
+            if self.offsets is not None:
+                self.offsets.filtered(tr)
             tr.misses = 0
             tr.uv = m.uv_px
             tr.seen = (m.xy_cm[0], m.xy_cm[1], self._time_s)
@@ -527,23 +427,15 @@ class Pipeline:
     def _heading(self, tr: RoverTrack, vel: tuple[float, float] | None, m: Measurement) -> float | None:
         """A two-tone marker's own heading while the evidence for its front end is strong (else None: the
         direction of motion would be the opposite of the body's whenever the rover backs up); for a one-colour
-        marker its long axis (or the direction of motion where the marker's edges say little,
-        ``edge.filtering.checked_axis``) pointed the way it drives, or kept from the last heading while it stands or
-        turns on the spot (``edge.filtering.axis_heading``)."""
+        marker its long axis through its heading filter (``edge.filtering.one_colour_heading``)."""
         if tr.config.front_color_bgr is not None:
             return tr.two_tone.heading_rad if tr.two_tone.confident else None
         square = abs(self.config.marker_length_cm - self.config.marker_width_cm) < 0.05 * self.config.marker_length_cm
-        axis = None if square else checked_axis(m.axis_rad, m.axis_coherence, vel)
-        heading = axis_heading(axis, vel, tr.theta_rad, self.config.heading_min_speed_cm_s)
-        if heading is None:
-            tr.heading.reset()
-            tr.theta_rad = None
-            return None
-        sigma = heading_sigma_rad(m.axis_coherence if axis is not None else 0.0)
-        tr.theta_rad = tr.heading.update(heading, sigma, self._time_s)  # one frame's axis can be 10-20 deg off
-        if axis is not None and vel is not None and math.hypot(*vel) >= MOTION_AXIS_MIN_SPEED_CM_S:
-            motion = math.atan2(vel[1], vel[0])
-            tr.theta_rad = tr.heading.update(motion, MOTION_HEADING_SIGMA_RAD, self._time_s, MOTION_HEADING_GATE_RAD)
+        axis = None if square else m.axis_rad
+        min_speed = self.config.heading_min_speed_cm_s
+        tr.theta_rad = one_colour_heading(
+            tr.heading, axis, m.axis_coherence, vel, tr.theta_rad, min_speed, self._time_s
+        )
         return tr.theta_rad
 
     def _exclusion_box(self, box: tuple[int, int, int, int], shape: tuple[int, ...]) -> tuple[int, int, int, int]:

@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.filtering import ConstantVelocityFilter, HeadingFilter
-from edge.tracker_config import RoverConfig
+from edge.tracker_config import RoverConfig, TrackerSettings
 from edge.trackers.base import Measurement
 from edge.two_tone import TwoToneHeading
 
@@ -99,6 +99,65 @@ class RoverTrack:
         if len(self.sizes) < STEADY_FRAMES or self.sizes[0][0] != frame - STEADY_FRAMES + 1:
             return False
         return steady_areas([a / expected_cm2 for _, a in self.sizes], STEADY_SLOPE, STEADY_STEP)
+
+    def whole_marker(
+        self,
+        m: Measurement,
+        expected_area_cm2: float,
+        learned: bool,
+        config: TrackerSettings,
+        nominal_level: float,
+        frame: int,
+    ) -> bool:
+        """Is this blob the rover's whole marker? Its area on the plane, its shape, its colour's strength, and not cut
+        off by the image border (``edge.pipeline``; ``nominal_level``: the configured colour's level in its plane,
+        ``frame``: the frame's number, for the areas' history).
+
+        A partly hidden or cut-off marker would give a biased centre, and a blob of the right hue but the wrong
+        size, shape or colour strength (dark clothes, a poster, a reflection) is not a marker: both are reported
+        as missing instead. A marker whose outline was fitted (``Measurement.outlined``) has shown its size and shape
+        edge by edge; the blob's area, noisier in a compressed stream, is then not needed. The colour strength (the
+        marker's level in its plane) may follow the light within ``level_range`` of the configured colour, and from
+        frame to frame within a factor of two.
+        """
+        if m.at_image_edge:
+            return False
+        low_level, high_level = config.level_range
+        if nominal_level > 0 and not low_level <= m.level / nominal_level <= high_level:
+            return False
+        if self.level > 0 and not 0.5 <= m.level / self.level <= 2.0:
+            return False
+        if m.outlined:
+            return True  # its four edges were found where a whole marker of its size has them
+        ratio = m.area_cm2 / expected_area_cm2
+        low, high = (
+            self.area_band(expected_area_cm2, config.min_area_fraction, config.max_area_fraction)
+            if learned
+            else config.acquire_area_range
+        )
+        if learned:
+            self.measured(frame, m.area_cm2)
+        steady = learned and ratio < low and self.steady_below(ratio, expected_area_cm2, config, frame)
+        if not low <= ratio <= high and not steady:
+            return False
+        aspect = max(config.marker_length_cm, config.marker_width_cm) / min(
+            config.marker_length_cm, config.marker_width_cm
+        )
+        return m.elongation <= aspect * config.max_elongation_factor
+
+    def steady_below(self, ratio: float, expected_cm2: float, config: TrackerSettings, frame: int) -> bool:
+        """Is a blob showing less than the area band's share (``ratio`` of the learned area) a whole marker all the
+        same?
+
+        In a stream that scatters a whole marker's area from frame to frame (4:2:0 chroma at low JPEG quality moves
+        its boundary's coverage), the area also settles at other levels for a while, below the learned one by a few
+        of those scatters. A marker a leg hides a little more each frame does not stay level; one hidden at once
+        steps down first. A blob is taken when the last frames' areas are level (:meth:`steady`) and it is within
+        :data:`STEADY_SCATTERS` of the rover's own scatters below its learned area; where the stream scatters the
+        area little (a clean camera) that is no wider than the band, and a partly hidden marker stays refused.
+        """
+        low, _ = self.area_band(expected_cm2, config.min_area_fraction, config.max_area_fraction, STEADY_SCATTERS)
+        return ratio >= low and self.steady(frame, expected_cm2)
 
     def within_reach(self, xy_cm: tuple[float, float], t_s: float, max_speed_cm_s: float, slack_cm: float) -> bool:
         """Could the rover be at ``xy_cm`` at ``t_s``, driving at most ``max_speed_cm_s`` since it was last seen
