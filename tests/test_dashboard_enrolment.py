@@ -14,6 +14,7 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -147,6 +148,12 @@ class Camera:
 
     def wait_tracked(self, timeout_s: float) -> None:
         self.waited.append(timeout_s)
+
+    recent: dict[str, float] = field(default_factory=dict)  # rover id -> seconds since the tracker last saw it
+
+    def snapshot(self) -> Any:
+        rovers = [SimpleNamespace(id=rid, last_seen_age_s=age) for rid, age in self.recent.items()]
+        return SimpleNamespace(rovers=tuple(rovers))
 
     def shows(self, image: np.ndarray, *placed: tuple[str, float, float]) -> None:
         index = (self.last_frame.index + 1) if self.last_frame is not None else 0
@@ -491,3 +498,17 @@ def test_forgetting_the_floor_falls_back_to_the_trackers_model(floor: Floor) -> 
     status, state = floor.request("GET", "/api/enroll")
     assert state["floor"] is None and 0.0 < state["tracker_model"]["known"] <= 1.0
     assert state["min_known"] == MIN_KNOWN_SHARE and state["rovers_file"] == str(floor.rovers_file)
+
+
+def test_capturing_the_floor_warns_of_rovers_seen_in_the_last_second_not_only_in_this_frame(lab: Lab) -> None:
+    camera = Camera()
+    camera.shows(lab.background())  # this frame: no rover tracked (one was lost for a frame, the scene jumped)
+    camera.recent = {"green": 0.4, "blue": 7.0}  # green seen 0.4 s ago, blue long gone
+    desk = EnrolDesk(camera, lab.calibration, enabled=True, marker_length_cm=21.5, marker_width_cm=16.8)
+    response = desk.capture_floor(Request("POST", "/api/enroll/floor", {}, {}, b""))
+    assert response.status == 200
+    (warning,) = json.loads(response.body)["warnings"]
+    assert warning.startswith("the tracker sees green in this frame or the last second")
+    camera.recent = {}
+    response = desk.capture_floor(Request("POST", "/api/enroll/floor", {}, {}, b""))
+    assert json.loads(response.body)["warnings"] == []

@@ -46,6 +46,7 @@ from edge.httpserver import Request, Response, json_response
 
 if TYPE_CHECKING:
     from edge.httpserver import HttpServer
+    from edge.metrics import Snapshot
     from edge.segmentation import BackgroundModel
     from edge.trackers.base import PlaneMapping
     from edge.tracking import Frame, FrameResult
@@ -55,6 +56,7 @@ log = logging.getLogger("edge.dashboard")
 MIN_KNOWN_SHARE = 0.999  # of the image the tracker's model must have seen bare (a parked rover is ~0.3 % of it)
 TRACKED_WITHIN_CM = 15.0  # a tracked rover this close to an enrolled marker's centre is standing on it
 MAX_BODY_BYTES = 4096
+RECENT_S = 1.0  # a rover the tracker saw this recently is taken to be on the floor still (capturing it)
 
 
 class LiveCamera(Protocol):
@@ -72,6 +74,8 @@ class LiveCamera(Protocol):
     def camera_state(self) -> str: ...
 
     def wait_tracked(self, timeout_s: float) -> None: ...
+
+    def snapshot(self) -> Snapshot: ...
 
 
 class EnrolRequest(BaseModel):
@@ -318,11 +322,14 @@ class EnrolDesk:
         with self._lock:
             self._floor = floor
         warnings = []
-        seen = sorted(e.rover_id for e in (result.estimates if result is not None else ()))
+        # this frame's rovers and those seen within the last second: a rover the tracker lost for a frame or two
+        # (it was moved, the scene jumped) is still on the floor
+        recent = {r.id for r in self.camera.snapshot().rovers if (r.last_seen_age_s or math.inf) <= RECENT_S}
+        seen = sorted({e.rover_id for e in (result.estimates if result is not None else ())} | recent)
         if seen:
             warnings.append(
-                f"the tracker sees {', '.join(seen)} in this frame: if a rover is on the floor, take it away and "
-                "capture again"
+                f"the tracker sees {', '.join(seen)} in this frame or the last second: if a rover is on the floor, "
+                "take it away and capture again"
             )
         log.info("dashboard: empty floor captured (frame %d)", frame.index)
         return {"floor": floor.describe(), "warnings": warnings}
