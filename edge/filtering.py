@@ -297,18 +297,20 @@ class HeadingFilter:
         a measurement farther than that from the filtered heading is ignored instead of starting the filter afresh
         (the direction of motion of a rover pushed sideways is not its heading)."""
         r = sigma_rad * sigma_rad
-        if gate_rad is not None:
-            if self.angle is None:
-                return z_rad
-            if abs(math.remainder(z_rad - self._predicted(t_s), math.tau)) > gate_rad:
-                return self.angle
-        if self.angle is None or abs(math.remainder(z_rad - self._predicted(t_s), math.tau)) > HEADING_RESET_RAD:
+        if self.angle is None:
+            if gate_rad is None:
+                self.angle, self.rate, self.p, self.t_s = z_rad, 0.0, [r, 0.0, 0.0, 1.0], t_s
+            return z_rad
+        # predict (constant turn rate, white angular acceleration)
+        dt = max(0.0, t_s - self.t_s)
+        angle = self.angle + self.rate * dt
+        innovation = math.remainder(z_rad - angle, math.tau)
+        if gate_rad is not None and abs(innovation) > gate_rad:
+            return self.angle
+        if abs(innovation) > HEADING_RESET_RAD:
             self.angle, self.rate, self.p, self.t_s = z_rad, 0.0, [r, 0.0, 0.0, 1.0], t_s
             return z_rad
-        dt = max(0.0, t_s - self.t_s)
         p00, p01, p10, p11 = self.p
-        # predict (constant turn rate, white angular acceleration)
-        angle = self.angle + self.rate * dt
         p00, p01, p10, p11 = (
             p00 + dt * (p10 + p01) + dt * dt * p11 + self.q * dt**4 / 4,
             p01 + dt * p11 + self.q * dt**3 / 2,
@@ -316,7 +318,6 @@ class HeadingFilter:
             p11 + self.q * dt * dt,
         )
         # update
-        innovation = math.remainder(z_rad - angle, math.tau)
         s = p00 + r
         k0, k1 = p00 / s, p10 / s
         self.angle = math.remainder(angle + k0 * innovation, math.tau)
@@ -324,10 +325,6 @@ class HeadingFilter:
         self.p = [(1 - k0) * p00, (1 - k0) * p01, p10 - k1 * p00, p11 - k1 * p01]
         self.t_s = t_s
         return self.angle
-
-    def _predicted(self, t_s: float) -> float:
-        assert self.angle is not None
-        return self.angle + self.rate * max(0.0, t_s - self.t_s)
 
     def reset(self) -> None:
         self.angle = None
