@@ -13,7 +13,7 @@ tested against. The steps, each a real tool run as a subprocess:
    --flash-mode dout 0 FIRMWARE.bin``;
 3. the bundle: every module but ``main.py`` compiled with ``mpy-cross -march=xtensa`` and packed into a ROMFS image
    (``rom.img``), ``boot.py`` written from the config (the motor driver's PWM pins low before anything else), the
-   board's two-line ``main.py``, and ``config.json``;
+   board's short ``main.py`` (``import app``, guarded, and ``app.run()``), and ``config.json``;
 4. ``mpremote connect P romfs deploy rom.img + exec ... + fs cp ... + reset``: the image into the ROMFS partition,
    stale ``.mpy`` files removed (they would shadow it), boot.py, config.json, and main.py last;
 5. ``mpremote connect P exec "import app, rover; ..." + reset``: the board must answer with the firmware version.

@@ -162,6 +162,44 @@ def test_a_rover_that_fails_after_reading_its_config_publishes_an_error_status(t
         assert "PWM hardware fault" in board.console.getvalue()
 
 
+@pytest.mark.parametrize(
+    "error",
+    [ImportError("no module named 'app'"), MemoryError("memory allocation failed, allocating 1024 bytes")],
+    ids=["app missing from ROMFS", "no heap to import app"],
+)
+def test_a_rover_that_cannot_import_its_program_keeps_its_motors_off_and_says_why_in_one_line(
+    tmp_path: Path, error: Exception
+) -> None:
+    # main.py's own `import app` is the one failure app.run cannot catch: a ROMFS image without app.mpy (a copy cut
+    # short), or no heap left to import it. It must end as every other failure before the loop does.
+    with flashed_board(tmp_path, failing_imports={"app": error}) as (board, _):
+        board.power_on()
+        board.run(30_000)
+        left, right = motor_pins()
+        assert board.pins[left] == 0 and board.pins[right] == 0  # boot.py drove them low
+        assert not board.drove_after(-1) and board.boots == 1  # no reboot loop
+        assert board.output == []  # main.py ended without an exception: no traceback on the console
+        lines = [ln for ln in board.console.getvalue().splitlines() if ln.strip()]
+        assert lines == [f"rover not started: {error!r}"], lines
+
+
+def test_main_py_says_why_in_one_line_inside_micropython_when_app_cannot_be_imported(tmp_path: Path) -> None:
+    # The same failure in MicroPython itself (harness/mpy/noapp.py): an app module that raises MemoryError on import.
+    from firmware.harness.runner import run_micropython
+
+    bundle = tmp_path / "bundle"
+    flashing.write_bundle(bundle, rover_config())
+    files = {name: (bundle / name).read_bytes() for name in ("boot.py", "main.py")}
+    files["fail/app.py"] = b"raise MemoryError('memory allocation failed, allocating 1024 bytes')\n"
+    pins = list(motor_pins())
+    out = run_micropython(f"noapp.main('/input/data', '/input/data/fail', {pins!r})", files, standins=True)
+    result = json.loads(out.splitlines()[-1])
+    assert result["raised"] is None  # no traceback
+    (line,) = result["printed"]  # one line (MicroPython's repr of an exception ends "...bytes',)")
+    assert line.startswith("rover not started: MemoryError('memory allocation failed, allocating 1024 bytes'"), line
+    assert result["outputs"] == [0, 0]  # boot.py left both PWM pins low
+
+
 def test_boot_py_drives_the_configs_pwm_pins_low_before_main_runs(tmp_path: Path) -> None:
     cfg = rover_config()
     cfg["motors"]["left"]["pwm"], cfg["motors"]["right"]["pwm"] = 14, 12

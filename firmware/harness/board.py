@@ -53,8 +53,16 @@ class SessionCut(Exception):
 class Board:
     """One board; ``root`` is its filesystem. Create it, put files in ``root``, then :meth:`power_on`."""
 
-    def __init__(self, root: Path, version: str = "1.28.0", romfs: bool = True, fail_pwm: bool = False) -> None:
+    def __init__(
+        self,
+        root: Path,
+        version: str = "1.28.0",
+        romfs: bool = True,
+        fail_pwm: bool = False,
+        failing_imports: dict[str, Exception] | None = None,
+    ) -> None:
         self.root = root
+        self.failing_imports = dict(failing_imports or {})  # module -> what importing it raises (a broken ROMFS)
         self.version = version
         self.has_romfs = romfs
         self.fail_pwm = fail_pwm
@@ -249,6 +257,8 @@ class Board:
         real_import = builtins.__import__
 
         def board_import(name: str, *args: Any, **kwargs: Any) -> Any:
+            if name in self.failing_imports:
+                raise self.failing_imports[name]
             return own[name] if name in own else real_import(name, *args, **kwargs)
 
         return {**builtins.__dict__, "__import__": board_import}
