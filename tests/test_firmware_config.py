@@ -29,14 +29,21 @@ def test_the_flash_chips_gpios_are_refused(gpio: int, key: str) -> None:
         check_rover_config(with_motor("left", key, gpio))
 
 
-@pytest.mark.parametrize("gpio", [1, 3, 16])
-def test_pwm_where_the_port_has_none_is_refused_and_a_direction_pin_there_is_fine(gpio: int) -> None:
+def test_pwm_where_the_port_has_none_is_refused_and_a_direction_pin_there_is_fine() -> None:
     # esppwm.c drives PWM on GPIO 0, 2, 4, 5 and 12-15 only; PWM() elsewhere raises, and boot.py (written from the
     # config, run before main.py) would fail at its first line and never run main.py.
-    with pytest.raises(ConfigError, match=rf"key motors\.right\.pwm: GPIO {gpio} has no PWM on the ESP8266"):
-        check_rover_config(with_motor("right", "pwm", gpio))
-    if gpio == 16:
-        assert check_rover_config(with_motor("right", "dir2", 16))["motors"]["right"]["dir2"] == 16
+    with pytest.raises(ConfigError, match=r"key motors\.right\.pwm: GPIO 16 has no PWM on the ESP8266"):
+        check_rover_config(with_motor("right", "pwm", 16))
+    assert check_rover_config(with_motor("right", "dir2", 16))["motors"]["right"]["dir2"] == 16
+
+
+@pytest.mark.parametrize("gpio", [1, 3])
+@pytest.mark.parametrize("key", ["pwm", "dir", "dir2"])
+def test_the_serial_repls_gpios_are_refused(gpio: int, key: str) -> None:
+    # GPIO 1 and 3 are UART0's TX and RX, the REPL's serial link: a motor pin there (a direction pin driven at boot)
+    # cuts it, and with it Ctrl-C, mpremote and the flash tool, the only ways to stop a running rover.
+    with pytest.raises(ConfigError, match=rf"key motors\.left\.{key}: GPIO {gpio} is the serial REPL"):
+        check_rover_config(with_motor("left", key, gpio))
 
 
 def test_a_pin_used_twice_is_refused() -> None:

@@ -160,6 +160,8 @@ def check(cfg):
                 raise ValueError(name + ": expected a GPIO number 0-16, got " + repr(v))
             if 6 <= v <= 11:
                 raise ValueError(name + ": GPIO " + str(v) + " is wired to the flash chip (GPIO 6-11)")
+            if v == 1 or v == 3:  # driving UART0's pins silences the REPL: no Ctrl-C, mpremote or flash tool
+                raise ValueError(name + ": GPIO " + str(v) + " is the serial REPL (GPIO 1 TX, 3 RX)")
             if k == "pwm" and v not in _PWM_GPIOS:
                 raise ValueError(name + ": GPIO " + str(v) + " has no PWM on the ESP8266")
             if v in used:
