@@ -26,6 +26,7 @@ rover's MQTT login comes from the appliance's state directory (:func:`state_logi
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import os
 import re
@@ -177,6 +178,20 @@ def romfs_image(modules: Mapping[str, bytes]) -> bytes:
 def config_warnings(config: Mapping[str, Any]) -> list[str]:
     """What a checked config allows but its user should know (motor pins on the boot-strapping GPIOs)."""
     return list(firmware_modules()["config"].warnings(config))
+
+
+def host_warning(config: Mapping[str, Any]) -> str | None:
+    """A broker given by name: the rover resolves it with lwIP's DNS, which takes no timeout of the firmware's (it
+    gives up after its own retries, seconds), so the one wait the link cannot bound is avoided with an address."""
+    host = str(config["broker"]["host"])
+    try:
+        ipaddress.IPv4Address(host)
+    except ValueError:
+        return (
+            f"broker.host {host!r} is a name: the rover looks it up without a timeout of its own (motors off "
+            f"meanwhile); give the broker's address ({BROKER_HOST_ENV}=A.B.C.D) so that no wait is unbounded"
+        )
+    return None
 
 
 def compiled_modules() -> dict[str, bytes]:

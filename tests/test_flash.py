@@ -168,6 +168,23 @@ def test_motor_pins_on_boot_strapping_gpios_are_warned_about(tmp_path: Path) -> 
 
 
 @pytest.mark.slow
+def test_a_broker_given_by_name_is_warned_about(tmp_path: Path) -> None:
+    # lwIP's DNS lookup is the one wait the firmware cannot bound: an address avoids it.
+    env = {**SECRETS, "EDGE_IPS_BROKER_HOST": "edge.local:1883"}
+    result = flash_tool("--rover", "red", "--bundle", str(tmp_path / "b"), env=env)
+    assert result.returncode == 0, result.stderr
+    named = [line for line in result.stderr.splitlines() if "broker.host" in line]
+    assert named == [
+        "warning: broker.host 'edge.local' is a name: the rover looks it up without a timeout of its own (motors off "
+        "meanwhile); give the broker's address (EDGE_IPS_BROKER_HOST=A.B.C.D) so that no wait is unbounded"
+    ]
+    by_address = flash_tool(
+        "--rover", "red", "--bundle", str(tmp_path / "c"), env={**SECRETS, "EDGE_IPS_BROKER_HOST": "10.0.0.2"}
+    )
+    assert by_address.returncode == 0 and "broker.host" not in by_address.stderr
+
+
+@pytest.mark.slow
 def test_a_bad_config_key_is_named(tmp_path: Path) -> None:
     cfg = json.loads((REPO / "firmware" / "esp8266" / "configs" / "red.json").read_text())
     cfg["motors"]["left"]["pwm"] = 42

@@ -79,6 +79,8 @@ def flash(
 
     prompt = ask if sys.stdin.isatty() else None
     config = flashing.provisioned_config(rover, os.environ, prompt, flashing.state_logins(os.environ))
+    if (named := flashing.host_warning(config)) is not None:
+        click.echo(f"warning: {named}", err=True)
     if bundle_dir is not None:
         for path in flashing.write_bundle(bundle_dir, config):
             click.echo(f"wrote {path}")
