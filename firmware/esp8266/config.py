@@ -41,52 +41,39 @@ DEFAULTS = {
     "cpu_mhz": 160,
 }
 
-# (section, key, lowest, highest) for every number a config may carry; None: no bound.
+# (section, key, lowest, highest, whole) for every number a config may carry. whole: the firmware hands it to calls
+# that take only ints on the chip (time.sleep_ms, struct.pack, PWM, sockets), where 20.0 is a TypeError in the loop,
+# not at boot. (Kept in one table so that checking builds no strings: this runs at the heap's peak.)
 _NUMBERS = (
-    ("broker", "port", 1, 65535),
-    ("broker", "keepalive_s", 2, 3600),
-    ("broker", "timeout_s", 0.1, 30),
-    ("motors", "freq_hz", 100, 1000),
-    ("motors", "max_wheel_rad_s", 0.1, 200),
-    ("motors", "deadband_duty", 0, 1000),
-    ("motors", "min_wheel_rad_s", 0, 10),
-    ("geometry", "wheel_radius_cm", 0.5, 20),
-    ("geometry", "track_cm", 2, 100),
-    ("geometry", "body_radius_cm", 1, 100),
-    ("geometry", "lookahead_cm", 0.5, 50),
-    ("control", "period_ms", 5, 200),
-    ("control", "stale_ms", 50, 5000),
-    ("control", "fade_ms", 0, 5000),
-    ("control", "forget_ms", 500, 600000),
-    ("control", "latency_ms", 0, 1000),
-    ("control", "gain_per_s", 0.001, 10),
-    ("control", "anchor_gain_per_s", 0, 10),
-    ("control", "max_speed_cm_s", 1, 200),
-    ("control", "min_speed_cm_s", 0, 50),
-    ("control", "hold_cm", 0, 20),
-    ("control", "safety_cm", 1, 500),
-    ("control", "barrier_gain_per_s", 0.1, 100),
-    ("control", "slide_gain", 0, 10),
-    ("control", "pass_cm", 0, 100),
-    ("control", "heading_margin_rad", 0, 1.5),
-    ("control", "ring_gap_cm", 0, 100),
-    ("control", "heading_fix_cm", 1, 100),
-    ("control", "probe_speed_cm_s", 0, 50),
-)
-
-
-# Numbers the firmware hands to calls that take only ints on the chip (time.sleep_ms, struct.pack, PWM, sockets):
-# 20.0 there is a TypeError in the loop, not at boot.
-_INTEGERS = (
-    "broker.port",
-    "broker.keepalive_s",
-    "motors.freq_hz",
-    "motors.deadband_duty",
-    "control.period_ms",
-    "control.stale_ms",
-    "control.fade_ms",
-    "control.forget_ms",
-    "control.latency_ms",
+    ("broker", "port", 1, 65535, True),
+    ("broker", "keepalive_s", 2, 3600, True),
+    ("broker", "timeout_s", 0.1, 30, False),
+    ("motors", "freq_hz", 100, 1000, True),
+    ("motors", "max_wheel_rad_s", 0.1, 200, False),
+    ("motors", "deadband_duty", 0, 1000, True),
+    ("motors", "min_wheel_rad_s", 0, 10, False),
+    ("geometry", "wheel_radius_cm", 0.5, 20, False),
+    ("geometry", "track_cm", 2, 100, False),
+    ("geometry", "body_radius_cm", 1, 100, False),
+    ("geometry", "lookahead_cm", 0.5, 50, False),
+    ("control", "period_ms", 5, 200, True),
+    ("control", "stale_ms", 50, 5000, True),
+    ("control", "fade_ms", 0, 5000, True),
+    ("control", "forget_ms", 500, 600000, True),
+    ("control", "latency_ms", 0, 1000, True),
+    ("control", "gain_per_s", 0.001, 10, False),
+    ("control", "anchor_gain_per_s", 0, 10, False),
+    ("control", "max_speed_cm_s", 1, 200, False),
+    ("control", "min_speed_cm_s", 0, 50, False),
+    ("control", "hold_cm", 0, 20, False),
+    ("control", "safety_cm", 1, 500, False),
+    ("control", "barrier_gain_per_s", 0.1, 100, False),
+    ("control", "slide_gain", 0, 10, False),
+    ("control", "pass_cm", 0, 100, False),
+    ("control", "heading_margin_rad", 0, 1.5, False),
+    ("control", "ring_gap_cm", 0, 100, False),
+    ("control", "heading_fix_cm", 1, 100, False),
+    ("control", "probe_speed_cm_s", 0, 50, False),
 )
 
 # The GPIOs the port's PWM drives (esppwm.c's pin_num); PWM() on any other raises ValueError, in boot.py too.
@@ -135,14 +122,14 @@ def check(cfg):
     host = cfg["broker"]["host"]
     if type(host) is not str or not host:
         raise ValueError("key broker.host: expected the broker's host name or address")
-    for section, key, lo, hi in _NUMBERS:
+    for section, key, lo, hi, whole in _NUMBERS:
         v = cfg[section][key]
-        name = section + "." + key
-        if type(v) is not int and (type(v) is not float or name in _INTEGERS):
-            what = "a whole number" if name in _INTEGERS else "a number"
-            raise ValueError("key " + name + ": expected " + what + ", got " + repr(v))
+        if type(v) is not int and (type(v) is not float or whole):
+            what = "a whole number" if whole else "a number"
+            raise ValueError("key " + section + "." + key + ": expected " + what + ", got " + repr(v))
         if not (lo <= v <= hi):
-            raise ValueError("key " + name + ": " + repr(v) + " is outside " + repr(lo) + ".." + repr(hi))
+            name = "key " + section + "." + key
+            raise ValueError(name + ": " + repr(v) + " is outside " + repr(lo) + ".." + repr(hi))
     used = {}  # type: dict[int, str]
     for side in ("left", "right"):
         m = cfg["motors"][side]
