@@ -92,7 +92,7 @@ def run(path="config.json", steps=None, log=print):
     except Exception as e:
         _failed(e, path, steps, log)
         return None
-    wd = Watchdog(m) if r.cfg["watchdog"] else None  # unarmed: a Ctrl-C up to the try leaves nothing running
+    wd = Watchdog(m) if r.watchdog else None  # unarmed: a Ctrl-C up to the try leaves nothing running
     try:
         if wd is not None:
             wd.start()  # armed inside the try: a Ctrl-C right after it still reaches the finally
@@ -104,7 +104,7 @@ def run(path="config.json", steps=None, log=print):
 
 def loop(r, wd, steps=None):
     """Step the rover every period_ms (`steps` times; None: for ever), feeding the watchdog after each step."""
-    period = r.cfg["control"]["period_ms"]
+    period = r.period_ms
     n = 0
     while steps is None or n < steps:
         t0 = time.ticks_ms()

@@ -156,9 +156,11 @@ class Rover:
 
     def __init__(self, cfg, motors, link=None, log=print):
         # cfg: merged with the defaults and checked (config.load / config.check), since this module does not
-        # carry the config checks: main.py drops them after boot to give their RAM back.
-        self.cfg = cfg
+        # carry the config checks: main.py drops them after boot to give their RAM back. The rover keeps what it
+        # uses, not the config itself (its dicts and strings are ~1 KB of the chip's heap).
         self.id = cfg["id"]
+        self.watchdog = cfg["watchdog"]
+        self.period_ms = cfg["control"]["period_ms"]
         self.motors = motors
         self.link = link
         self.log = log
