@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import socket
+import struct
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -14,7 +15,7 @@ from hypothesis import strategies as st
 
 from edge.broker import BrokerAccess, Credentials, EmbeddedBroker, ensure_credentials
 from edge.broker.access import MAX_PACKET_BYTES, Policy, payload_limit
-from edge.broker.embedded import MAX_PENDING_CONNECTS, MAX_PENDING_PER_ADDRESS, PendingConnects
+from edge.broker.embedded import AMQTT_LINES_PER_MINUTE, MAX_PENDING_CONNECTS, MAX_PENDING_PER_ADDRESS, PendingConnects
 from edge.broker.gate import IDENTIFIER_REJECTED, NOT_AUTHORIZED, PacketLimit, PacketTooLarge
 from edge.config import BrokerTarget
 from edge.messages import FORMATION_TOPIC, ROVER_STATUS_WILDCARD, edge_status_topic, pose_topic, rover_status_topic
@@ -195,6 +196,60 @@ def test_without_logins_it_serves_this_machine_only() -> None:
         with Probe("127.0.0.1", broker.port, client_id="local") as local:
             assert local.accepted
     assert (remote["accepted"], remote["connack"]) == (False, NOT_AUTHORIZED)
+
+
+def _connect_packet(client_id: bytes, user: bytes | None = None, password: bytes | None = None) -> bytes:
+    """An MQTT 3.1.1 CONNECT, built by hand so that it can be repeated, cut or sent to a client that resets."""
+    flags = 0x02 | (0x80 if user is not None else 0) | (0x40 if password is not None else 0)
+    body = b"\x00\x04MQTT\x04" + bytes([flags]) + b"\x00\x3c" + len(client_id).to_bytes(2, "big") + client_id
+    for part in (user, password):
+        if part is not None:
+            body += len(part).to_bytes(2, "big") + part
+    return b"\x10" + bytes([len(body)]) + body
+
+
+def _send_and_reset(port: int, data: bytes) -> None:
+    """Send ``data`` and reset the connection at once (SO_LINGER 0): a client gone before the broker closes."""
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        s.sendall(data)
+
+
+def test_malformed_and_reset_connections_leave_no_traceback_and_a_bounded_log(
+    secured: tuple[EmbeddedBroker, Credentials], caplog: pytest.LogCaptureFixture
+) -> None:
+    """What a script on the network can send: garbage, a PUBLISH before CONNECT, a CONNECT amqtt refuses itself,
+    a wrong password, each followed by a reset; and a session of sixty CONNECTs (a protocol violation amqtt logs
+    as an ERROR each time). The broker keeps serving, no traceback reaches the log, and amqtt's own lines stay
+    within their cap a minute."""
+    broker, creds = secured
+    caplog.set_level(logging.WARNING)
+    for data in (
+        bytes(range(256)) * 2,
+        b"\x30\x0a\x00\x03a/bhello",  # a PUBLISH first
+        _connect_packet(b"x")[:9],  # cut short
+        _connect_packet(b"x").replace(b"\x04\x02", b"\x63\x02", 1),  # protocol level 99
+        _connect_packet(b"rover-red", b"red", b"wrong"),
+    ):
+        for _ in range(5):
+            _send_and_reset(broker.port, data)
+    with socket.create_connection(("127.0.0.1", broker.port), timeout=10) as s:
+        s.sendall(_connect_packet(b"anon") * 60 + b"\xc0\x00")  # then a PINGREQ
+        answers = b""
+        while b"\xd0\x00" not in answers:  # PINGRESP: every CONNECT before it was read (and logged)
+            chunk = s.recv(4096)
+            assert chunk, "the broker closed the session before answering its PINGREQ"
+            answers += chunk
+    with Probe("127.0.0.1", broker.port, client_id="rover-red", **login(creds, "red")) as red:
+        assert red.accepted
+        red.subscribe(FORMATION_TOPIC)
+        with Probe("127.0.0.1", broker.port, client_id="edge-ips-x", **login(creds, "edge")) as edge:
+            edge.publish(FORMATION_TOPIC, b'{"after":1}')
+            assert red.wait(lambda: red.payloads(FORMATION_TOPIC) == [b'{"after":1}'])
+    assert not [r for r in caplog.records if r.exc_info or "Traceback" in r.getMessage()]
+    assert not [r for r in caplog.records if r.name == "asyncio"]
+    amqtt_lines = [r for r in caplog.records if r.name.startswith("amqtt")]
+    assert 0 < len(amqtt_lines) <= AMQTT_LINES_PER_MINUTE
 
 
 # -- the pieces --------------------------------------------------------------------------------------------------

@@ -16,6 +16,7 @@ why that is the safe choice: a stale formation must never come back before the e
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import errno
 import logging
 import threading
@@ -40,12 +41,56 @@ MAX_PENDING_PER_ADDRESS = 8  # of them from any one other host
 SHUTDOWN_TIMEOUT_S = 4.0  # amqtt's own shutdown, then what it left
 
 
-def _amqtt_noise(record: logging.LogRecord) -> bool:
-    """False for what amqtt logs that this module says better: its traceback when it cannot listen (start() raises
-    a one-line BrokerError instead), its warning of the QoS 0 messages still queued when it stops (dropping them
-    on shutdown is the design), and its reader's warning on a packet the gate refused (logged here)."""
-    text = record.getMessage()
-    return text != "Broker startup failed" and "messages not broadcasted" not in text and "PacketTooLarge" not in text
+AMQTT_LINES_PER_MINUTE = 20  # what amqtt logs itself (one ERROR per protocol violation a client sends), at most
+
+
+class _AmqttLines(logging.Filter):
+    """What amqtt logs, filtered: dropped where this module says it better (its traceback when it cannot listen:
+    start() raises a one-line BrokerError instead; its warning of the QoS 0 messages still queued when it stops,
+    dropping them on shutdown being the design; its reader's warning on a packet the gate refused, logged here),
+    and at most ``AMQTT_LINES_PER_MINUTE`` lines a minute for the rest: amqtt logs an ERROR for every protocol
+    violation, so a client sending fifty CONNECTs in one session would write fifty lines, and a script on the
+    network could fill the journal. The first line after a quiet spell says how many were left out."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._lock = threading.Lock()
+        self._window_start = -float("inf")
+        self._lines = 0
+        self._left_out = 0
+
+    def reset(self) -> None:
+        """A broker started anew counts anew."""
+        with self._lock:
+            self._window_start, self._lines, self._left_out = -float("inf"), 0, 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = record.getMessage()
+        if text == "Broker startup failed" or "messages not broadcasted" in text or "PacketTooLarge" in text:
+            return False
+        with self._lock:
+            if record.created - self._window_start >= 60.0:
+                self._window_start, self._lines = record.created, 0
+                if self._left_out:
+                    record.msg = f"%s ({self._left_out} earlier amqtt lines left out)"
+                    record.args = (text,)
+                    self._left_out = 0
+            self._lines += 1
+            if self._lines > AMQTT_LINES_PER_MINUTE:
+                self._left_out += 1
+                return False
+        return True
+
+
+_amqtt_lines = _AmqttLines()
+# amqtt's loggers that a client's packets can make write (a filter works on the logger a record starts at only)
+AMQTT_LOGGERS = (
+    "amqtt.broker",
+    "amqtt.mqtt.protocol.handler",
+    "amqtt.adapters",
+    "amqtt.session",
+    "amqtt.broker.plugins",
+)
 
 
 _refusals = [0]
@@ -162,6 +207,13 @@ class PendingConnects:
                     del self._counts[key]  # remember no address that has nothing pending
 
 
+async def _close(out: Any) -> None:
+    """Close a client's stream; a client that reset the connection first makes the shutdown fail (ENOTCONN), which
+    is no error of ours: without this, asyncio logs a traceback per such client."""
+    with contextlib.suppress(OSError):
+        await out.close()
+
+
 def _make_broker(config: dict[str, Any], access: BrokerAccess | None) -> Any:
     """An amqtt broker behind the gate, with per-topic payload limits and retained messages only for subscribers.
 
@@ -185,7 +237,7 @@ def _make_broker(config: dict[str, Any], access: BrokerAccess | None) -> Any:
             full = pending.refusal(address)
             if full is not None:
                 refused(f"a connection from {address}: {full}")
-                await out.close()
+                await _close(out)
                 return
             gate = GateReader(reader, on_too_large=lambda why: refused(f"{why} from {address}; disconnected"))
             pending.add(address)
@@ -196,7 +248,7 @@ def _make_broker(config: dict[str, Any], access: BrokerAccess | None) -> Any:
                 packet = await asyncio.wait_for(ConnectPacket.from_stream(gate, header), CONNECT_TIMEOUT_S)
             except Exception as exc:  # too large, not MQTT, silent, or gone: nothing reached amqtt
                 refused(f"a connection from {address}: {exc or type(exc).__name__}")
-                await out.close()
+                await _close(out)
                 return
             finally:
                 pending.add(address, -1)
@@ -212,11 +264,15 @@ def _make_broker(config: dict[str, Any], access: BrokerAccess | None) -> Any:
             refusal = access.admit(connect) if access is not None else admit_open(connect)
             if refusal is not None:
                 refused(f"{connect.username or ANONYMOUS!r} from {address}: {refusal.reason}")
-                await ConnackPacket.build(0, refusal.code).to_stream(out)
-                await out.close()
+                with contextlib.suppress(OSError):  # the client may have gone already
+                    await ConnackPacket.build(0, refusal.code).to_stream(out)
+                await _close(out)
                 return
             gate.replay_recorded()
-            await self._client_connected(listener_name, gate, out)
+            try:
+                await self._client_connected(listener_name, gate, out)
+            except OSError as exc:  # the client reset the connection while amqtt closed it: nothing to undo
+                log.debug("embedded broker: a client from %s went while its session ended (%r)", address, exc)
 
         async def _broadcast_message(
             self, session: Any, topic: str | None, data: Any, force_qos: int | None = None
@@ -324,9 +380,10 @@ class EmbeddedBroker:
         for name in ("amqtt", "transitions"):
             if logging.getLogger(name).level == logging.NOTSET:
                 logging.getLogger(name).setLevel(logging.WARNING)  # amqtt logs every connection at INFO
-        for name in ("amqtt.broker", "amqtt.mqtt.protocol.handler"):
-            if _amqtt_noise not in logging.getLogger(name).filters:
-                logging.getLogger(name).addFilter(_amqtt_noise)
+        _amqtt_lines.reset()
+        for name in AMQTT_LOGGERS:
+            if _amqtt_lines not in logging.getLogger(name).filters:
+                logging.getLogger(name).addFilter(_amqtt_lines)
         self._thread = threading.Thread(target=self._run, name="embedded-broker", daemon=True)
         self._thread.start()
         try:
