@@ -125,14 +125,12 @@ class _Route:
     is_async: bool
 
 
+@dataclass(slots=True)
 class _Connection:
-    __slots__ = ("busy", "deadline", "requests", "transport")
-
-    def __init__(self, transport: asyncio.Transport) -> None:
-        self.transport = transport
-        self.requests = 0
-        self.busy = 0
-        self.deadline: asyncio.TimerHandle | None = None
+    transport: asyncio.Transport
+    requests: int = 0
+    busy: int = 0
+    deadline: asyncio.TimerHandle | None = None
 
 
 def json_response(status: int, data: Any) -> Response:
@@ -347,8 +345,11 @@ class HttpServer:
             out = web.Response(status=response.status, body=response.body, headers=headers)
             if response.close_connection:
                 out.force_close()
-            await self._timed(out.prepare(raw))
-            await self._timed(out.write_eof())
+            try:
+                await self._timed(out.prepare(raw))
+                await self._timed(out.write_eof())
+            except (ConnectionError, TimeoutError):  # the client went (reset) or stopped reading: no error of ours
+                raw.protocol.force_close()
             return out
         if self.stats.streams_open >= self.limits.max_streams:
             await _close(response.stream)
@@ -401,13 +402,8 @@ class HttpServer:
             self.stop()
             sock.close()
             raise
-        log.info(
-            "http server on %s:%d (/healthz, /metrics); at most %d connections, %g s to send a request",
-            self.host,
-            self._port,
-            self.limits.max_connections,
-            self.limits.request_timeout_s,
-        )
+        what = f"{self.limits.max_connections} connections, {self.limits.request_timeout_s:g} s to send a request"
+        log.info("http server on %s:%d (/healthz, /metrics); at most %s", self.host, self._port, what)
         return self
 
     def _serve(self, loop: asyncio.AbstractEventLoop) -> None:

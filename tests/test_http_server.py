@@ -11,6 +11,7 @@ import http.client
 import json
 import logging
 import socket
+import struct
 import threading
 from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
@@ -231,6 +232,22 @@ def test_malformed_requests_are_a_400_and_no_error_in_the_log(
         assert sock.recv(4096).startswith((b"HTTP/1.0 400", b"HTTP/1.1 400"))
         assert get(server.port, "/ping") == (200, b"pong")  # and the server goes on
     sock.close()
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
+
+
+@pytest.mark.parametrize("path", ["/ping", "/nope", "/where"])
+def test_a_client_that_resets_before_its_reply_leaves_no_error_in_the_log(
+    server: HttpServer, path: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A request followed at once by a reset (SO_LINGER 0): the reply meets a closing transport. aiohttp logged
+    that as an error with a traceback, one per such request: anyone could fill the log."""
+    with caplog.at_level(logging.INFO):
+        for _ in range(20):
+            sock = connect(server.port)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            sock.sendall(f"GET {path} HTTP/1.1\r\nHost: localhost\r\n\r\n".encode())
+            sock.close()
+        assert get(server.port, "/ping") == (200, b"pong")  # and the server goes on
     assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
 
 
