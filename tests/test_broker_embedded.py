@@ -107,6 +107,7 @@ def test_anonymous_clients_on_this_machine_only_read(
         assert late.payloads(FORMATION_TOPIC) == []  # nothing retained: the publish was dropped
 
 
+@pytest.mark.slow
 def test_nothing_from_another_host_without_a_login(secured: tuple[EmbeddedBroker, Credentials]) -> None:
     broker, creds = secured
     with other_host() as there:
@@ -118,6 +119,7 @@ def test_nothing_from_another_host_without_a_login(secured: tuple[EmbeddedBroker
     assert right["accepted"]
 
 
+@pytest.mark.slow
 def test_an_unauthenticated_connect_with_a_rovers_client_id_leaves_its_session_alone(
     secured: tuple[EmbeddedBroker, Credentials],
 ) -> None:
@@ -140,6 +142,7 @@ def test_an_unauthenticated_connect_with_a_rovers_client_id_leaves_its_session_a
         assert red.disconnects == 0
 
 
+@pytest.mark.slow
 def test_a_rover_login_cannot_take_the_edges_client_id(
     secured: tuple[EmbeddedBroker, Credentials],
 ) -> None:
@@ -160,6 +163,7 @@ def test_a_rover_login_cannot_take_the_edges_client_id(
         publisher.stop()
 
 
+@pytest.mark.slow
 def test_a_last_will_on_a_topic_the_login_may_not_publish_is_refused_at_connect(
     secured: tuple[EmbeddedBroker, Credentials],
 ) -> None:
@@ -172,6 +176,7 @@ def test_a_last_will_on_a_topic_the_login_may_not_publish_is_refused_at_connect(
         assert red.accepted
 
 
+@pytest.mark.slow
 def test_oversized_payloads_are_dropped_and_oversized_packets_disconnect(
     secured: tuple[EmbeddedBroker, Credentials], refusals: Refusals
 ) -> None:
@@ -189,6 +194,7 @@ def test_oversized_payloads_are_dropped_and_oversized_packets_disconnect(
         assert late.payloads(FORMATION_TOPIC) == [b'{"fits":1}']
 
 
+@pytest.mark.slow
 def test_without_logins_it_serves_this_machine_only() -> None:
     with EmbeddedBroker("0.0.0.0", 0) as broker, other_host() as there:
         remote = there.probe(broker.port, client_id="x")

@@ -314,6 +314,7 @@ def test_jpeg_is_downscaled_to_the_configured_width() -> None:
     assert decoded[180, 320, 2] > 200 and decoded[20, 20, 2] < 30
 
 
+@pytest.mark.slow
 def test_frames_are_encoded_only_when_asked_and_once_per_new_frame() -> None:
     frames = [Frame(np.full((240, 320, 3), 10, dtype=np.uint8), 0, 1.0, 1.0)]
     encoder = FrameEncoder(lambda: frames[-1], max_fps=30.0, max_width_px=160)

@@ -9,6 +9,7 @@ import time
 from dataclasses import replace
 
 import paho.mqtt.client as mqtt
+import pytest
 
 from edge.board_messages import detections_topic
 from edge.config import parse_broker_url
@@ -19,6 +20,7 @@ from tests.support.fusion import Board, circle, record
 from tests.support.mosquitto import Mosquitto
 
 
+@pytest.mark.slow
 def test_a_burst_of_frames_is_fused_before_the_clocks_learn_and_every_frame_is_learned(mosquitto: Mosquitto) -> None:
     """Four frames published together (two boards, two instants): the first is held until the next is in the
     fuser's socket, so its learning must wait for the burst; all four are learned in the end."""

@@ -269,6 +269,7 @@ def test_duplicate_rover_ids_are_refused():
         )
 
 
+@pytest.mark.slow
 def test_a_grey_marker_colour_is_a_configuration_error():
     config = TrackerConfig(rovers=(RoverConfig(id="grey", color_bgr=(120, 120, 120)),))
     with pytest.raises(ConfigError, match="grey"):
@@ -356,6 +357,7 @@ def test_a_smaller_image_is_tracked_with_a_finer_acquisition_pass():
         assert math.hypot(e.x_cm - truth[e.rover_id][0], e.y_cm - truth[e.rover_id][1]) < 0.5
 
 
+@pytest.mark.slow
 def test_a_frame_of_another_size_mid_stream_is_a_source_error():
     from edge.errors import SourceError
 

@@ -173,6 +173,7 @@ def deployed(tmp_path: Path) -> Any:
         yield broker
 
 
+@pytest.mark.slow
 def test_broker_config_rover_cannot_publish_poses_or_other_rovers_status(deployed: Mosquitto) -> None:
     edge = Client(deployed.port, "edge", PASSWORDS["edge"])
     red = Client(deployed.ports[1883], "red", PASSWORDS["red"])  # rovers log in on the network listener

@@ -67,6 +67,7 @@ def test_rovers_from_environment_as_json() -> None:
     assert [r.id for r in load_config(None, env).config.rovers] == ["r1", "r2"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("text", "env", "message"),
     [

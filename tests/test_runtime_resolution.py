@@ -126,6 +126,7 @@ class BothTrackers:
         return self.fake.process(frame)
 
 
+@pytest.mark.slow
 def test_the_appliance_waits_for_a_stream_back_at_another_size_and_resumes(
     mosquitto: Mosquitto, caplog: pytest.LogCaptureFixture
 ) -> None:

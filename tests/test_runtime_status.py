@@ -154,6 +154,7 @@ def test_poses_are_the_exact_encode_pose_bytes_with_per_rover_seq() -> None:
     assert all(m.qos == 0 and not m.retain for m in pub.messages if m.topic.endswith("/pose"))
 
 
+@pytest.mark.slow
 def test_poses_dropped_while_disconnected_do_not_advance_seq() -> None:
     pub = MemoryPublisher()
     pub.is_connected = False

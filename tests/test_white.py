@@ -36,6 +36,7 @@ def _box(uv: np.ndarray, half: int = 40) -> tuple[int, int, int, int]:
     return u - half, v - half, u + half, v + half
 
 
+@pytest.mark.slow
 def test_a_blue_marker_in_a_warm_sunlit_patch_shows_its_own_colour_again():
     """Under a patch 3 times brighter and much warmer than the lamps the blue marker loses a third of its
     saturation; judged against the light there, it has the colour it was enrolled with."""
@@ -62,6 +63,7 @@ def test_a_blue_marker_in_a_warm_sunlit_patch_shows_its_own_colour_again():
     assert _saturation(c) == pytest.approx(_saturation(configured), rel=0.1)
 
 
+@pytest.mark.slow
 def test_a_grey_box_in_the_sun_stays_grey_and_a_white_one_white():
     boxes = (
         Prop(150.0, 300.0, (30.0, 30.0, 25.0), 0.0, (0.5, 0.5, 0.5)),
@@ -104,6 +106,7 @@ def test_linear_encoding_round_trips_every_value():
     assert np.array_equal(encode_linear(LINEAR[values]), values)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("camera", ["nominal", "family"])
 def test_rovers_in_the_daylight_scenario_are_all_tracked_and_the_boxes_never_taken_for_one(camera):
     """The sunlit patch, its glare, half the lamps off and an automatic white balance: every marker in view gets a
