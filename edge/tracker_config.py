@@ -2,7 +2,7 @@
 
 :class:`TrackerSettings` is the ``[tracker]`` section of the appliance's configuration file (``edge.config``);
 :class:`TrackerConfig` adds the rovers, which the appliance configures in ``[[rovers]]`` tables. Every setting
-reaches the code that uses it: ``edge.trackers.build_tracker`` hands them to the window trackers, the filter and
+reaches the code that uses it: ``edge.trackers.factory.build_tracker`` hands them to the window trackers, the filter and
 the pipeline (``edge.pipeline``).
 """
 
@@ -147,7 +147,7 @@ class TrackerSettings(BaseModel):
 
 
 class TrackerConfig(TrackerSettings):
-    """The settings and the rovers they track: what a tracker is built from (``edge.trackers.build_tracker``)."""
+    """The settings and the rovers they track: what a tracker is built from (``edge.trackers.factory``)."""
 
     rovers: tuple[RoverConfig, ...] = Field(default=DEFAULT_ROVERS, min_length=1, max_length=64)
 

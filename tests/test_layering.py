@@ -249,3 +249,15 @@ def test_scripts_and_the_firmware_harness_do_not_import_the_tests(folder: str) -
     uses = {str(p.relative_to(REPO)): sorted(m for m in _imports_of_file(p) if m == "tests" or m.startswith("tests."))
             for p in files}  # fmt: skip
     assert {name: used for name, used in uses.items() if used} == {}
+
+
+def test_the_readme_layout_table_names_every_module_and_folder_of_the_package() -> None:
+    """A new file in ``edge/`` gets its row (or a place in one) in the README's layout table."""
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    table = text[text.index("## Layout") : text.index("## Tests and CI")]
+    entries = {
+        p.name
+        for p in EDGE.iterdir()
+        if p.name != "__init__.py" and (p.suffix == ".py" or (p / "__init__.py").exists())
+    }
+    assert sorted(e for e in entries if f"`edge/{e}" not in table) == []
