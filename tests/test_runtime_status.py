@@ -35,6 +35,12 @@ class ScriptedTracker:
         missing = tuple(r for r in ROVERS if r in self.hidden)
         return FrameResult(frame.index, frame.t_capture_s, frame.t_mono_s, seen, missing, {})
 
+    def reset(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
 
 class GatedSource:
     """Frames at 30 fps while ``flowing`` is set; a read blocks (a stalled camera) while it is clear, and says so
