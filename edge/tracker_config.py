@@ -17,7 +17,7 @@ from typing import Annotated, Literal, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from edge.errors import ConfigError, describe_validation
-from edge.messages import ID_PATTERN
+from edge.messages import ID_PATTERN, id_problem
 
 RoversT = TypeVar("RoversT", bound=Sequence["RoverConfig"])
 Channel = Annotated[int, Field(ge=0, le=255)]
@@ -164,10 +164,9 @@ class TrackerConfig(TrackerSettings):
 
 def require_unique_ids(rovers: RoversT) -> RoversT:
     """``rovers`` unchanged when no two share an id (a validator's body: raises ValueError naming the repeats)."""
-    ids = [r.id for r in rovers]
-    repeated = sorted({i for i in ids if ids.count(i) > 1})
-    if repeated:
-        raise ValueError(f"rover ids must be unique, repeated: {', '.join(repeated)}")
+    problem = id_problem([r.id for r in rovers])
+    if problem is not None:
+        raise ValueError(problem)
     return rovers
 
 

@@ -56,8 +56,8 @@ def _bundle(directory: Path, rover_id: str, **broker: Any) -> None:
             {"e/red.json": '{"id":"red","control":{"period_ms":1}}'},
             "period_ms",
         ),
-        ("bad ids", ["--ids", "Red,"], {}, "--ids: Red"),
-        ("an id twice", ["--ids", "red,red"], {}, "named twice"),
+        ("bad ids", ["--ids", "Red,"], {}, "--ids: rover id 'Red' is not an id"),
+        ("an id twice", ["--ids", "red,red"], {}, "--ids: red named more than once"),
         ("credentials not TOML", ["--credentials", "{tmp}/c.toml"], {"c.toml": "[rovers"}, "not a broker credentials"),
         ("an empty login", ["--credentials", "{tmp}/c.toml"], {"c.toml": "[edge]\n"}, "[edge]: username and password"),
         (
