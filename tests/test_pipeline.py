@@ -263,7 +263,7 @@ def test_default_configuration_tracks_the_paper_three_rovers():
 
 
 def test_duplicate_rover_ids_are_refused():
-    with pytest.raises(ValidationError, match="repeated: red"):
+    with pytest.raises(ValidationError, match="red named more than once"):
         TrackerConfig(
             rovers=(RoverConfig(id="red", color_bgr=(0, 0, 200)), RoverConfig(id="red", color_bgr=(0, 200, 0)))
         )
