@@ -132,6 +132,12 @@ class TimedTracker:
         self.samples.append((time.monotonic(), t1 - t0))
         return result
 
+    def reset(self) -> None:
+        self.inner.reset()
+
+    def close(self) -> None:
+        self.inner.close()
+
 
 @dataclass
 class Phase:

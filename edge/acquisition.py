@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
 from edge.segmentation import ColorModel, opponent_planes
 from edge.trackers.base import PlaneGrid, PlaneMapping
+from edge.trackers.plane import WithWorkingArea
 from edge.white import LocalWhite
 
 CANDIDATES_PER_ROVER = 6  # the largest blobs of a rover's hue class tried, largest first
@@ -22,7 +23,8 @@ def acquisition_scale(marker_area_cm2: float, max_scale: int, grid: PlaneGrid, c
     """The acquisition pass's downscale: as coarse as ``max_scale`` allows while the smallest marker in the working
     area stays two low-resolution pixels across or more (4 for the paper's 1280x720 view, whose far-side markers
     are about 21 x 9 px; less for a smaller image or a farther camera)."""
-    x0, y0, x1, y1 = getattr(calibration, "area_cm", None) or (0.0, 0.0, AREA_WIDTH_CM, AREA_LENGTH_CM)
+    area = calibration.area_cm if isinstance(calibration, WithWorkingArea) else None
+    x0, y0, x1, y1 = area or (0.0, 0.0, AREA_WIDTH_CM, AREA_LENGTH_CM)
     inside = (grid.area_cm2 > 0) & (grid.x_cm >= x0) & (grid.x_cm <= x1) & (grid.y_cm >= y0) & (grid.y_cm <= y1)
     if not inside.any():
         return max_scale

@@ -20,6 +20,7 @@ from edge.messages import (
     RoverId,
     Version,
     _loads,
+    repeated_ids,
 )
 
 # -- detections: what one camera board measured, for the fusion service (several cameras) ------------------------
@@ -100,9 +101,9 @@ class DetectionsV1(BaseModel):
 
     @model_validator(mode="after")
     def _unique_ids(self) -> DetectionsV1:
-        ids = [r.id for r in self.rovers]
-        if len(set(ids)) != len(ids):
-            raise ValueError("rover ids must be unique within one message")
+        twice = repeated_ids([r.id for r in self.rovers])
+        if twice:
+            raise ValueError(f"{', '.join(twice)} named more than once in one message")
         return self
 
 

@@ -19,7 +19,7 @@ from pydantic import ValidationError
 
 from edge.config import BrokerTarget, EdgeConfig
 from edge.errors import BrokerError, EdgeIpsError, MessageError, describe_validation
-from edge.messages import FORMATION_TOPIC, FormationKind, FormationV1, dumps, next_seq, parse_formation
+from edge.messages import FORMATION_TOPIC, FormationKind, FormationV1, dumps, next_seq, parse_formation, repeated_ids
 from edge.mqttclient import TlsFiles, connect_blocking, make_client
 
 log = logging.getLogger("edge.commands")
@@ -55,7 +55,7 @@ def build_formation(
     unknown = [i for i in ids if known_ids is not None and i not in known_ids]
     if unknown:
         raise MessageError(f"formation: ids: not configured rovers: {', '.join(unknown)}")
-    twice = sorted({i for i in ids if ids.count(i) > 1})
+    twice = repeated_ids(ids)
     if twice:
         raise MessageError(f"formation: ids: {', '.join(twice)} named more than once")
     if kind != "stop" and not ids:

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import colorsys
 import math
-import re
 import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -35,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.errors import EnrollmentError
-from edge.messages import ID_PATTERN
+from edge.messages import id_problem
 from edge.tracker_config import RoverConfig
 from edge.trackers.base import PlaneMapping
 
@@ -368,11 +367,9 @@ def _name(markers: list[EnrolledMarker], ids: Sequence[str] | None) -> list[Enro
                 name, k = f"{base}-{k}", k + 1
             names.append(name)
         return [replace(m, rover_id=n) for m, n in zip(ordered, names, strict=True)]
-    bad = [i for i in ids if not re.match(ID_PATTERN, i)]
-    if bad:
-        raise EnrollmentError(f"rover id {bad[0]!r} is not an id: 1-16 of a-z, 0-9, _ and -")
-    if len(set(ids)) != len(ids):
-        raise EnrollmentError(f"rover ids must be unique: {', '.join(ids)}")
+    problem = id_problem(ids)
+    if problem is not None:
+        raise EnrollmentError(problem)
     if len(markers) != len(ids):
         more = "more" if len(markers) > len(ids) else "fewer"
         where = ", ".join(f"({m.xy_cm[0]:.0f}, {m.xy_cm[1]:.0f}) cm hue {m.hue_deg:.0f}" for m in markers)

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import json
 import math
+import re
+from collections.abc import Sequence
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
@@ -37,6 +39,23 @@ MAX_ABS_CM_S = 999.9  # 10 m/s: far beyond any small rover; the filter output is
 THETA_LIMIT = 3.1416  # pi rounded up to the wire's 1e-4 rad resolution
 
 RoverId = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
+
+
+def repeated_ids(ids: Sequence[str]) -> list[str]:
+    """The ids ``ids`` names more than once, sorted."""
+    return sorted({i for i in ids if ids.count(i) > 1})
+
+
+def id_problem(ids: Sequence[str], what: str = "rover id") -> str | None:
+    """The rule of every list of rover ids (configuration, enrolment, broker logins, formations, the simulator):
+    each one an id (:data:`ID_PATTERN`, the topic segment), none named twice. What breaks it, or None."""
+    bad = [i for i in ids if not re.match(ID_PATTERN, i)]
+    if bad:
+        return f"{what} {bad[0]!r} is not an id: 1-16 of a-z, 0-9, _ and -"
+    twice = repeated_ids(ids)
+    return f"{', '.join(twice)} named more than once" if twice else None
+
+
 Cm = Annotated[float, Field(ge=-MAX_ABS_CM, le=MAX_ABS_CM, allow_inf_nan=False)]
 CmPerS = Annotated[float, Field(ge=-MAX_ABS_CM_S, le=MAX_ABS_CM_S, allow_inf_nan=False)]
 Counter = Annotated[int, Field(ge=0, le=MAX_INT)]

@@ -329,9 +329,7 @@ class EdgeRuntime:
         for thread in self._threads:
             thread.join(timeout=timeout_s)
         self.capture.join(timeout=timeout_s)
-        close = getattr(self.tracker, "close", None)  # a tracker with a worker (edge.centre_offsets) stops it
-        if close is not None:
-            close()
+        self.tracker.close()  # a tracker with a worker (edge.centre_offsets) stops it
         missing = self.rover_ids if self.detections is None else ()  # a board of several calls nobody missing
         self.publisher.stop(offline_status(self.edge_id, missing), timeout_s=timeout_s)
         if self.recorder is not None:

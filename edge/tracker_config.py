@@ -2,7 +2,7 @@
 
 :class:`TrackerSettings` is the ``[tracker]`` section of the appliance's configuration file (``edge.config``);
 :class:`TrackerConfig` adds the rovers, which the appliance configures in ``[[rovers]]`` tables. Every setting
-reaches the code that uses it: ``edge.trackers.build_tracker`` hands them to the window trackers, the filter and
+reaches the code that uses it: ``edge.trackers.factory.build_tracker`` hands them to the window trackers, the filter and
 the pipeline (``edge.pipeline``).
 """
 
@@ -17,7 +17,7 @@ from typing import Annotated, Literal, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from edge.errors import ConfigError, describe_validation
-from edge.messages import ID_PATTERN
+from edge.messages import ID_PATTERN, id_problem
 
 RoversT = TypeVar("RoversT", bound=Sequence["RoverConfig"])
 Channel = Annotated[int, Field(ge=0, le=255)]
@@ -147,7 +147,7 @@ class TrackerSettings(BaseModel):
 
 
 class TrackerConfig(TrackerSettings):
-    """The settings and the rovers they track: what a tracker is built from (``edge.trackers.build_tracker``)."""
+    """The settings and the rovers they track: what a tracker is built from (``edge.trackers.factory``)."""
 
     rovers: tuple[RoverConfig, ...] = Field(default=DEFAULT_ROVERS, min_length=1, max_length=64)
 
@@ -164,10 +164,9 @@ class TrackerConfig(TrackerSettings):
 
 def require_unique_ids(rovers: RoversT) -> RoversT:
     """``rovers`` unchanged when no two share an id (a validator's body: raises ValueError naming the repeats)."""
-    ids = [r.id for r in rovers]
-    repeated = sorted({i for i in ids if ids.count(i) > 1})
-    if repeated:
-        raise ValueError(f"rover ids must be unique, repeated: {', '.join(repeated)}")
+    problem = id_problem([r.id for r in rovers])
+    if problem is not None:
+        raise ValueError(problem)
     return rovers
 
 

@@ -70,6 +70,11 @@ class Tracker(Protocol):
         at whatever size it has."""
         ...
 
+    def close(self) -> None:
+        """Stop what the tracker runs beside the frame thread (the edge fits' worker process, ``edge.centre_offsets``);
+        nothing for a tracker that runs nothing. The tracker is not used after."""
+        ...
+
 
 class StageClock(Protocol):
     """Accumulates the time of named stages (Table IV rows). ``edge.tracking.StageTimes`` implements it."""

@@ -313,6 +313,7 @@ def test_a_configuration_that_is_not_text_is_one_line(tmp_path: Path) -> None:
     assert_one_line_error(run("config", "show", "--config", config), str(config), "not UTF-8")
 
 
+@pytest.mark.slow
 def test_the_real_edge_ips_process_exits_2_without_a_traceback(kit: dict[str, Path], tmp_path: Path) -> None:
     """What systemd sees: exit status 2 (RestartPreventExitStatus=2 in deploy/edge-ips.service) and one line."""
     d = kit["dir"]

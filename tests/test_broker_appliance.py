@@ -10,6 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from edge.broker import read_credentials
 from edge.messages import FORMATION_TOPIC, ROVER_STATUS_WILDCARD, edge_status_topic, parse_status, rover_status_topic
 from tests.conftest import REPO
@@ -25,6 +27,7 @@ def _env(**extra: str) -> dict[str, str]:
     return {**env, "PYTHONPATH": str(REPO), **extra}
 
 
+@pytest.mark.slow
 def test_the_default_appliance_is_closed_to_other_hosts_and_to_rover_logins(tmp_path: Path) -> None:
     port = free_port()
     env = _env(EDGE_IPS_BROKER__EMBEDDED_PORT=str(port))
@@ -73,6 +76,7 @@ def test_the_default_appliance_is_closed_to_other_hosts_and_to_rover_logins(tmp_
     assert red.password not in stderr
 
 
+@pytest.mark.slow
 def test_the_edges_tools_use_the_state_directorys_logins(tmp_path: Path) -> None:
     port = free_port()
     env = _env(EDGE_IPS_BROKER__EMBEDDED_PORT=str(port))
@@ -107,12 +111,14 @@ def test_the_edges_tools_use_the_state_directorys_logins(tmp_path: Path) -> None
     assert (bundle / "config.json").stat().st_mode & 0o777 == 0o600
 
 
+@pytest.mark.slow
 def test_formation_without_the_appliances_logins_says_where_they_should_be(tmp_path: Path) -> None:
     result = subprocess.run([*EDGE_IPS, "formation", "stop"], cwd=tmp_path, env=_env(), capture_output=True, text=True)
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "no embedded broker logins yet" in result.stderr.strip().splitlines()[-1]
 
 
+@pytest.mark.slow
 def test_a_probe_from_this_machine_is_anonymous_and_read_only(tmp_path: Path) -> None:
     port = free_port()
     env = _env(EDGE_IPS_BROKER__EMBEDDED_PORT=str(port))

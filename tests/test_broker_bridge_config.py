@@ -192,6 +192,7 @@ def test_with_tls_each_board_has_its_own_ca_and_the_central_bridge_holds_its_cli
     assert isinstance(cam1_ca.public_key(), ec.EllipticCurvePublicKey)
 
 
+@pytest.mark.slow
 def test_a_real_board_broker_lets_the_centrals_login_read_and_write_only_what_crosses_the_bridge(
     tmp_path: Path,
 ) -> None:
@@ -224,6 +225,7 @@ def test_a_real_board_broker_lets_the_centrals_login_read_and_write_only_what_cr
     assert not [m for m in local.messages if m.payload == b"forged"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("where", ["central", "cam1"])
 def test_only_the_edge_login_connects_to_the_loopback_listener_where_clients_keep_their_ids(
     tmp_path: Path, where: str
@@ -242,6 +244,7 @@ def test_only_the_edge_login_connects_to_the_loopback_listener_where_clients_kee
             assert r1.accepted  # its own listener
 
 
+@pytest.mark.slow
 def test_a_formation_a_boards_broker_drops_is_an_error_not_a_command_sent(tmp_path: Path) -> None:
     """A board's `edge` login may not publish the formation on its broker (commands go to the central one). Mosquitto
     (MQTT 3.1.1) still acknowledges the publish and drops it; `edge-ips formation` and the dashboard read the
@@ -268,6 +271,7 @@ def test_a_formation_a_boards_broker_drops_is_an_error_not_a_command_sent(tmp_pa
         assert send_formation(target, stop).seq == 2  # read back, and the next one follows it
 
 
+@pytest.mark.slow
 def test_at_the_central_broker_each_fuser_may_publish_its_stop_and_the_viewer_may_not(tmp_path: Path) -> None:
     """A fuser publishes a retained stop on every connection (a crashed central broker brings back an older
     formation): its login may write the formation at the central broker, with the ACL written there; the viewer's

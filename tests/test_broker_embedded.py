@@ -108,6 +108,7 @@ def test_anonymous_clients_on_this_machine_only_read(
         assert late.payloads(FORMATION_TOPIC) == []  # nothing retained: the publish was dropped
 
 
+@pytest.mark.slow
 def test_nothing_from_another_host_without_a_login(secured: tuple[EmbeddedBroker, Credentials]) -> None:
     broker, creds = secured
     with other_host() as there:
@@ -119,6 +120,7 @@ def test_nothing_from_another_host_without_a_login(secured: tuple[EmbeddedBroker
     assert right["accepted"]
 
 
+@pytest.mark.slow
 def test_an_unauthenticated_connect_with_a_rovers_client_id_leaves_its_session_alone(
     secured: tuple[EmbeddedBroker, Credentials],
 ) -> None:
@@ -141,6 +143,7 @@ def test_an_unauthenticated_connect_with_a_rovers_client_id_leaves_its_session_a
         assert red.disconnects == 0
 
 
+@pytest.mark.slow
 def test_a_rover_login_cannot_take_the_edges_client_id(
     secured: tuple[EmbeddedBroker, Credentials],
 ) -> None:
@@ -161,6 +164,7 @@ def test_a_rover_login_cannot_take_the_edges_client_id(
         publisher.stop()
 
 
+@pytest.mark.slow
 def test_a_last_will_on_a_topic_the_login_may_not_publish_is_refused_at_connect(
     secured: tuple[EmbeddedBroker, Credentials],
 ) -> None:
@@ -173,6 +177,7 @@ def test_a_last_will_on_a_topic_the_login_may_not_publish_is_refused_at_connect(
         assert red.accepted
 
 
+@pytest.mark.slow
 def test_oversized_payloads_are_dropped_and_oversized_packets_disconnect(
     secured: tuple[EmbeddedBroker, Credentials], refusals: Refusals
 ) -> None:
@@ -190,6 +195,7 @@ def test_oversized_payloads_are_dropped_and_oversized_packets_disconnect(
         assert late.payloads(FORMATION_TOPIC) == [b'{"fits":1}']
 
 
+@pytest.mark.slow
 def test_without_logins_it_serves_this_machine_only() -> None:
     with EmbeddedBroker("0.0.0.0", 0) as broker, other_host() as there:
         remote = there.probe(broker.port, client_id="x")
@@ -215,6 +221,7 @@ def _send_and_reset(port: int, data: bytes) -> None:
         s.sendall(data)
 
 
+@pytest.mark.slow
 def test_malformed_and_reset_connections_leave_no_traceback_and_a_bounded_log(
     secured: tuple[EmbeddedBroker, Credentials], caplog: pytest.LogCaptureFixture
 ) -> None:

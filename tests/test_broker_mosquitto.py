@@ -37,6 +37,7 @@ def logins(files: BrokerFiles) -> dict[str, dict[str, str]]:
     return {user: {"user": login.username, "password": login.password} for user, login in found.items()}
 
 
+@pytest.mark.slow
 def test_a_rover_login_with_the_edges_client_id_does_not_disconnect_the_edge(
     deployed: tuple[Mosquitto, BrokerFiles],
 ) -> None:
@@ -64,6 +65,7 @@ def test_a_rover_login_with_the_edges_client_id_does_not_disconnect_the_edge(
         publisher.stop()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("login", ["red", "viewer"])
 def test_no_login_but_the_edges_connects_to_the_local_listener_where_clients_keep_their_ids(
     deployed: tuple[Mosquitto, BrokerFiles], login: str
@@ -95,6 +97,7 @@ def test_no_login_but_the_edges_connects_to_the_local_listener_where_clients_kee
         publisher.stop()
 
 
+@pytest.mark.slow
 def test_the_tls_listener_takes_the_edge_with_the_client_certificate_and_nobody_without(
     deployed: tuple[Mosquitto, BrokerFiles],
 ) -> None:
@@ -122,6 +125,7 @@ def test_the_tls_listener_takes_the_edge_with_the_client_certificate_and_nobody_
         assert not plain.accepted  # the plain listener speaks no TLS
 
 
+@pytest.mark.slow
 def test_oversized_messages_are_refused_by_mosquitto(deployed: tuple[Mosquitto, BrokerFiles]) -> None:
     broker, files = deployed
     users = logins(files)
@@ -137,6 +141,7 @@ def test_oversized_messages_are_refused_by_mosquitto(deployed: tuple[Mosquitto, 
     assert MAX_PACKET_BYTES > MAX_PAYLOAD_BYTES + 64
 
 
+@pytest.mark.slow
 def test_a_rovers_last_will_cannot_set_the_formation(deployed: tuple[Mosquitto, BrokerFiles]) -> None:
     broker, files = deployed
     users = logins(files)
@@ -155,6 +160,7 @@ def test_a_rovers_last_will_cannot_set_the_formation(deployed: tuple[Mosquitto, 
         assert watcher.payloads(FORMATION_TOPIC) == []
 
 
+@pytest.mark.slow
 def test_mosquitto_accepts_the_python_hash(tmp_path: Path) -> None:
     password = "pä$$word with spaces"
     passwd = write_password_file(tmp_path / "passwd", {"edge": password})

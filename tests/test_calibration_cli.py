@@ -95,6 +95,7 @@ def test_points_reports_the_rejected_row(scene: dict[str, Path], tmp_path: Path)
     assert [p["used"] for p in saved["points"]].count(False) == 1
 
 
+@pytest.mark.slow
 def test_check_reports_each_point_and_json_summary(scene: dict[str, Path], tmp_path: Path) -> None:
     out = tmp_path / "calibration.json"
     assert run("calibrate", "points", scene["points"], "--out", out).exit_code == 0

@@ -14,6 +14,7 @@ from edge.camera import MARKER_HEIGHT_CM, paper_camera
 from edge.sim.targets import PAPER_AREA, survey_points
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ratio", [0.0, 0.05, 0.3, 0.7, 1.0])
 @pytest.mark.parametrize("angle", [0.0, 0.7])
 def test_radial_quantile_contains_95_percent_of_gaussian_errors(ratio: float, angle: float) -> None:

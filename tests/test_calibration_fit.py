@@ -88,6 +88,7 @@ def test_leave_one_out_errors_are_honest_predictions() -> None:
     assert np.mean(loo_means) > np.mean(resid_means)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("index", "offset_px"),
     [(0, (6.0, 0.0)), (5, (0.0, -3.0)), (17, (6.0, 6.0)), (30, (-10.0, 2.0)), (33, (0.0, 40.0))],

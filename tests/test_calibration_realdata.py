@@ -142,6 +142,7 @@ def write_inner_corners(image: Path, path: Path) -> int:
     return len(ids)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("photo", "with_intrinsics", "n_corners"),
     [("choriginal.jpg", True, 24), ("choriginal.jpg", False, 24), ("chocclusion_original.jpg", True, None)],
@@ -170,6 +171,7 @@ def test_markers_alone_calibrate_the_real_photo_to_its_inner_corners(
     assert summary["mean_cm"] < 0.1 and summary["max_cm"] < 0.25, summary
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("wrong", "cause"),
     [
@@ -199,6 +201,7 @@ def test_a_wrong_marker_table_for_the_real_photo_is_refused_naming_the_cause(
 
 
 # -- one marker not where its row says (rendered floor, paper camera) ------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize(("moved_cm", "refused"), [(3.0, False), (10.0, True), (40.0, True)])
 def test_one_misplaced_marker_is_named_and_a_survey_error_is_not(
     tmp_path: Path, moved_cm: float, refused: bool

@@ -73,6 +73,7 @@ def _job(
     return job, pose
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("pose", [(205.0, 330.0, 2.6), (120.0, 210.0, 1.2)])
 def test_a_fit_of_a_4_2_0_window_gives_the_offset_that_puts_the_centre_on_the_marker(grid, pose):
     job, (x, y, _) = _job(grid, pose)
@@ -86,11 +87,13 @@ def test_a_fit_of_a_4_2_0_window_gives_the_offset_that_puts_the_centre_on_the_ma
     assert sample.xy_cm == job.centre_cm and sample.index == job.index
 
 
+@pytest.mark.slow
 def test_a_window_too_small_to_show_the_band_beyond_the_edges_gives_no_sample(grid):
     job, _ = _job(grid, (200.0, 300.0, 0.3), half_px=13)
     assert fit_offset(job) is None
 
 
+@pytest.mark.slow
 def test_a_fit_that_lands_far_from_the_fast_centre_is_no_sample(grid):
     job, _ = _job(grid, (200.0, 300.0, 0.3))
     # the fast centre 4 cm off: the window's sides are sampled where the marker is not
@@ -135,6 +138,7 @@ def test_a_sample_far_from_the_rovers_others_is_not_used():
     assert dx == pytest.approx(0.0, abs=1e-9) and dy == pytest.approx(-0.2 + TRUST_CM, abs=1e-9)
 
 
+@pytest.mark.slow
 def test_fits_in_the_loop_come_back_as_late_as_from_a_worker_and_no_more_often_than_set(grid):
     job, _ = _job(grid, (150.0, 250.0, 1.0))
     fits = InlineFits(every_frames=10, delay_frames=15)
@@ -157,6 +161,7 @@ def test_the_rover_sampled_longest_ago_is_next_and_a_rover_without_enough_sample
     assert offsets.pick(20, []) is None
 
 
+@pytest.mark.slow
 def test_fits_in_a_worker_process_give_the_same_sample_and_a_fit_that_raises_costs_nothing(grid):
     job, _ = _job(grid, (150.0, 250.0, 1.0))
     fits = ProcessFits(every_frames=1)
@@ -196,6 +201,7 @@ def _mean_error(estimates: list[tuple[str, float, float]], truth: dict[str, tupl
     return out
 
 
+@pytest.mark.slow
 def test_the_pipeline_with_edge_offsets_takes_the_4_2_0_bias_out_of_the_reported_centres():
     frames = _still_rover_frames(60)
     rovers = (RoverConfig(id="red", color_bgr=(40, 40, 200)), RoverConfig(id="green", color_bgr=(60, 170, 40)))
@@ -220,6 +226,7 @@ def test_the_pipeline_with_edge_offsets_takes_the_4_2_0_bias_out_of_the_reported
     assert sum(biases[True].values()) < 0.75 * sum(biases[False].values())
 
 
+@pytest.mark.slow
 def test_a_two_tone_marker_is_never_sent_to_the_edge_fits():
     frames = _still_rover_frames(20)
     rovers = (
@@ -238,6 +245,7 @@ def test_a_two_tone_marker_is_never_sent_to_the_edge_fits():
     assert sent and set(sent) == {1}
 
 
+@pytest.mark.slow
 def test_the_appliances_tracker_fits_in_a_worker_process_and_close_stops_it():
     frames = _still_rover_frames(12)
     rovers = (RoverConfig(id="red", color_bgr=(40, 40, 200)), RoverConfig(id="green", color_bgr=(60, 170, 40)))
@@ -277,6 +285,7 @@ def _worker_hit_by(grid: PlaneGrid, sig: int) -> Iterator[tuple[EdgeJob, Process
         fits.close()
 
 
+@pytest.mark.slow
 def test_a_worker_killed_mid_fit_costs_that_fit_and_a_new_one_serves_after_a_pause(grid):
     with _worker_hit_by(grid, signal.SIGKILL) as (job, fits):
         assert fits.wait(120.0)
@@ -288,6 +297,7 @@ def test_a_worker_killed_mid_fit_costs_that_fit_and_a_new_one_serves_after_a_pau
         assert fits.collect(12) == [fit_offset(replace(job, frame=11))]
 
 
+@pytest.mark.slow
 def test_a_stalled_worker_is_killed_and_replaced(grid):
     with _worker_hit_by(grid, signal.SIGSTOP) as (job, fits):  # a worker that never finishes its fit
         assert not fits.ready(STALL_FRAMES - 1)
@@ -299,6 +309,7 @@ def test_a_stalled_worker_is_killed_and_replaced(grid):
         assert fits.collect(STALL_FRAMES + 11) == [fit_offset(replace(job, frame=STALL_FRAMES + 10))]
 
 
+@pytest.mark.slow
 def test_a_sample_is_taken_against_the_filtered_centre_noted_for_its_frame(grid):
     job, _ = _job(grid, (150.0, 250.0, 1.0))
     offsets = CentreOffsets(InlineFits(every_frames=1, delay_frames=0))

@@ -87,6 +87,7 @@ def rovers(mosquitto: Mosquitto) -> Iterator[Rovers]:
     r.close()
 
 
+@pytest.mark.slow
 def test_the_watcher_keeps_each_rovers_own_status_and_refuses_forgeries(mosquitto: Mosquitto, rovers: Rovers) -> None:
     seen: list[tuple[str, str | None]] = []
     changed = threading.Condition()
@@ -127,6 +128,7 @@ def test_the_watcher_keeps_each_rovers_own_status_and_refuses_forgeries(mosquitt
         desk.close()
 
 
+@pytest.mark.slow
 def test_the_page_and_the_api_show_what_the_rovers_report(mosquitto: Mosquitto, rovers: Rovers) -> None:
     rovers.say(FORMATION_TOPIC, dumps(build_formation("line", IDS, seq=8, spacing_cm=60.0)))
     config = edge_config(**{"http.enabled": True, "http.port": 0, "broker.url": mosquitto.url})

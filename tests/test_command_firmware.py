@@ -189,6 +189,7 @@ def test_a_reconnected_rover_does_not_drive_on_a_pose_from_before_the_connection
     assert rows[at["the next command"]][1] in DRIVING and rows[at["the next command"]][5:7] != [0.0, 0.0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("make", [scenario, replay_scenario])
 def test_micropython_applies_commands_exactly_as_cpython(tmp_path: Path, make: Callable[[], Script]) -> None:
     s = make()
@@ -205,6 +206,7 @@ def _status_vectors() -> dict[str, str]:
     return {p.name: p.read_text() for p in sorted((EXAMPLES / "valid").glob("rover_status-*.json"))}
 
 
+@pytest.mark.slow
 def test_the_firmware_writes_every_rover_status_vector_byte_for_byte_in_cpython_and_micropython() -> None:
     vectors = _status_vectors()
     assert len(vectors) >= 4
@@ -236,6 +238,7 @@ def test_every_status_the_rover_can_write_is_rover_status_v2(state: str) -> None
             assert messages.dumps(parsed) == payload
 
 
+@pytest.mark.slow
 def test_a_reconnected_rover_applies_what_the_broker_retains_not_what_it_had(mosquitto: Mosquitto) -> None:
     """The link calls on_connect before subscribing: a command that was only live (not retained) is gone after a
     reconnect, the retained one comes back with the new subscription."""

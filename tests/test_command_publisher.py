@@ -58,6 +58,7 @@ def test_seq_counts_up_and_wraps_to_one(seq: int | None, after: int) -> None:
     assert next_seq(seq) == after
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("what", "payload", "seq", "warned"),
     [
@@ -82,6 +83,7 @@ def test_a_command_follows_whatever_is_retained_and_never_fails_because_of_it(
     assert any("ignoring the retained formation" in r.getMessage() for r in caplog.records) == warned, what
 
 
+@pytest.mark.slow
 def test_the_dashboards_stop_is_published_after_a_hostile_retained_seq(mosquitto: Mosquitto) -> None:
     retain(mosquitto, HOSTILE)
     desk = FormationDesk(target(mosquitto), edge_id="edge-t", rover_ids=["red", "green", "blue"], token=TOKEN)
@@ -101,6 +103,7 @@ def halted_on_connect(broker: Mosquitto) -> tuple[MqttPublisher, StopAtStart]:
     return publisher, stop
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("before", "seq"), [(None, 1), (LINE, 42), (HOSTILE, 1), (b"junk", 1)])
 def test_the_stop_at_start_follows_whatever_is_retained(mosquitto: Mosquitto, before: bytes | None, seq: int) -> None:
     if before is not None:
@@ -113,6 +116,7 @@ def test_the_stop_at_start_follows_whatever_is_retained(mosquitto: Mosquitto, be
         publisher.stop()
 
 
+@pytest.mark.slow
 def test_a_broker_that_comes_up_later_gets_the_stop_on_the_first_connection(tmp_path: Path) -> None:
     broker = Mosquitto(tmp_path / "late", port=free_port())
     publisher, stop = halted_on_connect(broker)
@@ -125,6 +129,7 @@ def test_a_broker_that_comes_up_later_gets_the_stop_on_the_first_connection(tmp_
         publisher.stop()
 
 
+@pytest.mark.slow
 def test_a_broker_that_crashes_and_brings_back_an_older_formation_gets_a_stop_again(tmp_path: Path) -> None:
     # Mosquitto saves its retained messages on a clean exit (and every 30 min): after a crash it brings back the
     # line the stop had replaced, and the rovers, which reconnect, would apply it.
@@ -156,6 +161,7 @@ def test_a_broker_that_crashes_and_brings_back_an_older_formation_gets_a_stop_ag
         broker.stop()
 
 
+@pytest.mark.slow
 def test_the_appliance_publishes_a_retained_stop_when_it_starts(mosquitto: Mosquitto) -> None:
     retain(mosquitto, LINE)  # what the fleet was doing before the edge restarted
     sub = FormationSubscriber(mosquitto.host, mosquitto.port)
@@ -187,6 +193,7 @@ class Said(logging.Handler):
         return self.event.wait(timeout_s)
 
 
+@pytest.mark.slow
 def test_poses_wait_for_the_stop_and_a_stop_the_broker_refuses_keeps_them_held_and_is_tried_again(
     tmp_path: Path,
 ) -> None:

@@ -56,8 +56,8 @@ def _bundle(directory: Path, rover_id: str, **broker: Any) -> None:
             {"e/red.json": '{"id":"red","control":{"period_ms":1}}'},
             "period_ms",
         ),
-        ("bad ids", ["--ids", "Red,"], {}, "--ids: Red"),
-        ("an id twice", ["--ids", "red,red"], {}, "named twice"),
+        ("bad ids", ["--ids", "Red,"], {}, "--ids: rover id 'Red' is not an id"),
+        ("an id twice", ["--ids", "red,red"], {}, "--ids: red named more than once"),
         ("credentials not TOML", ["--credentials", "{tmp}/c.toml"], {"c.toml": "[rovers"}, "not a broker credentials"),
         ("an empty login", ["--credentials", "{tmp}/c.toml"], {"c.toml": "[edge]\n"}, "[edge]: username and password"),
         (
@@ -104,6 +104,7 @@ def acl_broker(tmp_path: Path) -> Iterator[tuple[Mosquitto, Path]]:
         yield broker, files.credentials
 
 
+@pytest.mark.slow
 def test_a_rover_with_a_wrong_password_is_refused_in_one_line(
     acl_broker: tuple[Mosquitto, Path], tmp_path: Path
 ) -> None:
@@ -118,6 +119,7 @@ def test_a_rover_with_a_wrong_password_is_refused_in_one_line(
     )
 
 
+@pytest.mark.slow
 def test_each_rover_connects_with_its_own_credentials_behind_the_acl(acl_broker: tuple[Mosquitto, Path]) -> None:
     broker, credentials = acl_broker
     events: list[FleetEvent] = []
@@ -142,6 +144,7 @@ def test_each_rover_connects_with_its_own_credentials_behind_the_acl(acl_broker:
     assert {e.text for e in events if e.status is None} >= {"broker connected 1"}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["mosquitto", "embedded"])
 def test_two_writers_with_the_same_seq_leave_every_rover_on_the_retained_command(tmp_path: Path, which: str) -> None:
     """Both writers read the retained formation before either publishes (forced), so both publish the same seq;

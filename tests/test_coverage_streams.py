@@ -43,6 +43,7 @@ def _centre_error_cm(grid: PlaneGrid, image: np.ndarray, pose: tuple[float, floa
     return blob.x_cm - x, blob.y_cm - y
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("body", list(BODIES))
 @pytest.mark.parametrize("blur_px", [0.5, 1.2])
 @pytest.mark.parametrize("chroma", [None, "4:4:4", "4:2:2"])

@@ -124,6 +124,7 @@ def test_the_tracked_rover_standing_on_a_marker_is_named(
     assert tracked_on(_marker(), _result(3, *placed)) == expected
 
 
+@pytest.mark.slow
 def test_the_windowed_pipelines_expose_their_background_model_and_the_paper_pipeline_none(lab: Lab) -> None:
     rovers = tuple(RoverConfig(id=k.rover_id, color_bgr=lab.renderer.nominal_marker_bgr(k.rover_id)) for k in lab.looks)
     for method, has_model in (("particles", True), ("centroid", True), ("meanshift", True), ("paper", False)):
@@ -184,6 +185,7 @@ def _model(lab: Lab, known: float) -> BackgroundModel:
     return model
 
 
+@pytest.mark.slow
 def test_the_trackers_model_enrolls_the_rovers_it_tracks_without_clearing_the_floor(lab: Lab) -> None:
     camera = Camera(tracker=Learned(_model(lab, 1.0)))
     camera.shows(lab.frame(POSES), *_tracked(lab, POSES))
@@ -198,6 +200,7 @@ def test_the_trackers_model_enrolls_the_rovers_it_tracks_without_clearing_the_fl
     ]
 
 
+@pytest.mark.slow
 def test_the_trackers_model_says_when_it_does_not_account_for_every_rover(lab: Lab) -> None:
     camera = Camera(tracker=Learned(_model(lab, 1.0)))
     camera.shows(lab.frame(POSES), *_tracked(lab, POSES)[:2])  # it tracks two: the third is not configured
@@ -207,6 +210,7 @@ def test_the_trackers_model_says_when_it_does_not_account_for_every_rover(lab: L
     assert len(out["warnings"]) == 1 and "the tracker tracks 2 rovers in this frame but 3 markers" in out["warnings"][0]
 
 
+@pytest.mark.slow
 def test_two_tone_fronts_and_hues_too_close_to_tell_apart_are_in_the_answer() -> None:
     looks = (RoverLook("a", marker_albedo_for_hue(0.0), heading="two_tone"),
              RoverLook("b", marker_albedo_for_hue(12.0), heading="two_tone"),
@@ -228,6 +232,7 @@ def test_two_tone_fronts_and_hues_too_close_to_tell_apart_are_in_the_answer() ->
     assert "front_color_bgr" in out["toml"] and "# WARNING:" in out["toml"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("case", "status", "fragment"),
     [
@@ -273,6 +278,7 @@ def test_the_desk_says_why_it_cannot_enroll(lab: Lab, case: str, status: int, fr
         assert camera.waited == [1.0, 1.0, 1.0]  # it waited for the tracker's next frame before giving up
 
 
+@pytest.mark.slow
 def test_without_a_token_or_calibration_the_status_says_why_and_every_control_is_refused(lab: Lab) -> None:
     camera = Camera()
     camera.shows(lab.background())
@@ -299,6 +305,7 @@ def enrolled(lab: Lab, tmp_path: Path) -> tuple[EnrolDesk, int]:
     return desk, out["enrolment"]
 
 
+@pytest.mark.slow
 def test_save_writes_the_enrolment_shown_and_asks_before_replacing(enrolled: tuple[EnrolDesk, int]) -> None:
     desk, number = enrolled
     path = desk.rovers_file
@@ -316,6 +323,7 @@ def test_save_writes_the_enrolment_shown_and_asks_before_replacing(enrolled: tup
     assert [r.id for r in load_config(path).config.rovers] == ["r1", "r2", "r3"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("case", "status", "fragment"),
     [
@@ -385,6 +393,7 @@ def floor(lab: Lab, broker: Mosquitto, tmp_path_factory: pytest.TempPathFactory)
         yield Floor(app, stage, lab, folder / "rovers.toml")
 
 
+@pytest.mark.slow
 def test_capture_the_empty_floor_place_the_rovers_and_enroll_them(floor: Floor) -> None:
     lab = floor.lab
     floor.show(lab.background())
@@ -415,6 +424,7 @@ def test_capture_the_empty_floor_place_the_rovers_and_enroll_them(floor: Floor) 
         assert max(errs) < 1.0, f"{rover_id}: {errs}"  # every enrolled rover tracked, with its id, where it is
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("ids", "expected"),
     [
@@ -434,6 +444,7 @@ def test_ids_given_are_matched_to_the_rovers(floor: Floor, ids: list[str], expec
         assert math.hypot(by_id[rover_id][0] - x, by_id[rover_id][1] - y) < 2.0
 
 
+@pytest.mark.slow
 def test_the_rovers_tracked_on_the_enrolled_markers_are_named(floor: Floor) -> None:
     floor.show(floor.lab.background())
     assert floor.request("POST", "/api/enroll/floor", {})[0] == 200
@@ -448,6 +459,7 @@ def test_the_rovers_tracked_on_the_enrolled_markers_are_named(floor: Floor) -> N
     ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("case", "fragment"),
     [
@@ -472,6 +484,7 @@ def test_what_cannot_be_enrolled_is_a_400_with_the_reason(floor: Floor, case: st
     assert reply.status == 400 and fragment in reply.json()["error"], reply.json()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("headers", "status", "fragment"),
     [
@@ -490,6 +503,7 @@ def test_enrolment_controls_need_the_control_token(
     assert call(floor.port, "GET", "/api/enroll").status == 401  # viewing needs a token too
 
 
+@pytest.mark.slow
 def test_forgetting_the_floor_falls_back_to_the_trackers_model(floor: Floor) -> None:
     assert floor.request("POST", "/api/enroll/floor", {})[0] == 200
     status, out = floor.request("DELETE", "/api/enroll/floor")
@@ -500,6 +514,7 @@ def test_forgetting_the_floor_falls_back_to_the_trackers_model(floor: Floor) -> 
     assert state["min_known"] == MIN_KNOWN_SHARE and state["rovers_file"] == str(floor.rovers_file)
 
 
+@pytest.mark.slow
 def test_capturing_the_floor_warns_of_rovers_seen_in_the_last_second_not_only_in_this_frame(lab: Lab) -> None:
     camera = Camera()
     camera.shows(lab.background())  # this frame: no rover tracked (one was lost for a frame, the scene jumped)

@@ -80,6 +80,7 @@ def _errors_cm(grid: PlaneGrid, compression: Compression | None, blur_px: float)
     return np.asarray(out)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("blur_px", [0.5, 1.2])
 def test_edges_in_the_encoded_chroma_take_the_4_2_0_spread_out_of_the_centre(grid, blur_px):
     """4:2:0 at quality 90 on a black body: the default centre moves 0.2-0.4 cm away from the camera (the spread
@@ -91,6 +92,7 @@ def test_edges_in_the_encoded_chroma_take_the_4_2_0_spread_out_of_the_centre(gri
     assert float(np.hypot(errors[:, 1, 0], errors[:, 1, 1]).max()) < 0.25, errors
 
 
+@pytest.mark.slow
 def test_edges_in_the_encoded_chroma_hold_on_uncompressed_frames(grid):
     """No stream: the fitted edges' centre is as good as the default one (within 0.04 cm on average)."""
     errors = _errors_cm(grid, None, 0.5)
@@ -109,6 +111,7 @@ def stream_fits(grid):
     return out
 
 
+@pytest.mark.slow
 def test_the_held_fit_on_a_frames_own_parameters_finds_the_full_fits_edges(stream_fits):
     """Held from the frame's own full fit, the per-frame fit (edge and margin per side) lands on the full fit's
     edges: the same model, the same minimum."""
@@ -119,6 +122,7 @@ def test_the_held_fit_on_a_frames_own_parameters_finds_the_full_fits_edges(strea
         assert quick.rms <= full.rms + 0.05
 
 
+@pytest.mark.slow
 def test_edges_on_a_model_held_from_other_frames_take_the_4_2_0_spread_out(stream_fits):
     """Each frame on the model held from the other poses' full fits (the camera's blur and spread, the body's
     level): the default centre's mean error of 0.2-0.3 cm towards far from the camera falls below 0.08 cm."""
@@ -134,6 +138,7 @@ def test_edges_on_a_model_held_from_other_frames_take_the_4_2_0_spread_out(strea
     assert float(np.hypot(*mean[1])) < 0.08, errors
 
 
+@pytest.mark.slow
 def test_the_held_fit_refuses_profiles_not_centred_on_the_marker(stream_fits):
     """Profiles taken 2 cm off the marker along its axis: one edge lies beyond reach, the fit says so (None) instead
     of returning a centre."""

@@ -23,6 +23,7 @@ from tests.support.lab import PALETTE, Lab, eight_hues, spread_out, track
 
 
 # -- the library ---------------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_the_eight_hue_palette_is_enrolled_named_by_hue_and_then_tracked() -> None:
     lab = Lab(eight_hues())
     poses = spread_out(8)
@@ -38,6 +39,7 @@ def test_the_eight_hue_palette_is_enrolled_named_by_hue_and_then_tracked() -> No
         assert max(errs) < 1.0, f"{rover_id}: {errs}"  # every rover found, with its id, in every frame
 
 
+@pytest.mark.slow
 def test_two_tone_markers_are_enrolled_with_their_front_part_and_track_with_headings() -> None:
     looks = tuple(RoverLook(look.rover_id, look.marker_bgr, heading="two_tone") for look in fleet_looks(3))
     lab = Lab(looks)
@@ -54,6 +56,7 @@ def test_two_tone_markers_are_enrolled_with_their_front_part_and_track_with_head
         assert max(errs) < 1.0, f"{rover_id}: {errs}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("theta", [0.0, math.pi / 2, math.pi, -math.pi / 2])
 def test_a_two_tone_front_pointing_along_the_image_rows_or_columns_is_measured_whole(theta: float) -> None:
     # the front sticks out of the coloured part's bounding box: it is measured over its own
@@ -63,6 +66,7 @@ def test_a_two_tone_front_pointing_along_the_image_rows_or_columns_is_measured_w
     assert marker.area_cm2 == pytest.approx(21.5 * 16.8, rel=0.15)
 
 
+@pytest.mark.slow
 def test_a_glare_on_part_of_a_marker_does_not_move_its_colour() -> None:
     lab = Lab(fleet_looks(3))
     poses = [(100.0, 150.0, 0.0), (250.0, 300.0, 1.0), (180.0, 460.0, 2.0)]
@@ -75,6 +79,7 @@ def test_a_glare_on_part_of_a_marker_does_not_move_its_colour() -> None:
     assert np.abs(np.subtract(red.color_bgr, clean["red"].color_bgr)).max() <= 4
 
 
+@pytest.mark.slow
 def test_hues_this_camera_cannot_keep_apart_are_named() -> None:
     looks = (RoverLook("a", marker_albedo_for_hue(0.0)), RoverLook("b", marker_albedo_for_hue(12.0)),
              RoverLook("c", marker_albedo_for_hue(200.0)))  # fmt: skip
@@ -94,6 +99,7 @@ def test_a_large_coloured_thing_is_not_a_marker() -> None:
     assert len(result.ignored) == 1 and "too large" in result.ignored[0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("case", "message"),
     [
@@ -146,6 +152,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     }
 
 
+@pytest.mark.slow
 def test_enroll_writes_rovers_that_config_and_track_read(files: dict[str, Path], tmp_path: Path) -> None:
     out = tmp_path / "rovers.toml"
     result = run("rovers", "enroll", "--image", files["frame"], "--background", files["empty"],
@@ -163,6 +170,7 @@ def test_enroll_writes_rovers_that_config_and_track_read(files: dict[str, Path],
     assert '"r1": 40' in tracked.output and '"r2": 40' in tracked.output and '"r3": 40' in tracked.output
 
 
+@pytest.mark.slow
 def test_enroll_takes_the_frame_from_a_source(files: dict[str, Path], tmp_path: Path) -> None:
     out = tmp_path / "rovers.toml"
     result = run("rovers", "enroll", "--source", files["clip"], "--background", files["empty"],
@@ -177,6 +185,7 @@ def test_the_enroll_command_has_help_with_an_example() -> None:
         assert result.exit_code == 0 and "Example:" in result.output and "edge-ips rovers enroll" in result.output
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("case", "fragment"),
     [

@@ -107,6 +107,7 @@ def test_the_parser_reads_t_in_whole_ms_modulo_2_26_exactly(what: str, payload: 
     assert type(got[msg.P_T]) is int and 0 <= got[msg.P_T] < WRAP
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None)
 @given(
     st.integers(min_value=0, max_value=10**13 - 1),
@@ -124,6 +125,7 @@ def test_t_is_exact_whatever_way_the_number_is_written(ms: int, extra: int, shif
     assert msg.parse_pose(payload)[msg.P_T] == ms % WRAP, text
 
 
+@pytest.mark.slow
 def test_t_extraction_is_the_same_inside_micropython() -> None:
     payloads = [payload.hex() for _, payload, _ in T_VECTORS]
     want = [_expected(payload, w) for _, payload, w in T_VECTORS]
@@ -131,6 +133,7 @@ def test_t_extraction_is_the_same_inside_micropython() -> None:
     assert micropython("t_ms", payloads) == want
 
 
+@pytest.mark.slow
 def test_finding_and_reading_t_allocates_nothing_inside_micropython() -> None:
     cases = [[payload.hex(), 500] for what, payload, _ in T_VECTORS if "longest" in what or "escaped" in what]
     cases.append([pose("1.763900000123E+9", spaced=True).hex(), 500])
@@ -213,6 +216,7 @@ def clock_runs() -> dict[str, tuple[list[tuple[int, int, float]], list[int], int
     return {name: (rows[name], got[0], got[1]) for name, got in zip(rows, cp, strict=True)}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", list(CLOCK_CASES))
 def test_the_excess_is_the_lateness_beyond_the_fastest_delivery_whatever_the_clocks_do(
     clock_runs: dict[str, Any], case: str
@@ -235,6 +239,7 @@ def test_the_excess_is_the_lateness_beyond_the_fastest_delivery_whatever_the_clo
     assert restarts == (1 if "set back" in case else restarts)
 
 
+@pytest.mark.slow
 def test_a_clock_step_back_restarts_the_window_and_a_step_forward_needs_nothing(clock_runs: dict[str, Any]) -> None:
     assert clock_runs["edge clock set back 1 h"][2] == 1
     assert clock_runs["edge clock set forward 1 h"][2] == 0
@@ -242,6 +247,7 @@ def test_a_clock_step_back_restarts_the_window_and_a_step_forward_needs_nothing(
     assert clock_runs["t wraps"][2] == 0 and clock_runs["edge clock 1000 ppm slow"][2] == 0
 
 
+@pytest.mark.slow
 def test_a_backlog_after_an_outage_is_known_as_old_however_long_the_outage() -> None:
     """A 20 s outage that TCP rides out: nothing arrives, then every pose made meanwhile at once, in order. The
     window does not age while nothing arrives, so each pose of the burst shows its true lateness."""
@@ -316,6 +322,7 @@ def test_a_rover_does_not_drive_on_the_backlog_an_outage_leaves(outage_s: float)
     assert off - last_young <= 500
 
 
+@pytest.mark.slow
 def test_micropython_judges_the_backlog_as_cpython_does() -> None:
     fleet = _driving_fleet(seed=4)
     fleet.run(2.0)
@@ -367,6 +374,7 @@ def turning_rows(
     return rows, truth
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("delay_ms", [60, 200])
 def test_pose_headings_fused_at_their_age_follow_a_fast_turn(delay_ms: int) -> None:
     at_age, truth = turning_rows(delay_ms, True)
@@ -408,6 +416,7 @@ def test_a_pose_older_than_the_turn_history_leaves_the_estimate_alone() -> None:
 
 
 # -- the link: a PINGRESP inside a backlog -------------------------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize("interpreter", ["cpython", "micropython"])
 def test_a_pingresp_in_a_backlog_does_not_end_the_drain(interpreter: str, tmp_path: Path) -> None:
     cfg = json.dumps(stall_config())
@@ -421,6 +430,7 @@ def test_a_pingresp_in_a_backlog_does_not_end_the_drain(interpreter: str, tmp_pa
     assert got["per_poll"] == [15, 10, 0] and got["up"]
 
 
+@pytest.mark.slow
 def test_a_pose_never_replaced_stays_old_when_the_ticks_wrap(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -447,6 +457,7 @@ def test_a_pose_never_replaced_stays_old_when_the_ticks_wrap(
 
 
 # -- the link: Wi-Fi and broker retries across the ticks' wrap -------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize("interpreter", ["cpython", "micropython"])
 @pytest.mark.parametrize("start_ms", [0, 3 << 28], ids=["booted at power-on", "soft reset 3.1 days in"])
 def test_the_link_retries_at_once_after_the_ticks_wrapped(interpreter: str, start_ms: int, tmp_path: Path) -> None:

@@ -70,6 +70,7 @@ def motor_pins() -> tuple[int, int]:
     return cfg["left"]["pwm"], cfg["right"]["pwm"]
 
 
+@pytest.mark.slow
 def test_a_rover_interrupted_by_an_mpremote_connection_stays_still_until_it_is_reset(tmp_path: Path) -> None:
     with flashed_board(tmp_path) as (board, _):
         board.power_on()
@@ -90,6 +91,7 @@ def test_a_rover_interrupted_by_an_mpremote_connection_stays_still_until_it_is_r
         assert board.drove_after(board.clock.now - 2000)
 
 
+@pytest.mark.slow
 def test_the_stand_in_resets_like_the_chip_when_the_firmware_started_a_hardware_watchdog(tmp_path: Path) -> None:
     # The failure the flash tool must survive: Ctrl-C stops the loop, nothing feeds the WDT, the chip resets 3.2 s
     # later, main.py runs again and the rover drives on the retained formation by itself.
@@ -106,6 +108,7 @@ def test_the_stand_in_resets_like_the_chip_when_the_firmware_started_a_hardware_
         assert cut.returncode != 0 and "reset" in cut.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("main", [None, OLD_MAIN], ids=["this firmware", "older firmware with machine.WDT"])
 def test_the_flash_tool_stops_a_running_rover_and_reflashes_it(tmp_path: Path, main: str | None) -> None:
     with flashed_board(tmp_path, main=main) as (board, bundle):
@@ -126,6 +129,7 @@ def test_the_flash_tool_stops_a_running_rover_and_reflashes_it(tmp_path: Path, m
         assert board.dangling_timers == 0
 
 
+@pytest.mark.slow
 def test_the_flash_tool_refuses_a_board_with_another_micropython_and_leaves_it_stopped(tmp_path: Path) -> None:
     with flashed_board(tmp_path, version="1.24.1", romfs=False) as (board, bundle):
         board.power_on()
@@ -138,6 +142,7 @@ def test_the_flash_tool_refuses_a_board_with_another_micropython_and_leaves_it_s
         assert sorted(p.name for p in board.root.iterdir()) == ["boot.py", "config.json", "main.off"]
 
 
+@pytest.mark.slow
 def test_a_rover_whose_config_is_broken_keeps_its_motors_off_says_why_once_and_waits(tmp_path: Path) -> None:
     with flashed_board(tmp_path) as (board, _):
         (board.root / "config.json").write_text('{"id": "red", "motors": ')
@@ -152,6 +157,7 @@ def test_a_rover_whose_config_is_broken_keeps_its_motors_off_says_why_once_and_w
         assert board.broker.connections == 0  # no broker known
 
 
+@pytest.mark.slow
 def test_a_rover_that_fails_after_reading_its_config_publishes_an_error_status(tmp_path: Path) -> None:
     with flashed_board(tmp_path, fail_pwm=True) as (board, _):
         board.power_on()
@@ -162,6 +168,7 @@ def test_a_rover_that_fails_after_reading_its_config_publishes_an_error_status(t
         assert "PWM hardware fault" in board.console.getvalue()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "error",
     [ImportError("no module named 'app'"), MemoryError("memory allocation failed, allocating 1024 bytes")],
@@ -183,6 +190,7 @@ def test_a_rover_that_cannot_import_its_program_keeps_its_motors_off_and_says_wh
         assert lines == [f"rover not started: {error!r}"], lines
 
 
+@pytest.mark.slow
 def test_main_py_says_why_in_one_line_inside_micropython_when_app_cannot_be_imported(tmp_path: Path) -> None:
     # The same failure in MicroPython itself (harness/mpy/noapp.py): an app module that raises MemoryError on import.
     from firmware.harness.runner import run_micropython
@@ -200,6 +208,7 @@ def test_main_py_says_why_in_one_line_inside_micropython_when_app_cannot_be_impo
     assert result["outputs"] == [0, 0]  # boot.py left both PWM pins low
 
 
+@pytest.mark.slow
 def test_boot_py_drives_the_configs_pwm_pins_low_before_main_runs(tmp_path: Path) -> None:
     cfg = rover_config()
     cfg["motors"]["left"]["pwm"], cfg["motors"]["right"]["pwm"] = 14, 12
@@ -212,6 +221,7 @@ def test_boot_py_drives_the_configs_pwm_pins_low_before_main_runs(tmp_path: Path
         assert board.output == ["main.py raised RuntimeError('main.py fails at once')"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("duty", [600, 1023], ids=["part duty", "full duty"])
 def test_a_wheel_left_turning_at_the_repl_stops_at_a_soft_reset_even_when_main_py_cannot_start(
     tmp_path: Path, duty: int

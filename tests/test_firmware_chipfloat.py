@@ -71,6 +71,7 @@ def test_the_chip_parses_every_contract_example_and_mutation_as_the_contract_doe
     assert accepted > 100
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(
     st.lists(st.tuples(st.floats(-200, 200), st.floats(-200, 200)), min_size=1, max_size=6),
@@ -99,6 +100,7 @@ def _settled_motion_cm(fleet: KinematicFleet, seconds: float = 3.0) -> float:
     return max(sum(math.dist(a[k], b[k]) for a, b in itertools.pairwise(rows)) for k in range(len(IDS)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["line", "rendezvous", "triangle"])
 @pytest.mark.parametrize(("seed", "send_theta"), [(1, True), (2, False)])
 def test_formations_meet_their_bars_with_30_bit_floats_without_nan_or_oscillation(

@@ -85,6 +85,7 @@ WHOLE_NUMBERS = [
 ]
 
 
+@pytest.mark.slow
 def test_a_whole_number_written_as_a_float_is_refused_on_the_board_as_on_the_host(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -11,10 +11,13 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from firmware.harness.budget import FLOAT_BYTES, chip_pool_bytes, measure
 from firmware.harness.runner import HEAP_FREE_AFTER_BOOT, HEAP_KEPT_FREE, budget_config, budget_files, run_micropython
 
 
+@pytest.mark.slow
 def test_the_firmware_leaves_12_kb_of_the_esp8266s_heap_free_at_its_peak() -> None:
     budget = measure(budget_config())
     story = "\n".join(f"{p.name}: wasm peak {p.peak}, chip peak {p.chip_peak}" for p in budget.phases)
@@ -30,6 +33,7 @@ def test_the_firmware_leaves_12_kb_of_the_esp8266s_heap_free_at_its_peak() -> No
     assert budget.chip_peak <= HEAP_FREE_AFTER_BOOT - HEAP_KEPT_FREE, story
 
 
+@pytest.mark.slow
 def test_romfs_keeps_the_bytecode_out_of_the_heap() -> None:
     files = budget_files(budget_config(), frames=1)
     names = ["msg", "formation", "umqtt.simple", "link", "motors", "rover", "config", "app"]

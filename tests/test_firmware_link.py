@@ -319,6 +319,7 @@ def test_the_rover_works_under_an_acl_that_lets_it_publish_only_its_status(tmp_p
             c.disconnect()
 
 
+@pytest.mark.slow
 def test_losing_wifi_stops_the_motors_and_the_link_comes_back(mosquitto: Mosquitto, edge: EdgePublisher) -> None:
     edge.start()
     cfg = rover_configs(["red"])[0]

@@ -42,6 +42,7 @@ def both(runs: dict[tuple[str, str], dict[str, Any]], case: str) -> dict[str, An
     return cp
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", CUTS)
 def test_motors_stop_within_half_a_second_of_the_last_whole_pose_when_the_network_stalls(
     runs: dict[tuple[str, str], dict[str, Any]], case: str
@@ -54,6 +55,7 @@ def test_motors_stop_within_half_a_second_of_the_last_whole_pose_when_the_networ
     assert r["drops"] >= 1 and r["halt"] == "disconnected"  # the dead link was noticed (1.5 keepalives)
 
 
+@pytest.mark.slow
 def test_a_send_buffer_that_stays_full_stops_the_motors_before_the_write_waits(
     runs: dict[tuple[str, str], dict[str, Any]],
 ) -> None:
@@ -64,6 +66,7 @@ def test_a_send_buffer_that_stays_full_stops_the_motors_before_the_write_waits(
     assert downs and downs[0] - r["off_ms"] <= TIMEOUT_MS  # the wait gave up after timeout_s
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["broker never answers", "no SUBACK"])
 def test_a_broker_that_takes_the_connection_but_never_answers_cannot_hold_the_loop(
     runs: dict[tuple[str, str], dict[str, Any]], case: str
@@ -76,6 +79,7 @@ def test_a_broker_that_takes_the_connection_but_never_answers_cannot_hold_the_lo
     assert max(gaps) <= TIMEOUT_MS + 8000 + 20, gaps  # timeout_s, the longest backoff, a loop period
 
 
+@pytest.mark.slow
 def test_a_retained_message_too_long_to_keep_is_dropped_unread_and_the_link_stays_up(
     runs: dict[tuple[str, str], dict[str, Any]],
 ) -> None:
@@ -85,6 +89,7 @@ def test_a_retained_message_too_long_to_keep_is_dropped_unread_and_the_link_stay
     assert any("dropped a packet of 6036 bytes" in line for line in r["log"])
 
 
+@pytest.mark.slow
 def test_after_a_wifi_drop_mid_packet_the_rover_stops_then_reconnects_and_drives_again(
     runs: dict[tuple[str, str], dict[str, Any]],
 ) -> None:
@@ -94,6 +99,7 @@ def test_after_a_wifi_drop_mid_packet_the_rover_stops_then_reconnects_and_drives
     assert r["drove_after_stall"] and r["drove_after_stall"][0] > r["off_ms"]
 
 
+@pytest.mark.slow
 def test_the_backlog_after_an_outage_is_not_driven_on(runs: dict[tuple[str, str], dict[str, Any]]) -> None:
     """1.5 s without a byte, the TCP connection kept: then everything sent meanwhile at once (PINGRESP included), in
     order. The rover stopped within the bound, and drove again only on a pose younger than stale_ms."""
@@ -106,6 +112,7 @@ def test_the_backlog_after_an_outage_is_not_driven_on(runs: dict[tuple[str, str]
     assert r["rejoin_pose_age_ms"] <= stale_ms  # young: the backlog was 0-1.5 s old
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_the_motors_and_the_watchdog_for_good(runs: dict[tuple[str, str], dict[str, Any]]) -> None:
     r = both(runs, "ctrl-c")
     assert r["interrupted_ms"] == r["stall_ms"] and r["off_ms"] - r["interrupted_ms"] <= 1  # sampled each ms
@@ -123,6 +130,7 @@ def test_the_stall_runs_use_the_pinned_umqtt(tmp_path: Path) -> None:
     assert digest == "0792c0bd6d9219c8180a9ee7dae3d7c15fafe53e0605fa30839b1033fa4a189c"  # umqtt.simple 1.7.0
 
 
+@pytest.mark.slow
 def test_a_second_ctrl_c_inside_the_stop_leaves_the_motors_off_and_the_timer_disarmed(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -151,6 +159,7 @@ def test_a_second_ctrl_c_inside_the_stop_leaves_the_motors_off_and_the_timer_dis
         assert interrupted and (left, right, timers) == (0, 0, 0), where
 
 
+@pytest.mark.slow
 def test_ctrl_c_between_arming_the_watchdog_and_the_loop_leaves_its_timer_disarmed(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

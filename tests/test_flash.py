@@ -122,10 +122,12 @@ def test_a_wrong_micropython_image_is_refused_with_the_one_to_get(
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_the_image_the_rover_needs_passes_the_check(tmp_path: Path) -> None:
     assert flashing.check_image(micropython_image(tmp_path / "fw.bin")) == "MicroPython 1.28.0 (2026-04-06, ROMFS)"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "env", "message"),
     [
@@ -157,6 +159,7 @@ def test_mistakes_are_one_line_errors_with_exit_code_2(
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_motor_pins_on_boot_strapping_gpios_are_warned_about(tmp_path: Path) -> None:
     result = flash_tool("--rover", "red", "--bundle", str(tmp_path / "b"), env=SECRETS)
     assert result.returncode == 0, result.stderr
@@ -231,6 +234,7 @@ def _bundle(tmp_path: Path) -> Path:
     return bundle
 
 
+@pytest.mark.slow
 def test_flash_checks_that_the_board_answers_with_the_firmware_it_was_given(tmp_path: Path) -> None:
     bundle = _bundle(tmp_path)
     good = _Board(flashing.expected_answer() + "\n")
@@ -240,6 +244,7 @@ def test_flash_checks_that_the_board_answers_with_the_firmware_it_was_given(tmp_
         flashing.flash("/dev/ttyUSB0", bundle, None, False, run=_Board("MicroPython v1.24\n>>>"), echo=print)
 
 
+@pytest.mark.slow
 def test_the_stop_step_is_retried_when_a_reset_cuts_it(tmp_path: Path) -> None:
     # An older firmware's machine.WDT resets the board a few seconds after mpremote's Ctrl-C stopped its loop.
     bundle = _bundle(tmp_path)
@@ -250,6 +255,7 @@ def test_the_stop_step_is_retried_when_a_reset_cuts_it(tmp_path: Path) -> None:
         flashing.flash("/dev/ttyUSB0", bundle, None, False, run=_Board("", cut=99), echo=lambda s: None)
 
 
+@pytest.mark.slow
 def test_a_board_that_does_not_answer_is_fine_when_new_micropython_is_written(tmp_path: Path) -> None:
     bundle = _bundle(tmp_path)
     fw = micropython_image(tmp_path / "fw.bin")
@@ -268,6 +274,7 @@ def test_a_board_that_does_not_answer_is_fine_when_new_micropython_is_written(tm
     assert [c[c.index("--port") + 2] for c in esptool] == ["erase-flash", "--baud"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("interpreter", ["cpython", "micropython"])
 def test_boot_py_stops_the_pwm_a_soft_reset_left_running_on_the_motor_pins(interpreter: str, tmp_path: Path) -> None:
     # A soft reset (Ctrl-D) frees the Python heap but not esppwm.c's channels: the wheels keep turning into boot.py.

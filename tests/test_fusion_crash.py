@@ -22,6 +22,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from edge.broker.access import rights_acl_text
 from edge.broker.bridge import central_rights
 from edge.broker.mosquitto import write_password_file
@@ -179,6 +181,7 @@ def before_first_pose(session: list[str]) -> list[str]:
     return session[: session.index("pose")] if "pose" in session else session
 
 
+@pytest.mark.slow
 def test_after_the_central_broker_crashed_the_fusers_stop_the_fleet_before_any_pose(
     tmp_path: Path, record_property: Callable[[str, object], None]
 ) -> None:
@@ -225,6 +228,7 @@ def test_after_the_central_broker_crashed_the_fusers_stop_the_fleet_before_any_p
     assert [k for k in session if k != "pose"][1:] in (["stop 42", "stop 42"], ["stop 42", "stop 43"]), session
 
 
+@pytest.mark.slow
 def test_a_fuser_whose_stop_the_broker_refuses_holds_its_poses_until_it_takes_one(tmp_path: Path) -> None:
     """The central's ACL drops the fuser's stop (Mosquitto acknowledges it all the same): the fuser takes the lease
     and fuses, and publishes no pose; once the ACL lets the stop through (reloaded), the stop comes first."""

@@ -64,6 +64,7 @@ def detections(draw: st.DrawFn) -> Detections:
     )
 
 
+@pytest.mark.slow
 @given(d=detections())
 def test_every_encoded_detections_message_is_valid_and_round_trips(d: Detections) -> None:
     payload = encode_detections(d)
@@ -119,6 +120,7 @@ def builder() -> DetectionBuilder:
     return DetectionBuilder("cam1", mapping, CalibrationErrorModel(), (1280, 720))
 
 
+@pytest.mark.slow
 def test_sigma_grows_smoothly_towards_the_image_border(builder: DetectionBuilder) -> None:
     mapping = builder.mapping
     assert isinstance(mapping, CameraPlaneMapping)
@@ -132,6 +134,7 @@ def test_sigma_grows_smoothly_towards_the_image_border(builder: DetectionBuilder
     assert sigmas[-1] > 10 * sigmas[0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("quality", "factor"), [(1.0, 1.0), (0.5, 2.0), (0.25, 4.0)])
 def test_a_worse_marker_quality_means_a_proportionally_larger_sigma(
     builder: DetectionBuilder, quality: float, factor: float
@@ -189,6 +192,7 @@ def _truth(path: Path) -> dict[tuple[int, str], tuple[float, float]]:
         return {(int(r["frame"]), r["id"]): (float(r["x"]), float(r["y"])) for r in csv.DictReader(f)}
 
 
+@pytest.mark.slow
 def test_track_writes_one_detections_message_per_frame_with_honest_covariances(lab: Path, tmp_path: Path) -> None:
     out = tmp_path / "det.jsonl"
     result = CliRunner().invoke(
@@ -233,6 +237,7 @@ def test_track_writes_one_detections_message_per_frame_with_honest_covariances(l
     assert max(sigmas) < 1.0  # and still a sharp measurement: sub-centimetre everywhere in the paper's view
 
 
+@pytest.mark.slow
 def test_the_calibrations_error_model_is_the_error_maps(lab: Path) -> None:
     """The covariance the fusion trusts at a point is the one behind the calibration's own error map."""
     from edge.calibration.errormap import radial_quantile

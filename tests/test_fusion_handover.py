@@ -69,6 +69,7 @@ def jumps_cm(rec: Recording, poses: list[FusedPose]) -> tuple[list[float], list[
     return handover, other
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1, 3])
 def test_a_handover_between_boards_whose_errors_wander_moves_the_rover_less_than_half_a_centimetre(seed: int) -> None:
     """(The fuser that followed its filter's velocity at once, with corrections of 0.3 cm a frame on top, moved

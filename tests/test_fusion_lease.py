@@ -135,6 +135,7 @@ def test_a_standby_takes_over_in_time_and_the_old_holder_never_publishes_beside_
     assert gaps(fusers, after_s=0.5) < bound_s + STEP_S
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None)
 @given(
     seed=st.integers(0, 10_000),

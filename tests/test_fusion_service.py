@@ -3,22 +3,26 @@ learn from it, and every frame is learned."""
 
 from __future__ import annotations
 
+import logging
 import select
 import threading
 import time
 from dataclasses import replace
 
 import paho.mqtt.client as mqtt
+import pytest
 
 from edge.board_messages import detections_topic
 from edge.config import parse_broker_url
 from edge.fusion.core import FusedPose
 from edge.fusion.detections import Detections, encode_detections
+from edge.fusion.lease import LEASE_TOPIC
 from edge.fusion.service import FuserService
 from tests.support.fusion import Board, circle, record
 from tests.support.mosquitto import Mosquitto
 
 
+@pytest.mark.slow
 def test_a_burst_of_frames_is_fused_before_the_clocks_learn_and_every_frame_is_learned(mosquitto: Mosquitto) -> None:
     """Four frames published together (two boards, two instants): the first is held until the next is in the
     fuser's socket, so its learning must wait for the burst; all four are learned in the end."""
@@ -77,3 +81,14 @@ def test_a_burst_of_frames_is_fused_before_the_clocks_learn_and_every_frame_is_l
     assert learned[0] >= 2  # the first frame's learning waited for the frame behind it
     assert sum(learned) == len(burst) and set(fuser.aligner.estimates()) == {"a", "b"}
     assert service.stats.detections == len(burst) and service.stats.invalid == 1
+
+
+def test_a_malformed_lease_message_is_refused_in_one_line(caplog: pytest.LogCaptureFixture) -> None:
+    service = FuserService(parse_broker_url("mqtt://127.0.0.1:1"), "f1")  # never started: no broker needed
+    message = mqtt.MQTTMessage(topic=LEASE_TOPIC.encode())
+    message.payload = b'{"not": "a lease"}'
+    with caplog.at_level(logging.WARNING, logger="edge.fusion"):
+        service._on_message(service._client, None, message)
+    assert service.stats.invalid == 1
+    (line,) = [r.getMessage() for r in caplog.records if "refused a message" in r.getMessage()]
+    assert f"refused a message on {LEASE_TOPIC} (1 so far): " in line and "\n" not in line

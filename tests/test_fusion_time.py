@@ -102,15 +102,9 @@ def test_a_recording_is_fused_onto_the_frames_of_the_shared_clock() -> None:
 
 # -- the live benchmark's boards ---------------------------------------------------------------------------------
 def _bench():  # type: ignore[no-untyped-def]
-    import importlib.util
+    from tests.conftest import benchmark_module
 
-    from tests.conftest import REPO
-
-    spec = importlib.util.spec_from_file_location("bench_fusion", REPO / "benchmarks" / "bench_fusion.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return benchmark_module("bench_fusion")
 
 
 def test_the_benchmarks_boards_show_one_world_instant_at_one_grab_time_wherever_they_started() -> None:

@@ -157,6 +157,7 @@ def test_event_streams_in_progress_are_not_evicted_and_there_are_at_most_max_str
         sock.close()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("sent", "trickle"),
     [
@@ -177,6 +178,7 @@ def test_a_connection_must_send_a_whole_request_within_the_timeout(
     sock.close()
 
 
+@pytest.mark.slow
 def test_bodies_that_are_too_large_or_never_arrive_are_refused(server: HttpServer) -> None:
     auth = {"Authorization": f"Bearer {TOKEN}"}
     assert call(server.port, "POST", "/echo", b"x" * 1000, {**auth, "Host": "localhost"}).body == b"1000"
@@ -235,6 +237,7 @@ def test_malformed_requests_are_a_400_and_no_error_in_the_log(
     assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", ["/ping", "/nope", "/where"])
 def test_a_client_that_resets_before_its_reply_leaves_no_error_in_the_log(
     server: HttpServer, path: str, caplog: pytest.LogCaptureFixture
@@ -280,6 +283,7 @@ def threads_of(pid: int) -> int:
     return int(status.split("Threads:")[1].split()[0])
 
 
+@pytest.mark.slow
 def test_300_idle_and_50_half_open_connections_leave_healthz_answering_and_add_no_threads(edge: EdgeProcess) -> None:
     auth = {"Authorization": f"Bearer {TOKEN}"}
     for path in ("/metrics", "/api/state", "/healthz"):  # every kind of handler has run once
@@ -301,6 +305,7 @@ def test_300_idle_and_50_half_open_connections_leave_healthz_answering_and_add_n
     assert threads_of(edge.proc.pid) <= before + HttpLimits().workers
 
 
+@pytest.mark.slow
 def test_a_foreign_host_is_refused_by_the_appliance(edge: EdgeProcess) -> None:
     status, body = get(edge.http_port, "/api/state", {"Host": "rebound.attacker.example", "X-Token": TOKEN})
     assert status == 421 and b"http.allowed_hosts" in body
@@ -309,6 +314,7 @@ def test_a_foreign_host_is_refused_by_the_appliance(edge: EdgeProcess) -> None:
     assert "refused Host 'rebound.attacker.example' from 127.0.0.1" in edge.log()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", ["/api/state", "/api/frame.jpg", "/api/events", "/api/errormap.png"])
 def test_the_camera_events_and_state_need_the_token(edge: EdgeProcess, path: str) -> None:
     assert get(edge.http_port, path)[0] == 401
@@ -317,6 +323,7 @@ def test_the_camera_events_and_state_need_the_token(edge: EdgeProcess, path: str
         assert get(edge.http_port, path, {"Authorization": f"Bearer {TOKEN}"})[0] == 200
 
 
+@pytest.mark.slow
 def test_events_open_with_the_token_in_the_address(edge: EdgeProcess) -> None:
     conn = http.client.HTTPConnection("127.0.0.1", edge.http_port, timeout=GUARD_S)
     try:
@@ -328,6 +335,7 @@ def test_events_open_with_the_token_in_the_address(edge: EdgeProcess) -> None:
         conn.close()
 
 
+@pytest.mark.slow
 def test_wrong_tokens_are_logged_with_the_address_and_the_address_is_locked_out(edge: EdgeProcess) -> None:
     guesser = "127.0.0.2"  # its own address: the lockout must not reach the other tests' 127.0.0.1
     statuses = [

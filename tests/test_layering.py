@@ -15,7 +15,8 @@ import pytest
 
 EDGE = Path(__file__).resolve().parent.parent / "edge"
 
-# The vision core: pure functions and small types over numpy arrays, the tracker's interface and configuration.
+# The vision core: pure functions and small types over numpy arrays, the tracker's interface and configuration, the
+# edge fits of the centre offsets, the pose-publishing rule, and the clock and errors they share.
 CORE = (
     "edge.segmentation",
     "edge.coverage",
@@ -30,6 +31,17 @@ CORE = (
     "edge.tracking",
     "edge.tracker_config",
     "edge.pipeline",
+    "edge.acquisition",
+    "edge.rover_track",
+    "edge.white",
+    "edge.outline",
+    "edge.centre_offsets",
+    "edge.edges_encoded",
+    "edge.edges_held",
+    "edge.poses",
+    "edge.camera_controls",
+    "edge.clock",
+    "edge.errors",
 )
 # What the core must not reach, even indirectly: frame sources, the appliance, networking, the simulator, the UI.
 NOT_IN_CORE = (
@@ -45,6 +57,16 @@ NOT_IN_CORE = (
     "edge.sim",
     "edge.dashboard",
     "edge.cli",
+    "edge.fusion",
+    "edge.recording",
+    "edge.httpguard",
+    "edge.metrics",
+    "edge.doctor",
+    "edge.enroll",
+    "edge.flashing",
+    "edge.rover_host",
+    "edge.offline",
+    "edge.v4l2",
     "paho",
     "amqtt",
     "aiohttp",
@@ -164,6 +186,12 @@ def test_the_reader_sees_every_module_and_its_imports() -> None:
     assert "edge.broker.embedded" not in imports("edge.appliance", False)
 
 
+def test_every_module_the_rules_name_is_in_the_package() -> None:
+    """A module renamed or moved leaves no rule checking nothing."""
+    named = [*CORE, *(n for n in NOT_IN_CORE if n.startswith("edge.")), *APPLIANCE]
+    assert [n for n in named if not any(_within(m, (n,)) for m in modules())] == []
+
+
 @pytest.mark.parametrize("type_checking", [False, True], ids=["at run time", "counting TYPE_CHECKING imports"])
 def test_no_module_imports_itself_back_through_others(type_checking: bool) -> None:
     assert cycles(type_checking) == []
@@ -221,3 +249,15 @@ def test_scripts_and_the_firmware_harness_do_not_import_the_tests(folder: str) -
     uses = {str(p.relative_to(REPO)): sorted(m for m in _imports_of_file(p) if m == "tests" or m.startswith("tests."))
             for p in files}  # fmt: skip
     assert {name: used for name, used in uses.items() if used} == {}
+
+
+def test_the_readme_layout_table_names_every_module_and_folder_of_the_package() -> None:
+    """A new file in ``edge/`` gets its row (or a place in one) in the README's layout table."""
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    table = text[text.index("## Layout") : text.index("## Tests and CI")]
+    entries = {
+        p.name
+        for p in EDGE.iterdir()
+        if p.name != "__init__.py" and (p.suffix == ".py" or (p / "__init__.py").exists())
+    }
+    assert sorted(e for e in entries if f"`edge/{e}" not in table) == []

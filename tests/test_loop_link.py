@@ -128,6 +128,7 @@ def deliveries(model: LinkModel, sent: np.ndarray, flow: str = "ips/v1/rovers/re
     return [down.deliver(float(t), flow) for t in sent]
 
 
+@pytest.mark.slow
 def test_the_same_seed_gives_the_same_link_and_another_seed_another() -> None:
     sent = np.arange(0.0, 120.0, 1 / 90)
     poor = PRESETS["poor"]
@@ -151,6 +152,7 @@ def test_a_poses_delay_does_not_depend_on_other_traffic_between_them() -> None:
 
 
 # -- loss, order, outages -----------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_bursty_loss_is_bad_the_given_share_of_the_time_in_spells_of_the_given_length() -> None:
     model = LinkModel(LinkSettings(loss_pct=5.0, burst_ms=40.0), 11)
     t = np.arange(0.0, 4000.0, 0.002)
@@ -160,6 +162,7 @@ def test_bursty_loss_is_bad_the_given_share_of_the_time_in_spells_of_the_given_l
     assert bad.sum() * 0.002 / len(starts) == pytest.approx(0.040, rel=0.1)  # mean spell
 
 
+@pytest.mark.slow
 def test_a_lost_segment_is_sent_again_and_what_follows_waits_for_it() -> None:
     model = LinkModel(LinkSettings(latency_ms=5.0, loss_pct=5.0, burst_ms=40.0), 2)  # every frame 5 ms on the air
     down, _ = model.connection()
@@ -203,6 +206,7 @@ def test_a_tcp_stream_delivers_in_order_never_early(
             last = due
 
 
+@pytest.mark.slow
 def test_nothing_crosses_an_outage_and_tcp_backoff_stretches_it() -> None:
     s = LinkSettings(outages_per_min=20.0, outage_min_s=0.3, outage_max_s=2.0)  # no air delay: due = sent through
     model = LinkModel(s, 4)

@@ -122,6 +122,7 @@ def test_a_pose_reaches_the_firmware_when_the_link_says_and_not_before() -> None
         assert rig.fleet.relays["red"].log.pose_delays_s == [pytest.approx(0.05)]
 
 
+@pytest.mark.slow
 def test_a_long_outage_drops_the_connection_and_the_rover_rejoins_with_the_retained_formation() -> None:
     # outages of 2 s, ten a minute; the station loses its access point 0.5 s into one, back 0.3 s after it ends
     link = "latency=5ms,outages=10/min,outage=2s,drop=0.5s,rejoin=0.3s"
@@ -156,6 +157,7 @@ def test_a_long_outage_drops_the_connection_and_the_rover_rejoins_with_the_retai
         assert status["state"] == "online" and status["halt"] in ("none", "probe")
 
 
+@pytest.mark.slow
 def test_the_relay_works_with_mosquitto_too(tmp_path: Path) -> None:
     with Mosquitto(tmp_path / "mosquitto") as broker, rig_with(broker.url, "typical,outages=0") as rig:
         for t_ms in range(20, 2000, 20):

@@ -73,6 +73,7 @@ def test_an_outage_that_costs_the_association_drops_the_connection_and_the_rover
     assert m["passed"]["no_collision"]
 
 
+@pytest.mark.slow
 def test_sim_formation_link_option_records_the_link(tmp_path: Path) -> None:
     out = tmp_path / "run"
     args = ["sim", "formation", "line", "--frames", "45", "--link", "typical,outages=0", "--out", str(out), "--json"]

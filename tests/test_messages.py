@@ -176,3 +176,17 @@ def test_every_encoded_pose_is_valid_and_round_trips(
     _validator("pose").validate(json.loads(payload))
     assert messages.dumps(pose) == payload
     assert pose.x == pytest.approx(x, abs=0.005 + 1e-9)
+
+
+@pytest.mark.parametrize(
+    ("ids", "problem"),
+    [
+        (["red", "green", "blue"], None),
+        ([], None),
+        (["red", "Red"], "rover id 'Red' is not an id: 1-16 of a-z, 0-9, _ and -"),
+        (["red", "a" * 17], f"rover id '{'a' * 17}' is not an id: 1-16 of a-z, 0-9, _ and -"),
+        (["red", "blue", "red", "blue", "green"], "blue, red named more than once"),
+    ],
+)
+def test_one_rule_for_a_list_of_rover_ids(ids: list[str], problem: str | None) -> None:
+    assert messages.id_problem(ids) == problem

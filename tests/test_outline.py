@@ -59,6 +59,7 @@ def _effects(blur_px: float, compression: Compression | None = None, sun: SunPat
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("body", list(BODIES))
 @pytest.mark.parametrize("blur_px", [0.5, 1.2])
 @pytest.mark.parametrize(
@@ -79,6 +80,7 @@ def test_the_outline_puts_the_centre_where_the_marker_is_whatever_body_and_blur(
     assert fit.size_cm == pytest.approx(SIZE, abs=0.4)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("chroma", ["4:4:4", "4:2:2"])
 def test_the_outline_holds_through_a_webcams_mjpg(grid, chroma):
     look = RoverLook("r", BLUE_BGR)
@@ -90,6 +92,7 @@ def test_the_outline_holds_through_a_webcams_mjpg(grid, chroma):
     assert max(errors) < 0.2  # JPEG's quantised chroma: 0.1 px at the far side
 
 
+@pytest.mark.slow
 def test_a_marker_half_in_a_sunlit_patch_keeps_its_centre(grid):
     """The sunlit half of the marker is 2.4 times brighter: each edge fits its own marker level."""
     sun = SunPatch(strength=1.4, cloud_depth=0.0)
@@ -102,6 +105,7 @@ def test_a_marker_half_in_a_sunlit_patch_keeps_its_centre(grid):
     assert math.hypot(fit.xy_cm[0] - pose[0], fit.xy_cm[1] - pose[1]) < 0.08
 
 
+@pytest.mark.slow
 def test_a_marker_with_an_edge_hidden_gives_no_outline(grid):
     pose = (150.0, 250.0, 0.0)
     image = _render(RoverLook("r", RED_BGR), pose, _effects(0.6))

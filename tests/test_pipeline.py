@@ -263,12 +263,13 @@ def test_default_configuration_tracks_the_paper_three_rovers():
 
 
 def test_duplicate_rover_ids_are_refused():
-    with pytest.raises(ValidationError, match="repeated: red"):
+    with pytest.raises(ValidationError, match="red named more than once"):
         TrackerConfig(
             rovers=(RoverConfig(id="red", color_bgr=(0, 0, 200)), RoverConfig(id="red", color_bgr=(0, 200, 0)))
         )
 
 
+@pytest.mark.slow
 def test_a_grey_marker_colour_is_a_configuration_error():
     config = TrackerConfig(rovers=(RoverConfig(id="grey", color_bgr=(120, 120, 120)),))
     with pytest.raises(ConfigError, match="grey"):
@@ -356,6 +357,7 @@ def test_a_smaller_image_is_tracked_with_a_finer_acquisition_pass():
         assert math.hypot(e.x_cm - truth[e.rover_id][0], e.y_cm - truth[e.rover_id][1]) < 0.5
 
 
+@pytest.mark.slow
 def test_a_frame_of_another_size_mid_stream_is_a_source_error():
     from edge.errors import SourceError
 
@@ -386,3 +388,25 @@ def test_a_dark_patch_of_the_markers_hue_is_not_taken_for_the_rover():
             assert math.hypot(e.x_cm - rover.x, e.y_cm - rover.y) < 0.3
         else:
             assert result.estimates == () and result.missing == ("blue",)
+
+
+@pytest.mark.slow
+def test_the_acquisition_pass_is_as_coarse_as_the_calibrations_working_area_allows():
+    """Its smallest marker decides: the near third of the paper's area allows a coarser pass than its far third; a
+    mapping that knows no working area (a bare camera model) is taken to cover the default one."""
+    from dataclasses import replace
+
+    from edge.acquisition import acquisition_scale
+    from edge.calibration.exact import exact_calibration
+    from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM, paper_camera
+    from edge.trackers.plane import CameraPlaneMapping, PlaneGrid
+
+    camera = paper_camera()
+    calibration = exact_calibration(camera)
+    grid = PlaneGrid(calibration, (camera.width_px, camera.height_px))
+    near = replace(calibration, area_cm=(0.0, 0.0, AREA_WIDTH_CM, AREA_LENGTH_CM / 3))
+    far = replace(calibration, area_cm=(0.0, 2 * AREA_LENGTH_CM / 3, AREA_WIDTH_CM, AREA_LENGTH_CM))
+    marker_cm2 = 21.5 * 16.8
+    assert acquisition_scale(marker_cm2, 8, grid, near) == 8
+    assert acquisition_scale(marker_cm2, 8, grid, far) == acquisition_scale(marker_cm2, 8, grid, calibration) == 4
+    assert acquisition_scale(marker_cm2, 8, grid, CameraPlaneMapping(camera)) == 4

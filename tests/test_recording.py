@@ -26,6 +26,7 @@ def _child(command: list[str]) -> dict[str, Any]:
     return json.loads(done.stdout)
 
 
+@pytest.mark.slow
 def test_a_full_disk_pauses_the_recording_with_one_warning_and_it_resumes_when_space_returns(tmp_path: Path) -> None:
     mount = tmp_path / "disk"
     mount.mkdir()
@@ -44,6 +45,7 @@ def test_a_full_disk_pauses_the_recording_with_one_warning_and_it_resumes_when_s
     assert any(m.startswith(f"INFO recording resumed in {mount}; {full['dropped']} lines dropped") for m in got["log"])
 
 
+@pytest.mark.slow
 def test_a_file_that_cannot_grow_is_closed_and_the_next_one_started(tmp_path: Path) -> None:
     got = _child([sys.executable, "-m", "tests.support.recording", "fsize", str(tmp_path)])
     assert got["after"] == {"written": 300, "dropped": 0, "paused": False}

@@ -119,6 +119,7 @@ def test_record_line_embeds_json_payloads_verbatim(payload: bytes, expected: str
     assert json.loads(line)["topic"] == "ips/v1/x"
 
 
+@pytest.mark.slow
 def test_a_finite_video_file_ends_the_run_cleanly(mosquitto: Mosquitto, tmp_path: Path) -> None:
     clip = write_clip(tmp_path / "clip.avi", frames=20)
     config = edge_config(**{"broker.url": mosquitto.url, "camera.source": str(clip), "camera.realtime": False})

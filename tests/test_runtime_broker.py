@@ -173,6 +173,7 @@ def deployed(tmp_path: Path) -> Any:
         yield broker
 
 
+@pytest.mark.slow
 def test_broker_config_rover_cannot_publish_poses_or_other_rovers_status(deployed: Mosquitto) -> None:
     edge = Client(deployed.port, "edge", PASSWORDS["edge"])
     red = Client(deployed.ports[1883], "red", PASSWORDS["red"])  # rovers log in on the network listener
@@ -241,7 +242,7 @@ def test_broker_config_writes_secret_files_and_refuses_to_overwrite(tmp_path: Pa
 
 @pytest.mark.parametrize(
     ("rovers", "edge_user", "message"),
-    [(["red", "red"], "edge", "unique"), (["red"], "red", "must differ"), (["Red"], "edge", "'Red'")],
+    [(["red", "red"], "edge", "red named more than once"), (["red"], "red", "must differ"), (["Red"], "edge", "'Red'")],
 )
 def test_broker_config_refuses_bad_names(tmp_path: Path, rovers: list[str], edge_user: str, message: str) -> None:
     with pytest.raises(BrokerError, match=message):

@@ -261,6 +261,7 @@ def test_doctor_checks_that_the_broker_lets_the_edge_publish(tmp_path: Path, env
     assert wrong_line.startswith("FAIL") and "refused" in wrong_line
 
 
+@pytest.mark.slow
 def test_doctor_recognises_a_running_edge(mosquitto: Mosquitto, env: dict[str, str]) -> None:
     config = make_config(**{"broker.url": mosquitto.url, "edge.id": "edge-1"})
     with MqttRecorder("127.0.0.1", mosquitto.port) as rec, running(config):
@@ -270,6 +271,7 @@ def test_doctor_recognises_a_running_edge(mosquitto: Mosquitto, env: dict[str, s
     assert broker_line.startswith("OK") and "edge edge-1 is running" in broker_line
 
 
+@pytest.mark.slow
 def test_doctor_with_no_configuration_checks_the_simulator(env: dict[str, str]) -> None:
     result = CliRunner().invoke(main, ["doctor"], env=env)
     lines = {ln.split()[1]: ln for ln in result.output.strip().splitlines()}

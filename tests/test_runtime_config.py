@@ -67,6 +67,7 @@ def test_rovers_from_environment_as_json() -> None:
     assert [r.id for r in load_config(None, env).config.rovers] == ["r1", "r2"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("text", "env", "message"),
     [
@@ -78,7 +79,7 @@ def test_rovers_from_environment_as_json() -> None:
         (
             "[[rovers]]\nid='a'\ncolor_bgr=[0,0,0]\n[[rovers]]\nid='a'\ncolor_bgr=[1,1,1]\n",
             {},
-            "rovers: rover ids must be unique, repeated: a",
+            "rovers: a named more than once",
         ),
         ("[edge]\nid = 'x y'\n", {}, r"edge-ips.toml: edge.id"),
         ("[tracker]\nmethod = 'magic'\n", {}, r"edge-ips.toml: tracker.method: Input should be 'centroid'"),

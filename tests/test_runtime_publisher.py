@@ -35,6 +35,7 @@ def _pose(rover: str, seq: int, frame: int) -> bytes:
     return encode_pose(rover, seq, frame, 1_800_000_000.0 + frame / 30, 100.0 + frame, 50.0, 0.5, 1.0, -1.0, 0.9)
 
 
+@pytest.mark.slow
 def test_poses_go_out_at_qos0_on_their_own_topic_with_the_exact_bytes(mosquitto: Mosquitto) -> None:
     with MqttRecorder("127.0.0.1", mosquitto.port) as rec:
         pub = _publisher(mosquitto)
@@ -55,6 +56,7 @@ def test_poses_go_out_at_qos0_on_their_own_topic_with_the_exact_bytes(mosquitto:
     assert pub.stats.poses_sent == 3 and pub.stats.poses_dropped == 0
 
 
+@pytest.mark.slow
 def test_status_is_retained_and_republished_after_a_broker_restart(mosquitto: Mosquitto) -> None:
     reconnected = threading.Event()
 
@@ -79,6 +81,7 @@ def test_status_is_retained_and_republished_after_a_broker_restart(mosquitto: Mo
     assert first.retain and parse_status(first.payload).state == "online"
 
 
+@pytest.mark.slow
 def test_poses_are_dropped_while_disconnected_and_never_sent_later(mosquitto: Mosquitto) -> None:
     pub = _publisher(mosquitto)
     pub.start()
@@ -101,6 +104,7 @@ def test_poses_are_dropped_while_disconnected_and_never_sent_later(mosquitto: Mo
     assert [m.payload for m in poses(rec.messages)] == [fresh, marker]
 
 
+@pytest.mark.slow
 def test_wrong_credentials_are_a_clear_error(tmp_path: Path) -> None:
     with Mosquitto(tmp_path, users={"edge": "right"}) as broker:
         target = parse_broker_url(f"mqtt://edge:wrong@127.0.0.1:{broker.port}")
@@ -150,6 +154,7 @@ def test_memory_publisher_drops_when_switched_off() -> None:
     assert (pub.stats.poses_sent, pub.stats.poses_dropped) == (1, 1)
 
 
+@pytest.mark.slow
 def test_publisher_sets_tcp_nodelay(mosquitto: Mosquitto) -> None:
     import socket
 

@@ -125,7 +125,14 @@ class BothTrackers:
         self.real.process(frame)
         return self.fake.process(frame)
 
+    def reset(self) -> None:
+        self.real.reset()
 
+    def close(self) -> None:
+        self.real.close()
+
+
+@pytest.mark.slow
 def test_the_appliance_waits_for_a_stream_back_at_another_size_and_resumes(
     mosquitto: Mosquitto, caplog: pytest.LogCaptureFixture
 ) -> None:

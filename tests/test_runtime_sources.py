@@ -55,7 +55,7 @@ def test_slot_gives_the_newest_frame_and_counts_the_overwritten() -> None:
     got = slot.take(timeout_s=0)
     assert got is not None and got.index == 2
     assert slot.overwritten == 2
-    assert slot.take(timeout_s=0.01) is None  # nothing new since
+    assert slot.take(timeout_s=0) is None  # nothing new since
     assert slot.peek() is got  # a viewer still sees the newest frame
 
 

@@ -35,6 +35,12 @@ class ScriptedTracker:
         missing = tuple(r for r in ROVERS if r in self.hidden)
         return FrameResult(frame.index, frame.t_capture_s, frame.t_mono_s, seen, missing, {})
 
+    def reset(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
 
 class GatedSource:
     """Frames at 30 fps while ``flowing`` is set; a read blocks (a stalled camera) while it is clear, and says so
@@ -154,6 +160,7 @@ def test_poses_are_the_exact_encode_pose_bytes_with_per_rover_seq() -> None:
     assert all(m.qos == 0 and not m.retain for m in pub.messages if m.topic.endswith("/pose"))
 
 
+@pytest.mark.slow
 def test_poses_dropped_while_disconnected_do_not_advance_seq() -> None:
     pub = MemoryPublisher()
     pub.is_connected = False

@@ -71,6 +71,7 @@ def test_a_family_scenario_keeps_one_marker_plane_and_names_its_camera():
         build("lab", seed=4, camera="phone")  # type: ignore[arg-type]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(SCENARIOS))
 def test_every_scenario_renders_through_a_family_camera(name):
     setup = build(name, seed=11, frames=3, camera="family")
@@ -80,6 +81,7 @@ def test_every_scenario_renders_through_a_family_camera(name):
     assert all(0 <= c <= 255 for c in setup.rover_configs(renderer)[0].color_bgr)
 
 
+@pytest.mark.slow
 def test_crosstalk_and_white_balance_act_on_linear_light_and_keep_grey_grey():
     grey = _render(clean_effects())
     mixed = _render(Effects(**{**clean_effects().__dict__, "colour": ColourResponse(crosstalk_matrix(0.15))}))
@@ -91,6 +93,7 @@ def test_crosstalk_and_white_balance_act_on_linear_light_and_keep_grey_grey():
     assert r / r0 == pytest.approx(1.2 ** (1 / 2.2), abs=0.02)  # the gain in linear light, through the tone curve
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("tone", ["srgb", "bt709"])
 def test_tone_curves_encode_linear_light_as_the_standards_say(tone):
     effects = Effects(**{**clean_effects().__dict__, "colour": ColourResponse(tone=tone)})
@@ -132,6 +135,7 @@ def test_four_two_zero_halves_the_chroma_rows_and_four_two_two_the_columns():
         Compression(80, "4:1:1")
 
 
+@pytest.mark.slow
 def test_a_prop_is_put_down_at_its_time_and_hides_the_floor_from_then_on():
     prop = Prop(195.0, 300.0, (40.0, 30.0, 30.0), 0.0, (0.9, 0.9, 0.9), appears_s=1.0)
     effects = Effects(**{**clean_effects().__dict__, "props": (prop,)})
@@ -156,6 +160,7 @@ def test_eight_rovers_carry_the_eight_hue_palette():
     assert gaps.min() > 20.0
 
 
+@pytest.mark.slow
 def test_grey_world_white_balance_drifts_as_a_warm_sunlit_patch_grows():
     setup = build("daylight", seed=0)
     renderer = setup.renderer()

@@ -72,6 +72,7 @@ def test_render_writes_video_truth_background_and_camera(tmp_path):
     assert vis[0] == ["frame", "id", "visible"] and len(vis) == 1 + 18
 
 
+@pytest.mark.slow
 def test_render_truth_matches_the_scenario(tmp_path):
     out = tmp_path / "run"
     run("sim", "render", "crowd", "--out", str(out), "--frames", "2", "--rovers", "4", "--seed", "9")

@@ -76,6 +76,7 @@ def test_far_marker_is_about_20_by_9_px(black_renderer):
     assert 8 <= rows.max() - rows.min() + 1 <= 12
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("x", "y", "min_px"), [(195.75, 5.0, 0.5), (195.75, 540.0, 0.05)])
 def test_area_centroid_is_not_the_projected_centre_but_maps_back_to_it(x, y, min_px):
     """Perspective: the pixel area centroid of a marker is not the projection of its centre (most visibly on the
@@ -240,6 +241,7 @@ def test_auto_exposure_lags_a_step_in_the_light():
     assert 5 <= recovered <= 20
 
 
+@pytest.mark.slow
 def test_motion_blur_smears_along_the_motion_and_keeps_the_centroid():
     camera = paper_camera()
     scene = black_scene(fleet_looks(1))
@@ -355,6 +357,7 @@ def test_unknown_rover_is_a_clear_error():
 
 
 # -- heading markers --------------------------------------------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize("heading_deg", [0.0, 75.0, 200.0])
 def test_aruco_tag_is_readable_near_the_camera_and_points_to_the_front(heading_deg):
     looks = fleet_looks(1, heading="aruco")

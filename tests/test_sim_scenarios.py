@@ -23,6 +23,7 @@ def test_the_issues_scenarios_are_all_there_with_one_line_of_help():
     assert SCENARIOS["crowd"].default_rovers >= 12
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", NAMES)
 @pytest.mark.parametrize("seed", [0, 7, 123])
 def test_rovers_never_touch(name, seed):

@@ -80,6 +80,7 @@ def test_track_runs_every_method_and_prints_a_json_summary(clip: Path, tmp_path:
     assert summary["processing_fps"] > 0
 
 
+@pytest.mark.slow
 def test_track_reads_rovers_and_method_from_a_config_file(clip: Path, tmp_path: Path):
     config = tmp_path / "rovers.toml"
     config.write_text('method = "centroid"\n[[rovers]]\nid = "red"\ncolor_bgr = [50, 45, 190]\n')

@@ -52,6 +52,7 @@ def measure(method, image, rover: SynthRover, offset_px=(0.0, 0.0), background=N
 PLACES = [(60.0, 30.0, 0.0), (200.0, 150.0, 0.7), (330.0, 280.0, 2.0), (120.0, 420.0, -1.2), (250.0, 535.0, 0.3)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", METHODS)
 @pytest.mark.parametrize(("x", "y", "theta"), PLACES)
 def test_each_tracker_finds_the_marker_centre_to_a_fraction_of_a_centimetre(method, x, y, theta):
@@ -147,6 +148,7 @@ def test_the_centroid_approach_is_pulled_by_a_speck_of_the_same_hue():
     assert math.hypot(m.xy_cm[0] - rover.x, m.xy_cm[1] - rover.y) > 0.5
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("offset", [(6.0, 0.0), (-4.0, 5.0), (0.0, -7.0)])
 def test_mean_shift_climbs_to_the_marker_from_an_offset_prediction(offset):
     scene = shared_scene()
@@ -159,6 +161,7 @@ def test_mean_shift_climbs_to_the_marker_from_an_offset_prediction(offset):
     assert math.hypot(m.xy_cm[0] - rover.x, m.xy_cm[1] - rover.y) < 0.3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", METHODS)
 def test_a_glare_spot_on_the_marker_is_filled_not_a_hole_in_the_estimate(method):
     scene = shared_scene()

@@ -101,6 +101,7 @@ def test_random_layouts_fill_the_area_they_are_given() -> None:
     assert xs.max() > 600.0  # far beyond the paper's 391.5 cm: the whole wide arena
 
 
+@pytest.mark.slow
 def test_each_camera_is_served_by_name_with_its_own_view_in_the_shared_floor_frame(lab: tuple[TwinLab, Path]) -> None:
     twin, path = lab
     calibrations = {}
@@ -128,6 +129,7 @@ def test_each_camera_is_served_by_name_with_its_own_view_in_the_shared_floor_fra
     assert not np.allclose(calibrations["cam1"].world_to_pixel(overlap), calibrations["cam2"].world_to_pixel(overlap))
 
 
+@pytest.mark.slow
 def test_the_first_camera_answers_a_client_that_names_none_and_an_unknown_one_is_refused(
     lab: tuple[TwinLab, Path],
 ) -> None:
@@ -141,6 +143,7 @@ def test_the_first_camera_answers_a_client_that_names_none_and_an_unknown_one_is
         TwinSource(path, camera="cam3").open()
 
 
+@pytest.mark.slow
 def test_a_hung_camera_hangs_alone_and_the_status_lists_every_camera(lab: tuple[TwinLab, Path]) -> None:
     _, path = lab
     sources = {name: TwinSource(path, camera=name, read_timeout_s=0.5) for name in ("cam1", "cam2")}
@@ -167,6 +170,7 @@ def test_a_hung_camera_hangs_alone_and_the_status_lists_every_camera(lab: tuple[
         LabClient(path).fault("camera", 1.0, camera="cam7")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("camera", "code", "said"),
     [("cam2", 0, "cam2 hung for 0.5 s"), (None, 0, "cam1 hung for 0.5 s"), ("cam9", 2, "no camera 'cam9'")],
@@ -180,6 +184,7 @@ def test_sim_fault_hangs_the_camera_it_names(
     assert result.exit_code == code and said in result.output, result.output
 
 
+@pytest.mark.slow
 def test_a_scatter_uses_the_whole_wide_arena(lab: tuple[TwinLab, Path]) -> None:
     _, path = lab
     client = LabClient(path)

@@ -86,6 +86,7 @@ def test_an_edge_fault_with_no_edge_running_says_so(tmp_path: Path, env: dict[st
     assert "http://127.0.0.1:9/: no edge answers" in error
 
 
+@pytest.mark.slow
 def test_plot_draws_a_recordings_poses_from_its_directory(tmp_path: Path, env: dict[str, str]) -> None:
     from edge.messages import FORMATION_TOPIC, encode_pose, pose_topic
     from edge.recording import Recorder

@@ -138,6 +138,7 @@ def test_a_fault_request_is_checked_before_anything_happens(served: Any, body: A
     assert lab.asked == [] and broker.calls == []
 
 
+@pytest.mark.slow
 def test_lab_faults_go_to_the_lab_and_a_broker_restart_is_announced_to_it_first(served: Any) -> None:
     http, lab, broker = served
     assert _post(http, "/api/sim/fault", {"kind": "wifi", "seconds": 2, "rover": "red"}) == (

@@ -24,7 +24,7 @@ from edge.sim.link import LinkSettings
 from edge.sim.twin.lab import LabEvents, LabSettings, TwinLab
 from edge.sim.twin.server import LabServer
 from edge.sim.twin.source import LabClient, TwinSource
-from edge.sim.twin.wire import read_line, send_line, socket_path
+from edge.sim.twin.wire import ControlRequest, read_line, send_line, socket_path
 
 pytestmark = pytest.mark.slow  # a lab with three rovers on a broker: seconds
 
@@ -178,6 +178,27 @@ def test_a_short_wifi_fault_holds_the_poses_back_and_the_connection_survives(
         assert green.wait_own_pose(sent[-1], WAIT_S)
     assert max(green.pose_delays_s()) > 0.1  # held back by the outage, not lost
     assert not [e for e in events.recent(mark) if "link down" in e["text"]]  # the association held
+
+
+def test_a_control_client_waits_on_the_lab_for_its_next_event_and_for_a_rover_driving(
+    lab: tuple[TwinLab, Path, Watched],
+) -> None:
+    """``wait`` answers when it is met (no client polls the lab): an event after the one named, a rover at a speed."""
+    _, path, events = lab
+    client = LabClient(path)
+    mark = events.count
+    waited: list[dict[str, Any]] = []
+    waiter = threading.Thread(target=lambda: waited.append(client.wait_event(mark, WAIT_S)))
+    waiter.start()
+    client.note("a marker for the waiting client")
+    waiter.join(WAIT_S)
+    (status,) = waited
+    assert status["met"] and any(e["text"] == "fault: a marker for the waiting client" for e in status["events"])
+    assert all(e["n"] > mark for e in status["events"])
+    assert client.wait_event(mark - 1, WAIT_S)["met"]  # one came already: answered at once
+    assert client.wait_driving(0.0, WAIT_S)["met"]  # every rover drives at 0 cm/s or faster
+    with pytest.raises(SimulationError, match="a wait is for an event or for driving, not 'rest'"):
+        client.request(ControlRequest("wait", kind="rest", seconds=1.0))
 
 
 def test_a_long_wifi_fault_loses_the_association_and_the_rover_reconnects_after(

@@ -245,6 +245,7 @@ def test_two_tone_heading_and_centre_hold_over_glare_and_sunlight(spot: str, pat
     assert float(np.median(headings)) < 1.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("turn_deg", [65.0, -80.0, 150.0])
 def test_a_rover_that_turned_while_frames_were_dropped_keeps_its_true_heading(turn_deg: float) -> None:
     """The twin's overloaded computer dropped 20 frames while a rover turned by 65 degrees: the tracker took the

@@ -4,8 +4,6 @@ white balance and with the lamps off; grey and white things never become markers
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +15,7 @@ from edge.sim.render import Renderer
 from edge.sim.scene import BLUE_BGR, RoverLook, Scene
 from edge.sim.world import RoverState, WorldState
 from edge.white import LocalWhite, encode_linear
+from tests.conftest import benchmark_module
 
 WARM_SUN = SunPatch(strength=2.0, clear_bgr=(0.4, 0.72, 1.0), cloud_depth=0.0)
 
@@ -36,6 +35,7 @@ def _box(uv: np.ndarray, half: int = 40) -> tuple[int, int, int, int]:
     return u - half, v - half, u + half, v + half
 
 
+@pytest.mark.slow
 def test_a_blue_marker_in_a_warm_sunlit_patch_shows_its_own_colour_again():
     """Under a patch 3 times brighter and much warmer than the lamps the blue marker loses a third of its
     saturation; judged against the light there, it has the colour it was enrolled with."""
@@ -62,6 +62,7 @@ def test_a_blue_marker_in_a_warm_sunlit_patch_shows_its_own_colour_again():
     assert _saturation(c) == pytest.approx(_saturation(configured), rel=0.1)
 
 
+@pytest.mark.slow
 def test_a_grey_box_in_the_sun_stays_grey_and_a_white_one_white():
     boxes = (
         Prop(150.0, 300.0, (30.0, 30.0, 25.0), 0.0, (0.5, 0.5, 0.5)),
@@ -104,12 +105,13 @@ def test_linear_encoding_round_trips_every_value():
     assert np.array_equal(encode_linear(LINEAR[values]), values)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("camera", ["nominal", "family"])
 def test_rovers_in_the_daylight_scenario_are_all_tracked_and_the_boxes_never_taken_for_one(camera):
     """The sunlit patch, its glare, half the lamps off and an automatic white balance: every marker in view gets a
     pose within 2 cm, nothing else does (the grey and white boxes are put down at 2 and 3 s)."""
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-    from tracking_runs import render_clip, run_clip, summary
+    runs = benchmark_module("tracking_runs")
+    render_clip, run_clip, summary = runs.render_clip, runs.run_clip, runs.summary
 
     clip = render_clip("daylight", 3, frames=240, camera=camera)
     score = run_clip(clip, "particles")

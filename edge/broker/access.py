@@ -36,6 +36,7 @@ from edge.messages import (
     STATUS_MAX_BYTES,
     TOPIC_PREFIX,
     edge_status_topic,
+    repeated_ids,
     rover_status_topic,
 )
 
@@ -111,8 +112,9 @@ def check_names(edge_user: str, rovers: Sequence[str]) -> None:
             raise BrokerError(f"user name {name!r} is reserved (the read-only viewer, or anonymous clients)")
     if edge_user in rovers:
         raise BrokerError(f"the edge user {edge_user!r} must differ from every rover id")
-    if len(set(rovers)) != len(rovers):
-        raise BrokerError("rover ids must be unique")
+    twice = repeated_ids(rovers)
+    if twice:
+        raise BrokerError(f"rover {', '.join(twice)} named more than once")
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,7 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, Protocol
+from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -144,13 +144,17 @@ def parse_body(body: bytes, model: type[BaseModel], what: str) -> Any:
         raise Refused(400, f"{what}: {describe_validation(exc, top_level='(body)')}") from None
 
 
-def tracker_model(tracker: object) -> BackgroundModel | None:
-    """The tracker's background model when it keeps one (the default pipeline does; the paper's full-frame pipeline
-    keeps colour planes, not a frame)."""
-    from edge.segmentation import BackgroundModel
+@runtime_checkable
+class KeepsBackground(Protocol):
+    """A tracker that keeps a background model (optional: check with ``isinstance``): the default pipeline does
+    (None until its first frame); the paper's full-frame pipeline keeps colour planes, not a frame."""
 
-    model = getattr(tracker, "background", None)
-    return model if isinstance(model, BackgroundModel) else None
+    background: BackgroundModel | None
+
+
+def tracker_model(tracker: object) -> BackgroundModel | None:
+    """The tracker's background model when it keeps one."""
+    return tracker.background if isinstance(tracker, KeepsBackground) else None
 
 
 def known_share(model: BackgroundModel) -> float:

@@ -5,7 +5,7 @@ for the whole arena). A point surveyed once and seen by two boards is mapped by 
 own pixel; the distance between the two mapped positions is the **seam error** there: what a rover passing from one
 view to the next would jump if nothing smoothed it, and what the fusion's covariances must cover. The surveyed
 position is not needed for it (two boards can be compared on markers nobody measured), but when it is known each
-board's own error is reported too (:func:`edge.calibration.points.check_calibration`).
+board's own error is reported too (:func:`edge.calibration.check.check_calibration`).
 """
 
 from __future__ import annotations

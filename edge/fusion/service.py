@@ -33,7 +33,7 @@ from pydantic import ValidationError
 from edge.board_messages import DETECTIONS_WILDCARD, BoardStateV1, FuserStatusV1, fuser_status_topic, parse_detections
 from edge.commands import StopAtStart, send_formation_on
 from edge.config import BrokerTarget, EdgeConfig, broker_target
-from edge.errors import BrokerError, MessageError
+from edge.errors import BrokerError, MessageError, describe_validation
 from edge.fusion.core import FusedPose, Fuser, FusionSettings, FusionStatus
 from edge.fusion.detections import from_message
 from edge.fusion.fusedmap import map_state
@@ -229,11 +229,12 @@ class FuserService:
                 if status.state == "offline":
                     with self._lock:
                         self.fuser.board_offline(status.edge)
-        except (MessageError, ValidationError, ValueError) as exc:
+        except (MessageError, ValueError) as exc:  # a ValidationError is a ValueError: said in one line
             self.stats.invalid += 1
+            why = describe_validation(exc) if isinstance(exc, ValidationError) else str(exc)
             if self.stats.invalid in (1, 10, 100, 1000):
                 log.warning(
-                    "fuser %s: refused a message on %s (%d so far): %s", self.fuser_id, topic, self.stats.invalid, exc
+                    "fuser %s: refused a message on %s (%d so far): %s", self.fuser_id, topic, self.stats.invalid, why
                 )
         self._learn()
 

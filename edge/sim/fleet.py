@@ -17,7 +17,6 @@ The broker's address comes from ``--broker`` (the bundles name the lab's broker 
 from __future__ import annotations
 
 import json
-import re
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -27,7 +26,7 @@ from typing import Any, Protocol
 
 from edge.config import parse_broker_url
 from edge.errors import ConfigError, EdgeIpsError, MessageError
-from edge.messages import ID_PATTERN, RoverStatusV2, parse_rover_status
+from edge.messages import RoverStatusV2, id_problem, parse_rover_status
 from edge.rover_host import CONFIG_DIR, HostRover, MotorState, check_rover_config
 
 DEFAULT_IDS = ("red", "green", "blue")
@@ -123,11 +122,9 @@ def rover_broker(url: str) -> FleetBroker:
 
 def parse_ids(text: str) -> list[str]:
     ids = [i.strip() for i in text.split(",") if i.strip()]
-    bad = [i for i in ids if not re.match(ID_PATTERN, i)]
-    if not ids or bad:
-        raise ConfigError(f"--ids: {', '.join(bad) or 'none given'}: rover ids are 1-16 characters of a-z 0-9 _ -")
-    if len(set(ids)) != len(ids):
-        raise ConfigError("--ids: a rover is named twice")
+    problem = "none given" if not ids else id_problem(ids)
+    if problem is not None:
+        raise ConfigError(f"--ids: {problem}")
     return ids
 
 

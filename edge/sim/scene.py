@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM, MARKER_HEIGHT_CM
 from edge.errors import SimulationError
+from edge.messages import repeated_ids
 
 FloatArray = NDArray[np.float64]
 Bgr = tuple[float, float, float]
@@ -137,9 +138,9 @@ class Scene:
     texture_seed: int = 7
 
     def __post_init__(self) -> None:
-        ids = [r.rover_id for r in self.rovers]
-        if len(set(ids)) != len(ids):
-            raise SimulationError(f"scene: rover ids must be unique, got {ids}")
+        twice = repeated_ids([r.rover_id for r in self.rovers])
+        if twice:
+            raise SimulationError(f"scene: rover {', '.join(twice)} named more than once")
 
     def look(self, rover_id: str) -> RoverLook:
         for r in self.rovers:

@@ -47,6 +47,9 @@ class PaperPipeline:
         self._period = max(1, round(config.background_refresh_s * config.fps))
         self.reset()
 
+    def close(self) -> None:
+        """Nothing runs beside the frame thread."""
+
     def reset(self) -> None:
         """Forget the reference: the next frame (or the empty scene) becomes it again."""
         self._reference: NDArray[np.float32] | None = None  # (N, H, W) reference planes

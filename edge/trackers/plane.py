@@ -36,6 +36,14 @@ class PlaneMapping(Protocol):
     def world_to_pixel(self, xy_cm: FloatArray) -> FloatArray: ...
 
 
+@runtime_checkable
+class WithWorkingArea(Protocol):
+    """A mapping that knows the working area, ``(x0, y0, x1, y1)`` cm (optional: check with ``isinstance``;
+    ``edge.calibration.Calibration`` does, a bare camera model does not)."""
+
+    area_cm: tuple[float, float, float, float]
+
+
 @dataclass(frozen=True)
 class LocalPlaneMap:
     """The image-to-plane mapping of one :class:`PlaneGrid` tile as a homography ``G`` (world ~ G @ (u, v, 1)),

@@ -126,7 +126,8 @@ def marker_axis(
     """The marker's long axis (modulo pi) on the plane and the coherence of the edges it came from (0..1): the
     directions of its edges (modulo pi/2, sharp) in the first of ``planes`` that shows them coherently, resolved by
     the blob's elongation (which of the two is the long one). Where the marker is square, or no plane shows a
-    rectangle, the blob axis alone, with coherence 0 (``edge.axis_track`` weighs it against the last frames').
+    rectangle, the blob axis alone, with coherence 0 (``edge.filtering.checked_axis`` weighs it against the motion,
+    the heading filter against the last frames).
 
     Only the marker's own edge counts: the band of pixels within one of the boundary of its coverage (``m.weights``
     at one half). Farther out the body's outline shows too, and where the camera sees a rover from the side, the

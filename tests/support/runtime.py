@@ -51,6 +51,12 @@ class CentroidTracker:
             estimates.append(RoverEstimate(rover.id, u * CM_PER_PX, v * CM_PER_PX, 0.0, None, None, 1.0, (u, v)))
         return FrameResult(frame.index, frame.t_capture_s, frame.t_mono_s, tuple(estimates), tuple(missing), {})
 
+    def reset(self) -> None:
+        pass  # keeps nothing from frame to frame
+
+    def close(self) -> None:
+        pass
+
 
 def scene(
     index: int, width: int = 320, height: int = 240, rovers: Sequence[RoverConfig] = DEFAULT_ROVERS

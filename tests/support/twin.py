@@ -10,6 +10,7 @@ import json
 import math
 import subprocess
 import threading
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -109,25 +110,25 @@ def rest_events(lab: LabClient, label: str, after: int, rovers: Sequence[str]) -
     """Wait for the lab's word on each of ``rovers`` after the fault or note ``label`` (events after number
     ``after``): its rest timing (``after_fault_s``, ``after_pose_s``), or None for a rover at rest already."""
     found: dict[str, dict[str, Any] | None] = {}
-    for _ in range(int(TIMEOUT_S / 0.5)):  # the lab's events, polled (they come within a second of the fault)
-        for e in lab.status(after)["events"]:
+    seen = after
+    deadline = time.monotonic() + TIMEOUT_S
+    while time.monotonic() < deadline:
+        status = lab.wait_event(seen, max(0.0, deadline - time.monotonic()))  # answered at the lab's next event
+        for e in status["events"]:
+            seen = max(seen, e["n"])
             rest = e.get("rest")
             if e["who"] in rovers and rest is not None and rest["fault"] == label:
                 found[e["who"]] = None if rest.get("already") else rest
         if all(r in found for r in rovers):
             return found
-        threading.Event().wait(0.5)
     raise AssertionError(f"the lab did not time every rover after {label}: {found}")
 
 
 def wait_driving(lab: LabClient, speed_cm_s: float = 10.0) -> None:
     """Until a rover drives at ``speed_cm_s`` or more by the lab's ground truth (a rover's poses jump when the lab
     scatters it, which is no driving)."""
-    for _ in range(int(TIMEOUT_S / 0.2)):  # the lab's status, polled
-        if any(r["speed_cm_s"] >= speed_cm_s for r in lab.status()["rovers"]):
-            return
-        threading.Event().wait(0.2)
-    raise AssertionError(f"no rover drove at {speed_cm_s:g} cm/s within {TIMEOUT_S:g} s")
+    status = lab.wait_driving(speed_cm_s, TIMEOUT_S)  # answered by the lab once one does
+    assert status["met"], f"no rover drove at {speed_cm_s:g} cm/s within {TIMEOUT_S:g} s: {status['rovers']}"
 
 
 @dataclass
@@ -143,27 +144,32 @@ class TwinLabProcess:
     def start(self) -> TwinLabProcess:
         self.log = self.workdir / "twin-lab.out"
         self.workdir.mkdir(parents=True, exist_ok=True)
-        with self.log.open("w") as out:
-            self.proc = subprocess.Popen(
-                [*EDGE_IPS, "sim", "twin", *self.args],
-                cwd=self.workdir,
-                env=clean_env(EDGE_IPS_EDGE__STATE_DIR=str(self.state_dir)),
-                stdout=out,
-                stderr=subprocess.STDOUT,
-                text=True,
-            )
-        client = LabClient(self.state_dir / "twin.sock")
-        ready = threading.Event()
-        for _ in range(int(TIMEOUT_S / 0.5)):  # its socket answers once the lab has measured its colours
-            try:
-                client.status()
-                ready.set()
-                break
-            except Exception:
-                assert self.proc.poll() is None, self.log.read_text()
-                ready.wait(0.5)
-        assert ready.is_set(), f"the lab did not serve:\n{self.log.read_text()}"
+        self.proc = subprocess.Popen(
+            [*EDGE_IPS, "sim", "twin", *self.args],
+            cwd=self.workdir,
+            env=clean_env(EDGE_IPS_EDGE__STATE_DIR=str(self.state_dir), PYTHONUNBUFFERED="1"),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        said, ended = threading.Event(), threading.Event()
+        threading.Thread(target=self._copy_log, args=(said, ended), daemon=True).start()
+        assert said.wait(TIMEOUT_S), f"the lab did not serve within {TIMEOUT_S:g} s:\n{self.log.read_text()}"
+        assert not ended.is_set(), f"the lab ended:\n{self.log.read_text()}"
         return self
+
+    def _copy_log(self, said: threading.Event, ended: threading.Event) -> None:
+        """The lab's output into :attr:`log`, line by line; ``said`` set at its "camera on <socket>" line (it
+        serves from then on), ``ended`` and ``said`` when its output ends."""
+        assert self.proc is not None and self.proc.stdout is not None
+        with self.log.open("w") as out:
+            for line in self.proc.stdout:
+                out.write(line)
+                out.flush()
+                if "camera on " in line:
+                    said.set()
+        ended.set()
+        said.set()
 
     def stop(self) -> None:
         if self.proc is not None:

@@ -169,6 +169,7 @@ class TwinLab:
         self._lock = threading.Lock()  # faults and watches
         self._stop = threading.Event()
         self._physics: threading.Thread | None = None
+        self._stepped = threading.Condition()  # notified after every physics step (what a waiting client checks)
 
     # -- what the camera sees and what the edge is told -------------------------------------------------------------
     def state(self) -> WorldState:
@@ -260,6 +261,18 @@ class TwinLab:
             with self._world_lock:
                 state = self.world.step(dt, commands)
             self._after_step(state, now)
+            with self._stepped:
+                self._stepped.notify_all()
+
+    def wait_until(self, ready: Callable[[], bool], timeout_s: float) -> bool:
+        """Whether ``ready()`` came true within ``timeout_s``, checked after every physics step (a fault's or a
+        note's event shows by the next one): how a control client waits for the lab without polling it."""
+        with self._stepped:
+            return self._stepped.wait_for(ready, timeout_s)
+
+    def fastest_cm_s(self) -> float:
+        """The speed of the fastest rover by the ground truth."""
+        return max((math.hypot(r.vx_cm_s, r.vy_cm_s) for r in self.state().rovers), default=0.0)
 
     def _at_rest(self, state: WorldState) -> set[str]:
         track_cm = self.world.drive.track_width_cm

@@ -13,6 +13,7 @@ import logging
 import os
 import socket
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +30,7 @@ log = logging.getLogger("edge.sim.twin")
 
 REQUEST_TIMEOUT_S = 5.0  # a client must say what it wants within this
 SEND_TIMEOUT_S = 10.0  # a reader that takes no frame for this long is dropped
+MAX_WAIT_S = 60.0  # the longest a ``wait`` request holds its connection
 
 
 def _answers(path: Path) -> bool:
@@ -121,9 +123,25 @@ class LabServer:
                 return {"ok": True}
             if what == "status":
                 return {"ok": True, **lab.status(int(request.get("after", 0)), camera)}
-            return {"ok": False, "error": f"unknown request {what!r}: scatter, fault, note or status"}
+            if what == "wait":
+                after = int(request.get("after", 0))
+                timeout_s = min(float(request.get("seconds", 0.0)), MAX_WAIT_S)
+                met = lab.wait_until(self._condition(request, after), timeout_s)
+                return {"ok": True, "met": met, **lab.status(after, camera)}
+            return {"ok": False, "error": f"unknown request {what!r}: scatter, fault, note, status or wait"}
         except (EdgeIpsError, TypeError, ValueError) as exc:
             return {"ok": False, "error": str(exc)}
+
+    def _condition(self, request: dict[str, Any], after: int) -> Callable[[], bool]:
+        """What a ``wait`` request waits for: ``event`` (one numbered after ``after``) or ``driving`` (a rover at
+        ``speed_cm_s`` or faster by the ground truth)."""
+        lab = self.lab
+        if request.get("kind") == "event":
+            return lambda: lab.events.count > after
+        if request.get("kind") == "driving":
+            speed_cm_s = float(request.get("speed_cm_s", "none"))  # ValueError when missing: refused
+            return lambda: lab.fastest_cm_s() >= speed_cm_s
+        raise ValueError(f"a wait is for an event or for driving, not {request.get('kind')!r}")
 
     def _stream(self, conn: socket.socket, name: object) -> None:
         try:

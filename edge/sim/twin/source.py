@@ -95,6 +95,22 @@ class LabClient:
     def status(self, after: int = 0) -> dict[str, Any]:
         return self.request(ControlRequest("status", camera=self.camera), after=after)
 
+    def wait_event(self, after: int, timeout_s: float) -> dict[str, Any]:
+        """The status (events after ``after``) once the lab has an event numbered after ``after``, or at
+        ``timeout_s`` (``met`` says which)."""
+        return self._wait(
+            ControlRequest("wait", kind="event", seconds=timeout_s, camera=self.camera), timeout_s, after=after
+        )
+
+    def wait_driving(self, speed_cm_s: float, timeout_s: float) -> dict[str, Any]:
+        """The status once a rover drives at ``speed_cm_s`` or faster by the ground truth, or at ``timeout_s``."""
+        request = ControlRequest("wait", kind="driving", seconds=timeout_s, camera=self.camera)
+        return self._wait(request, timeout_s, speed_cm_s=speed_cm_s)
+
+    def _wait(self, req: ControlRequest, timeout_s: float, **extra: Any) -> dict[str, Any]:
+        waiting = LabClient(self.path, self.timeout_s + timeout_s, self.camera)  # the reply comes when it is met
+        return waiting.request(req, **extra)
+
 
 @dataclass
 class LabLaunch:

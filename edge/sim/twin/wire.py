@@ -122,7 +122,8 @@ class CameraDescription:
 class ControlRequest:
     """``scatter``, ``fault`` (``kind`` one of :data:`FAULT_KINDS`, ``rover`` for wifi, ``camera`` for camera: the
     lab's first when None; ``seconds``), ``note`` (an edge-side fault about to happen: the lab times how fast the
-    rovers stop) or ``status`` (``camera``: whose figures ``camera`` holds; ``cameras`` lists all)."""
+    rovers stop), ``status`` (``camera``: whose figures ``camera`` holds; ``cameras`` lists all) or ``wait`` (``kind``
+    ``event`` or ``driving``, at most ``seconds``: the status once it came, ``met`` false if it did not)."""
 
     do: str
     kind: str | None = None
