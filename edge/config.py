@@ -20,7 +20,7 @@ from edge.camera_controls import CameraControls
 from edge.messages import ID_PATTERN
 from edge.tracker_config import DEFAULT_ROVERS, RoverConfig, TrackerSettings, require_unique_ids
 
-_SECTION = ConfigDict(extra="forbid", validate_default=True)
+_SECTION = ConfigDict(extra="forbid", validate_default=True, allow_inf_nan=False)
 
 
 class EdgeSection(BaseModel):
@@ -106,8 +106,8 @@ class RecordingSection(BaseModel):
     model_config = _SECTION
 
     dir: Path | None = Field(default=None, description="Directory for the recording; unset = no recording.")
-    max_bytes: int = Field(default=50_000_000, ge=10_000, description="Start a new file beyond this size.")
-    max_files: int = Field(default=20, ge=1, description="Keep at most this many files (oldest deleted).")
+    max_bytes: int = Field(default=50_000_000, ge=10_000, le=2**40, description="Start a new file beyond this size.")
+    max_files: int = Field(default=20, ge=1, le=100_000, description="Keep at most this many files (oldest deleted).")
 
 
 class HttpSection(BaseModel):
