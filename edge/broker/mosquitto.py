@@ -158,8 +158,8 @@ def write_mosquitto_config(
     if len({port, local_port, *tls_ports}) != 2 + len(tls_ports) or any(p > 65535 for p in tls_ports):
         listed = ", ".join(str(p) for p in (port, local_port, *tls_ports))
         raise BrokerError(f"listener ports must differ (the viewer's TLS listener is the TLS port + 1): {listed}")
-    tls_names_written = (TLS_PASSWD, *TLS_FILES) if tls_port is not None else ()
-    tls_names_written += (TLS_VIEWER_PASSWD,) if tls_port is not None and viewer else ()
+    tls_names_written: list[str] = [] if tls_port is None else [TLS_PASSWD, *TLS_FILES]
+    tls_names_written += [TLS_VIEWER_PASSWD] if tls_port is not None and viewer else []
     names = ["mosquitto.conf", "passwd", LOCAL_PASSWD, "acl", "credentials.toml", *tls_names_written]
     existing = [name for name in names if (out_dir / name).exists()]
     if existing and not force:
