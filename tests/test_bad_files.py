@@ -299,6 +299,9 @@ CONFIG_CASES = [
     ("area range inverted", "[tracker]\nacquire_area_range = [2.0, 0.5]\n", "tracker.acquire_area_range"),
     ("level range infinite", "[tracker]\nlevel_range = [0.4, inf]\n", "tracker.level_range"),
     ("camera gain beyond 32 bits", "[camera.controls]\ngain = 99999999999\n", "camera.controls.gain"),
+    # a server that times out every request before it can arrive; a status loop without a pause
+    ("request timeout 1e-300", "[http]\nrequest_timeout_s = 1e-300\n", "http.request_timeout_s"),
+    ("status interval 1e-300", "[edge]\nstatus_interval_s = 1e-300\n", "edge.status_interval_s"),
     ("not TOML", "[camera\n", "invalid TOML"),
 ]
 
