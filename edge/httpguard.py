@@ -13,8 +13,8 @@
   address gets 429 on every protected route for ``lockout_s`` (without its token being checked), so guessing runs
   at a few tries a minute. A missing token is not a guess: it is answered 401 and not counted.
 - **The STOP is never locked out**: a ``stop`` route's control token is still checked while its address is locked
-  out, at most once per ``STOP_CHECK_S`` (a wrong one counts and is refused as before), and the right one goes
-  through. Otherwise a dashboard tab left open with an old token, retrying its camera frame every second, keeps
+  out, at most once per ``STOP_CHECK_S``, and the right one goes through. A wrong one counts, is refused as before
+  and ends these checks until the lockout is over: one more guess per lockout, so guessing stays as slow. Otherwise a dashboard tab left open with an old token, retrying its camera frame every second, keeps
   its machine locked out, and the operator's STOP from that machine, with the right token, would be refused.
 
 Everything here is pure (time is passed in), so it is tested without a server or a clock.
@@ -149,6 +149,7 @@ class _Address:
     locked_until: float = 0.0
     refused_while_locked: int = 0
     stop_checked: float = -float("inf")  # when a STOP's token was last checked while locked out
+    stop_guessed: bool = False  # a wrong STOP token during this lockout: no more STOP checks until it is over
 
 
 class FailureLimiter:
@@ -181,10 +182,16 @@ class FailureLimiter:
         """Whether a STOP from ``address``, locked out, may have its token checked now (at most once per
         ``STOP_CHECK_S``: guessing through the STOP stays slow)."""
         entry = self._addresses.get(address)
-        if entry is None or now - entry.stop_checked < STOP_CHECK_S:
+        if entry is None or entry.stop_guessed or now - entry.stop_checked < STOP_CHECK_S:
             return False
         entry.stop_checked = now
         return True
+
+    def stop_guessed(self, address: str) -> None:
+        """A wrong STOP token while ``address`` is locked out: no more STOP checks until the lockout is over."""
+        entry = self._addresses.get(address)
+        if entry is not None:
+            entry.stop_guessed = True
 
     def failed(self, address: str, now: float) -> tuple[int, bool]:
         """Record one wrong token: (failures from ``address`` in the window, whether it is now locked out)."""
@@ -196,6 +203,7 @@ class FailureLimiter:
         entry.failures = [t for t in entry.failures if now - t < self.window_s] + [now]
         if len(entry.failures) >= self.max_failures:
             entry.locked_until = now + self.lockout_s
+            entry.stop_guessed = False
             entry.failures = []
             self.lockouts += 1
             return self.max_failures, True
@@ -266,6 +274,7 @@ class AccessGuard:
                     )
                     return None
                 self._failed(client, method, path, now)
+                self.limiter.stop_guessed(client)
             wait = str(max(1, round(locked)))
             return Refusal(429, f"too many wrong tokens from {client}: try again in {wait} s", (("Retry-After", wait),))
         if not given:

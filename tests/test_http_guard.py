@@ -219,11 +219,11 @@ def test_a_stop_with_the_right_token_goes_through_a_lockout_and_guessing_through
         assert ask("stop", CONTROL, 5.2) == 200  # the STOP goes through
         assert ask("stop", CONTROL, 5.5) == 429  # its token is checked at most once a second while locked out
         assert ask("stop", CONTROL, 6.3) == 200
-        assert ask("stop", VIEWER, 7.5) == 429  # a viewer's token does not stop, a guess is a failure
         failures = guard.limiter.failures
-        assert ask("stop", "guess", 8.6) == 429 and guard.limiter.failures == failures + 1
-        assert ask("stop", "guess", 8.7) == 429 and guard.limiter.failures == failures + 1  # not even checked
-        assert ask("stop", "", 10.0) == 429  # no token: nothing to check
+        assert ask("stop", "guess", 7.5) == 429 and guard.limiter.failures == failures + 1  # a guess counts ...
+        assert ask("stop", CONTROL, 9.0) == 429  # ... and ends the STOP's checks for this lockout: one guess more
+        assert ask("stop", "guess", 10.0) == 429 and guard.limiter.failures == failures + 1  # not even checked
+        assert ask("stop", CONTROL, 70.0) == 200  # the lockout is over
     said = [r.getMessage() for r in caplog.records]
     assert sum("a STOP from 192.168.1.20, locked out for wrong tokens, has the right token" in m for m in said) == 2
     assert all(CONTROL not in m and "guess" not in m for m in said)
