@@ -14,8 +14,9 @@
   at a few tries a minute. A missing token is not a guess: it is answered 401 and not counted.
 - **The STOP is never locked out**: a ``stop`` route's control token is still checked while its address is locked
   out, at most once per ``STOP_CHECK_S``, and the right one goes through. A wrong one counts, is refused as before
-  and ends these checks until the lockout is over: one more guess per lockout, so guessing stays as slow. Otherwise a dashboard tab left open with an old token, retrying its camera frame every second, keeps
-  its machine locked out, and the operator's STOP from that machine, with the right token, would be refused.
+  and ends these checks until the lockout is over: one more guess per lockout, so guessing stays as slow.
+  Otherwise a dashboard tab left open with an old token, retrying its camera frame every second, keeps its
+  machine locked out, and the operator's STOP from that machine, with the right token, would be refused.
 
 Everything here is pure (time is passed in), so it is tested without a server or a clock.
 """
