@@ -302,6 +302,7 @@ CONFIG_CASES = [
     # a server that times out every request before it can arrive; a status loop without a pause
     ("request timeout 1e-300", "[http]\nrequest_timeout_s = 1e-300\n", "http.request_timeout_s"),
     ("status interval 1e-300", "[edge]\nstatus_interval_s = 1e-300\n", "edge.status_interval_s"),
+    ("token too short", "[dashboard]\ntoken = 'abc'\n", "dashboard.token: at least 8 characters"),
     ("not TOML", "[camera\n", "invalid TOML"),
 ]
 
