@@ -15,8 +15,7 @@ first). A connection costs a socket and a little memory, not a thread, and the s
 Routes are exact paths with a function ``Request -> Response``: a plain function runs on a small pool of worker
 threads (it may block: a broker round trip), an ``async def`` on the loop (it must not block); a response may carry
 an async ``stream`` of chunks instead of a body (server-sent events). Register them with :meth:`HttpServer.route`,
-naming the access level: ``open``, ``read`` (needs a token when one is configured), ``control`` or ``stop``
-(a control route that an address locked out for wrong tokens may still use with the right token).
+naming the access level: ``open``, ``read`` (a token when one is set), ``control`` or ``stop`` (:mod:`edge.httpguard`).
 """
 
 from __future__ import annotations
