@@ -60,6 +60,8 @@ class ReadyLine:
     def __init__(self, stream: IO[bytes], log: Path, is_ready: Callable[[bytes], bool]) -> None:
         self.ready = threading.Event()
         self._said = threading.Event()  # ready, or the output ended
+        self._copied = threading.Condition()  # notified after each line reaches the log, and at the end
+        self._ended = False
         self._thread = threading.Thread(target=self._copy, args=(stream, log, is_ready), daemon=True)
         self._thread.start()
 
@@ -68,14 +70,26 @@ class ReadyLine:
             for line in stream:
                 out.write(line)
                 out.flush()
+                with self._copied:
+                    self._copied.notify_all()
                 if not self.ready.is_set() and is_ready(line):
                     self.ready.set()
                     self._said.set()
         self._said.set()
+        with self._copied:
+            self._ended = True
+            self._copied.notify_all()
 
     def wait(self, timeout_s: float) -> bool:
         self._said.wait(timeout_s)
         return self.ready.is_set()
+
+    def wait_copied(self, done: Callable[[], bool], timeout_s: float) -> bool:
+        """Wait until ``done()`` holds, checked after each line is copied into the log (a line the process wrote
+        is in the log only once this thread copied it); False when the output ended first or ``timeout_s``, a
+        guard, passed."""
+        with self._copied:
+            return self._copied.wait_for(lambda: done() or self._ended, timeout_s) and done()
 
 
 def mosquitto_running(line: bytes) -> bool:

@@ -64,21 +64,28 @@ class ControlDevice(Protocol):
     def close(self) -> None: ...
 
 
+INT32_MAX = 2**31 - 1  # V4L2 control values are 32-bit (struct v4l2_control)
+
+
 class CameraControls(BaseModel):
     """``[camera.controls]``: unset keys are left as the camera has them."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     autofocus: bool | None = Field(default=None, description="false: fixed focus (needed under a calibration).")
-    focus: int | None = Field(default=None, ge=0, description="Fixed focus, camera units (C920: 0-250 in 5s).")
+    focus: int | None = Field(
+        default=None, ge=0, le=INT32_MAX, description="Fixed focus, camera units (C920: 0-250 in 5s)."
+    )
     auto_white_balance: bool | None = Field(default=None, description="false: fixed white balance (stable hues).")
     white_balance_k: int | None = Field(default=None, ge=1000, le=15000, description="Colour temperature, K.")
     auto_exposure: bool | None = Field(default=None, description="false: manual exposure; true: the camera's.")
-    exposure: int | None = Field(default=None, ge=1, description="Exposure time, units of 100 us (V4L2's).")
+    exposure: int | None = Field(
+        default=None, ge=1, le=INT32_MAX, description="Exposure time, units of 100 us (V4L2's)."
+    )
     exposure_dynamic_framerate: bool | None = Field(
         default=None, description="false: keep the frame rate in low light (the camera may not lengthen frames)."
     )
-    gain: int | None = Field(default=None, ge=0)
+    gain: int | None = Field(default=None, ge=0, le=INT32_MAX)
     power_line_hz: Literal[0, 50, 60] | None = Field(default=None, description="Mains frequency (flicker), 0: off.")
 
     @model_validator(mode="after")

@@ -20,7 +20,7 @@ from edge.camera_controls import CameraControls
 from edge.messages import ID_PATTERN
 from edge.tracker_config import DEFAULT_ROVERS, RoverConfig, TrackerSettings, require_unique_ids
 
-_SECTION = ConfigDict(extra="forbid", validate_default=True)
+_SECTION = ConfigDict(extra="forbid", validate_default=True, allow_inf_nan=False)
 
 
 class EdgeSection(BaseModel):
@@ -29,7 +29,7 @@ class EdgeSection(BaseModel):
     model_config = _SECTION
 
     id: str = Field(default="edge-1", pattern=ID_PATTERN, description="Edge id: the status topic segment.")
-    status_interval_s: float = Field(default=2.0, gt=0.0, le=60.0, description="Seconds between status refreshes.")
+    status_interval_s: float = Field(default=2.0, ge=0.05, le=60.0, description="Seconds between status refreshes.")
     log_level: Literal["debug", "info", "warning", "error"] = "info"
     state_dir: Path | None = Field(
         default=None,
@@ -59,9 +59,9 @@ class CameraSection(BaseModel):
     fourcc: str = Field(default="MJPG", min_length=4, max_length=4, description="Pixel format asked of a camera.")
     loop: bool = Field(default=False, description="Video files: start again at the end.")
     realtime: bool = Field(default=True, description="Video files and the simulator: deliver at the source's fps.")
-    stall_timeout_s: float = Field(default=2.0, gt=0.0, le=60.0, description="No frame for this long = stalled.")
-    reopen_min_s: float = Field(default=0.5, gt=0.0, le=60.0, description="First wait before reopening a source.")
-    reopen_max_s: float = Field(default=8.0, gt=0.0, le=600.0, description="Longest wait between reopen attempts.")
+    stall_timeout_s: float = Field(default=2.0, ge=0.05, le=60.0, description="No frame for this long = stalled.")
+    reopen_min_s: float = Field(default=0.5, ge=0.005, le=60.0, description="First wait before reopening a source.")
+    reopen_max_s: float = Field(default=8.0, ge=0.005, le=600.0, description="Longest wait between reopen attempts.")
     controls: CameraControls = Field(
         default_factory=CameraControls, description="V4L2 cameras: focus, white balance, exposure... set at every open."
     )
@@ -86,8 +86,8 @@ class BrokerSection(BaseModel):
     cert_file: Path | None = Field(default=None, description="TLS: client certificate (PEM), optional.")
     key_file: Path | None = Field(default=None, description="TLS: client key (PEM), with cert_file.")
     keepalive_s: int = Field(default=10, ge=2, le=3600)
-    reconnect_min_s: float = Field(default=0.25, gt=0.0, le=60.0)
-    reconnect_max_s: float = Field(default=2.0, gt=0.0, le=600.0)
+    reconnect_min_s: float = Field(default=0.25, ge=0.01, le=60.0)
+    reconnect_max_s: float = Field(default=2.0, ge=0.01, le=600.0)
     embedded_host: str = Field(
         default="0.0.0.0", description="Embedded broker: address to listen on (logins required but from loopback)."
     )
@@ -106,8 +106,8 @@ class RecordingSection(BaseModel):
     model_config = _SECTION
 
     dir: Path | None = Field(default=None, description="Directory for the recording; unset = no recording.")
-    max_bytes: int = Field(default=50_000_000, ge=10_000, description="Start a new file beyond this size.")
-    max_files: int = Field(default=20, ge=1, description="Keep at most this many files (oldest deleted).")
+    max_bytes: int = Field(default=50_000_000, ge=10_000, le=2**40, description="Start a new file beyond this size.")
+    max_files: int = Field(default=20, ge=1, le=100_000, description="Keep at most this many files (oldest deleted).")
 
 
 class HttpSection(BaseModel):
@@ -126,7 +126,7 @@ class HttpSection(BaseModel):
     )
     max_connections: int = Field(default=64, ge=4, le=4096, description="Open connections at most.")
     request_timeout_s: float = Field(
-        default=10.0, gt=0.0, le=300.0, description="Seconds a client has to send a request (and to read a reply)."
+        default=10.0, ge=0.2, le=300.0, description="Seconds a client has to send a request (and to read a reply)."
     )
     max_streams: int = Field(default=16, ge=1, le=1024, description="Event streams (open dashboard pages) at most.")
 

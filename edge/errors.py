@@ -52,5 +52,7 @@ def describe_validation(exc: ValidationError, top_level: str = "(top level)") ->
     first = errors[0]
     where = ".".join(str(p) for p in first["loc"]) or top_level
     message = "unknown key" if first["type"] == "extra_forbidden" else first["msg"].removeprefix("Value error, ")
+    if first["type"] == "too_short" and isinstance(first.get("input"), str):  # a secret: pydantic says "items"
+        message = f"at least {first.get('ctx', {}).get('min_length', '?')} characters"
     more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
     return f"{where}: {message}{more}"

@@ -5,12 +5,18 @@
   board's own names (hostname, ``<hostname>.local``, ``localhost``, ``http.allowed_hosts``) and IP
   literals (the address the request arrived on, loopback) are answered.
 - **Tokens**: routes are ``open`` (the page's files, ``/healthz``, ``/metrics``), ``read`` (the camera, events,
-  state: any configured token) or ``control`` (commands: the control token, in ``Authorization: Bearer``). A GET
+  state: any configured token), ``control`` (commands: the control token, in ``Authorization: Bearer``) or
+  ``stop`` (the STOP: as ``control``, see below). A GET
   may carry the token as ``?token=`` instead, because a browser's ``EventSource`` and ``<img>`` send no headers.
   With no token configured, ``read`` routes are open and ``control`` routes answer 403 themselves.
 - **Wrong tokens**: each one is logged with the client's address; after ``max_failures`` within ``window_s`` the
   address gets 429 on every protected route for ``lockout_s`` (without its token being checked), so guessing runs
   at a few tries a minute. A missing token is not a guess: it is answered 401 and not counted.
+- **The STOP is never locked out**: a ``stop`` route's control token is still checked while its address is locked
+  out, at most once per ``STOP_CHECK_S``, and the right one goes through. A wrong one counts, is refused as before
+  and ends these checks until the lockout is over: one more guess per lockout, so guessing stays as slow.
+  Otherwise a dashboard tab left open with an old token, retrying its camera frame every second, keeps its
+  machine locked out, and the operator's STOP from that machine, with the right token, would be refused.
 
 Everything here is pure (time is passed in), so it is tested without a server or a clock.
 """
@@ -28,12 +34,13 @@ from typing import Literal
 
 log = logging.getLogger("edge.http")
 
-Access = Literal["open", "read", "control"]
+Access = Literal["open", "read", "control", "stop"]
 
 MAX_FAILURES = 5  # wrong tokens from one address within WINDOW_S before it is locked out
 WINDOW_S = 60.0
 LOCKOUT_S = 60.0
 MAX_ADDRESSES = 4096  # addresses remembered (least recently failed forgotten first)
+STOP_CHECK_S = 1.0  # while an address is locked out, its STOP's token is checked at most this often
 LOG_LINES_PER_MINUTE = 30  # all addresses together; beyond it failures are counted and summarised
 
 
@@ -142,6 +149,8 @@ class _Address:
     failures: list[float] = field(default_factory=list)
     locked_until: float = 0.0
     refused_while_locked: int = 0
+    stop_checked: float = -float("inf")  # when a STOP's token was last checked while locked out
+    stop_guessed: bool = False  # a wrong STOP token during this lockout: no more STOP checks until it is over
 
 
 class FailureLimiter:
@@ -170,6 +179,21 @@ class FailureLimiter:
         self.refused += 1
         return entry.locked_until - now
 
+    def may_check_stop(self, address: str, now: float) -> bool:
+        """Whether a STOP from ``address``, locked out, may have its token checked now (at most once per
+        ``STOP_CHECK_S``: guessing through the STOP stays slow)."""
+        entry = self._addresses.get(address)
+        if entry is None or entry.stop_guessed or now - entry.stop_checked < STOP_CHECK_S:
+            return False
+        entry.stop_checked = now
+        return True
+
+    def stop_guessed(self, address: str) -> None:
+        """A wrong STOP token while ``address`` is locked out: no more STOP checks until the lockout is over."""
+        entry = self._addresses.get(address)
+        if entry is not None:
+            entry.stop_guessed = True
+
     def failed(self, address: str, now: float) -> tuple[int, bool]:
         """Record one wrong token: (failures from ``address`` in the window, whether it is now locked out)."""
         self.failures += 1
@@ -180,6 +204,7 @@ class FailureLimiter:
         entry.failures = [t for t in entry.failures if now - t < self.window_s] + [now]
         if len(entry.failures) >= self.max_failures:
             entry.locked_until = now + self.lockout_s
+            entry.stop_guessed = False
             entry.failures = []
             self.lockouts += 1
             return self.max_failures, True
@@ -238,19 +263,27 @@ class AccessGuard:
             return None
         if access == "read" and not self.tokens.required:
             return None
-        if access == "control" and self.tokens.control is None:
+        if access in ("control", "stop") and self.tokens.control is None:
             return None  # the route says itself that its controls are disabled
+        given = presented_token(method, headers, query) if access == "read" else _bearer(headers)
         locked = self.limiter.locked_for(client, now)
         if locked > 0:
+            if access == "stop" and given and self.limiter.may_check_stop(client, now):
+                if _same(given, self.tokens.control):
+                    log.warning(
+                        "http: a STOP from %s, locked out for wrong tokens, has the right token: honoured", client
+                    )
+                    return None
+                self._failed(client, method, path, now)
+                self.limiter.stop_guessed(client)
             wait = str(max(1, round(locked)))
             return Refusal(429, f"too many wrong tokens from {client}: try again in {wait} s", (("Retry-After", wait),))
-        given = presented_token(method, headers, query) if access == "read" else _bearer(headers)
         if not given:
             how = "Authorization: Bearer <token>" + (" or ?token=<token>" if access == "read" else "")
             return Refusal(401, f"a token is required: {how}", (("WWW-Authenticate", 'Bearer realm="edge-ips"'),))
         if _same(given, self.tokens.control) or (access == "read" and _same(given, self.tokens.viewer)):
             return None
-        if access == "control" and _same(given, self.tokens.viewer):
+        if access != "read" and _same(given, self.tokens.viewer):
             return Refusal(403, "this token is read-only: commands need the dashboard's control token")
         self._failed(client, method, path, now)
         return Refusal(401, "wrong token", (("WWW-Authenticate", 'Bearer realm="edge-ips", error="invalid_token"'),))

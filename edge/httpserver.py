@@ -15,7 +15,7 @@ first). A connection costs a socket and a little memory, not a thread, and the s
 Routes are exact paths with a function ``Request -> Response``: a plain function runs on a small pool of worker
 threads (it may block: a broker round trip), an ``async def`` on the loop (it must not block); a response may carry
 an async ``stream`` of chunks instead of a body (server-sent events). Register them with :meth:`HttpServer.route`,
-naming the access level: ``open``, ``read`` (needs a token when one is configured) or ``control``.
+naming the access level: ``open``, ``read`` (a token when one is set), ``control`` or ``stop`` (:mod:`edge.httpguard`).
 """
 
 from __future__ import annotations
@@ -206,7 +206,7 @@ class HttpServer:
         return len(self._connections)
 
     def route(self, path: str, handler: Handler, *, method: str = "GET", access: Access = "open") -> None:
-        """Serve ``method path`` with ``handler``; ``access``: ``open``, ``read`` or ``control``."""
+        """Serve ``method path`` with ``handler``; ``access``: ``open``, ``read``, ``control`` or ``stop``."""
         self.routes[(method.upper(), path)] = _Route(handler, access, inspect.iscoroutinefunction(handler))
 
     # -- connections ----------------------------------------------------------------------------------------------

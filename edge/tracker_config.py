@@ -27,7 +27,7 @@ ColorBgr = tuple[Channel, Channel, Channel]
 class RoverConfig(BaseModel):
     """One rover to track: its id (the topic name) and its marker colour."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     id: str = Field(pattern=ID_PATTERN, description="Rover id, also the MQTT topic segment.")
     color_bgr: ColorBgr = Field(description="Nominal marker colour as seen by the camera, B, G, R 0-255.")
@@ -47,12 +47,16 @@ DEFAULT_ROVERS = (
 
 
 Method = Literal["centroid", "particles", "meanshift", "paper"]
+MAX_SHARE = 20.0  # the largest share of a nominal area or colour strength a range may reach
 
 
 class TrackerSettings(BaseModel):
-    """Everything the tracking pipeline can be tuned with (the ``[tracker]`` section of a configuration file)."""
+    """Everything the tracking pipeline can be tuned with (the ``[tracker]`` section of a configuration file).
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    Every number is finite and bounded: an unbounded one (``fps = inf``, ``accel_sigma_cm_s2 = 1e308``) passed
+    here and killed the tracker thread at its first frame, which systemd would restart forever."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     method: Method = Field(
         default="particles",
@@ -72,14 +76,22 @@ class TrackerSettings(BaseModel):
     )
     erosion_iterations: int = Field(default=1, ge=0, le=3, description="3x3 erosions before reconstruction.")
     background_threshold: float = Field(
-        default=0.2, gt=0.0, description="eq. 2 threshold, in normalised chroma (lighting-invariant)."
+        default=0.2, gt=0.0, le=10.0, description="eq. 2 threshold, in normalised chroma (lighting-invariant)."
     )
-    background_refresh_s: float = Field(default=4.0, gt=0.0, description="Time to refresh the whole reference.")
+    background_refresh_s: float = Field(
+        default=4.0, gt=0.0, le=3600.0, description="Time to refresh the whole reference."
+    )
     window_margin_cm: float = Field(
-        default=3.0, ge=0.0, description="Search window margin around the marker (plus 6 pixels for its edge band)."
+        default=3.0,
+        ge=0.0,
+        le=500.0,
+        description="Search window margin around the marker (plus 6 pixels for its edge band).",
     )
     lost_after_frames: int = Field(
-        default=3, ge=1, description="Frames unseen in its window before a rover is searched for everywhere."
+        default=3,
+        ge=1,
+        le=100_000,
+        description="Frames unseen in its window before a rover is searched for everywhere.",
     )
     acquire_scale: int = Field(
         default=4,
@@ -95,7 +107,9 @@ class TrackerSettings(BaseModel):
         description="A marker showing less of its usual area is partly hidden or cut off: no pose (its centre would "
         "be biased).",
     )
-    max_area_fraction: float = Field(default=1.3, ge=1.0, description="A larger blob is not one marker: no pose.")
+    max_area_fraction: float = Field(
+        default=1.3, ge=1.0, le=10.0, description="A larger blob is not one marker: no pose."
+    )
     acquire_area_range: tuple[float, float] = Field(
         default=(0.5, 2.0),
         description="Blob area, as a share of the nominal marker area, accepted before the "
@@ -107,11 +121,15 @@ class TrackerSettings(BaseModel):
         "light may change it this much; dark clothes of the same hue are far below.",
     )
     max_elongation_factor: float = Field(
-        default=1.5, ge=1.0, description="A blob more elongated than the marker's own aspect times this is not it."
+        default=1.5,
+        ge=1.0,
+        le=10.0,
+        description="A blob more elongated than the marker's own aspect times this is not it.",
     )
     max_speed_cm_s: float | None = Field(
         default=None,
         gt=0.0,
+        le=10_000.0,
         description="Fastest a rover drives: a lost rover is looked for again only as far from where it was last "
         "seen as it could have driven since (something of its hue farther away, a shirt or a box, is not it); "
         "unset: anywhere (a rover carried elsewhere, or a video that starts again, is found at once).",
@@ -132,10 +150,24 @@ class TrackerSettings(BaseModel):
     edge_offsets_every: int = Field(
         default=10, ge=1, le=1000, description="Frames between two edge fits (each one rover's window, in turn)."
     )
-    heading_min_speed_cm_s: float = Field(default=3.0, ge=0.0, description="Slowest motion that gives a heading.")
-    accel_sigma_cm_s2: float = Field(default=40.0, gt=0.0, description="Filter process noise (acceleration).")
-    measurement_sigma_px: float = Field(default=0.15, gt=0.0, description="Marker centre noise in pixels.")
-    fps: float = Field(default=30.0, gt=0.0, description="Frame rate assumed when frames carry no usable time.")
+    heading_min_speed_cm_s: float = Field(
+        default=3.0, ge=0.0, le=1000.0, description="Slowest motion that gives a heading."
+    )
+    accel_sigma_cm_s2: float = Field(
+        default=40.0, gt=0.0, le=100_000.0, description="Filter process noise (acceleration)."
+    )
+    measurement_sigma_px: float = Field(default=0.15, gt=0.0, le=100.0, description="Marker centre noise in pixels.")
+    fps: float = Field(
+        default=30.0, gt=0.0, le=240.0, description="Frame rate assumed when frames carry no usable time."
+    )
+
+    @field_validator("acquire_area_range", "level_range")
+    @classmethod
+    def _share_range(cls, value: tuple[float, float]) -> tuple[float, float]:
+        low, high = value
+        if not 0.0 < low < high <= MAX_SHARE:
+            raise ValueError(f"must be two shares, 0 < low < high <= {MAX_SHARE:g}")
+        return value
 
     @property
     def marker_area_cm2(self) -> float:

@@ -289,6 +289,20 @@ CONFIG_CASES = [
     ("camera unknown key", "[camera]\nexposure = 3\n", "camera.exposure"),
     ("calibration path a table", "[calibration]\npath = {a = 1}\n", "calibration.path"),
     ("tracker unknown key", "[tracker]\nspeed = 3\n", "tracker"),
+    # Numbers without a bound passed here and killed the tracker thread at its first frame (exit 1, a restart loop).
+    ("tracker fps infinite", "[tracker]\nfps = inf\n", "tracker.fps"),
+    ("tracker fps 1e308", "[tracker]\nfps = 1e308\n", "tracker.fps"),
+    ("filter noise 1e308", "[tracker]\naccel_sigma_cm_s2 = 1e308\n", "tracker.accel_sigma_cm_s2"),
+    ("pixel noise 1e308", "[tracker]\nmeasurement_sigma_px = 1e308\n", "tracker.measurement_sigma_px"),
+    ("refresh infinite", "[tracker]\nbackground_refresh_s = inf\n", "tracker.background_refresh_s"),
+    ("window margin 1e308", "[tracker]\nwindow_margin_cm = 1e308\n", "tracker.window_margin_cm"),
+    ("area range inverted", "[tracker]\nacquire_area_range = [2.0, 0.5]\n", "tracker.acquire_area_range"),
+    ("level range infinite", "[tracker]\nlevel_range = [0.4, inf]\n", "tracker.level_range"),
+    ("camera gain beyond 32 bits", "[camera.controls]\ngain = 99999999999\n", "camera.controls.gain"),
+    # a server that times out every request before it can arrive; a status loop without a pause
+    ("request timeout 1e-300", "[http]\nrequest_timeout_s = 1e-300\n", "http.request_timeout_s"),
+    ("status interval 1e-300", "[edge]\nstatus_interval_s = 1e-300\n", "edge.status_interval_s"),
+    ("token too short", "[dashboard]\ntoken = 'abc'\n", "dashboard.token: at least 8 characters"),
     ("not TOML", "[camera\n", "invalid TOML"),
 ]
 

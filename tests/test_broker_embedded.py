@@ -333,19 +333,47 @@ def test_silent_sockets_from_a_host_keep_neither_this_machine_nor_other_hosts_ou
             sock.close()
 
 
-def test_this_machine_has_room_for_its_connects_whatever_other_hosts_hold() -> None:
+def test_silent_sockets_from_this_machine_do_not_keep_the_dashboards_stop_out(
+    secured: tuple[EmbeddedBroker, Credentials],
+) -> None:
+    # A process on the board holding sockets without a CONNECT (each dropped only after 10 s, and opened again)
+    # filled this machine's room, and every new connection from here (the dashboard's STOP, `edge-ips formation`)
+    # was refused: the oldest silent one now makes room.
+    broker, creds = secured
+    silent = [socket.create_connection(("127.0.0.1", broker.port)) for _ in range(MAX_PENDING_CONNECTS)]
+    try:
+        with Probe("127.0.0.1", broker.port, client_id="edge-ips-stop", **login(creds, "edge")) as edge:
+            assert edge.accepted
+        silent[0].settimeout(60)  # a guard only: the broker closed it to make room
+        assert silent[0].recv(1) == b""
+        silent[-1].setblocking(False)
+        with pytest.raises(BlockingIOError):
+            silent[-1].recv(1)  # the newest silent one still waits for its CONNECT
+    finally:
+        for sock in silent:
+            sock.close()
+
+
+def test_a_full_group_closes_its_oldest_silent_socket_and_each_group_has_its_own_room() -> None:
     pending = PendingConnects()
+    closed: list[str] = []
     hosts = [f"10.0.0.{i}" for i in range(MAX_PENDING_CONNECTS // MAX_PENDING_PER_ADDRESS)]
+    tickets = {}
     for host in hosts:
-        for _ in range(MAX_PENDING_PER_ADDRESS):
+        for k in range(MAX_PENDING_PER_ADDRESS):
             assert pending.refusal(host) is None
-            pending.add(host)
-        if host == hosts[0]:
-            assert "from that address" in str(pending.refusal(host))  # one host alone
-    assert "other hosts" in str(pending.refusal("10.0.1.1"))  # every other host together: the cap
-    for local in ("127.0.0.1", "::1", "::ffff:127.0.0.1"):
-        assert pending.refusal(local) is None  # this machine's own clients are counted apart
-    for host in hosts:
-        for _ in range(MAX_PENDING_PER_ADDRESS):
-            pending.add(host, -1)
-    assert pending.refusal("10.0.1.1") is None
+            name = f"{host}#{k}"
+            tickets[name] = pending.enter(host, lambda name=name: closed.append(name))[0]
+        assert "from that address" in str(pending.refusal(host))  # one host alone: refused
+    assert pending.waiting("other hosts") == MAX_PENDING_CONNECTS and closed == []
+    for local in ("127.0.0.1", "::1", "::ffff:127.0.0.1"):  # this machine's own clients are counted apart
+        assert pending.refusal(local) is None
+        assert pending.enter(local, lambda: closed.append("local"))[1] is None
+    assert closed == []
+    assert pending.refusal("10.0.1.1") is None  # every other host together is at the cap: the oldest makes room
+    ticket, evicted = pending.enter("10.0.1.1", lambda: closed.append("rover"))
+    assert (evicted, closed) == ("10.0.0.0", ["10.0.0.0#0"]) and pending.evicted == 1
+    pending.leave("10.0.0.0", tickets["10.0.0.0#0"])  # the closed socket's handler ends
+    assert pending.refusal("10.0.0.0") is None  # that host has room for one again
+    pending.leave("10.0.1.1", ticket)  # the newcomer sent its CONNECT
+    assert pending.waiting("other hosts") == MAX_PENDING_CONNECTS - 1

@@ -126,6 +126,50 @@ def test_the_tls_listener_takes_the_edge_with_the_client_certificate_and_nobody_
 
 
 @pytest.mark.slow
+def test_the_viewer_reads_over_tls_on_its_own_listener_and_cannot_take_the_edges_session(
+    deployed: tuple[Mosquitto, BrokerFiles],
+) -> None:
+    """On 8883 clients keep their ids (the edge's share one login), so it takes the edge's login only; the viewer
+    has 8884, where a client's id is its user name: its password and the certificate read, and take nothing."""
+    broker, files = deployed
+    assert files.tls is not None and files.tls_viewer_passwd is not None
+    assert files.tls_viewer_passwd.stat().st_mode & 0o777 == 0o600
+    creds = read_credentials(files.credentials)
+    assert creds.viewer is not None
+    viewer = {"user": creds.viewer.username, "password": creds.viewer.password}
+    certificate = {
+        "ca_certs": str(files.tls.ca_cert),
+        "cert_reqs": ssl.CERT_REQUIRED,
+        "certfile": str(files.tls.client_cert),
+        "keyfile": str(files.tls.client_key),
+    }
+    tls = TlsFiles(files.tls.ca_cert, files.tls.client_cert, files.tls.client_key)
+    target = BrokerTarget(
+        False, "localhost", broker.ports[TLS_PORT], tls=True, username="edge", password=creds.edge.password
+    )
+    publisher = MqttPublisher(target, edge_id=EDGE_ID, rovers=ROVERS, tls=tls, reconnect_min_s=0.1, reconnect_max_s=0.2)
+    publisher.start()
+    try:
+        assert publisher.wait_connected(10)
+        edge_login = {"user": "edge", "password": creds.edge.password}
+        with Probe("127.0.0.1", broker.ports[LOCAL_PORT], client_id="edge-ips-watch", **edge_login) as watcher:
+            watcher.subscribe(edge_status_topic(EDGE_ID))
+            edges = broker.ports[TLS_PORT]
+            with Probe("localhost", edges, client_id=f"edge-ips-{EDGE_ID}", tls=certificate, **viewer) as on_edges:
+                assert not on_edges.accepted  # the edge's TLS listener: the edge's login only
+            viewers = broker.ports[TLS_PORT + 1]
+            with Probe("localhost", viewers, client_id=f"edge-ips-{EDGE_ID}", tls=certificate, **viewer) as taker:
+                assert taker.accepted  # as "viewer": the id it asked for is not the one it gets
+                taker.subscribe(edge_status_topic(EDGE_ID))
+                assert "offline" not in edge_states_until_marker(publisher, taker, EDGE_ID)  # it reads over TLS
+            states = edge_states_until_marker(publisher, watcher, EDGE_ID)
+        assert "offline" not in states  # no last will: the edge's session was never taken
+        assert publisher.connected and publisher.stats.disconnects == 0
+    finally:
+        publisher.stop()
+
+
+@pytest.mark.slow
 def test_oversized_messages_are_refused_by_mosquitto(deployed: tuple[Mosquitto, BrokerFiles]) -> None:
     broker, files = deployed
     users = logins(files)

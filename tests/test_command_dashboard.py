@@ -112,6 +112,8 @@ def test_the_watcher_keeps_each_rovers_own_status_and_refuses_forgeries(mosquitt
             (rover_status_topic("mallory"), report("mallory")),  # not a configured rover
             (rover_status_topic("blue"), b'{"v":1,"id":"blue","state":"online","halt":"none","formation":3,"fw":"x"}'),
             (rover_status_topic("blue"), b"not json"),
+            # blue's own status, padded past the contract's 160 bytes (a broker's 512-byte limit lets it through)
+            (rover_status_topic("blue"), report("blue", "none", "line", 3)[:-1] + b" " * 200 + b"}"),
         ]
         for topic, payload in forged:
             rovers.say(topic, payload)

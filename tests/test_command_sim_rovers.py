@@ -120,6 +120,17 @@ def test_a_rover_with_a_wrong_password_is_refused_in_one_line(
 
 
 @pytest.mark.slow
+def test_rovers_without_logins_are_told_where_the_logins_are(acl_broker: tuple[Mosquitto, Path]) -> None:
+    broker, _ = acl_broker
+    network = broker.ports[1883]
+    result = sim_rovers("--broker", f"mqtt://127.0.0.1:{network}", "--ids", "red")
+    assert result.exit_code == 2
+    line = result.output.strip()
+    assert len(line.splitlines()) == 1 and line.startswith(f"Error: broker mqtt://127.0.0.1:{network} refused rover")
+    assert "--credentials <state dir>/broker-credentials.toml" in line and "broker-config" in line
+
+
+@pytest.mark.slow
 def test_each_rover_connects_with_its_own_credentials_behind_the_acl(acl_broker: tuple[Mosquitto, Path]) -> None:
     broker, credentials = acl_broker
     events: list[FleetEvent] = []

@@ -90,7 +90,7 @@ def test_the_token_a_request_carries(
 
 
 def _check(guard: AccessGuard, access: str, headers: dict[str, str], query: dict[str, list[str]] | None = None) -> int:
-    method = "POST" if access == "control" else "GET"
+    method = "POST" if access in ("control", "stop") else "GET"
     refusal = guard.check(
         access,  # type: ignore[arg-type]
         method=method,
@@ -122,6 +122,10 @@ BOTH = Tokens(CONTROL, VIEWER)
         (BOTH, "control", {"Authorization": f"Bearer {VIEWER}"}, {}, 403),  # read-only
         (BOTH, "control", {"Authorization": "Bearer guess"}, {}, 401),
         (BOTH, "control", {}, {"token": [CONTROL]}, 401),
+        (BOTH, "stop", {"Authorization": f"Bearer {CONTROL}"}, {}, 200),
+        (BOTH, "stop", {"Authorization": f"Bearer {VIEWER}"}, {}, 403),  # read-only
+        (BOTH, "stop", {"Authorization": "Bearer guess"}, {}, 401),
+        (BOTH, "stop", {}, {}, 401),
         (Tokens(viewer=VIEWER), "read", {"Authorization": f"Bearer {VIEWER}"}, {}, 200),
         (Tokens(viewer=VIEWER), "control", {}, {}, 200),  # no control token: the route answers 403 itself
         (Tokens(control=CONTROL), "read", {"Authorization": f"Bearer {CONTROL}x"}, {}, 401),
@@ -193,3 +197,33 @@ def test_wrong_token_log_lines_are_limited_over_all_addresses(caplog: pytest.Log
     lines = [r.getMessage() for r in caplog.records]
     assert len(lines) == 31 and guard.limiter.failures == 101
     assert lines[-1].endswith("; 70 more wrong tokens (all addresses) not logged")
+
+
+def test_a_stop_with_the_right_token_goes_through_a_lockout_and_guessing_through_it_stays_slow(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A tab left open with an old token locks its machine out; the operator's STOP from there must still work."""
+    guard = AccessGuard(Tokens(CONTROL, VIEWER), FailureLimiter(max_failures=5, window_s=60.0, lockout_s=60.0))
+    here = "192.168.1.20"
+
+    def ask(access: str, token: str, now: float) -> int:
+        method = "GET" if access == "read" else "POST"
+        headers = {"Authorization": f"Bearer {token}"}
+        refusal = guard.check(access, method=method, path="/x", headers=headers, query={}, client=here, now=now)  # type: ignore[arg-type]
+        return 200 if refusal is None else refusal.status
+
+    with caplog.at_level(logging.WARNING, logger="edge.http"):
+        assert [ask("read", "old-token", k * 1.0) for k in range(5)] == [401] * 5  # the stale tab: locked out
+        assert ask("control", CONTROL, 5.0) == 429  # other commands wait out the lockout
+        assert ask("read", CONTROL, 5.1) == 429
+        assert ask("stop", CONTROL, 5.2) == 200  # the STOP goes through
+        assert ask("stop", CONTROL, 5.5) == 429  # its token is checked at most once a second while locked out
+        assert ask("stop", CONTROL, 6.3) == 200
+        failures = guard.limiter.failures
+        assert ask("stop", "guess", 7.5) == 429 and guard.limiter.failures == failures + 1  # a guess counts ...
+        assert ask("stop", CONTROL, 9.0) == 429  # ... and ends the STOP's checks for this lockout: one guess more
+        assert ask("stop", "guess", 10.0) == 429 and guard.limiter.failures == failures + 1  # not even checked
+        assert ask("stop", CONTROL, 70.0) == 200  # the lockout is over
+    said = [r.getMessage() for r in caplog.records]
+    assert sum("a STOP from 192.168.1.20, locked out for wrong tokens, has the right token" in m for m in said) == 2
+    assert all(CONTROL not in m and "guess" not in m for m in said)

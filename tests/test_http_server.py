@@ -61,9 +61,20 @@ def read_until(sock: socket.socket, marker: bytes) -> bytes:
 
 
 def get(port: int, path: str, headers: dict[str, str] | None = None, source: str = "127.0.0.1") -> tuple[int, bytes]:
+    return send("GET", port, path, headers, source)
+
+
+def send(
+    method: str,
+    port: int,
+    path: str,
+    headers: dict[str, str] | None = None,
+    source: str = "127.0.0.1",
+    body: bytes = b"",
+) -> tuple[int, bytes]:
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=GUARD_S, source_address=(source, 0))
     try:
-        conn.request("GET", path, headers=headers or {})
+        conn.request(method, path, body=body or None, headers=headers or {})
         resp = conn.getresponse()
         return resp.status, resp.read()
     finally:
@@ -311,7 +322,8 @@ def test_a_foreign_host_is_refused_by_the_appliance(edge: EdgeProcess) -> None:
     assert status == 421 and b"http.allowed_hosts" in body
     assert get(edge.http_port, "/healthz", {"Host": f"localhost:{edge.http_port}"})[0] == 200
     assert get(edge.http_port, "/healthz", {"Host": f"{socket.gethostname()}:{edge.http_port}"})[0] == 200
-    assert "refused Host 'rebound.attacker.example' from 127.0.0.1" in edge.log()
+    said = "refused Host 'rebound.attacker.example' from 127.0.0.1"
+    assert said in edge.wait_log(said)
 
 
 @pytest.mark.slow
@@ -346,7 +358,25 @@ def test_wrong_tokens_are_logged_with_the_address_and_the_address_is_locked_out(
     assert get(edge.http_port, "/api/state", right, guesser)[0] == 429  # locked out: not even checked
     assert get(edge.http_port, "/healthz", {}, guesser)[0] == 200  # open routes still answer
     assert get(edge.http_port, "/api/state", right)[0] == 200  # another address is not affected
-    log = edge.log()
+    locked = f"wrong token from {guesser} (GET /api/frame.jpg): 5 in the last 60 s, locked out for 60 s"
+    log = edge.wait_log(locked)  # the last of the five lines
     assert log.count(f"wrong token from {guesser}") == 5
-    assert f"wrong token from {guesser} (GET /api/frame.jpg): 5 in the last 60 s, locked out for 60 s" in log
+    assert locked in log
     assert "guess-" not in log  # the guesses themselves are not logged
+
+
+def test_a_stop_from_a_locked_out_address_with_the_right_token_is_published(edge: EdgeProcess) -> None:
+    """A tab left open with an old token keeps its machine locked out; the operator's STOP from it must work."""
+    stale = "127.0.0.3"  # its own address (the other tests use 127.0.0.1 and 127.0.0.2)
+    old = {"Authorization": "Bearer the-token-before-it-changed"}
+    assert [get(edge.http_port, "/api/frame.jpg", old, stale)[0] for _ in range(5)] == [401] * 5
+    right = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}
+    line = json.dumps({"kind": "line", "ids": ["red", "green", "blue"], "spacing": 60}).encode()
+    assert send("POST", edge.http_port, "/api/formation", right, stale, line)[0] == 429  # other commands wait
+    status, body = send("POST", edge.http_port, "/api/stop", right, stale)
+    assert status == 200, body
+    reply = json.loads(body)
+    assert reply["formation"]["kind"] == "stop" and reply["formation"]["ids"] == []  # read back from the broker
+    assert send("POST", edge.http_port, "/api/stop", old, stale)[0] == 429  # a stale token stops nothing
+    said = f"a STOP from {stale}, locked out for wrong tokens, has the right token: honoured"
+    assert said in edge.wait_log(said)

@@ -20,7 +20,8 @@ import contextlib
 import errno
 import logging
 import threading
-from collections import Counter
+from collections import Counter, OrderedDict
+from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any
@@ -45,12 +46,10 @@ AMQTT_LINES_PER_MINUTE = 20  # what amqtt logs itself (one ERROR per protocol vi
 
 
 class _AmqttLines(logging.Filter):
-    """What amqtt logs, filtered: dropped where this module says it better (its traceback when it cannot listen:
-    start() raises a one-line BrokerError instead; its warning of the QoS 0 messages still queued when it stops,
-    dropping them on shutdown being the design; its reader's warning on a packet the gate refused, logged here),
-    and at most ``AMQTT_LINES_PER_MINUTE`` lines a minute for the rest: amqtt logs an ERROR for every protocol
-    violation, so a client sending fifty CONNECTs in one session would write fifty lines, and a script on the
-    network could fill the journal. The first line after a quiet spell says how many were left out."""
+    """What amqtt logs, less what this module says better (its traceback when it cannot listen: start() raises a
+    BrokerError; the QoS 0 messages dropped on shutdown, by design; a packet the gate refused, logged here), and
+    at most ``AMQTT_LINES_PER_MINUTE`` lines a minute: amqtt logs an ERROR per protocol violation (fifty CONNECTs
+    in a session, fifty lines), so a script on the network could fill the journal."""
 
     def __init__(self) -> None:
         super().__init__()
@@ -177,34 +176,59 @@ def plugins_config(access: BrokerAccess | None) -> dict[str, Any]:
 
 # -- the broker --------------------------------------------------------------------------------------------------
 class PendingConnects:
-    """Sockets that have not finished their CONNECT, counted so that a host on the network holding silent sockets
-    keeps neither this machine out (the edge's publisher, its dashboard's STOP and ``edge-ips formation`` connect
-    from here, each command on a new connection) nor the other hosts (the rovers): at most
-    :data:`MAX_PENDING_CONNECTS` from other hosts together, :data:`MAX_PENDING_PER_ADDRESS` from any one, and as
-    many again from this machine."""
+    """Sockets that have not finished their CONNECT, counted so that sockets held open in silence keep nobody out:
+    neither this machine (the edge's publisher, its dashboard's STOP and ``edge-ips formation`` connect from here,
+    each command on a new connection) nor the other hosts (the rovers). At most :data:`MAX_PENDING_PER_ADDRESS`
+    from any one other host (more are refused); when :data:`MAX_PENDING_CONNECTS` of a group (other hosts together,
+    or this machine) are waiting, a new one closes the group's oldest, as nginx does: a client that sends its
+    CONNECT at once is never the oldest, so whoever holds silent sockets (many hosts, or a process on the board)
+    delays no STOP and no rover's reconnection."""
 
     def __init__(self) -> None:
-        self._counts: Counter[str | None] = Counter()
+        self._counts: Counter[str] = Counter()  # per other host
+        self._waiting: dict[str, OrderedDict[int, tuple[str | None, Callable[[], None]]]] = {}
+        self._tickets = 0
+        self.evicted = 0
 
     @staticmethod
-    def _keys(address: str | None) -> tuple[str | None, str | None]:
+    def _keys(address: str | None) -> tuple[str, str | None]:
         return ("this machine", None) if is_loopback(address) else ("other hosts", address)
 
     def refusal(self, address: str | None) -> str | None:
         """Why a new socket from ``address`` is refused now (None: it may send its CONNECT)."""
-        group, one = self._keys(address)
-        if self._counts[group] >= MAX_PENDING_CONNECTS:
-            return f"{MAX_PENDING_CONNECTS} others ({group}) have not logged in yet"
+        _, one = self._keys(address)
         if one is not None and self._counts[one] >= MAX_PENDING_PER_ADDRESS:
             return f"{MAX_PENDING_PER_ADDRESS} others from that address have not logged in yet"
         return None
 
-    def add(self, address: str | None, step: int = 1) -> None:
-        for key in self._keys(address):
-            if key is not None:
-                self._counts[key] += step
-                if self._counts[key] <= 0:
-                    del self._counts[key]  # remember no address that has nothing pending
+    def enter(self, address: str | None, close: Callable[[], None]) -> tuple[int, str | None]:
+        """Count a new socket from ``address`` (``close`` closes it); returns its ticket for :meth:`leave` and,
+        when its group was full, the address of the oldest socket closed to make room (else None)."""
+        group, one = self._keys(address)
+        waiting = self._waiting.setdefault(group, OrderedDict())
+        evicted = None
+        if len(waiting) >= MAX_PENDING_CONNECTS:
+            _, (oldest, close_oldest) = waiting.popitem(last=False)
+            close_oldest()
+            self.evicted += 1
+            evicted = oldest or "an unknown address"
+        self._tickets += 1
+        waiting[self._tickets] = (address, close)
+        if one is not None:
+            self._counts[one] += 1
+        return self._tickets, evicted
+
+    def leave(self, address: str | None, ticket: int) -> None:
+        group, one = self._keys(address)
+        self._waiting.get(group, OrderedDict()).pop(ticket, None)
+        if one is not None:
+            self._counts[one] -= 1
+            if self._counts[one] <= 0:
+                del self._counts[one]  # remember no address that has nothing pending
+
+    def waiting(self, group: str) -> int:
+        """Sockets of ``group`` (``this machine`` or ``other hosts``) waiting for their CONNECT."""
+        return len(self._waiting.get(group, ()))
 
 
 async def _close(out: Any) -> None:
@@ -240,7 +264,9 @@ def _make_broker(config: dict[str, Any], access: BrokerAccess | None) -> Any:
                 await _close(out)
                 return
             gate = GateReader(reader, on_too_large=lambda why: refused(f"{why} from {address}; disconnected"))
-            pending.add(address)
+            ticket, evicted = pending.enter(address, writer.close)
+            if evicted is not None:
+                refused(f"a connection from {evicted}: no CONNECT yet, closed to make room for one from {address}")
             try:
                 header = await asyncio.wait_for(MQTTFixedHeader.from_stream(gate), CONNECT_TIMEOUT_S)
                 if header is None or header.packet_type != CONNECT:
@@ -251,7 +277,7 @@ def _make_broker(config: dict[str, Any], access: BrokerAccess | None) -> Any:
                 await _close(out)
                 return
             finally:
-                pending.add(address, -1)
+                pending.leave(address, ticket)
             will = packet.will_flag and packet.will_topic is not None
             connect = Connect(
                 username=packet.username if packet.username_flag else None,

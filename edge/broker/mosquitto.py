@@ -1,6 +1,6 @@
 """The files of a Mosquitto deployment (``edge-ips broker-config``): configuration, password file, ACL, logins.
 
-Listeners, and why there are two (three with TLS):
+Listeners, and why there are two (four with TLS):
 
 * ``127.0.0.1:<local port>`` (1884): the edge's own clients on the broker's machine. The publisher, the dashboard,
   ``edge-ips formation`` and ``doctor`` share the edge's login and need their own client ids, so this listener
@@ -8,9 +8,12 @@ Listeners, and why there are two (three with TLS):
   (``passwd-local``): a rover's login, read out of its flash, would otherwise take the edge's session here.
 * ``<bind>:<port>`` (1883): rovers and the rest of the network, with ``use_username_as_clientid true``: a client's id
   is its user name, so a login (a rover's, read out of its flash) cannot take the session of another user's client.
-* ``--tls``: ``<bind>:<tls port>`` (8883) for the edge and laptops on other machines; only clients holding the
-  client certificate connect (``require_certificate``), and only with the edge's or the viewer's login
-  (``passwd-tls``): rovers never use TLS, and this listener too keeps the ids clients choose.
+* ``--tls``: ``<bind>:<tls port>`` (8883) for the edge on other machines; only clients holding the client
+  certificate connect (``require_certificate``), and only with the edge's login (``passwd-tls``): its clients share
+  that login, so this listener too keeps the ids clients choose. And ``<bind>:<tls port + 1>`` (8884) for the
+  viewer's login (``passwd-tls-viewer``: laptops watching the topics), with the certificate too and
+  ``use_username_as_clientid true``: with the viewer's password and the certificate one can read, not take an edge
+  client's session (which on 8883 it could). Rovers never use TLS.
 
 Each listener has its own password file (``per_listener_settings true``). Anonymous access is off everywhere;
 the ACL is :meth:`edge.broker.access.Policy.acl_text`. Packets larger than
@@ -33,7 +36,8 @@ from edge.private_files import private_dir, write_private
 LOCAL_PORT = 1884
 TLS_PORT = 8883
 LOCAL_PASSWD = "passwd-local"  # the local listener's logins: the edge's only
-TLS_PASSWD = "passwd-tls"  # the TLS listener's: the edge's and the viewer's
+TLS_PASSWD = "passwd-tls"  # the edge's TLS listener's: the edge's only
+TLS_VIEWER_PASSWD = "passwd-tls-viewer"  # the viewer's TLS listener's (tls port + 1): the viewer's only
 
 
 def write_password_file(path: Path, passwords: Mapping[str, str]) -> Path:
@@ -51,9 +55,10 @@ class BrokerFiles:
     local_passwd: Path
     tls_passwd: Path | None = None
     tls: TlsPaths | None = None
+    tls_viewer_passwd: Path | None = None
 
     def all(self) -> list[Path]:
-        tls = [] if self.tls is None else [self.tls_passwd, *vars(self.tls).values()]
+        tls = [] if self.tls is None else [self.tls_passwd, self.tls_viewer_passwd, *vars(self.tls).values()]
         return [self.conf, self.passwd, self.local_passwd, self.acl, self.credentials, *[p for p in tls if p]]
 
 
@@ -101,11 +106,19 @@ def _conf_text(
     ]
     if tls_port is not None:
         lines += [
-            "# TLS for the edge and laptops on other machines: only clients with client.crt (signed by ca.crt)",
-            "# connect, with the edge's or the viewer's login. ESP8266 rovers stay on the plain listener",
-            "# (docs/deploy.md).",
+            "# TLS for the edge on other machines: only clients with client.crt (signed by ca.crt) connect, with",
+            "# the edge's login; its clients share it, so they keep their ids. ESP8266 rovers stay on the plain",
+            "# listener (docs/deploy.md).",
             *[line for line in tls_listener_lines(tls_port, bind, where) if line],
             *login_lines(where, TLS_PASSWD),
+            "",
+        ]
+    if tls_port is not None and credentials.viewer is not None:
+        lines += [
+            "# TLS for laptops watching the topics: the certificate and the viewer's login; a client's id is its",
+            "# user name here, so the viewer's password cannot take an edge client's session.",
+            *[line for line in tls_listener_lines(tls_port + 1, bind, where, clientid_from_username=True) if line],
+            *login_lines(where, TLS_VIEWER_PASSWD),
             "",
         ]
     return "\n".join(lines)
@@ -141,9 +154,12 @@ def write_mosquitto_config(
     Passwords are random unless given in ``passwords`` (user -> password).
     """
     credentials = generate(rovers, edge_user=edge_user, viewer=viewer, passwords=passwords)
-    if len({port, local_port, tls_port or port}) != (2 if tls_port is None else 3):
-        raise BrokerError(f"listener ports must differ: {port}, {local_port}" + (f", {tls_port}" if tls_port else ""))
-    tls_names_written = (TLS_PASSWD, *TLS_FILES) if tls_port is not None else ()
+    tls_ports = [] if tls_port is None else [tls_port] + ([tls_port + 1] if viewer else [])
+    if len({port, local_port, *tls_ports}) != 2 + len(tls_ports) or any(p > 65535 for p in tls_ports):
+        listed = ", ".join(str(p) for p in (port, local_port, *tls_ports))
+        raise BrokerError(f"listener ports must differ (the viewer's TLS listener is the TLS port + 1): {listed}")
+    tls_names_written: list[str] = [] if tls_port is None else [TLS_PASSWD, *TLS_FILES]
+    tls_names_written += [TLS_VIEWER_PASSWD] if tls_port is not None and viewer else []
     names = ["mosquitto.conf", "passwd", LOCAL_PASSWD, "acl", "credentials.toml", *tls_names_written]
     existing = [name for name in names if (out_dir / name).exists()]
     if existing and not force:
@@ -155,10 +171,12 @@ def write_mosquitto_config(
     passwd = write_password_file(out_dir / "passwd", passwords)
     edge_only = {credentials.edge.username: passwords[credentials.edge.username]}
     local_passwd = write_password_file(out_dir / LOCAL_PASSWD, edge_only)
-    tls_passwd = None
+    tls_passwd = tls_viewer_passwd = None
     if tls_port is not None:
-        viewer_only = {} if credentials.viewer is None else {credentials.viewer.username: credentials.viewer.password}
-        tls_passwd = write_password_file(out_dir / TLS_PASSWD, {**edge_only, **viewer_only})
+        tls_passwd = write_password_file(out_dir / TLS_PASSWD, edge_only)
+        if credentials.viewer is not None:
+            viewer_only = {credentials.viewer.username: credentials.viewer.password}
+            tls_viewer_passwd = write_password_file(out_dir / TLS_VIEWER_PASSWD, viewer_only)
     acl = write_private(out_dir / "acl", credentials.policy(edge_id).acl_text(), mode=0o640)
     conf = write_private(
         out_dir / "mosquitto.conf",
@@ -174,4 +192,4 @@ def write_mosquitto_config(
         mode=0o644,
     )
     secrets = write_private(out_dir / "credentials.toml", credentials.to_toml(CREDENTIALS_HEADER))
-    return BrokerFiles(conf, passwd, acl, secrets, local_passwd, tls_passwd, tls)
+    return BrokerFiles(conf, passwd, acl, secrets, local_passwd, tls_passwd, tls, tls_viewer_passwd)

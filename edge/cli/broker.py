@@ -28,7 +28,13 @@ from edge.cli.common import UserError, config_option, id_list, load
     help="Listener on 127.0.0.1 for the edge's own clients on the broker's machine.",
 )
 @click.option("--tls", is_flag=True, help="Add a TLS listener (client certificate required) and its files.")
-@click.option("--tls-port", type=click.IntRange(1, 65535), default=8883, show_default=True, help="TLS listener.")
+@click.option(
+    "--tls-port",
+    type=click.IntRange(1, 65535),
+    default=8883,
+    show_default=True,
+    help="TLS listener (the edge's; the viewer's is the next port).",
+)
 @click.option(
     "--tls-name",
     "tls_names",

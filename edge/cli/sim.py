@@ -367,8 +367,19 @@ def sim_rovers(broker_url: str, ids: str | None, config_dir: Path | None, creden
         with lock:
             click.echo(f"{time.strftime('%H:%M:%S')} {event.rover_id}: {event.text}")
 
+    from edge.errors import BrokerError
+
     chosen = parse_ids(ids) if ids is not None else None
-    fleet = start_fleet(broker_url, chosen, config_dir=config_dir, credentials=credentials, on_event=show)
+    try:
+        fleet = start_fleet(broker_url, chosen, config_dir=config_dir, credentials=credentials, on_event=show)
+    except BrokerError as exc:
+        if config_dir is not None or credentials is not None or "refused rover" not in str(exc):
+            raise
+        raise BrokerError(
+            f"{exc}; without --credentials or --config-dir the rovers log in with no password: give them their "
+            "logins (the embedded broker of edge-ips start: --credentials <state dir>/broker-credentials.toml; "
+            "Mosquitto: the credentials.toml of edge-ips broker-config)"
+        ) from None
     show(FleetEvent("sim", f"{', '.join(r.id for r in fleet.runners)} running on {broker_url}; Ctrl-C stops them"))
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):

@@ -16,6 +16,8 @@ Routes (access levels of :mod:`edge.httpguard`):
 - ``GET /api/errormap.png`` (read): the calibration error map (:mod:`edge.dashboard.calibration_view`).
 - ``POST /api/formation`` (control): ``Authorization: Bearer <dashboard.token>``, JSON ``{kind, ids, spacing,
   side}``; publishes the retained formation (:mod:`edge.dashboard.formation`).
+- ``POST /api/stop`` (stop): the page's STOP, a retained ``stop`` as ``/api/formation`` would publish it (no body);
+  with the right token it goes through even from an address locked out for wrong tokens (:mod:`edge.httpguard`).
 - ``/api/enroll`` and ``/api/enroll/...``: colour enrolment of the rovers in view (:mod:`edge.dashboard.enrolment`).
 
 Everything reads the runtime's snapshots and newest-result reference; nothing here takes a lock the tracker holds
@@ -31,6 +33,8 @@ from typing import TYPE_CHECKING, Any
 
 from edge.dashboard.streams import EventFanout
 from edge.httpserver import HttpServer, Request, Response, json_response
+
+STOP_BODY = b'{"kind": "stop", "ids": []}'  # what the page posted to /api/formation for its STOP
 
 if TYPE_CHECKING:
     from edge.config import DashboardSection
@@ -120,6 +124,7 @@ class Dashboard:
         http.route("/api/frame.jpg", self.frame, access="read")
         http.route("/api/errormap.png", self.errormap, access="read")
         http.route("/api/formation", self.post_formation, method="POST", access="control")
+        http.route("/api/stop", self.post_stop, method="POST", access="stop")
         http.route("/api/rovers", self.rover_reports, access="read")
         return self
 
@@ -181,14 +186,17 @@ class Dashboard:
     def errormap(self, request: Request) -> Response:
         return Response(200, self.calibration.png(), "image/png")
 
-    def post_formation(self, request: Request) -> Response:
+    def post_formation(self, request: Request, posted: bytes | None = None) -> Response:
         if self.formation is None:
             return json_response(403, {"error": "formation controls are not available on this edge"})
-        status, body = self.formation.command(request.headers, request.body)
+        status, body = self.formation.command(request.headers, request.body if posted is None else posted)
         response = json_response(status, body)
         if status == 401:
             response.headers["WWW-Authenticate"] = 'Bearer realm="edge-ips dashboard"'
         return response
+
+    def post_stop(self, request: Request) -> Response:
+        return self.post_formation(request, STOP_BODY)
 
     def close(self) -> None:
         self.hub.close()

@@ -141,9 +141,14 @@ class Edge:
         self._stack.close()
 
     def command(self, kind: str, token: str, ids: Sequence[str] = ()) -> dict[str, Any]:
-        """POST /api/formation with the token; returns the published message."""
-        body = json.dumps({"kind": kind, "ids": list(ids)}).encode()
-        reply = call(self.http_port, "POST", "/api/formation", body, {"Authorization": f"Bearer {token}"})
+        """What the page's buttons post, with the token: its STOP ``/api/stop``, the formations ``/api/formation``;
+        returns the published message."""
+        auth = {"Authorization": f"Bearer {token}"}
+        if kind == "stop":
+            reply = call(self.http_port, "POST", "/api/stop", b"", auth)
+        else:
+            body = json.dumps({"kind": kind, "ids": list(ids)}).encode()
+            reply = call(self.http_port, "POST", "/api/formation", body, auth)
         assert reply.status == 200, reply.body
         return dict(reply.json()["formation"])
 

@@ -103,6 +103,7 @@ class EdgeProcess:
     proc: subprocess.Popen[bytes]
     http_port: int
     log_path: Path
+    output: ReadyLine | None = None  # the thread copying the process's output into log_path
 
     @property
     def url(self) -> str:
@@ -110,6 +111,13 @@ class EdgeProcess:
 
     def log(self) -> str:
         return self.log_path.read_text(errors="replace")
+
+    def wait_log(self, text: str, timeout_s: float = 30.0) -> str:
+        """The log once it holds ``text``: what the edge wrote reaches the file through a copying thread, so a
+        line logged before a response may not be there yet when the response arrives (``timeout_s``: a guard)."""
+        if self.output is not None:
+            self.output.wait_copied(lambda: text in self.log(), timeout_s)
+        return self.log()
 
 
 class PortTaken(AssertionError):
@@ -137,7 +145,7 @@ def edge_start(args: list[str], workdir: Path, env: dict[str, str]) -> Iterator[
     )
     assert proc.stdout is not None
     output = ReadyLine(proc.stdout, log_path, edge_online)
-    edge = EdgeProcess(proc, port, log_path)
+    edge = EdgeProcess(proc, port, log_path, output)
     try:
         if not output.wait(120):
             proc.wait(10)  # the output ended: the process is exiting

@@ -263,7 +263,9 @@ function connectEvents() {
 async function sendFormation(kind) {
   const ids = $("formation-rovers").value.split(",").map((s) => s.trim()).filter(Boolean);
   const body = { kind, ids, spacing: Number($("spacing").value), side: Number($("side").value) };
-  const res = await fetch("api/formation", {
+  // The STOP has its own route: with the right token it goes through even from an address locked out for wrong
+  // tokens (a tab left open with an old token would otherwise keep this machine's STOP refused).
+  const res = await fetch(kind === "stop" ? "api/stop" : "api/formation", {
     method: "POST",
     headers: { "Content-Type": "application/json", ...bearer($("token").value.trim()) },
     body: JSON.stringify(body),
