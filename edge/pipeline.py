@@ -405,14 +405,8 @@ class Pipeline:
             tr.level = m.level if tr.level <= 0.0 else 0.8 * tr.level + 0.2 * m.level
             if m.quality > 0.8:
                 tr.areas.append(m.area_cm2)
-            vel = tr.filter.velocity
-            theta = self._heading(tr, vel, m)
-            x, y = tr.filter.position
-            vx, vy = vel if vel else (None, None)
-            r = obs.r_cm2
-            covariance = (float(r[0, 0]), float(r[0, 1]), float(r[1, 1]))
-            quality = round(self._quality(tr, m), 2)
-            out.append(RoverEstimate(tr.config.id, x, y, theta, vx, vy, quality, m.uv_px, tr.box, m.xy_cm, covariance))
+            theta = self._heading(tr, tr.filter.velocity, m)
+            out.append(tr.estimate(obs, theta, round(self._quality(tr, m), 2)))
         clock.add("filter", time.perf_counter() - t0)
         return tuple(out)
 

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 from edge.filtering import ConstantVelocityFilter, HeadingFilter
 from edge.tracker_config import RoverConfig, TrackerSettings
 from edge.trackers.base import Measurement
+from edge.tracking import RoverEstimate
 from edge.two_tone import TwoToneHeading
 
 FloatArray = NDArray[np.float64]
@@ -158,6 +159,27 @@ class RoverTrack:
         """
         low, _ = self.area_band(expected_cm2, config.min_area_fraction, config.max_area_fraction, STEADY_SCATTERS)
         return ratio >= low and self.steady(frame, expected_cm2)
+
+    def estimate(self, obs: Observation, theta_rad: float | None, quality: float) -> RoverEstimate:
+        """This frame's estimate: the filtered pose and velocity, and the measurement ``obs`` they took in (for a
+        fusion of several cameras, which filters the measurements once, not the filters' outputs)."""
+        assert self.filter is not None
+        x_cm, y_cm = self.filter.position
+        vx_cm_s, vy_cm_s = self.filter.velocity or (None, None)
+        r = obs.r_cm2
+        return RoverEstimate(
+            rover_id=self.config.id,
+            x_cm=x_cm,
+            y_cm=y_cm,
+            theta_rad=theta_rad,
+            vx_cm_s=vx_cm_s,
+            vy_cm_s=vy_cm_s,
+            quality=quality,
+            uv_px=obs.measurement.uv_px,
+            box_px=self.box,
+            measured_xy_cm=obs.measurement.xy_cm,
+            measured_cov_cm2=(float(r[0, 0]), float(r[0, 1]), float(r[1, 1])),
+        )
 
     def within_reach(self, xy_cm: tuple[float, float], t_s: float, max_speed_cm_s: float, slack_cm: float) -> bool:
         """Could the rover be at ``xy_cm`` at ``t_s``, driving at most ``max_speed_cm_s`` since it was last seen

@@ -414,16 +414,16 @@ class Fuser:
         if theta is None and vel is not None and math.hypot(*vel) >= s.heading_min_speed_cm_s:
             theta = math.atan2(vel[1], vel[0])
         return FusedPose(
-            rover_id,
-            tick,
-            t_pose,
-            x,
-            y,
-            theta,
-            None if shown_v is None else shown_v[0],
-            None if shown_v is None else shown_v[1],
-            quality,
-            recent,
+            rover_id=rover_id,
+            tick=tick,
+            t_s=t_pose,
+            x_cm=x,
+            y_cm=y,
+            theta_rad=theta,
+            vx_cm_s=None if shown_v is None else shown_v[0],
+            vy_cm_s=None if shown_v is None else shown_v[1],
+            quality=quality,
+            boards=recent,
         )
 
     # -- state ------------------------------------------------------------------------------------------------------

@@ -104,7 +104,18 @@ class PaperPipeline:
             if not np.all(np.isfinite(xy)):
                 missing.append(rover.id)
                 continue
-            estimates.append(RoverEstimate(rover.id, float(xy[0]), float(xy[1]), None, None, None, 1.0, (u, v)))
+            estimates.append(
+                RoverEstimate(
+                    rover_id=rover.id,
+                    x_cm=float(xy[0]),
+                    y_cm=float(xy[1]),
+                    theta_rad=None,  # the paper's pipeline has no heading nor velocity
+                    vx_cm_s=None,
+                    vy_cm_s=None,
+                    quality=1.0,
+                    uv_px=(u, v),
+                )
+            )
         self._frames += 1
         stage_ms = clock.as_ms()
         stage_ms["total"] = (time.perf_counter() - t_start) * 1e3
