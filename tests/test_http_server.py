@@ -365,6 +365,7 @@ def test_wrong_tokens_are_logged_with_the_address_and_the_address_is_locked_out(
     assert "guess-" not in log  # the guesses themselves are not logged
 
 
+@pytest.mark.slow
 def test_a_stop_from_a_locked_out_address_with_the_right_token_is_published(edge: EdgeProcess) -> None:
     """A tab left open with an old token keeps its machine locked out; the operator's STOP from it must work."""
     stale = "127.0.0.3"  # its own address (the other tests use 127.0.0.1 and 127.0.0.2)
