@@ -64,7 +64,7 @@ class _Stream:
         self.waits = 0  # times a call had to wait (motors made safe first)
         self._buf = bytearray(MAX_PACKET)
         self._mv = memoryview(self._buf)
-        self._head = [self._mv[i : i + 1] for i in range(5)]  # where each fixed-header byte is read to
+        self._one = bytearray(1)  # each fixed-header byte is read here, then put in its place in _buf
         self._out = _EMPTY  # what write() is sending
         self._sent = 0
         self._reset()
@@ -106,8 +106,9 @@ class _Stream:
                     self._n += self._take(self._mv[self._n : self._need])
                 return self._n >= self._need
             # The fixed header, a byte at a time: type, then 1-4 bytes of remaining length.
-            if self._take(self._head[self._n]) == 0:
+            if self._take(self._one, 1) == 0:
                 return False
+            self._buf[self._n] = self._one[0]
             self._n += 1
             if self._n == 1:
                 continue
@@ -194,18 +195,15 @@ class Link:
         w = cfg["wifi"]
         self.log = log
         self.on_connect = on_connect
-        self.safe = safe or _nothing
         self.keepalive_ms = b["keepalive_s"] * 1000
         self.timeout_s = b["timeout_s"]
         self.ssid = w["ssid"]
         self.wifi_password = w["password"]
-        self.host = b["host"]
-        self._resolved = _numeric(self.host)
         user = b["user"] or None
         password = b["password"] or None
         self.client = simple.MQTTClient(
             ("rover-" + self.id).encode(),
-            self.host,
+            b["host"],  # the client's server: resolved to an address at the first connect when it is a name
             b["port"],
             user=None if user is None else user.encode(),
             password=b"" if password is None else password.encode(),
@@ -215,8 +213,7 @@ class Link:
         self.status_topic = msg.status_topic(self.id)
         offline = msg.rover_status(self.id, "offline", "disconnected", None, None, None)
         self.client.set_last_will(self.status_topic, offline, True, 1)
-        self.patience_ms = int(self.timeout_s * 1000)
-        self.stream = _Stream(self.safe)
+        self.stream = _Stream(safe or _nothing)  # its safe() is the link's too
         network.WLAN(network.AP_IF).active(False)
         self.wlan = network.WLAN(network.STA_IF)
         self.wlan.active(True)
@@ -246,15 +243,14 @@ class Link:
 
     # -- MQTT ----------------------------------------------------------------------------------------------------
     def _connect(self, now_ms):
-        self.safe()  # a connect may take up to timeout_s (a name lookup longer)
-        c = self.client
-        if not self._resolved:
-            c.server = simple.socket.getaddrinfo(self.host, c.port)[0][-1][0]  # type: ignore[attr-defined]
-            self._resolved = True
-        c.connect(True, self.timeout_s)
         s = self.stream
+        s.safe()  # a connect may take up to timeout_s (a name lookup longer)
+        c = self.client
+        if not _numeric(c.server):  # type: ignore[attr-defined]
+            c.server = simple.socket.getaddrinfo(c.server, c.port)[0][-1][0]  # type: ignore[attr-defined]
+        c.connect(True, self.timeout_s)
         s.attach(c.sock)  # type: ignore[attr-defined]
-        s.patience_ms = self.patience_ms
+        s.patience_ms = int(self.timeout_s * 1000)
         c.sock = s  # type: ignore[attr-defined]
         self.up = True
         self.connects += 1
