@@ -39,8 +39,8 @@ _DRAIN_MAX = const(16)  # messages handled per poll, so one poll cannot starve t
 _ETIMEDOUT = const(110)
 # The longest packet kept: a formation (the largest message the rover accepts) with its topic, QoS 1 packet id and
 # fixed header. Anything longer is dropped unread.
-MAX_PACKET = const(5 + 2 + 16 + 2 + 512)
-PUBLISH = const(0x30)
+_MAX_PACKET = const(5 + 2 + 16 + 2 + 512)
+_PUBLISH = const(0x30)
 _EMPTY = memoryview(b"")
 
 
@@ -62,15 +62,13 @@ class _Stream:
         self.dropped = 0  # packets dropped for their length
         self.dropped_bytes = 0  # the length of the last one
         self.waits = 0  # times a call had to wait (motors made safe first)
-        self._buf = bytearray(MAX_PACKET)
-        self._mv = memoryview(self._buf)
-        self._one = bytearray(1)  # each fixed-header byte is read here, then put in its place in _buf
-        self._out = _EMPTY  # what write() is sending
-        self._sent = 0
+        self._mv = memoryview(bytearray(_MAX_PACKET))  # the packet buffer, read and written through this view
+        self._one = bytearray(1)  # each fixed-header byte is read here, then put in its place in the buffer
+        self._out = _EMPTY  # what write() has still to send
         self._reset()
 
     def _reset(self):
-        self._n = 0  # bytes of the packet in _buf
+        self._n = 0  # bytes of the packet in the buffer
         self._need = -1  # its whole length once the fixed header is complete
         self._pos = -1  # next byte handed to umqtt; -1: not handing one over
         self._skip = 0  # bytes of a dropped packet still to discard
@@ -83,7 +81,7 @@ class _Stream:
         sock.setblocking(False)
 
     # -- framing, never waiting ----------------------------------------------------------------------------------
-    def _take(self, view, n=MAX_PACKET):
+    def _take(self, view, n=_MAX_PACKET):
         k = self.sock.readinto(view, n)  # type: ignore[union-attr]
         if k is None:
             return 0
@@ -96,7 +94,7 @@ class _Stream:
         """Read what has arrived without waiting; True when a whole packet is in the buffer."""
         while True:
             if self._skip > 0:  # a dropped packet's bytes go through the buffer, which holds nothing meanwhile
-                k = self._take(self._mv, min(self._skip, MAX_PACKET))
+                k = self._take(self._mv, min(self._skip, _MAX_PACKET))
                 if k == 0:
                     return False
                 self._skip -= k
@@ -108,18 +106,18 @@ class _Stream:
             # The fixed header, a byte at a time: type, then 1-4 bytes of remaining length.
             if self._take(self._one, 1) == 0:
                 return False
-            self._buf[self._n] = self._one[0]
+            self._mv[self._n] = self._one[0]
             self._n += 1
             if self._n == 1:
                 continue
-            if self._buf[self._n - 1] & 0x80:
+            if self._mv[self._n - 1] & 0x80:
                 if self._n == 5:
                     raise OSError(-2)  # a remaining length of more than four bytes: not MQTT
                 continue
             length = 0
             for i in range(self._n - 1, 0, -1):
-                length = (length << 7) | (self._buf[i] & 0x7F)
-            if self._n + length > MAX_PACKET:
+                length = (length << 7) | (self._mv[i] & 0x7F)
+            if self._n + length > _MAX_PACKET:
                 self.dropped += 1
                 self.dropped_bytes = length
                 self._n = 0
@@ -160,17 +158,16 @@ class _Stream:
         if n is not None:
             view = view[:n]
         self._out = view
-        self._sent = 0
         if not self._send():
             self._wait(self._send)
         self._out = _EMPTY
         return len(view)
 
     def _send(self):
-        k = self.sock.write(self._out[self._sent :])  # type: ignore[union-attr]
+        k = self.sock.write(self._out)  # type: ignore[union-attr]
         if k:
-            self._sent += k
-        return self._sent >= len(self._out)
+            self._out = self._out[k:]
+        return len(self._out) == 0
 
     def setblocking(self, flag):
         self.blocking = flag
@@ -305,11 +302,11 @@ class Link:
                     if s.idle:
                         break
                     continue  # a PINGRESP: more may wait behind it
-                if op & 0xF0 != PUBLISH:
+                if op & 0xF0 != _PUBLISH:
                     raise OSError(-3)  # a packet the session does not expect: start afresh
             if s.dropped != self._dropped:
                 self._dropped = s.dropped
-                self.log("dropped a packet of", s.dropped_bytes, "bytes (longest kept:", MAX_PACKET, ")")
+                self.log("dropped a packet of", s.dropped_bytes, "bytes (longest kept:", _MAX_PACKET, ")")
             if s.heard:
                 s.heard = False
                 self._heard_at = now_ms
