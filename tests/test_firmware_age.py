@@ -38,7 +38,7 @@ fm: Any = fw["formation"]
 rv: Any = fw["rover"]
 age: Any = mpy_driver("age")
 
-WRAP = 1 << 26  # msg.T_WRAP
+WRAP = 1 << 26  # msg._T_WRAP
 TICKS = 1 << 30
 
 
@@ -103,8 +103,8 @@ def _expected(payload: bytes, want: int | None) -> int:
 def test_the_parser_reads_t_in_whole_ms_modulo_2_26_exactly(what: str, payload: bytes, want: int | None) -> None:
     assert oracle.oracle("pose", payload) is not None, what  # a valid pose
     got = msg.parse_pose(payload)
-    assert got is not None and got[msg.P_T] == _expected(payload, want), what
-    assert type(got[msg.P_T]) is int and 0 <= got[msg.P_T] < WRAP
+    assert got is not None and got[msg._P_T] == _expected(payload, want), what
+    assert type(got[msg._P_T]) is int and 0 <= got[msg._P_T] < WRAP
 
 
 @pytest.mark.slow
@@ -122,7 +122,7 @@ def test_t_is_exact_whatever_way_the_number_is_written(ms: int, extra: int, shif
     text = f"{value.scaleb(-shift):f}" + (("E" if upper else "e") + str(shift) if shift else "")
     payload = pose(text)
     assert oracle.oracle("pose", payload) is not None, text
-    assert msg.parse_pose(payload)[msg.P_T] == ms % WRAP, text
+    assert msg.parse_pose(payload)[msg._P_T] == ms % WRAP, text
 
 
 @pytest.mark.slow

@@ -136,12 +136,12 @@ def test_no_command_lets_the_distance_to_a_neighbour_shrink_faster_than_the_barr
 @pytest.mark.parametrize(
     ("kind", "n", "length", "neighbour_gap"),
     [
-        (fm.LINE, 3, 60.0, 60.0),
-        (fm.LINE, 5, 40.0, 40.0),
-        (fm.TRIANGLE, 3, 100.0, 100.0),
-        (fm.RENDEZVOUS, 3, 31.0, 31.0),
-        (fm.RENDEZVOUS, 6, 31.0, 31.0),
-        (fm.TRIANGLE, 2, 100.0, 100.0),
+        (fm._LINE, 3, 60.0, 60.0),
+        (fm._LINE, 5, 40.0, 40.0),
+        (fm._TRIANGLE, 3, 100.0, 100.0),
+        (fm._RENDEZVOUS, 3, 31.0, 31.0),
+        (fm._RENDEZVOUS, 6, 31.0, 31.0),
+        (fm._TRIANGLE, 2, 100.0, 100.0),
     ],
 )
 def test_formation_offsets_have_the_commanded_spacing_and_are_centred(
@@ -152,7 +152,7 @@ def test_formation_offsets_have_the_commanded_spacing_and_are_centred(
     fm.offsets(kind, n, length, length, length, bx, by)
     pts = np.column_stack([bx, by])
     assert np.allclose(pts.mean(axis=0), 0.0, atol=1e-9)
-    gaps = np.linalg.norm(pts - np.roll(pts, -1, axis=0), axis=1)[: n if kind != fm.LINE and n > 2 else n - 1]
+    gaps = np.linalg.norm(pts - np.roll(pts, -1, axis=0), axis=1)[: n if kind != fm._LINE and n > 2 else n - 1]
     assert np.allclose(gaps, neighbour_gap)
 
 
@@ -163,13 +163,13 @@ def test_a_free_triangle_is_fitted_to_where_the_rovers_already_are(
 ) -> None:
     bx = [0.0] * 3
     by = [0.0] * 3
-    fm.offsets(fm.TRIANGLE, 3, 0.0, 100.0, 0.0, bx, by)
+    fm.offsets(fm._TRIANGLE, 3, 0.0, 100.0, 0.0, bx, by)
     c, s = math.cos(angle), math.sin(angle)
     px = [c * (-x if mirrored else x) - s * y + tx for x, y in zip(bx, by, strict=True)]
     py = [s * (-x if mirrored else x) + c * y + ty for x, y in zip(bx, by, strict=True)]
     cx = [0.0] * 3
     cy = [0.0] * 3
-    fm.orient(fm.TRIANGLE, None, px, py, bx, by, 3, cx, cy)
+    fm.orient(fm._TRIANGLE, None, px, py, bx, by, 3, cx, cy)
     # Already in formation: the law asks for nothing.
     for i in range(3):
         assert fm.consensus(i, px, py, cx, cy, 3, 0.8) == pytest.approx((0.0, 0.0), abs=1e-6)

@@ -109,11 +109,11 @@ def expected_command(
     formation.py directly."""
     ids = FORMATION["ids"]
     bx, by = [0.0] * 3, [0.0] * 3
-    fm.offsets(fm.TRIANGLE, 3, 0.0, FORMATION["side"], 0.0, bx, by)
+    fm.offsets(fm._TRIANGLE, 3, 0.0, FORMATION["side"], 0.0, bx, by)
     px = [world[r][0] for r in ids]
     py = [world[r][1] for r in ids]
     cx, cy = [0.0] * 3, [0.0] * 3
-    fm.orient(fm.TRIANGLE, None, px, py, bx, by, 3, cx, cy)
+    fm.orient(fm._TRIANGLE, None, px, py, bx, by, 3, cx, cy)
     law = fw["rover"].make_law(cfg)
     others = [r for r in world if r != "red"]
     out = [0.0] * 6

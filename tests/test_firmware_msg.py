@@ -289,3 +289,16 @@ def test_topics_match_the_edge_helpers() -> None:
     assert messages.FORMATION_TOPIC.encode() == msg.FORMATION_TOPIC
     assert messages.POSE_WILDCARD.encode() == msg.POSE_WILDCARD
     assert math.isclose(msg._THETA_LIMIT, messages.THETA_LIMIT)
+
+
+def test_rover_numbers_the_fields_as_msg_and_formation_do() -> None:
+    # msg's tuple fields and formation's command fields and kinds are private consts (no dict entries on the chip),
+    # so rover.py keeps its own copies: each must equal the original, or the rover reads the wrong field.
+    rover, fm = firmware_modules()["rover"], firmware_modules()["formation"]
+    copies = [n for n in vars(rover) if n.startswith(("_P_", "_F_", "_C_")) or n == "_STOP"]
+    assert len(copies) == 21
+    for name in copies:
+        source = fm if name.startswith("_C_") or name == "_STOP" else msg
+        assert getattr(rover, name) == getattr(source, name), name
+    kinds = {"line": fm._LINE, "rendezvous": fm._RENDEZVOUS, "triangle": fm._TRIANGLE, "stop": fm._STOP}
+    assert {k: msg.KINDS.index(k) for k in kinds} == kinds

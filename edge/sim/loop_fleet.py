@@ -157,4 +157,4 @@ def _ms(clock_s: Callable[[], float]) -> int:
 
 def _has_formation(rover: HostRover, seq: int) -> bool:
     f = rover.rover.formation
-    return f is not None and int(f[firmware_modules()["msg"].F_SEQ]) == seq
+    return f is not None and int(f[firmware_modules()["msg"]._F_SEQ]) == seq

@@ -24,19 +24,19 @@ from math import atan2, cos, pi, sin, sqrt
 
 from micropython import const
 
-# Formation kinds, in msg.KINDS order.
-LINE = const(0)
-RENDEZVOUS = const(1)
-TRIANGLE = const(2)
-STOP = const(3)
+# Formation kinds, in msg.KINDS order. Private consts (no dict entries on the chip); rover.py keeps its own copies.
+_LINE = const(0)
+_RENDEZVOUS = const(1)
+_TRIANGLE = const(2)
+_STOP = const(3)
 
 # Fields of the command list a Controller fills.
-C_UX = const(0)  # single-integrator velocity of the look-ahead point, cm/s
-C_UY = const(1)
-C_V = const(2)  # forward speed, cm/s
-C_W = const(3)  # turn rate, rad/s (counter-clockwise)
-C_LEFT = const(4)  # wheel speeds, rad/s (positive drives forward)
-C_RIGHT = const(5)
+_C_UX = const(0)  # single-integrator velocity of the look-ahead point, cm/s
+_C_UY = const(1)
+_C_V = const(2)  # forward speed, cm/s
+_C_W = const(3)  # turn rate, rad/s (counter-clockwise)
+_C_LEFT = const(4)  # wheel speeds, rad/s (positive drives forward)
+_C_RIGHT = const(5)
 
 TWO_PI = 2.0 * pi
 
@@ -59,13 +59,13 @@ def offsets(kind, n, spacing_cm, side_cm, ring_cm, out_x, out_y):
     rendezvous: the tightest ring the safety layer allows, a regular n-gon of side ring_cm (the paper's "all c_j
     equal" leaves the final shape to the safety layer, and three rovers can then jam in a line 2 Ds long).
     """
-    if kind == LINE or n < 3:
-        step = spacing_cm if kind == LINE else (side_cm if kind == TRIANGLE else ring_cm)
+    if kind == _LINE or n < 3:
+        step = spacing_cm if kind == _LINE else (side_cm if kind == _TRIANGLE else ring_cm)
         for k in range(n):
             out_x[k] = 0.0
             out_y[k] = (k - (n - 1) * 0.5) * step
         return
-    side = side_cm if kind == TRIANGLE else ring_cm
+    side = side_cm if kind == _TRIANGLE else ring_cm
     radius = side / (2.0 * sin(pi / n))
     for k in range(n):
         a = 0.5 * pi + TWO_PI * k / n
@@ -79,7 +79,8 @@ def orient(kind, theta, px, py, bx, by, m, out_x, out_y):
     bx, by: their offsets in the formation frame; px, py: their positions. theta (rad) given: rotate by it (line:
     0 = along +y). theta None: a line keeps its direction (+y) and takes whichever end fits the rovers better; a
     triangle or ring takes the rotation, and reflection, that best fits where the rovers are (2-D Procrustes), so
-    no rover crosses the formation to reach its corner. Offsets are re-centred on the present members.
+    no rover crosses the formation to reach its corner. Offsets are re-centred on the present members. out_x, out_y
+    may be bx, by themselves (the rover orients in place: two fewer lists in the chip's heap).
     """
     mx = 0.0
     my = 0.0
@@ -95,10 +96,10 @@ def orient(kind, theta, px, py, bx, by, m, out_x, out_y):
     cx /= m
     cy /= m
     flip = 1.0
-    if theta is not None and kind != RENDEZVOUS:
+    if theta is not None and kind != _RENDEZVOUS:
         c = cos(theta)
         s = sin(theta)
-    elif kind == LINE:
+    elif kind == _LINE:
         dot = 0.0
         for j in range(m):
             dot += (bx[j] - cx) * (px[j] - mx) + (by[j] - cy) * (py[j] - my)
@@ -568,7 +569,7 @@ class Controller:
         self.max_wheel = max_wheel_rad_s
 
     def command(self, i, px, py, cx, cy, m, anchor_x, anchor_y, qx, qy, nq, theta, spread, out):
-        """Fill out[C_UX..C_RIGHT] for member i of the m present ones. anchor_x/_y: cm or None; theta: the heading
+        """Fill out[_C_UX..C_RIGHT] for member i of the m present ones. anchor_x/_y: cm or None; theta: the heading
         estimate, spread: how far off it may be (rad)."""
         x = px[i]
         y = py[i]
@@ -597,8 +598,8 @@ class Controller:
         margin = self.margin if self.margin > spread else spread
         v = safe_speed(v, x, y, theta, qx, qy, nq, self.safety, self.gamma, margin)
         left, right = wheels(v, w, self.radius, self.track, self.max_wheel)
-        out[C_UX] = ux
-        out[C_UY] = uy
-        out[C_V], out[C_W] = body_motion(left, right, self.radius, self.track)
-        out[C_LEFT] = left
-        out[C_RIGHT] = right
+        out[_C_UX] = ux
+        out[_C_UY] = uy
+        out[_C_V], out[_C_W] = body_motion(left, right, self.radius, self.track)
+        out[_C_LEFT] = left
+        out[_C_RIGHT] = right

@@ -39,8 +39,8 @@ _DRAIN_MAX = const(16)  # messages handled per poll, so one poll cannot starve t
 _ETIMEDOUT = const(110)
 # The longest packet kept: a formation (the largest message the rover accepts) with its topic, QoS 1 packet id and
 # fixed header. Anything longer is dropped unread.
-MAX_PACKET = const(5 + 2 + 16 + 2 + 512)
-PUBLISH = const(0x30)
+_MAX_PACKET = const(5 + 2 + 16 + 2 + 512)
+_PUBLISH = const(0x30)
 _EMPTY = memoryview(b"")
 
 
@@ -62,15 +62,13 @@ class _Stream:
         self.dropped = 0  # packets dropped for their length
         self.dropped_bytes = 0  # the length of the last one
         self.waits = 0  # times a call had to wait (motors made safe first)
-        self._buf = bytearray(MAX_PACKET)
-        self._mv = memoryview(self._buf)
-        self._head = [self._mv[i : i + 1] for i in range(5)]  # where each fixed-header byte is read to
-        self._out = _EMPTY  # what write() is sending
-        self._sent = 0
+        self._mv = memoryview(bytearray(_MAX_PACKET))  # the packet buffer, read and written through this view
+        self._one = bytearray(1)  # each fixed-header byte is read here, then put in its place in the buffer
+        self._out = _EMPTY  # what write() has still to send
         self._reset()
 
     def _reset(self):
-        self._n = 0  # bytes of the packet in _buf
+        self._n = 0  # bytes of the packet in the buffer
         self._need = -1  # its whole length once the fixed header is complete
         self._pos = -1  # next byte handed to umqtt; -1: not handing one over
         self._skip = 0  # bytes of a dropped packet still to discard
@@ -83,7 +81,7 @@ class _Stream:
         sock.setblocking(False)
 
     # -- framing, never waiting ----------------------------------------------------------------------------------
-    def _take(self, view, n=MAX_PACKET):
+    def _take(self, view, n=_MAX_PACKET):
         k = self.sock.readinto(view, n)  # type: ignore[union-attr]
         if k is None:
             return 0
@@ -96,7 +94,7 @@ class _Stream:
         """Read what has arrived without waiting; True when a whole packet is in the buffer."""
         while True:
             if self._skip > 0:  # a dropped packet's bytes go through the buffer, which holds nothing meanwhile
-                k = self._take(self._mv, min(self._skip, MAX_PACKET))
+                k = self._take(self._mv, min(self._skip, _MAX_PACKET))
                 if k == 0:
                     return False
                 self._skip -= k
@@ -106,19 +104,20 @@ class _Stream:
                     self._n += self._take(self._mv[self._n : self._need])
                 return self._n >= self._need
             # The fixed header, a byte at a time: type, then 1-4 bytes of remaining length.
-            if self._take(self._head[self._n]) == 0:
+            if self._take(self._one, 1) == 0:
                 return False
+            self._mv[self._n] = self._one[0]
             self._n += 1
             if self._n == 1:
                 continue
-            if self._buf[self._n - 1] & 0x80:
+            if self._mv[self._n - 1] & 0x80:
                 if self._n == 5:
                     raise OSError(-2)  # a remaining length of more than four bytes: not MQTT
                 continue
             length = 0
             for i in range(self._n - 1, 0, -1):
-                length = (length << 7) | (self._buf[i] & 0x7F)
-            if self._n + length > MAX_PACKET:
+                length = (length << 7) | (self._mv[i] & 0x7F)
+            if self._n + length > _MAX_PACKET:
                 self.dropped += 1
                 self.dropped_bytes = length
                 self._n = 0
@@ -159,17 +158,16 @@ class _Stream:
         if n is not None:
             view = view[:n]
         self._out = view
-        self._sent = 0
         if not self._send():
             self._wait(self._send)
         self._out = _EMPTY
         return len(view)
 
     def _send(self):
-        k = self.sock.write(self._out[self._sent :])  # type: ignore[union-attr]
+        k = self.sock.write(self._out)  # type: ignore[union-attr]
         if k:
-            self._sent += k
-        return self._sent >= len(self._out)
+            self._out = self._out[k:]
+        return len(self._out) == 0
 
     def setblocking(self, flag):
         self.blocking = flag
@@ -194,18 +192,15 @@ class Link:
         w = cfg["wifi"]
         self.log = log
         self.on_connect = on_connect
-        self.safe = safe or _nothing
         self.keepalive_ms = b["keepalive_s"] * 1000
         self.timeout_s = b["timeout_s"]
         self.ssid = w["ssid"]
         self.wifi_password = w["password"]
-        self.host = b["host"]
-        self._resolved = _numeric(self.host)
         user = b["user"] or None
         password = b["password"] or None
         self.client = simple.MQTTClient(
             ("rover-" + self.id).encode(),
-            self.host,
+            b["host"],  # the client's server: resolved to an address at the first connect when it is a name
             b["port"],
             user=None if user is None else user.encode(),
             password=b"" if password is None else password.encode(),
@@ -215,8 +210,7 @@ class Link:
         self.status_topic = msg.status_topic(self.id)
         offline = msg.rover_status(self.id, "offline", "disconnected", None, None, None)
         self.client.set_last_will(self.status_topic, offline, True, 1)
-        self.patience_ms = int(self.timeout_s * 1000)
-        self.stream = _Stream(self.safe)
+        self.stream = _Stream(safe or _nothing)  # its safe() is the link's too
         network.WLAN(network.AP_IF).active(False)
         self.wlan = network.WLAN(network.STA_IF)
         self.wlan.active(True)
@@ -246,15 +240,14 @@ class Link:
 
     # -- MQTT ----------------------------------------------------------------------------------------------------
     def _connect(self, now_ms):
-        self.safe()  # a connect may take up to timeout_s (a name lookup longer)
-        c = self.client
-        if not self._resolved:
-            c.server = simple.socket.getaddrinfo(self.host, c.port)[0][-1][0]  # type: ignore[attr-defined]
-            self._resolved = True
-        c.connect(True, self.timeout_s)
         s = self.stream
+        s.safe()  # a connect may take up to timeout_s (a name lookup longer)
+        c = self.client
+        if not _numeric(c.server):  # type: ignore[attr-defined]
+            c.server = simple.socket.getaddrinfo(c.server, c.port)[0][-1][0]  # type: ignore[attr-defined]
+        c.connect(True, self.timeout_s)
         s.attach(c.sock)  # type: ignore[attr-defined]
-        s.patience_ms = self.patience_ms
+        s.patience_ms = int(self.timeout_s * 1000)
         c.sock = s  # type: ignore[attr-defined]
         self.up = True
         self.connects += 1
@@ -309,11 +302,11 @@ class Link:
                     if s.idle:
                         break
                     continue  # a PINGRESP: more may wait behind it
-                if op & 0xF0 != PUBLISH:
+                if op & 0xF0 != _PUBLISH:
                     raise OSError(-3)  # a packet the session does not expect: start afresh
             if s.dropped != self._dropped:
                 self._dropped = s.dropped
-                self.log("dropped a packet of", s.dropped_bytes, "bytes (longest kept:", MAX_PACKET, ")")
+                self.log("dropped a packet of", s.dropped_bytes, "bytes (longest kept:", _MAX_PACKET, ")")
             if s.heard:
                 s.heard = False
                 self._heard_at = now_ms

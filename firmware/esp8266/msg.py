@@ -12,7 +12,7 @@
 # The fast path costs about a third of the scan (benchmarks/bench_firmware.py), which matters at 90 poses a second
 # on an 80 MHz ESP8266.
 # The capture time t is read twice: json.loads checks its range (0 <= t < 1e10, the schema), and its digits give
-# t in whole milliseconds modulo 2**26 (T_WRAP, 18.6 hours), exactly: a Unix time needs 41 bits in ms and a float of
+# t in whole milliseconds modulo 2**26 (_T_WRAP, 18.6 hours), exactly: a Unix time needs 41 bits in ms and a float of
 # the ESP8266 keeps 22 (its step near 1.7e9 s is 4 minutes), so the float can only be range-checked. The digits are
 # read from the payload in place (no slice, no string, no big int: every intermediate stays below 2**30, the chip's
 # small-int limit). Rovers use it only for the differences between poses' ages (rover.py, "Pose ages").
@@ -23,38 +23,38 @@ import json
 
 from micropython import const
 
-POSE_MAX_BYTES = const(160)
-FORMATION_MAX_BYTES = const(512)
-MAX_COUNTER = const(999_999_999)
-MAX_IDS = const(16)
-T_WRAP = const(1 << 26)  # a pose's t in ms is kept modulo this (18.6 hours); it divides time.ticks_ms()'s 2**30
+_POSE_MAX_BYTES = const(160)
+_FORMATION_MAX_BYTES = const(512)
+_MAX_COUNTER = const(999_999_999)
+_MAX_IDS = const(16)
+_T_WRAP = const(1 << 26)  # a pose's t in ms is kept modulo this (18.6 hours); it divides time.ticks_ms()'s 2**30
 _T_MASK = const((1 << 26) - 1)
 _EXP_CAP = const(999)  # an exponent beyond this shifts every digit out, or the range check refused t already
 
-# Pose tuple fields, in wire order (the version "v" is checked, not returned).
-P_ID = const(0)
-P_SEQ = const(1)
-P_FRAME = const(2)
-P_T = const(3)
-P_X = const(4)
-P_Y = const(5)
-P_THETA = const(6)
-P_VX = const(7)
-P_VY = const(8)
-P_Q = const(9)
+# Pose tuple fields, in wire order (the version "v" is checked, not returned). Every const here is private, folded
+# into the bytecode: a public one is an entry in the module's dict on the chip (rover.py keeps its own copies).
+_P_ID = const(0)
+_P_SEQ = const(1)
+_P_FRAME = const(2)
+_P_T = const(3)
+_P_X = const(4)
+_P_Y = const(5)
+_P_THETA = const(6)
+_P_VX = const(7)
+_P_VY = const(8)
+_P_Q = const(9)
 
 # Formation tuple fields.
-F_SEQ = const(0)
-F_KIND = const(1)
-F_IDS = const(2)
-F_SPACING = const(3)
-F_SIDE = const(4)
-F_X = const(5)
-F_Y = const(6)
-F_THETA = const(7)
+_F_SEQ = const(0)
+_F_KIND = const(1)
+_F_IDS = const(2)
+_F_SPACING = const(3)
+_F_SIDE = const(4)
+_F_X = const(5)
+_F_Y = const(6)
+_F_THETA = const(7)
 
 KINDS = ("line", "rendezvous", "triangle", "stop")
-_ID_CHARS = "abcdefghijklmnopqrstuvwxyz0123456789_-"
 _POSE_KEYS = ("v", "id", "seq", "frame", "t", "x", "y", "theta", "vx", "vy", "q")
 _FORMATION_KEYS = ("v", "seq", "kind", "ids", "spacing", "side", "x", "y", "theta")
 _FORMATION_REQUIRED = const(4)  # v, seq, kind, ids; the rest default to null (FormationV1 defaults)
@@ -69,10 +69,6 @@ _T_LIMIT = 1e10
 # refused.
 _T_COARSE = 9999999999.999 == _T_LIMIT
 _LENGTH_LIMIT = 1000.0
-
-
-class _Reject(Exception):
-    pass
 
 
 # -- strict JSON syntax (RFC 8259), byte by byte -----------------------------------------------------------------
@@ -93,24 +89,24 @@ def _string(b, i, n):
         if c == 34:  # "
             return i + 1
         if c < 32:
-            raise _Reject
+            raise ValueError
         if c == 92:  # backslash
             i += 1
             if i >= n:
-                raise _Reject
+                raise ValueError
             c = b[i]
             if c == 117:  # \uXXXX
                 if i + 4 >= n:
-                    raise _Reject
+                    raise ValueError
                 for k in range(1, 5):
                     h = b[i + k]
                     if not (48 <= h <= 57 or 65 <= h <= 70 or 97 <= h <= 102):
-                        raise _Reject
+                        raise ValueError
                 i += 4
             elif c not in b'"\\/bfnrt':
-                raise _Reject
+                raise ValueError
         i += 1
-    raise _Reject
+    raise ValueError
 
 
 def _digits(b, i, n):
@@ -118,7 +114,7 @@ def _digits(b, i, n):
     while i < n and 48 <= b[i] <= 57:
         i += 1
     if i == start:
-        raise _Reject
+        raise ValueError
     return i
 
 
@@ -126,7 +122,7 @@ def _number(b, i, n):
     if b[i] == 45:  # -
         i += 1
         if i >= n:
-            raise _Reject
+            raise ValueError
     if b[i] == 48:  # a leading 0 stands alone
         i += 1
     else:
@@ -144,22 +140,22 @@ def _number(b, i, n):
 def _literal(b, i, n, word):
     m = len(word)
     if i + m > n:
-        raise _Reject
+        raise ValueError
     for k in range(m):
         if b[i + k] != word[k]:
-            raise _Reject
+            raise ValueError
     return i + m
 
 
 def _value(b, i, n, depth):
     if i >= n:
-        raise _Reject
+        raise ValueError
     c = b[i]
     if c == 34:
         return _string(b, i, n)
     if c == 123 or c == 91:  # { [
         if depth >= _MAX_DEPTH:
-            raise _Reject
+            raise ValueError
         close = 125 if c == 123 else 93
         i = _ws(b, i + 1, n)
         if i < n and b[i] == close:
@@ -167,18 +163,18 @@ def _value(b, i, n, depth):
         while True:
             if c == 123:
                 if i >= n or b[i] != 34:
-                    raise _Reject
+                    raise ValueError
                 i = _ws(b, _string(b, i, n), n)
                 if i >= n or b[i] != 58:  # :
-                    raise _Reject
+                    raise ValueError
                 i = _ws(b, i + 1, n)
             i = _ws(b, _value(b, i, n, depth + 1), n)
             if i >= n:
-                raise _Reject
+                raise ValueError
             if b[i] == close:
                 return i + 1
             if b[i] != 44:  # ,
-                raise _Reject
+                raise ValueError
             i = _ws(b, i + 1, n)
     if c == 116:
         return _literal(b, i, n, b"true")
@@ -188,37 +184,37 @@ def _value(b, i, n, depth):
         return _literal(b, i, n, b"null")
     if c == 45 or 48 <= c <= 57:
         return _number(b, i, n)
-    raise _Reject
+    raise ValueError
 
 
 def _strict_object(b, limit):
-    # Raises _Reject unless b is at most `limit` bytes of ASCII holding exactly one strict JSON object.
+    # Raises ValueError unless b is at most `limit` bytes of ASCII holding exactly one strict JSON object.
     n = len(b)
     if n > limit:
-        raise _Reject
+        raise ValueError
     for c in b:
         if c > 126:
-            raise _Reject
+            raise ValueError
     i = _ws(b, 0, n)
     if i >= n or b[i] != 123:
-        raise _Reject
+        raise ValueError
     if _ws(b, _value(b, i, n, 0), n) != n:
-        raise _Reject
+        raise ValueError
 
 
 # -- field checks ---------------------------------------------------------------------------------------------------
 def _counter(v):
-    if type(v) is not int or v < 0 or v > MAX_COUNTER:
-        raise _Reject
+    if type(v) is not int or v < 0 or v > _MAX_COUNTER:
+        raise ValueError
     return v
 
 
 def _number_in(v, lo, hi):
     # ints may stand for floats; NaN fails every comparison and so is refused.
     if type(v) is not float and type(v) is not int:
-        raise _Reject
+        raise ValueError
     if not (lo <= v <= hi):
-        raise _Reject
+        raise ValueError
     return float(v)
 
 
@@ -234,7 +230,7 @@ def _positive_length(v):
         return None
     v = _number_in(v, 0.0, _LENGTH_LIMIT)
     if not v > 0.0:
-        raise _Reject
+        raise ValueError
     return v
 
 
@@ -246,7 +242,7 @@ def is_id(s):
     if n < 1 or n > 16:
         return False
     for ch in s:
-        if ch not in _ID_CHARS:
+        if ch not in "abcdefghijklmnopqrstuvwxyz0123456789_-":
             return False
     return True
 
@@ -327,13 +323,13 @@ def _t_at(b):
                 break
             i = b.rfind(key, 0, i)
     if last < 0:
-        raise _Reject
+        raise ValueError
     return at
 
 
 def _t_ms(b, i):
     # The strict JSON number at b[i] (0 <= value < 1e10, checked before) in whole milliseconds, rounded down, modulo
-    # T_WRAP: from its digits, so exact whatever the floats can hold. Value = mantissa digits x 10^(exp - fraction
+    # _T_WRAP: from its digits, so exact whatever the floats can hold. Value = mantissa digits x 10^(exp - fraction
     # digits); the ms are the mantissa's first (whole + exp + 3) digits, padded with zeros where it has fewer.
     n = len(b)
     if b[i] == 45:  # -0 is >= 0 too
@@ -377,11 +373,11 @@ def _t_ms(b, i):
 def parse_pose(payload):
     """Pose v1 bytes -> (id, seq, frame, t_ms, x, y, theta, vx, vy, q), or None when the schema would reject them.
 
-    t_ms: the capture time t in whole milliseconds modulo T_WRAP (an int, exact from the digits). theta, vx and vy
+    t_ms: the capture time t in whole milliseconds modulo _T_WRAP (an int, exact from the digits). theta, vx and vy
     may be None. Numbers are floats, seq and frame ints.
     """
     try:
-        if len(payload) > POSE_MAX_BYTES or max(payload) > 126:
+        if len(payload) > _POSE_MAX_BYTES or max(payload) > 126:
             return None
         d = json.loads(payload)
         if type(d) is not dict or len(d) != 11:
@@ -408,10 +404,10 @@ def parse_pose(payload):
         q = _number_in(d["q"], 0.0, 1.0)
         at = _canonical_pose(payload, d)
         if not at:
-            _strict_object(payload, POSE_MAX_BYTES)
+            _strict_object(payload, _POSE_MAX_BYTES)
             at = _t_at(payload)
         return (rid, seq, frame, _t_ms(payload, at), x, y, theta, vx, vy, q)
-    except Exception:  # _Reject, or anything the interpreter raises on hostile input: None, never a crash
+    except Exception:  # ValueError from the checks, or anything the interpreter raises on hostile input: None
         return None
 
 
@@ -421,7 +417,7 @@ def parse_formation(payload):
     kind is one of KINDS, ids a tuple of ids in order; absent optional fields are None, as in FormationV1.
     """
     try:
-        _strict_object(payload, FORMATION_MAX_BYTES)  # formations are rare (retained, on change): always the full scan
+        _strict_object(payload, _FORMATION_MAX_BYTES)  # formations are rare (retained, on change): always the full scan
         d = json.loads(payload)
         if type(d) is not dict or len(d) < _FORMATION_REQUIRED:
             return None
@@ -438,7 +434,7 @@ def parse_formation(payload):
         if type(kind) is not str or kind not in KINDS:
             return None
         ids = d["ids"]
-        if type(ids) is not list or len(ids) > MAX_IDS:
+        if type(ids) is not list or len(ids) > _MAX_IDS:
             return None
         for rid in ids:
             if not is_id(rid):

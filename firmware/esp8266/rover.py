@@ -21,18 +21,45 @@
 # (not by seq, which a restarted edge, a second writer or a hostile retained message can repeat), and a `stop` is
 # always applied; on every (re)connect the rover forgets its command and halts (idle) until the broker's retained one
 # arrives, so it never resumes a command the broker no longer holds.
+from array import array
+
 import formation as fm
 import msg
 from micropython import const
 
 VERSION = "0.2.0"
 
+# The fields of msg's pose and formation tuples and of the formation law's command list (msg's _P_*, _F_*, formation's
+# _C_* and kinds, checked equal by tests/test_firmware_msg.py): private consts, folded into the bytecode, where a
+# public const would be one more entry in a module's dict on the chip.
+_P_ID = const(0)
+_P_SEQ = const(1)
+_P_T = const(3)
+_P_X = const(4)
+_P_Y = const(5)
+_P_THETA = const(6)
+_F_SEQ = const(0)
+_F_KIND = const(1)
+_F_IDS = const(2)
+_F_SPACING = const(3)
+_F_SIDE = const(4)
+_F_X = const(5)
+_F_Y = const(6)
+_F_THETA = const(7)
+_C_UX = const(0)
+_C_UY = const(1)
+_C_V = const(2)
+_C_W = const(3)
+_C_LEFT = const(4)
+_C_RIGHT = const(5)
+_STOP = const(3)
+
 MAX_ROVERS = const(16)  # poses tracked at once; formation ids are at most 16 too (contract)
 _TICKS_PERIOD = const(1 << 30)  # time.ticks_ms() wraps here on the ESP8266
 _TICKS_HALF = const(1 << 29)
 _STATUS_REFRESH_MS = const(30000)
 _STATUS_MIN_GAP_MS = const(1000)
-_OFFSET_MASK = const((1 << 26) - 1)  # pose times and offsets: ms modulo msg.T_WRAP
+_OFFSET_MASK = const((1 << 26) - 1)  # pose times and offsets: ms modulo 2**26 (msg's _T_WRAP)
 _OFFSET_HALF = const(1 << 25)
 _WINDOW_BUCKETS = const(4)  # the minimum offset is kept over 4 buckets of reception time...
 _BUCKET_MS = const(2000)  # ... of 2 s each: a minimum that no longer holds leaves within 6-8 s
@@ -182,24 +209,22 @@ class Rover:
         self._topics = [None] * MAX_ROVERS
         self._x = [0.0] * MAX_ROVERS
         self._y = [0.0] * MAX_ROVERS
-        self._theta = [None] * MAX_ROVERS
         self._seq = [0] * MAX_ROVERS
         self._stamp = [0] * MAX_ROVERS  # the tick a pose's age counts from: its arrival, less its excess
         self._raw = [None] * MAX_ROVERS  # newest pose bytes not parsed yet, and when they arrived
         self._raw_at = [0] * MAX_ROVERS
         self._me = -1  # own slot
         # The formation applied, and scratch for one step.
-        self.formation = None  # the parsed tuple (msg.F_*)
-        self._kind = fm.STOP
-        self._member_ids = []
-        self._member_slot = [-1] * MAX_ROVERS
+        self.formation = None  # the parsed tuple (msg's _F_*), its ids joined into one string (see on_message)
+        self._kind = _STOP
+        self._members = ""  # the formation's ids, each once (first place wins), joined by commas
+        self._n_members = 0
+        self._member_slot = array("b", [-1] * MAX_ROVERS)  # each member's slot, -1: none (bytes, not a list)
         self._my_index = -1
         self._bx = [0.0] * MAX_ROVERS  # offsets in the formation frame, per member
         self._by = [0.0] * MAX_ROVERS
-        self._px = [0.0] * MAX_ROVERS  # present members this step
+        self._px = [0.0] * MAX_ROVERS  # present members this step: positions, and offsets (oriented in place)
         self._py = [0.0] * MAX_ROVERS
-        self._pbx = [0.0] * MAX_ROVERS
-        self._pby = [0.0] * MAX_ROVERS
         self._cx = [0.0] * MAX_ROVERS
         self._cy = [0.0] * MAX_ROVERS
         self._qx = [0.0] * MAX_ROVERS  # every other known rover (safety)
@@ -219,7 +244,6 @@ class Rover:
         self._status_halt = None  # what the last status said (None: none sent on this connection)
         self._status_for = None
         self._status_at = 0
-        self.status_topic = msg.status_topic(self.id)
 
     # -- messages ------------------------------------------------------------------------------------------------
     def on_message(self, topic, payload):
@@ -230,8 +254,13 @@ class Rover:
                 self.rejected += 1
                 return
             self.received += 1
-            if f[msg.F_KIND] == "stop" or f != self.formation:  # whole tuples: seq, kind, ids and every number
-                self._apply(f)
+            # Kept with its ids as one string ("red,green,blue": ids hold no commas, so two formations are equal
+            # exactly when their tuples are): 16 ids of 16 characters are 16 string objects, ~0.8 KB of the chip's
+            # heap for as long as the formation stands; one string is a third of that.
+            ids = f[_F_IDS]
+            f = (f[0], f[1], ",".join(ids), f[3], f[4], f[5], f[6], f[7])  # msg's _F_* order, _F_IDS the 3rd
+            if f[_F_KIND] == "stop" or f != self.formation:  # whole tuples: seq, kind, ids and every number
+                self._apply(f, ids)
             return
         # A pose: kept as bytes until the step (flush), so a rover that falls behind parses only the newest pose
         # of each rover, not every one that queued up. A rover never seen before is parsed at once.
@@ -246,8 +275,9 @@ class Rover:
         """The link calls this after each CONNACK, before it subscribes: forget the formation and halt (idle) until
         the broker's retained formation arrives (with the new subscription), whatever was applied before."""
         self.formation = None
-        self._kind = fm.STOP
-        self._member_ids = []
+        self._kind = _STOP
+        self._members = ""
+        self._n_members = 0
         self._my_index = -1
         self._law_for = None
         # A pose from before this connection is not driven on: a broker that crashed and came back at once (as
@@ -269,25 +299,24 @@ class Rover:
         if p is None:
             self.rejected += 1
             return
-        slot = self._slot(p[msg.P_ID])
+        slot = self._slot(p[_P_ID])
         if slot < 0 or topic != self._topics[slot]:
             self.rejected += 1  # no room, or a pose published on another rover's topic
             return
         self.received += 1
-        self._x[slot] = p[msg.P_X]
-        self._y[slot] = p[msg.P_Y]
-        self._theta[slot] = p[msg.P_THETA]
-        self._seq[slot] = p[msg.P_SEQ]
+        self._x[slot] = p[_P_X]
+        self._y[slot] = p[_P_Y]
+        self._seq[slot] = p[_P_SEQ]
         if slot == self._me:
-            stamp = (at - self.clock.own(at, p[msg.P_T])) & (_TICKS_PERIOD - 1)
+            stamp = (at - self.clock.own(at, p[_P_T])) & (_TICKS_PERIOD - 1)
             self._stamp[slot] = stamp
             self._news = True
             self._own_since_connect = True
             # Its heading is fused at its age when captured, as of the last step (the turn history ends there).
             age = 0 if self._last_step is None else tdiff(self._last_step, stamp)
-            self.heading.measured(p[msg.P_X], p[msg.P_Y], p[msg.P_THETA], (age if age > 0 else 0) + self.latency_ms)
+            self.heading.measured(p[_P_X], p[_P_Y], p[_P_THETA], (age if age > 0 else 0) + self.latency_ms)
         else:
-            self._stamp[slot] = (at - self.clock.excess(at, p[msg.P_T])) & (_TICKS_PERIOD - 1)
+            self._stamp[slot] = (at - self.clock.excess(at, p[_P_T])) & (_TICKS_PERIOD - 1)
 
     def _slot(self, rid):
         free = -1
@@ -313,17 +342,19 @@ class Rover:
         self._resolve_members()
         return s
 
-    def _apply(self, f):
+    def _apply(self, f, given):
+        # f: the formation as kept (ids joined); given: its ids as parsed.
         self.formation = f
-        self._kind = msg.KINDS.index(f[msg.F_KIND])
+        self._kind = msg.KINDS.index(f[_F_KIND])
         ids = []
-        for rid in f[msg.F_IDS]:
+        for rid in given:
             if rid not in ids:  # a repeated id would pull the rover towards itself: first place wins
                 ids.append(rid)
-        self._member_ids = ids
-        self._my_index = ids.index(self.id) if self.id in ids else -1
-        spacing = f[msg.F_SPACING]
-        side = f[msg.F_SIDE]
+        self._members = f[_F_IDS] if len(ids) == len(given) else ",".join(ids)
+        self._n_members = len(ids)
+        self._my_index = self._member_index(self.id)
+        spacing = f[_F_SPACING]
+        side = f[_F_SIDE]
         # The rendezvous ring: as tight as the safety distance allows, with a gap that grows with the number of
         # rovers that must slide round each other to form it (3: safety + 1 gap; 6: safety + 4 gaps).
         n = len(ids)
@@ -338,16 +369,30 @@ class Rover:
             self._by,
         )
         self._resolve_members()
-        self.log("formation", f[msg.F_SEQ], f[msg.F_KIND], ids)
+        self.log("formation", f[_F_SEQ], f[_F_KIND], ids)
+
+    def _member_index(self, rid):
+        # Where rid stands among the members (the place in the formation's ids, each counted once), -1 if not there.
+        # (No string is built: this runs for every rover seen when the formation changes.)
+        ids = self._members
+        n = len(rid)
+        at = ids.find(rid)
+        while at >= 0:
+            end = at + n
+            if (at == 0 or ids.startswith(",", at - 1)) and (end == len(ids) or ids.startswith(",", end)):
+                return ids.count(",", 0, at)
+            at = ids.find(rid, at + 1)
+        return -1
 
     def _resolve_members(self):
-        for k in range(len(self._member_ids)):
-            rid = self._member_ids[k]
+        # Each member's slot (-1: no pose from it yet); runs when a formation is applied or a new rover is seen.
+        for k in range(self._n_members):
             self._member_slot[k] = -1
-            for s in range(MAX_ROVERS):
-                if self._ids[s] == rid:
+        for s in range(MAX_ROVERS):
+            if self._ids[s] is not None:
+                k = self._member_index(self._ids[s])
+                if k >= 0:
                     self._member_slot[k] = s
-                    break
 
     # -- the step ------------------------------------------------------------------------------------------------
     def step(self, now_ms):
@@ -359,7 +404,7 @@ class Rover:
         self._cap_ages(now_ms)
         try:
             k = self._scale
-            self.heading.moved(self.command[fm.C_V] * k, self.command[fm.C_W] * k, dt_s, 0.5)
+            self.heading.moved(self.command[_C_V] * k, self.command[_C_W] * k, dt_s, 0.5)
             connected = True
             if self.link is not None:
                 connected = self.link.poll(now_ms)
@@ -402,7 +447,7 @@ class Rover:
     def _control(self, now_ms, connected):
         if not connected:
             return self._stop(HALT_DISCONNECTED)
-        if self.formation is not None and self._kind == fm.STOP:
+        if self.formation is not None and self._kind == _STOP:
             return self._stop(HALT_STOP)  # every rover, listed or not
         if self.formation is None or self._my_index < 0:
             return self._stop(HALT_IDLE)
@@ -428,7 +473,7 @@ class Rover:
                 k = (self.stale_ms - age) / (self.stale_ms - self.fade_ms)
                 self._scale = k
                 c = self.command
-                self.motors.drive(c[fm.C_LEFT] * k, c[fm.C_RIGHT] * k)
+                self.motors.drive(c[_C_LEFT] * k, c[_C_RIGHT] * k)
             return
         self._scale = 1.0
         self._news = False
@@ -450,18 +495,18 @@ class Rover:
         # Members with a fresh pose take part in the consensus; the others are only obstacles.
         m = 0
         i = -1
-        for k in range(len(self._member_ids)):
+        for k in range(self._n_members):
             s = self._member_slot[k]
             if self._fresh(s, now_ms, self.stale_ms):
                 if k == self._my_index:
                     i = m
                 self._px[m] = self._x[s]
                 self._py[m] = self._y[s]
-                self._pbx[m] = self._bx[k]
-                self._pby[m] = self._by[k]
+                self._cx[m] = self._bx[k]
+                self._cy[m] = self._by[k]
                 m += 1
         f = self.formation
-        fm.orient(self._kind, f[msg.F_THETA], self._px, self._py, self._pbx, self._pby, m, self._cx, self._cy)
+        fm.orient(self._kind, f[_F_THETA], self._px, self._py, self._cx, self._cy, m, self._cx, self._cy)
         self.law.command(
             i,
             self._px,
@@ -469,8 +514,8 @@ class Rover:
             self._cx,
             self._cy,
             m,
-            f[msg.F_X],
-            f[msg.F_Y],
+            f[_F_X],
+            f[_F_Y],
             self._qx,
             self._qy,
             nq,
@@ -478,20 +523,20 @@ class Rover:
             self.heading.spread,
             self.command,
         )
-        self.motors.drive(self.command[fm.C_LEFT], self.command[fm.C_RIGHT])
+        self.motors.drive(self.command[_C_LEFT], self.command[_C_RIGHT])
         if self.halt != HALT_NONE:
-            self.log("driving", f[msg.F_KIND])
+            self.log("driving", f[_F_KIND])
         self.halt = HALT_NONE
 
     def _drive_straight(self, speed):
         law = self.law
         left, right = fm.wheels(speed, 0.0, law.radius, law.track, law.max_wheel)
         c = self.command
-        c[fm.C_UX] = 0.0
-        c[fm.C_UY] = 0.0
-        c[fm.C_V], c[fm.C_W] = fm.body_motion(left, right, law.radius, law.track)
-        c[fm.C_LEFT] = left
-        c[fm.C_RIGHT] = right
+        c[_C_UX] = 0.0
+        c[_C_UY] = 0.0
+        c[_C_V], c[_C_W] = fm.body_motion(left, right, law.radius, law.track)
+        c[_C_LEFT] = left
+        c[_C_RIGHT] = right
         self.motors.drive(left, right)
 
     # -- status --------------------------------------------------------------------------------------------------
@@ -501,7 +546,7 @@ class Rover:
         halt = HALT_DISCONNECTED if state == "offline" else self.halt
         if f is None:
             return msg.rover_status(self.id, state, halt, None, None, VERSION)
-        return msg.rover_status(self.id, state, halt, f[msg.F_KIND], f[msg.F_SEQ], VERSION)
+        return msg.rover_status(self.id, state, halt, f[_F_KIND], f[_F_SEQ], VERSION)
 
     def _report(self, now_ms):
         # Published at once when the formation applied changes (so a stop is confirmed in the step that applied it),

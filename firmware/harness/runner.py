@@ -447,11 +447,11 @@ def largest_formation(ids: Sequence[str] = ("red", "green", "blue")) -> bytes:
             f'"spacing":{num},"side":{num},"x":-{9999.99:.{digits}f},"y":-{9999.99:.{digits}f},'
             f'"theta":-{3.1415:.{digits}f}}}'
         ).encode()
-        if len(doc) <= msg.FORMATION_MAX_BYTES:
+        if len(doc) <= msg._FORMATION_MAX_BYTES:
             break
         digits -= 1
-    doc = doc.replace(b'"v":1,', b'"v":1' + b" " * (msg.FORMATION_MAX_BYTES - len(doc)) + b",", 1)
-    assert len(doc) == msg.FORMATION_MAX_BYTES and msg.parse_formation(doc) is not None, doc
+    doc = doc.replace(b'"v":1,', b'"v":1' + b" " * (msg._FORMATION_MAX_BYTES - len(doc)) + b",", 1)
+    assert len(doc) == msg._FORMATION_MAX_BYTES and msg.parse_formation(doc) is not None, doc
     return doc
 
 

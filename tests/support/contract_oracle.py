@@ -26,7 +26,7 @@ MAX_BYTES = {"pose": messages.POSE_MAX_BYTES, "formation": messages.FORMATION_MA
 POSE_FIELDS = ("id", "seq", "frame", "t", "x", "y", "theta", "vx", "vy", "q")
 FORMATION_FIELDS = ("seq", "kind", "ids", "spacing", "side", "x", "y", "theta")
 INT_FIELDS = ("v", "seq", "frame")
-T_WRAP = 1 << 26  # the firmware keeps a pose's t as whole ms modulo this (msg.T_WRAP)
+T_WRAP = 1 << 26  # the firmware keeps a pose's t as whole ms modulo this (msg._T_WRAP)
 
 
 @cache

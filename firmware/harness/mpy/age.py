@@ -16,7 +16,7 @@ def t_ms(payloads):
     out = []
     for hexed in payloads:
         p = msg.parse_pose(binascii.unhexlify(hexed))
-        out.append(None if p is None else p[msg.P_T])
+        out.append(None if p is None else p[3])  # t_ms (msg._P_T, a private const: no attribute in MicroPython)
     return out
 
 

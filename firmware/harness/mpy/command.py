@@ -40,10 +40,10 @@ class Link:
 
 
 def _row(t, r, link):
-    f = r.formation
-    kind = None if f is None else f[msg.F_KIND]
-    seq = None if f is None else f[msg.F_SEQ]
-    spacing = None if f is None else f[msg.F_SPACING]
+    f = r.formation  # msg's _F_SEQ 0, _F_KIND 1, _F_SPACING 3 (private consts: no attributes in MicroPython)
+    kind = None if f is None else f[1]
+    seq = None if f is None else f[0]
+    spacing = None if f is None else f[3]
     sent = [p.decode() for p in link.sent]
     link.sent = []
     return json.dumps([t, r.halt, kind, seq, spacing, r.motors.left, r.motors.right, sent])
