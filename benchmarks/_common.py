@@ -97,10 +97,22 @@ def mosquitto_running(line: bytes) -> bool:
     return b"mosquitto version" in line and line.rstrip().endswith(b" running")
 
 
-def start_mosquitto(conf: Path, log: Path, timeout_s: float = 10.0) -> subprocess.Popen[bytes]:
+def start_mosquitto(
+    conf: Path, log: Path, timeout_s: float = 10.0, open_files: int | None = None
+) -> subprocess.Popen[bytes]:
     """``mosquitto -c conf`` (its config logging to stderr), its log appended to ``log``; returns once it says it
-    is running. :class:`RuntimeError` with the log when it does not (a taken port, a bad line in ``conf``)."""
-    proc = subprocess.Popen([MOSQUITTO, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    is running. :class:`RuntimeError` with the log when it does not (a taken port, a bad line in ``conf``).
+    ``open_files``: its file descriptor limit (systemd gives a service 1024)."""
+
+    def limit_files() -> None:
+        if open_files is not None:
+            import resource
+
+            resource.setrlimit(resource.RLIMIT_NOFILE, (open_files, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))
+
+    proc = subprocess.Popen(
+        [MOSQUITTO, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=limit_files
+    )
     assert proc.stderr is not None
     if not ReadyLine(proc.stderr, log, mosquitto_running).wait(timeout_s):
         stop_process(proc)

@@ -164,7 +164,9 @@ def test_with_tls_each_board_has_its_own_ca_and_the_central_bridge_holds_its_cli
     assert bridges["cam2"]["address"] == ["cam2.lab:1999"]
     for board in BOARDS:
         conf = (files.boards[board] / "mosquitto.conf").read_text()
-        assert re.search(r"^listener 8883 0\.0\.0\.0\nuse_username_as_clientid true\ncafile ", conf, re.M)
+        assert re.search(
+            r"^listener 8883 0\.0\.0\.0\nmax_connections 64\nuse_username_as_clientid true\ncafile ", conf, re.M
+        )
         assert "require_certificate true" in conf
         assert bridges[board]["bridge_certfile"] == [
             str(tmp_path.resolve() / "central" / f"bridge-{board}" / "client.crt")

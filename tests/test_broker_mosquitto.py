@@ -2,15 +2,20 @@
 
 from __future__ import annotations
 
+import resource
+import selectors
+import socket
 import ssl
+import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import cast
 
 import pytest
 
 from edge.broker import BrokerFiles, read_credentials, write_mosquitto_config, write_password_file
 from edge.broker.access import MAX_PACKET_BYTES, MAX_PAYLOAD_BYTES
-from edge.broker.mosquitto import LOCAL_PORT, TLS_PORT
+from edge.broker.mosquitto import LOCAL_PORT, NETWORK_MAX_CONNECTIONS, TLS_PORT
 from edge.config import BrokerTarget
 from edge.messages import FORMATION_TOPIC, edge_status_topic, rover_status_topic
 from edge.mqttclient import TlsFiles
@@ -214,3 +219,64 @@ def test_mosquitto_accepts_the_python_hash(tmp_path: Path) -> None:
             assert right.accepted
         with Probe("127.0.0.1", broker.port, user="edge", password="pa$$word with spaces") as wrong:
             assert not wrong.accepted
+
+
+def test_silent_sockets_from_the_network_leave_the_edge_room_on_its_own_listener(tmp_path: Path) -> None:
+    """Mosquitto never closes a socket that sends no CONNECT, and under systemd it has 1024 file descriptors: a
+    host opening more silent sockets than that on 1883 took them all, and the edge (its reconnection, the
+    dashboard's STOP, `edge-ips formation`: new connections to the loopback listener) was refused."""
+    files = write_mosquitto_config(tmp_path / "conf", rovers=ROVERS, edge_id=EDGE_ID)
+    creds = read_credentials(files.credentials)
+    flood = 1100  # more than the 1024 descriptors systemd gives the service
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft < flood + 200:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, flood + 200), hard))  # this process holds the flood
+    silent: list[socket.socket] = []
+    try:
+        with Mosquitto(tmp_path / "run", conf_path=files.conf, open_files=1024) as broker:
+            for _ in range(flood):
+                try:
+                    silent.append(socket.create_connection(("127.0.0.1", broker.ports[1883]), timeout=2))
+                except OSError:
+                    break  # the broker's queue of sockets to accept is full: it accepts no more
+            beyond = len(silent) - NETWORK_MAX_CONNECTIONS
+            closed = _closed_by_peer(silent, beyond)
+            assert beyond > 0 and len(closed) >= beyond  # beyond the cap: closed as they arrive
+            for sock in closed:  # (this process's own descriptors: paho's select() takes none above 1023)
+                sock.close()
+            target = BrokerTarget(
+                False, "127.0.0.1", broker.ports[LOCAL_PORT], username="edge", password=creds.edge.password
+            )
+            publisher = MqttPublisher(target, edge_id=EDGE_ID, rovers=ROVERS)
+            publisher.start()
+            try:
+                assert publisher.wait_connected(30)  # the edge's listener still has room
+            finally:
+                publisher.stop()
+    finally:
+        for sock in silent:
+            sock.close()
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+
+
+def _closed_by_peer(socks: list[socket.socket], wanted: int, guard_s: float = 60.0) -> list[socket.socket]:
+    """Those of ``socks`` the broker closed, once ``wanted`` of them are (``guard_s``: a failure guard)."""
+    selector = selectors.DefaultSelector()  # epoll: more sockets than select() takes
+    for sock in socks:
+        sock.setblocking(False)
+        selector.register(sock, selectors.EVENT_READ)
+    closed: list[socket.socket] = []
+    deadline = time.monotonic() + guard_s
+    while len(closed) < wanted and time.monotonic() < deadline:
+        for key, _ in selector.select(timeout=deadline - time.monotonic()):
+            try:
+                data = cast(socket.socket, key.fileobj).recv(1)
+            except BlockingIOError:
+                continue
+            except OSError:
+                data = b""
+            if data == b"":
+                closed.append(cast(socket.socket, key.fileobj))
+                selector.unregister(key.fileobj)
+    selector.close()
+    return closed

@@ -58,7 +58,13 @@ from edge.broker.access import (
     rover_rights,
 )
 from edge.broker.credentials import new_password
-from edge.broker.mosquitto import LOCAL_PASSWD, login_lines, write_password_file
+from edge.broker.mosquitto import (
+    LOCAL_PASSWD,
+    NETWORK_MAX_CONNECTIONS,
+    TLS_MAX_CONNECTIONS,
+    login_lines,
+    write_password_file,
+)
 from edge.broker.tls import tls_listener_lines, write_tls_files
 from edge.errors import BrokerError
 from edge.fusion.lease import LEASE_TOPIC
@@ -179,8 +185,9 @@ def _listeners(where: Path, port: int, local_port: int, tls_port: int | None, wh
         f"listener {local_port} 127.0.0.1",
         *login_lines(where, LOCAL_PASSWD),
         "",
-        f"# {who}: a client's id is its user name.",
+        f"# {who}: a client's id is its user name; at most so many sockets (file descriptors left for the edge's).",
         f"listener {port} 0.0.0.0",
+        f"max_connections {NETWORK_MAX_CONNECTIONS}",
         "use_username_as_clientid true",
         *login_lines(where, "passwd"),
         "",
@@ -188,7 +195,13 @@ def _listeners(where: Path, port: int, local_port: int, tls_port: int | None, wh
     if tls_port is not None:
         lines += [
             "# TLS: only clients holding client.crt (signed by ca.crt) connect.",
-            *[line for line in tls_listener_lines(tls_port, "0.0.0.0", where, clientid_from_username=True) if line],
+            *[
+                line
+                for line in tls_listener_lines(
+                    tls_port, "0.0.0.0", where, clientid_from_username=True, max_connections=TLS_MAX_CONNECTIONS
+                )
+                if line
+            ],
             *login_lines(where, "passwd"),
             "",
         ]

@@ -15,7 +15,12 @@ Listeners, and why there are two (four with TLS):
   ``use_username_as_clientid true``: with the viewer's password and the certificate one can read, not take an edge
   client's session (which on 8883 it could). Rovers never use TLS.
 
-Each listener has its own password file (``per_listener_settings true``). Anonymous access is off everywhere;
+Each listener has its own password file (``per_listener_settings true``). The network listeners keep at most
+:data:`NETWORK_MAX_CONNECTIONS` (1883) and :data:`TLS_MAX_CONNECTIONS` (each TLS one) sockets: Mosquitto never
+closes a socket that sends no CONNECT, and under systemd it has 1024 file descriptors, so a host on the network
+opening a thousand silent sockets took them all, and the edge's own clients (its reconnection, the dashboard's STOP,
+``edge-ips formation``: each a new connection to the loopback listener) were refused; with the caps they keep
+room. Anonymous access is off everywhere;
 the ACL is :meth:`edge.broker.access.Policy.acl_text`. Packets larger than
 :data:`~edge.broker.access.MAX_PACKET_BYTES` disconnect their sender, payloads larger than the contract's largest
 ``x-max-bytes`` are dropped.
@@ -35,6 +40,8 @@ from edge.private_files import private_dir, write_private
 
 LOCAL_PORT = 1884
 TLS_PORT = 8883
+NETWORK_MAX_CONNECTIONS = 512  # rovers, viewers, laptops on 1883: far more than a fleet (64 rovers at most)
+TLS_MAX_CONNECTIONS = 64  # on each TLS listener
 LOCAL_PASSWD = "passwd-local"  # the local listener's logins: the edge's only
 TLS_PASSWD = "passwd-tls"  # the edge's TLS listener's: the edge's only
 TLS_VIEWER_PASSWD = "passwd-tls-viewer"  # the viewer's TLS listener's (tls port + 1): the viewer's only
@@ -98,8 +105,10 @@ def _conf_text(
         *login_lines(where, LOCAL_PASSWD),
         "",
         "# Rovers and the rest of the network. A client's id is its user name here, so no login can take the",
-        "# session of another user's client (a rover's password cannot disconnect the edge).",
+        "# session of another user's client (a rover's password cannot disconnect the edge). At most so many",
+        "# sockets: silent ones from the network must leave file descriptors for the edge's listener.",
         f"listener {port} {bind}",
+        f"max_connections {NETWORK_MAX_CONNECTIONS}",
         "use_username_as_clientid true",
         *login_lines(where, "passwd"),
         "",
@@ -109,7 +118,7 @@ def _conf_text(
             "# TLS for the edge on other machines: only clients with client.crt (signed by ca.crt) connect, with",
             "# the edge's login; its clients share it, so they keep their ids. ESP8266 rovers stay on the plain",
             "# listener (docs/deploy.md).",
-            *[line for line in tls_listener_lines(tls_port, bind, where) if line],
+            *[line for line in tls_listener_lines(tls_port, bind, where, max_connections=TLS_MAX_CONNECTIONS) if line],
             *login_lines(where, TLS_PASSWD),
             "",
         ]
@@ -117,7 +126,13 @@ def _conf_text(
         lines += [
             "# TLS for laptops watching the topics: the certificate and the viewer's login; a client's id is its",
             "# user name here, so the viewer's password cannot take an edge client's session.",
-            *[line for line in tls_listener_lines(tls_port + 1, bind, where, clientid_from_username=True) if line],
+            *[
+                line
+                for line in tls_listener_lines(
+                    tls_port + 1, bind, where, clientid_from_username=True, max_connections=TLS_MAX_CONNECTIONS
+                )
+                if line
+            ],
             *login_lines(where, TLS_VIEWER_PASSWD),
             "",
         ]

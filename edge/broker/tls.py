@@ -117,12 +117,15 @@ def write_tls_files(out_dir: Path, names: Sequence[str], *, valid_days: int = VA
     return paths
 
 
-def tls_listener_lines(port: int, bind: str, where: Path, *, clientid_from_username: bool = False) -> list[str]:
+def tls_listener_lines(
+    port: int, bind: str, where: Path, *, clientid_from_username: bool = False, max_connections: int | None = None
+) -> list[str]:
     """Mosquitto lines of a TLS listener that only clients holding a certificate signed by ``where/ca.crt`` reach
     (:func:`write_tls_files` wrote the files into ``where``); ``clientid_from_username``: a client's id is its
-    user name there."""
+    user name there; ``max_connections``: sockets it keeps open at most (silent ones included)."""
     return [
         f"listener {port} {bind}",
+        *([f"max_connections {max_connections}"] if max_connections is not None else []),
         *(["use_username_as_clientid true"] if clientid_from_username else []),
         f"cafile {where / 'ca.crt'}",
         f"certfile {where / 'server.crt'}",

@@ -42,6 +42,7 @@ class Mosquitto:
     host: str = "127.0.0.1"
     proc: subprocess.Popen[bytes] | None = None
     ports: dict[int, int] = field(default_factory=dict)  # a conf_path's listener port -> this instance's
+    open_files: int | None = None  # the process's file descriptor limit (None: this process's)
 
     def _write_config(self) -> Path:
         self.workdir.mkdir(parents=True, exist_ok=True)
@@ -84,7 +85,7 @@ class Mosquitto:
     def start(self, timeout_s: float = 10.0) -> Mosquitto:
         """Start the process and wait for its readiness line (logged once its listeners are open); ``timeout_s``
         only guards against a broker that never says it."""
-        self.proc = start_mosquitto(self._write_config(), self.workdir / "mosquitto.log", timeout_s)
+        self.proc = start_mosquitto(self._write_config(), self.workdir / "mosquitto.log", timeout_s, self.open_files)
         return self
 
     def stop(self) -> None:
