@@ -110,9 +110,10 @@ class Listener:
 
 
 def command(http_port: int, kind: str) -> dict[str, Any]:
+    """A formation as the page posts it; a STOP on the page's STOP route (``/api/stop``), as its button does."""
     body = json.dumps({"kind": kind, "ids": [] if kind == "stop" else list(ROVERS)}).encode()
     request = urllib.request.Request(
-        f"http://127.0.0.1:{http_port}/api/formation",
+        f"http://127.0.0.1:{http_port}/api/{'stop' if kind == 'stop' else 'formation'}",
         data=body,
         headers={"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"},
     )
