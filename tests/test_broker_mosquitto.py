@@ -221,6 +221,7 @@ def test_mosquitto_accepts_the_python_hash(tmp_path: Path) -> None:
             assert not wrong.accepted
 
 
+@pytest.mark.slow
 def test_silent_sockets_from_the_network_leave_the_edge_room_on_its_own_listener(tmp_path: Path) -> None:
     """Mosquitto never closes a socket that sends no CONNECT, and under systemd it has 1024 file descriptors: a
     host opening more silent sockets than that on 1883 took them all, and the edge (its reconnection, the
