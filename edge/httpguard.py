@@ -32,6 +32,8 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Literal
 
+from edge.log_budget import LogBudget
+
 log = logging.getLogger("edge.http")
 
 Access = Literal["open", "read", "control", "stop"]
@@ -179,6 +181,13 @@ class FailureLimiter:
         self.refused += 1
         return entry.locked_until - now
 
+    def honoured(self, address: str) -> None:
+        """A request :meth:`locked_for` counted as refused went through after all (the STOP): not a refusal."""
+        entry = self._addresses.get(address)
+        if entry is not None and entry.refused_while_locked > 0:
+            entry.refused_while_locked -= 1
+            self.refused -= 1
+
     def may_check_stop(self, address: str, now: float) -> bool:
         """Whether a STOP from ``address``, locked out, may have its token checked now (at most once per
         ``STOP_CHECK_S``: guessing through the STOP stays slow)."""
@@ -219,33 +228,13 @@ class FailureLimiter:
         return count
 
 
-class _LogBudget:
-    """At most ``per_minute`` lines a minute; what is left out is counted and said in the next line."""
-
-    def __init__(self, per_minute: int) -> None:
-        self.per_minute = per_minute
-        self._minute = -1.0
-        self._used = 0
-        self.skipped = 0
-
-    def take(self, now: float) -> bool:
-        minute = now // 60.0
-        if minute != self._minute:
-            self._minute, self._used = minute, 0
-        if self._used < self.per_minute:
-            self._used += 1
-            return True
-        self.skipped += 1
-        return False
-
-
 class AccessGuard:
     """Checks a request's token for its route's access level, logging and limiting wrong ones."""
 
     def __init__(self, tokens: Tokens, limiter: FailureLimiter | None = None) -> None:
         self.tokens = tokens
         self.limiter = limiter or FailureLimiter()
-        self._log_budget = _LogBudget(LOG_LINES_PER_MINUTE)
+        self._log_budget = LogBudget(LOG_LINES_PER_MINUTE)
 
     def check(
         self,
@@ -268,8 +257,11 @@ class AccessGuard:
         given = presented_token(method, headers, query) if access == "read" else _bearer(headers)
         locked = self.limiter.locked_for(client, now)
         if locked > 0:
+            if access == "stop" and given and _same(given, self.tokens.viewer):
+                return Refusal(403, "this token is read-only: commands need the dashboard's control token")
             if access == "stop" and given and self.limiter.may_check_stop(client, now):
                 if _same(given, self.tokens.control):
+                    self.limiter.honoured(client)
                     log.warning(
                         "http: a STOP from %s, locked out for wrong tokens, has the right token: honoured", client
                     )
@@ -292,7 +284,7 @@ class AccessGuard:
         count, locked = self.limiter.failed(client, now)
         if not self._log_budget.take(now):
             return
-        skipped, self._log_budget.skipped = self._log_budget.skipped, 0
+        skipped = self._log_budget.left_out()
         also = f"; {skipped} more wrong tokens (all addresses) not logged" if skipped else ""
         refused = self.limiter.take_refused(client)
         earlier = f"; {refused} requests refused while it was locked out" if refused else ""

@@ -49,7 +49,7 @@ def repeated_ids(ids: Sequence[str]) -> list[str]:
 def id_problem(ids: Sequence[str], what: str = "rover id") -> str | None:
     """The rule of every list of rover ids (configuration, enrolment, broker logins, formations, the simulator):
     each one an id (:data:`ID_PATTERN`, the topic segment), none named twice. What breaks it, or None."""
-    bad = [i for i in ids if not re.match(ID_PATTERN, i)]
+    bad = [i for i in ids if not re.fullmatch(ID_PATTERN, i)]  # fullmatch: "$" alone lets "red\n" through
     if bad:
         return f"{what} {bad[0]!r} is not an id: 1-16 of a-z, 0-9, _ and -"
     twice = repeated_ids(ids)

@@ -334,7 +334,7 @@ def test_silent_sockets_from_a_host_keep_neither_this_machine_nor_other_hosts_ou
 
 
 def test_silent_sockets_from_this_machine_do_not_keep_the_dashboards_stop_out(
-    secured: tuple[EmbeddedBroker, Credentials],
+    secured: tuple[EmbeddedBroker, Credentials], refusals: Refusals
 ) -> None:
     # A process on the board holding sockets without a CONNECT (each dropped only after 10 s, and opened again)
     # filled this machine's room, and every new connection from here (the dashboard's STOP, `edge-ips formation`)
@@ -344,6 +344,7 @@ def test_silent_sockets_from_this_machine_do_not_keep_the_dashboards_stop_out(
     try:
         with Probe("127.0.0.1", broker.port, client_id="edge-ips-stop", **login(creds, "edge")) as edge:
             assert edge.accepted
+        assert refusals.wait_for("no CONNECT yet, closed to make room for one from 127.0.0.1")  # not a timeout's
         silent[0].settimeout(60)  # a guard only: the broker closed it to make room
         assert silent[0].recv(1) == b""
         silent[-1].setblocking(False)

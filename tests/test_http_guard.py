@@ -216,9 +216,12 @@ def test_a_stop_with_the_right_token_goes_through_a_lockout_and_guessing_through
         assert [ask("read", "old-token", k * 1.0) for k in range(5)] == [401] * 5  # the stale tab: locked out
         assert ask("control", CONTROL, 5.0) == 429  # other commands wait out the lockout
         assert ask("read", CONTROL, 5.1) == 429
+        refused = guard.limiter.refused
         assert ask("stop", CONTROL, 5.2) == 200  # the STOP goes through
+        assert guard.limiter.refused == refused  # and is not counted as refused
+        assert ask("stop", VIEWER, 5.3) == 403  # a read-only token is said to be one, as outside a lockout ...
         assert ask("stop", CONTROL, 5.5) == 429  # its token is checked at most once a second while locked out
-        assert ask("stop", CONTROL, 6.3) == 200
+        assert ask("stop", CONTROL, 6.3) == 200  # ... and was no guess: the STOP's checks go on
         failures = guard.limiter.failures
         assert ask("stop", "guess", 7.5) == 429 and guard.limiter.failures == failures + 1  # a guess counts ...
         assert ask("stop", CONTROL, 9.0) == 429  # ... and ends the STOP's checks for this lockout: one guess more

@@ -374,7 +374,7 @@ def test_a_stop_from_a_locked_out_address_with_the_right_token_is_published(edge
     right = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}
     line = json.dumps({"kind": "line", "ids": ["red", "green", "blue"], "spacing": 60}).encode()
     assert send("POST", edge.http_port, "/api/formation", right, stale, line)[0] == 429  # other commands wait
-    status, body = send("POST", edge.http_port, "/api/stop", right, stale)
+    status, body = send("POST", edge.http_port, "/api/stop", right, stale, line)  # the route stops, whatever is posted
     assert status == 200, body
     reply = json.loads(body)
     assert reply["formation"]["kind"] == "stop" and reply["formation"]["ids"] == []  # read back from the broker

@@ -185,6 +185,7 @@ def test_every_encoded_pose_is_valid_and_round_trips(
         ([], None),
         (["red", "Red"], "rover id 'Red' is not an id: 1-16 of a-z, 0-9, _ and -"),
         (["red", "a" * 17], f"rover id '{'a' * 17}' is not an id: 1-16 of a-z, 0-9, _ and -"),
+        (["red\n"], "rover id 'red\\n' is not an id: 1-16 of a-z, 0-9, _ and -"),  # "$" matches before a newline
         (["red", "blue", "red", "blue", "green"], "blue, red named more than once"),
     ],
 )

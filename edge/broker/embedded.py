@@ -20,6 +20,7 @@ import contextlib
 import errno
 import logging
 import threading
+import time
 from collections import Counter, OrderedDict
 from collections.abc import Callable
 from concurrent.futures import Future
@@ -33,6 +34,7 @@ from amqtt.plugins.topic_checking import TopicAccessControlListPlugin
 from edge.broker.access import ANONYMOUS, VIEWER_RIGHTS, Policy, payload_limit
 from edge.broker.gate import OPEN_DESCRIPTION, BrokerAccess, Connect, GateReader, admit_open, is_loopback
 from edge.errors import BrokerError
+from edge.log_budget import LogBudget
 
 log = logging.getLogger("edge.broker")
 
@@ -51,33 +53,16 @@ class _AmqttLines(logging.Filter):
     at most ``AMQTT_LINES_PER_MINUTE`` lines a minute: amqtt logs an ERROR per protocol violation (fifty CONNECTs
     in a session, fifty lines), so a script on the network could fill the journal."""
 
-    def __init__(self) -> None:
-        super().__init__()
-        self._lock = threading.Lock()
-        self._window_start = -float("inf")
-        self._lines = 0
-        self._left_out = 0
-
-    def reset(self) -> None:
-        """A broker started anew counts anew."""
-        with self._lock:
-            self._window_start, self._lines, self._left_out = -float("inf"), 0, 0
+    budget = LogBudget(AMQTT_LINES_PER_MINUTE)
 
     def filter(self, record: logging.LogRecord) -> bool:
         text = record.getMessage()
         if text == "Broker startup failed" or "messages not broadcasted" in text or "PacketTooLarge" in text:
             return False
-        with self._lock:
-            if record.created - self._window_start >= 60.0:
-                self._window_start, self._lines = record.created, 0
-                if self._left_out:
-                    record.msg = f"%s ({self._left_out} earlier amqtt lines left out)"
-                    record.args = (text,)
-                    self._left_out = 0
-            self._lines += 1
-            if self._lines > AMQTT_LINES_PER_MINUTE:
-                self._left_out += 1
-                return False
+        if not self.budget.take(record.created):
+            return False
+        if left := self.budget.left_out():
+            record.msg, record.args = f"%s ({left} earlier amqtt lines left out)", (text,)
         return True
 
 
@@ -92,15 +77,19 @@ AMQTT_LOGGERS = (
 )
 
 
+REFUSAL_LINES_PER_MINUTE = 20
 _refusals = [0]
+_refusal_lines = LogBudget(REFUSAL_LINES_PER_MINUTE)
 
 
 def refused(what: str) -> None:
-    """Log a refusal; rate-limited, since a client that retries a refused login every second must not flood the
-    journal (the first 20, then every 1000th)."""
+    """Log a refusal: at most ``REFUSAL_LINES_PER_MINUTE`` lines a minute (a client retrying a refused login every
+    second must not flood the journal), the next line written saying how many were left out."""
     _refusals[0] += 1
-    if _refusals[0] <= 20 or _refusals[0] % 1000 == 0:
-        log.warning("embedded broker refused %s (%d refusals so far)", what, _refusals[0])
+    if _refusal_lines.take(time.monotonic()):
+        left = _refusal_lines.left_out()
+        more = f"; {left} not logged" if left else ""
+        log.warning("embedded broker refused %s (%d refusals so far%s)", what, _refusals[0], more)
 
 
 # -- amqtt's plugins ---------------------------------------------------------------------------------------------
@@ -406,7 +395,8 @@ class EmbeddedBroker:
         for name in ("amqtt", "transitions"):
             if logging.getLogger(name).level == logging.NOTSET:
                 logging.getLogger(name).setLevel(logging.WARNING)  # amqtt logs every connection at INFO
-        _amqtt_lines.reset()
+        _AmqttLines.budget.reset()  # a broker started anew counts anew
+        _refusal_lines.reset()
         for name in AMQTT_LOGGERS:
             if _amqtt_lines not in logging.getLogger(name).filters:
                 logging.getLogger(name).addFilter(_amqtt_lines)
