@@ -151,12 +151,15 @@ def test_the_page_shows_each_boards_camera_and_the_rovers_it_sees(
     with chromium() as browser:
         page = browser.new_page()
         page.goto(f"http://127.0.0.1:{port}/?token=seen")
-        page.wait_for_function(
+        # Three frames loaded, and the width of one on show, read in the same step: the page asks for the next frame
+        # 0.1 s after each, and while it comes (or after a fetch that failed on a loaded machine) the image is empty
+        width = page.wait_for_function(
             """() => { const f = document.querySelector('figure.camera[data-board="a"]');
-                       return f && Number(f.dataset.frames || 0) >= 3; }""",
+                       const img = f && f.querySelector('img');
+                       const shown = img && img.complete ? img.naturalWidth : 0;
+                       return Number(f && f.dataset.frames || 0) >= 3 && shown; }""",
             timeout=30_000,
-        )
-        width = page.eval_on_selector('figure.camera[data-board="a"] img', "img => img.naturalWidth")
+        ).json_value()
         assert width == 640  # the board's JPEG, decoded: the token went with it
         page.wait_for_function(
             """() => /r3/.test(document.querySelector('figure.camera[data-board="b"] figcaption').textContent)"""
