@@ -445,7 +445,9 @@ def _stop(b: Boards, cameras: dict[str, PinholeCamera]) -> dict[str, object]:
     off = {
         r["id"]: math.hypot(last[r["id"]].x - r["truth"]["x"], last[r["id"]].y - r["truth"]["y"]) for r in lab_rovers
     }
-    assert max(off.values()) < TRUTH_CM, off
+    # on failure: the lab's truth (heading too: a two-tone centre sits along the heading) and how far the fused
+    # poses strayed from each board's own measurements, to tell a board's error from the fusion's
+    assert max(off.values()) < TRUTH_CM, (off, lab_rovers, _against_measurements(b, t_stop))
     return {"at_rest_after_s": rest, "moved_cm": moved, "off_truth_cm": off}
 
 
