@@ -97,11 +97,13 @@ def grab_configured_frame(config: EdgeConfig) -> NDArray[np.uint8]:
 
 
 def default_tracker_factory(inputs: TrackerInputs) -> Tracker:
-    """The tracking pipeline built from the rovers, the ``[tracker]`` settings and the calibration."""
+    """The tracking pipeline built from the rovers, the ``[tracker]`` settings (``edge_offsets = "auto"`` decided by
+    the opened source) and the calibration."""
     from edge.tracker_config import TrackerConfig
     from edge.trackers.factory import build_tracker
 
-    return build_tracker(TrackerConfig.of(inputs.config.tracker, inputs.config.rovers), inputs.calibration)
+    config = TrackerConfig.of(inputs.config.tracker, inputs.config.rovers).for_source(inputs.info.chroma_spread)
+    return build_tracker(config, inputs.calibration)
 
 
 @dataclass

@@ -138,9 +138,10 @@ color_bgr = [190, 90, 30]
 [tracker]                     # tracking pipeline settings (see docs for the keys); empty = defaults
 # outline_fit = false         # true: one-colour markers' centre from their fitted edges (less camera-
                               # dependent bias) at about 3.5x the tracking time per frame: only on a board with time
-# edge_offsets = false        # true: centres corrected by full edge fits in the camera's encoded chroma, run in
-                              # a worker process (one rover's window every edge_offsets_every = 10 frames): takes
-                              # most of a 4:2:0 webcam's colour-dependent bias out; uses up to one more core
+# edge_offsets = "auto"       # centres corrected by full edge fits in the camera's encoded chroma, run in a worker
+                              # process (one rover's window every edge_offsets_every = 10 frames): takes most of a
+                              # webcam's colour-dependent bias out; uses up to one more core. auto: on for a camera,
+                              # a video or a stream, off for the simulator's uncompressed frames; true / false
 
 [broker]
 url = "embedded"              # embedded (amqtt in this process), mqtt://[user:pass@]host:port or mqtts://host:port

@@ -218,7 +218,9 @@ def open_track_job(video: Path, calibration: Path, config: TrackerConfig, backgr
     try:
         mapping = load_plane_mapping(calibration, frames.size)
         empty = read_background(background, frames.size) if background is not None else None
-        # the edge fits (edge_offsets) in the frame loop: a video's poses come out the same on every run
+        # a video file's frames came through a codec (edge_offsets auto: on); the edge fits in the frame loop, so a
+        # video's poses come out the same on every run
+        config = config.for_source(chroma_spread=True)
         fits = InlineFits(config.edge_offsets_every) if config.edge_offsets else None
         tracker = build_tracker(config, mapping, empty, fits=fits)
     except BaseException:

@@ -89,7 +89,7 @@ class Pipeline:
         self._nominal_levels = [math.hypot(*chroma_of_bgr(c)[:2]) for c in colors]
         self._empty_scene = background
         self.offsets: CentreOffsets | None = None
-        if config.edge_offsets:
+        if config.edge_offsets is True:  # "auto" is decided by who knows the source (TrackerConfig.for_source)
             self.offsets = CentreOffsets(fits if fits is not None else ProcessFits(config.edge_offsets_every))
         self.reset()
 

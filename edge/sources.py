@@ -48,6 +48,9 @@ class SourceInfo:
     height_px: int
     fps: float
     description: str
+    # the frames came through a colour path that spreads the chroma: a camera's (demosaicing, 4:2:2 or 4:2:0
+    # sampling, JPEG) or a codec's; what the ``edge_offsets`` tracker setting's ``auto`` follows
+    chroma_spread: bool = True
 
 
 @runtime_checkable
@@ -311,7 +314,8 @@ class StreamSource(_OpenCvSource):
 
 class MemorySource:
     """Frames from memory, in order, optionally paced at ``fps`` (in real time): for tests and pre-rendered clips.
-    Frames are stamped by ``clock``."""
+    Frames are stamped by ``clock``; ``chroma_spread``: whether they came through a camera's or a codec's colour
+    path (:class:`SourceInfo`)."""
 
     def __init__(
         self,
@@ -321,10 +325,12 @@ class MemorySource:
         loop: bool = False,
         realtime: bool = False,
         clock: Clock = SYSTEM_CLOCK,
+        chroma_spread: bool = True,
     ) -> None:
         if not images:
             raise SourceError("memory source: no frames")
         self.images = images
+        self.chroma_spread = chroma_spread
         self.fps, self.loop, self.realtime = fps, loop, realtime
         self.clock = clock
         self._index = 0
@@ -333,7 +339,9 @@ class MemorySource:
     def open(self) -> SourceInfo:
         h, w = self.images[0].shape[:2]
         self._next_due = time.monotonic()
-        return SourceInfo(w, h, self.fps, f"memory: {len(self.images)} frames {w}x{h}@{self.fps:g}")
+        return SourceInfo(
+            w, h, self.fps, f"memory: {len(self.images)} frames {w}x{h}@{self.fps:g}", chroma_spread=self.chroma_spread
+        )
 
     def read(self) -> Frame | None:
         if self._index >= len(self.images) and not self.loop:

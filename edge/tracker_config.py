@@ -24,6 +24,11 @@ Channel = Annotated[int, Field(ge=0, le=255)]
 ColorBgr = tuple[Channel, Channel, Channel]
 
 
+# the words an environment override may spell ``edge_offsets`` with (TOML has its own true and false)
+_WORDS: dict[str, bool | str] = {"true": True, "yes": True, "on": True, "1": True, "auto": "auto"}
+_WORDS.update({"false": False, "no": False, "off": False, "0": False})
+
+
 class RoverConfig(BaseModel):
     """One rover to track: its id (the topic name) and its marker colour."""
 
@@ -140,12 +145,14 @@ class TrackerSettings(BaseModel):
         "coverage centroid: less colour-dependent bias on some cameras, but about 3.5x the tracking time per frame; a "
         "fitted marker skips the area and shape checks (its edges showed its size).",
     )
-    edge_offsets: bool = Field(
-        default=False,
+    edge_offsets: bool | Literal["auto"] = Field(
+        default="auto",
         description="Move each one-colour marker's coverage centre by the offset that full fits of its edges in the "
         "camera's encoded chroma find (edge.centre_offsets: a fit of one rover's window every edge_offsets_every "
         "frames, in a worker process): takes out the bias a stream's chroma subsampling (4:2:0) puts in the centre. "
-        "A rover's centre moves once it has three fits.",
+        "A rover's centre moves once it has three fits. auto: on where the frames come through a camera's or a "
+        "codec's colour path (a camera, a video file, a network stream, a simulated scene with compression), off "
+        "for uncompressed simulated frames (edge_offsets_on).",
     )
     edge_offsets_every: int = Field(
         default=10, ge=1, le=1000, description="Frames between two edge fits (each one rover's window, in turn)."
@@ -160,6 +167,15 @@ class TrackerSettings(BaseModel):
     fps: float = Field(
         default=30.0, gt=0.0, le=240.0, description="Frame rate assumed when frames carry no usable time."
     )
+
+    @field_validator("edge_offsets", mode="before")
+    @classmethod
+    def _true_false_or_auto(cls, value: object) -> object:
+        if isinstance(value, bool) or value == "auto":
+            return value
+        if isinstance(value, str) and value.strip().lower() in _WORDS:  # an EDGE_IPS_TRACKER__EDGE_OFFSETS override
+            return _WORDS[value.strip().lower()]
+        raise ValueError(f'must be true, false or "auto" (got {value!r})')
 
     @field_validator("acquire_area_range", "level_range")
     @classmethod
@@ -192,6 +208,18 @@ class TrackerConfig(TrackerSettings):
     def of(cls, settings: TrackerSettings, rovers: Sequence[RoverConfig]) -> TrackerConfig:
         """``settings`` with ``rovers`` (the appliance's ``[tracker]`` section and ``[[rovers]]`` tables)."""
         return cls(rovers=tuple(rovers), **dict(settings))
+
+    def for_source(self, chroma_spread: bool) -> TrackerConfig:
+        """This configuration with ``edge_offsets`` decided for a source (:func:`edge_offsets_on`): the pipeline
+        takes ``auto`` it is handed as off, not knowing where its frames come from."""
+        return self.model_copy(update={"edge_offsets": edge_offsets_on(self.edge_offsets, chroma_spread)})
+
+
+def edge_offsets_on(setting: bool | Literal["auto"], chroma_spread: bool) -> bool:
+    """Whether the ``edge_offsets`` setting turns the edge fits on for a source whose frames have (``chroma_spread``)
+    or have not been through a colour path that spreads the chroma (``edge.sources.SourceInfo.chroma_spread``):
+    ``auto`` follows the source, ``true`` and ``false`` are what they say."""
+    return chroma_spread if setting == "auto" else bool(setting)
 
 
 def require_unique_ids(rovers: RoversT) -> RoversT:

@@ -126,7 +126,11 @@ class SimSource:
         cam = self.setup.camera
         pacing = "real time" if self.realtime else "as fast as possible"
         return SourceInfo(
-            cam.width_px, cam.height_px, self.setup.fps, f"sim:{self.scenario} seed {self.seed} ({pacing})"
+            cam.width_px,
+            cam.height_px,
+            self.setup.fps,
+            f"sim:{self.scenario} seed {self.seed} ({pacing})",
+            chroma_spread=self.setup.effects.compression is not None,  # the scenes the simulator compresses
         )
 
     def read(self) -> Frame | None:

@@ -83,6 +83,7 @@ class WideCameraSource:
             self.camera.height_px,
             self.setup.fps,
             f"sim:wide:{self.cam.name} of {len(self.setup.cameras)} ({pacing})",
+            chroma_spread=self.cam.effects.compression is not None,
         )
 
     def _due(self) -> int:
