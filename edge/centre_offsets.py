@@ -216,6 +216,7 @@ class ProcessFits:
         self._done: list[EdgeSample] = []
         self._failures_in_a_row = 0
         self._pause_until = 0
+        log.info("edge offsets on: edge fits in a worker process, one rover's window every %d frames", every_frames)
 
     def ready(self, frame: int, hurry: bool = False) -> bool:
         if self._running is not None and not self._running.done():

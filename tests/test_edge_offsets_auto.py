@@ -119,3 +119,14 @@ def test_an_environment_override_is_read(text: str, value: bool | str) -> None:
 
     loaded = load_config(None, {"EDGE_IPS_TRACKER__EDGE_OFFSETS": text})
     assert loaded.config.tracker.edge_offsets == value
+
+
+def test_the_appliance_says_the_fits_are_on(caplog: pytest.LogCaptureFixture) -> None:
+    config = EdgeConfig.model_validate({"rovers": [{"id": "red", "color_bgr": [40, 40, 200]}]})
+    source = MemorySource([np.zeros((720, 1280, 3), np.uint8)])
+    with caplog.at_level("INFO", logger="edge.centre_offsets"):
+        tracker = default_tracker_factory(
+            TrackerInputs(config, source, source.open(), CameraPlaneMapping(paper_camera()))
+        )
+    tracker.close()  # type: ignore[attr-defined]
+    assert any("edge offsets on" in r.getMessage() for r in caplog.records)
