@@ -51,6 +51,9 @@ HOLD_FRAMES = 5  # frames a heading is carried without a view of the marker's ed
 SIDEWAYS_RAD = math.radians(60.0)  # motion this far off the tracked axis (modulo 180 degrees) contradicts it...
 STEADY_TURN_RAD = math.radians(2.0)  # ...while the tracked heading turns less than this a frame (60 deg/s)...
 SIDEWAYS_FRAMES = 5  # ...for this many frames: the axis is the other one
+AXIS_MARGIN = 0.3  # a side candidate beating both tracked ends by this much says the axis may be the other one...
+AXIS_FRAMES = 45  # ...and after this many such frames (1.5 s) it is: a rover standing still, its axis taken wrong
+ALONG_RAD = math.radians(30.0)  # motion within this of the tracked axis (modulo 180 degrees) confirms the axis
 FRAME_S = 1.0 / 30.0  # the frame interval the frame counts above are for
 _KERNEL = np.ones((3, 3), np.uint8)
 CAMERA_GAMMA = 2.2  # webcams encode light with the sRGB tone curve, close to this power law
@@ -326,17 +329,24 @@ class TwoToneHeading:
         self.evidence = 0.0
         self.age = 0  # frames since the edges were last seen
         self.sideways = 0  # frames in a row the rover moved across its tracked axis without turning
+        self.doubt = 0  # frames in which a side candidate looked clearly more like the front than either tracked end
         self._at_s: float | None = None  # the stream time of the last frame taken
 
     @property
     def confident(self) -> bool:
-        return self.heading_rad is not None and self.age <= HOLD_FRAMES and self.evidence >= REPORT_EVIDENCE
+        return (
+            self.heading_rad is not None
+            and self.age <= HOLD_FRAMES
+            and self.evidence >= REPORT_EVIDENCE
+            and self.doubt < AXIS_FRAMES // 3  # the axis in doubt for half a second: not reported
+        )
 
     def reset(self) -> None:
         self.heading_rad = None
         self.evidence = 0.0
         self.age = 0
         self.sideways = 0
+        self.doubt = 0
         self._at_s = None
 
     def held(self) -> float | None:
@@ -381,6 +391,7 @@ class TwoToneHeading:
                     along, key=lambda j: (scores[j], -abs(math.remainder(view.candidate(j) - motion_rad, math.tau)))
                 )
                 self.evidence = 0.0
+            k = self._doubted(k, scores, frames, motion_rad, view)
             step = _evidence(scores[k] - scores[(k + 2) % 4])
         else:
             prior = [AXIS_PRIOR * view.axis_prior * (1 if j % 2 == 0 else -1) for j in range(4)]
@@ -392,6 +403,7 @@ class TwoToneHeading:
             step = _evidence(total[k] - max(rivals)) if rivals else 0.0
             self.evidence = 0.0
             self.sideways = 0
+            self.doubt = 0
         self.evidence = min(EVIDENCE_CAP, max(-EVIDENCE_CAP, self.evidence + step))
         if self.evidence <= FLIP_EVIDENCE:
             k = (k + 2) % 4
@@ -399,6 +411,25 @@ class TwoToneHeading:
         self.heading_rad = view.candidate(k)
         self.age = 0
         return self.heading_rad
+
+    def _doubted(self, k: int, scores: list[float], frames: int, motion_rad: float | None, view: TwoToneView) -> int:
+        """The tracked candidate ``k``, or the side candidate that has looked clearly more like the front than both
+        tracked ends for :data:`AXIS_FRAMES` frames. Continuity carries the axis from frame to frame and the sideways
+        motion check corrects it while the rover drives; a rover that stands still (or turns on the spot) with its
+        axis taken wrong (a turn across frames the loaded computer dropped, a front found anew while it turned) has
+        only its strips to say so. A moment of a side strip looking like the front (legs beside the rover) wears
+        off; motion along the tracked axis confirms it."""
+        along = motion_rad is not None and abs(math.remainder(view.candidate(k) - motion_rad, math.pi)) < ALONG_RAD
+        side = max(((k + 1) % 4, (k + 3) % 4), key=lambda j: scores[j])
+        if not along and scores[side] - max(scores[k], scores[(k + 2) % 4]) > AXIS_MARGIN:
+            self.doubt += frames
+        else:
+            self.doubt = max(0, self.doubt - frames)
+        if self.doubt < AXIS_FRAMES:
+            return k
+        self.doubt = 0
+        self.evidence = 0.0
+        return side
 
     def _moved_sideways(self, heading: float, last: float, frames: int, motion_rad: float | None) -> bool:
         """Count the frames the rover moved across ``heading`` without turning; True once they are enough."""

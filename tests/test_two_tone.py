@@ -12,6 +12,7 @@ import pytest
 
 from edge.sim.scenarios import build
 from edge.two_tone import (
+    AXIS_FRAMES,
     EVIDENCE_CAP,
     FRAME_S,
     HOLD_FRAMES,
@@ -258,3 +259,48 @@ def test_a_rover_that_turned_while_frames_were_dropped_keeps_its_true_heading(tu
     assert len(headings) >= 0.9 * len(errors.centre_cm)
     assert max(headings) < 5.0  # never a confident wrong heading
     assert max(errors.centre_cm) < 1.0
+
+
+def test_a_side_strip_that_stays_the_front_turns_the_axis_of_a_rover_standing_still() -> None:
+    """The axis was taken wrong (continuity across a turn it could not bridge) and the rover stands: no motion can
+    correct it. A side strip that looks clearly more like the front than either tracked end, frame after frame, does;
+    while in doubt the heading is not reported."""
+    h = TwoToneHeading()
+    h.update(view(0, 0.8, axis_deg=10.0))
+    wrong_axis = TwoToneView(math.radians(10.0), 0.8, (0.3, 1.0, 0.2, 0.1))  # candidate 1 (100 deg) is the front
+    for frame in range(AXIS_FRAMES - 1):
+        h.update(wrong_axis)
+        assert heading_deg(h) == pytest.approx(10.0)
+        assert h.confident == (frame < AXIS_FRAMES // 3 - 1)
+    h.update(wrong_axis)
+    assert heading_deg(h) == pytest.approx(100.0)
+    assert h.confident
+
+
+def test_motion_along_the_tracked_axis_keeps_it_whatever_a_side_strip_looks_like() -> None:
+    """Driving along its axis, a rover says its axis itself: sunlit floor beside it does not turn it."""
+    h = TwoToneHeading()
+    h.update(view(0, 0.8, axis_deg=10.0))
+    for _ in range(3 * AXIS_FRAMES):
+        h.update(TwoToneView(math.radians(10.0), 0.8, (0.3, 1.0, 0.2, 0.1)), None, math.radians(10.0))
+    assert heading_deg(h) == pytest.approx(10.0)
+    assert h.confident
+
+
+@pytest.mark.slow
+def test_a_rover_that_turned_across_a_short_gap_and_stopped_gets_its_axis_back() -> None:
+    """The twin's two boards once disagreed on a rover standing after a STOP by 4.6 cm: one had taken its axis 90
+    degrees off while it turned across frames the loaded machine dropped (few enough for continuity to bridge),
+    then it stood, and the sideways-motion check needs motion. Here: 60 degrees in 5 dropped frames, then 3 s
+    standing (86 frames of a confident heading 90 degrees off before this check). The wrong heading is reported for
+    a third of AXIS_FRAMES at most, and from AXIS_FRAMES on (plus a few frames for the filter) the heading and the
+    centre are right."""
+    setup = build("lab", seed=0, rovers=1, heading="two_tone")
+    gap = range(30, 35)
+    errors = track_one(setup, turning_unseen(150.0, 200.0, 0.0, math.radians(60.0), gap, 0.0), dropped=gap)
+    after = errors.frames[30:]  # the frames scored after the gap (dropped frames are not scored)
+    wrong = [f for f in after if f is not None and f[1] is not None and f[1] > 5.0]
+    assert len(wrong) <= AXIS_FRAMES // 3, wrong
+    settled = after[AXIS_FRAMES + 10 :]
+    assert settled and all(f is not None and f[0] < 1.0 for f in settled), settled
+    assert all(f is not None and f[1] is not None and f[1] < 5.0 for f in settled), settled
