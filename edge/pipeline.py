@@ -238,6 +238,7 @@ class Pipeline:
             background_threshold=self.config.background_threshold,
             clock=clock,
             white=self.white,
+            others=[t.box for t in self.tracks if t is not tr and t.box is not None],
         )
         if window is None:
             return None

@@ -23,6 +23,7 @@ the marker shows the colour it had under the lamps, and a grey or white object s
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from functools import lru_cache
 
 import cv2
@@ -88,22 +89,37 @@ class LocalWhite:
         return chroma
 
     def gains(
-        self, box: tuple[int, int, int, int], crop: U8, reference: U8 | None, valid: BoolArray | None
+        self,
+        box: tuple[int, int, int, int],
+        crop: U8,
+        reference: U8 | None,
+        valid: BoolArray | None,
+        others: Sequence[tuple[int, int, int, int]] = (),
     ) -> FloatArray:
         """(3,) per-channel gains that show the window ``box`` (``crop``, and the reference's crop with its
-        validity) under the configured white."""
+        validity) under the configured white. ``others``: the image boxes of the other rovers being tracked: their
+        markers and bodies on the window's border are not floor, and say nothing of the light (three rovers in a
+        row each took up more than half of the next one's border: the median then read a black body and a blue
+        marker as the light, and a red marker, shown under a 1.65x red gain, grew by a third)."""
         x0, y0, x1, y1 = box
         cy = min(self.coarse.shape[0] - 1, ((y0 + y1) // 2) // BLOCK_PX)
         cx = min(self.coarse.shape[1] - 1, ((x0 + x1) // 2) // BLOCK_PX)
-        light = self.coarse[cy, cx].tolist()  # three numbers: plain floats are quicker than arrays
+        coarse = self.coarse[cy, cx].tolist()  # three numbers: plain floats are quicker than arrays
+        light = coarse
         if reference is not None and valid is not None:
             border = _border_index(*valid.shape[:2])
-            usable = border.compress(valid.reshape(-1).take(border))
+            floor = valid.reshape(-1).take(border)
+            if others:
+                floor = floor & ~_inside(border, valid.shape[1], box, others)
+            usable = border.compress(floor)
             if len(usable) >= 8:
                 # take() along the pixels: a third of the time of indexing them
                 now = cv2.LUT(crop.reshape(-1, 3).take(usable, axis=0), LINEAR) + np.float32(1e-4)
                 then = cv2.LUT(reference.reshape(-1, 3).take(usable, axis=0), LINEAR) + np.float32(1e-4)
-                light = [a * float(b) for a, b in zip(light, _column_medians(now / then), strict=True)]
+                light = [a * float(b) for a, b in zip(coarse, _column_medians(now / then), strict=True)]
+                total = max(sum(light), 1e-9)
+                if max(abs(v / total - w) for v, w in zip(light, self.white, strict=True)) > MAX_LIGHT_SHIFT:
+                    light = coarse  # no light has that colour: something other than floor held the border
         total = max(sum(light), 1e-9)
         gains = [float(w) / max(v / total, 1e-6) for w, v in zip(self.white, light, strict=True)]
         scale = 3.0 / sum(gains)
@@ -144,6 +160,20 @@ def _border_index(h: int, w: int, width: int = 2) -> NDArray[np.intp]:
             grid[width : h - width, w - width :].ravel(),
         ]
     )
+
+
+def _inside(
+    index: NDArray[np.intp], width: int, box: tuple[int, int, int, int], others: Sequence[tuple[int, int, int, int]]
+) -> BoolArray:
+    """Which of the window's pixels ``index`` (flat, ``width`` pixels a row; the window at ``box`` in the image) lie
+    in any of the image boxes ``others``."""
+    u = index % width + box[0]
+    v = index // width + box[1]
+    hit = np.zeros(len(index), bool)
+    for ox0, oy0, ox1, oy1 in others:
+        if ox0 < box[2] and box[0] < ox1 and oy0 < box[3] and box[1] < oy1:
+            hit |= (u >= ox0) & (u < ox1) & (v >= oy0) & (v < oy1)
+    return hit
 
 
 def _column_medians(values: FloatArray) -> FloatArray:

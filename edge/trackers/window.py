@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -107,16 +108,18 @@ def prepare_window(
     background_threshold: float,
     clock: StageClock,
     white: LocalWhite | None = None,
+    others: Sequence[tuple[int, int, int, int]] = (),
 ) -> Window | None:
     """The per-window stages before a tracker runs: the window seen under the configured white (``edge.white``),
     colour planes, hue classes, background subtraction (eq. 2). ``box``: the window in the image; ``rover_index``:
-    whose colour plane to extract; ``predicted_uv``: where the filter expects the marker (image pixels)."""
+    whose colour plane to extract; ``predicted_uv``: where the filter expects the marker (image pixels); ``others``:
+    the other tracked rovers' boxes (not floor, for the local light)."""
     x0, y0, x1, y1 = box
     t0 = time.perf_counter()
     raw = image[y0:y1, x0:x1]
     valid = background.valid[y0:y1, x0:x1]
     reference = background.reference[y0:y1, x0:x1] if np.count_nonzero(valid) else None
-    crop = raw if white is None else white.correct(raw, white.gains(box, raw, reference, valid))
+    crop = raw if white is None else white.correct(raw, white.gains(box, raw, reference, valid, others))
     c1, c2, lum = opponent_planes(crop)  # RGB colour planes extraction, generalised to N colours
     classes = colors.classify(c1, c2, lum)
     plane = colors.plane(rover_index, c1, c2)
