@@ -421,7 +421,8 @@ class TwoToneHeading:
         off; motion along the tracked axis confirms it."""
         along = motion_rad is not None and abs(math.remainder(view.candidate(k) - motion_rad, math.pi)) < ALONG_RAD
         side = max(((k + 1) % 4, (k + 3) % 4), key=lambda j: scores[j])
-        if not along and scores[side] - max(scores[k], scores[(k + 2) % 4]) > AXIS_MARGIN:
+        tracked = max(scores[k], scores[(k + 2) % 4])  # -inf: neither tracked end in view, which says nothing
+        if not along and tracked > -math.inf and scores[side] - tracked > AXIS_MARGIN:
             self.doubt += frames
         else:
             self.doubt = max(0, self.doubt - frames)

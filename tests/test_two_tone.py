@@ -277,6 +277,16 @@ def test_a_side_strip_that_stays_the_front_turns_the_axis_of_a_rover_standing_st
     assert h.confident
 
 
+def test_tracked_ends_out_of_view_are_no_doubt_about_the_axis() -> None:
+    """Both tracked ends' strips unseen (another rover over them, the image's edge): a side strip in view says
+    nothing against the axis."""
+    h = TwoToneHeading()
+    h.update(view(0, 0.8, axis_deg=10.0))
+    for _ in range(3 * AXIS_FRAMES):
+        h.update(TwoToneView(math.radians(10.0), 0.8, (-math.inf, 1.0, -math.inf, 0.1)))
+    assert heading_deg(h) == pytest.approx(10.0)
+
+
 def test_motion_along_the_tracked_axis_keeps_it_whatever_a_side_strip_looks_like() -> None:
     """Driving along its axis, a rover says its axis itself: sunlit floor beside it does not turn it."""
     h = TwoToneHeading()
