@@ -110,6 +110,7 @@ def test_each_camera_is_served_by_name_with_its_own_view_in_the_shared_floor_fra
         info = source.open()
         try:
             assert f"sim:twin:{name}, twin lab: {name} of 2 over the wide arena" in info.description
+            assert not info.chroma_spread  # uncompressed frames: the quickstart's edge runs without the edge fits
             view, _ = twin.camera_named(name)
             assert np.allclose(source.camera.tvec, view.camera.tvec)
             assert [r.id for r in source.rover_configs()] == IDS  # with the colours this camera sees

@@ -191,7 +191,10 @@ class TwinSource:
         self._sock, self._description = sock, description
         d = description
         spec = "sim:twin" if self.camera_name is None else f"sim:twin:{self.camera_name}"
-        return SourceInfo(d.width_px, d.height_px, d.fps, f"{spec}, {d.summary} (socket {self.path})")
+        # the lab renders without compression and sends the frames as they are: no chroma spread (edge_offsets auto)
+        return SourceInfo(
+            d.width_px, d.height_px, d.fps, f"{spec}, {d.summary} (socket {self.path})", chroma_spread=False
+        )
 
     def _connect(self) -> socket.socket:
         sock = _dial(self.path)
