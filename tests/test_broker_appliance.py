@@ -53,9 +53,10 @@ def test_the_default_appliance_is_closed_to_other_hosts_and_to_rover_logins(tmp_
                 takeover = there.probe(port, client_id="edge-ips-edge-1", user="red", password=red.password)
                 big = there.probe(port, client_id="rover-red", user="red", password=red.password,
                                   publish=rover_status_topic("red"), payload_bytes=2 << 20)  # fmt: skip
-                there.probe(port, client_id="rover-red", user="red", password=red.password,
-                            publish=rover_status_topic("red"), payload='{"marker":1}')  # fmt: skip
-            assert watcher.wait_for(lambda m: any(x.payload == b'{"marker":1}' for x in m), 10)
+                marker = there.probe(port, client_id="rover-red", user="red", password=red.password,
+                                     publish=rover_status_topic("red"), payload='{"marker":1}')  # fmt: skip
+            assert marker["accepted"] and marker["published"], (marker, log.read_text()[-3000:])
+            assert watcher.wait_for(lambda m: any(x.payload == b'{"marker":1}' for x in m), 30), log.read_text()[-3000:]
             refused_at = max(x.t_recv for x in watcher.messages if x.payload == b'{"marker":1}')
             status = edge_status_topic("edge-1")
             assert watcher.wait_for(lambda m: any(x.topic == status and x.t_recv > refused_at for x in m), 30)

@@ -105,10 +105,12 @@ class Probe:
             return None
         return {0: 0, 132: 1, 133: 2, 136: 3, 134: 4, 135: 5}.get(self.connack.value, self.connack.value)
 
-    def publish(self, topic: str, payload: bytes, retain: bool = False, qos: int = 1) -> None:
+    def publish(self, topic: str, payload: bytes, retain: bool = False, qos: int = 1, timeout_s: float = 10.0) -> bool:
+        """Publish; with QoS 1, wait for the PUBACK (``timeout_s`` is a failure guard). True once acknowledged."""
         info = self.client.publish(topic, payload, qos=qos, retain=retain)
         if qos:
-            info.wait_for_publish(10)
+            info.wait_for_publish(timeout_s)
+        return info.is_published()
 
     def subscribe(self, topic_filter: str, qos: int = 1) -> Any:
         before = len(self.granted)
@@ -249,7 +251,7 @@ def main(argv: list[str]) -> None:
             probe.client.publish(args.publish, b"x" * args.payload_bytes, qos=1, retain=True)
             report["disconnected"] = probe.wait(lambda: probe.disconnects > 0, 10.0)
         else:
-            probe.publish(args.publish, args.payload.encode(), retain=True)
+            report["published"] = probe.publish(args.publish, args.payload.encode(), retain=True, timeout_s=30.0)
     if probe.accepted:
         probe.close()
     print(json.dumps(report))
