@@ -404,7 +404,7 @@ class Pipeline:
             tr.uv = m.uv_px
             tr.seen = (m.xy_cm[0], m.xy_cm[1], self._time_s)
             tr.level = m.level if tr.level <= 0.0 else 0.8 * tr.level + 0.2 * m.level
-            if m.quality > 0.8:
+            if m.quality > 0.8 or tr.larger_and_level(m.area_cm2, self.config.marker_area_cm2, self._frames):
                 tr.areas.append(m.area_cm2)
             theta = self._heading(tr, tr.filter.velocity, m)
             out.append(tr.estimate(obs, theta, round(self._quality(tr, m), 2)))

@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+import cv2
+import numpy as np
 import pytest
 
+from edge.camera import MARKER_HEIGHT_CM
 from edge.rover_track import STEADY_FRAMES, STEADY_SLOPE, STEADY_STEP, RoverTrack, steady_areas
-from edge.tracker_config import RoverConfig
+from edge.tracker_config import RoverConfig, TrackerConfig
+from edge.trackers.factory import build_tracker
+from tests.support.track import COLORS, SynthRover, shared_scene
+from tests.support.track import frame as camera_frame
 
 LEVEL = [0.85, 0.84, 0.86, 0.83, 0.85, 0.84, 0.86, 0.85]  # a whole marker's area settled lower, 1 % scatter
 
@@ -52,3 +58,48 @@ def test_a_rovers_areas_are_level_only_over_consecutive_measured_frames() -> Non
         track.measured(frame, 0.5)
         track.measured(frame, ratio)  # the last blob measured in a frame counts
     assert track.steady(start + STEADY_FRAMES - 1, 1.0)
+
+
+def test_a_larger_level_area_is_learned_and_a_smaller_or_changing_one_is_not() -> None:
+    track = _track([1.0] * 31)
+    for frame, ratio in enumerate([1.28, 1.27, 1.29, 1.28, 1.28, 1.27, 1.28, 1.29]):
+        track.measured(frame, ratio)
+    assert track.larger_and_level(1.29, 1.0, STEADY_FRAMES - 1)
+    assert not track.larger_and_level(1.0, 1.0, STEADY_FRAMES - 1)  # not larger than the learned area
+    below = _track([1.0] * 31)
+    for frame, ratio in enumerate(LEVEL):
+        below.measured(frame, ratio)
+    assert not below.larger_and_level(LEVEL[-1], 1.0, STEADY_FRAMES - 1)  # level, but smaller: a leg may stand there
+    rising = _track([1.0] * 31)
+    for frame in range(STEADY_FRAMES):
+        rising.measured(frame, 1.1 + 0.03 * frame)
+    assert not rising.larger_and_level(1.31, 1.0, STEADY_FRAMES - 1)
+
+
+@pytest.mark.slow
+def test_a_rover_first_seen_with_a_fifth_of_its_marker_hidden_learns_its_whole_area_once_uncovered() -> None:
+    """Parked with the front fifth of its marker under a grey slab for 2 s, the rover's area is learned 0.78 of the
+    whole marker's; the slab lifted, the whole marker (1.28 of that) is tracked at once, and its area is learned
+    within a second: its quality comes back to 1 (it stayed 0.78 for good, the band cut just above it)."""
+    scene = shared_scene()
+    config = TrackerConfig(rovers=(RoverConfig(id="red", color_bgr=COLORS["red"]),))
+    tracker = build_tracker(config, scene.mapping, None)
+    rng = np.random.default_rng(3)
+    x, y, length = 200.0, 300.0, 22.0  # the marker's centre and length along x (SynthRover's default marker)
+    hidden = 0.21 * length
+    slab = np.array([[x + length / 2 - hidden, y - 12.0], [x + length / 2 + 1.0, y - 12.0],
+                     [x + length / 2 + 1.0, y + 12.0], [x + length / 2 - hidden, y + 12.0]])  # fmt: skip
+    slab_uv = scene.camera.project(np.column_stack([slab, np.full(4, MARKER_HEIGHT_CM + 0.5)]))
+    qualities, errors = [], []
+    for i in range(120):
+        image = scene.render([SynthRover("red", x, y, 0.0, COLORS["red"])], noise_sigma=2.0, rng=rng)
+        if i < 60:
+            cv2.fillPoly(image, [np.rint(slab_uv).astype(np.int32)], (140, 140, 140))
+        result = tracker.process(camera_frame(image, i, 30.0))
+        if i >= 61:
+            (estimate,) = result.estimates
+            qualities.append(estimate.quality)
+            errors.append(np.hypot(estimate.x_cm - x, estimate.y_cm - y))
+    assert max(errors) < 0.3
+    assert qualities[0] < 0.8  # the whole marker, against the area learned while it was partly hidden
+    assert qualities[-1] == 1.0 and min(qualities[30:]) == 1.0
