@@ -35,6 +35,7 @@ REACH_OUT_PX = 7.0
 BAND_PX = (5.5, 7.0)  # the surround beyond the spread, relative to the edge
 INNER_PX = 2.5  # bins this far inside a side are the marker's own light there (the optics' blur is <= 1.2 px)
 SIDE_MIDDLE = 0.7  # the share of each side's length that counts (corners mix two sides)
+FD_STEP = 1e-4  # the forward differences' step in every parameter
 # BT.601 full range, as JPEG decodes (rows: Y', Cb, Cr; columns B', G', R')
 YCC_FROM_BGR = np.array(
     [[0.114, 0.587, 0.299], [0.5, -0.331264, -0.168736], [-0.081312, -0.418688, 0.5]], dtype=np.float64
@@ -244,19 +245,36 @@ def fit_edges(
     grid_u = np.arange(-REACH_IN_PX + BIN_PX / 2, REACH_OUT_PX, BIN_PX)
     weights = np.array([luma_weight, 1.0, 1.0])
 
-    def residuals(x: FloatArray) -> FloatArray:
+    def side(j: int, x: FloatArray) -> FloatArray:
         sigma, k_u, k_v, dark = 0.05 + _bounded(x[0], 3.0), _bounded(x[1], 3.0), _bounded(x[13], 3.0), np.abs(x[2:5])
-        res = []
-        for j, p in enumerate(profiles):
-            k_px = math.hypot(k_u * p.normal_px[0], k_v * p.normal_px[1])
-            model = _side_model(p.u_px, grid_u, markers[j], dark, beyond[j], x[5 + j], x[9 + j], sigma, k_px, encode)
-            res.append(((model - p.ycc) * weights).ravel())
-        return np.concatenate(res)
+        p = profiles[j]
+        k_px = math.hypot(k_u * p.normal_px[0], k_v * p.normal_px[1])
+        model = _side_model(p.u_px, grid_u, markers[j], dark, beyond[j], x[5 + j], x[9 + j], sigma, k_px, encode)
+        return ((model - p.ycc) * weights).ravel()
+
+    def residuals(x: FloatArray) -> FloatArray:
+        return np.concatenate([side(j, x) for j in range(len(profiles))])
+
+    # x: sigma, k along u, the body's top (3), the edges (4), the margins (4), k along v. A side's edge and margin
+    # move only its own residuals: their Jacobian columns need that side alone (the same forward differences).
+    ends = np.cumsum([0] + [3 * len(p.u_px) for p in profiles])
+    own = {5 + j: j for j in range(len(profiles))} | {9 + j: j for j in range(len(profiles))}
+
+    def jacobian(x: FloatArray, r: FloatArray) -> FloatArray:
+        jac = np.zeros((r.size, x.size))
+        for i in range(x.size):
+            step = np.zeros_like(x)
+            step[i] = FD_STEP
+            j = own.get(i)
+            if j is None:
+                jac[:, i] = (residuals(x + step) - r) / FD_STEP
+            else:
+                jac[ends[j] : ends[j + 1], i] = (side(j, x + step) - r[ends[j] : ends[j + 1]]) / FD_STEP
+        return jac
 
     # two starts, the body's top dark or light (the fit does not cross between them reliably)
-    # x: sigma, k along u, the body's top (3), the edges (4), the margins (4), k along v
     starts = [np.array([0.8, 0.8, *(level * brightest), 0, 0, 0, 0, 1, 1, 1, 1, 0.8]) for level in (0.05, 0.6)]
-    fits = [_levenberg_marquardt(residuals, start, iterations) for start in starts]
+    fits = [_levenberg_marquardt(residuals, start, iterations, jacobian) for start in starts]
     x, r, cost = min(fits, key=lambda f: f[2] if math.isfinite(f[2]) else math.inf)
     return EdgeFit(
         x[5:9].copy(),
@@ -276,17 +294,26 @@ def _bounded(value: float, limit: float) -> float:
     return limit * (1.0 - math.exp(-abs(float(value)) / limit))
 
 
-def _levenberg_marquardt(fun: ToneCurve, x: FloatArray, iterations: int) -> tuple[FloatArray, FloatArray, float]:
-    """Minimise the sum of squares of ``fun(x)`` from ``x`` (forward-difference Jacobian)."""
+def _levenberg_marquardt(
+    fun: ToneCurve,
+    x: FloatArray,
+    iterations: int,
+    jacobian: Callable[[FloatArray, FloatArray], FloatArray] | None = None,
+) -> tuple[FloatArray, FloatArray, float]:
+    """Minimise the sum of squares of ``fun(x)`` from ``x`` (``jacobian(x, fun(x))``, by default forward
+    differences of ``fun`` with a step of :data:`FD_STEP`)."""
     lam = 1e-2
     r = fun(x)
     cost = float(r @ r)
     for _ in range(iterations):
-        jac = np.empty((r.size, x.size))
-        for i in range(x.size):
-            step = np.zeros_like(x)
-            step[i] = 1e-4
-            jac[:, i] = (fun(x + step) - r) / 1e-4
+        if jacobian is not None:
+            jac = jacobian(x, r)
+        else:
+            jac = np.empty((r.size, x.size))
+            for i in range(x.size):
+                step = np.zeros_like(x)
+                step[i] = FD_STEP
+                jac[:, i] = (fun(x + step) - r) / FD_STEP
         jtj, jtr = jac.T @ jac, jac.T @ r
         delta = np.zeros_like(x)
         while lam <= 1e8:
