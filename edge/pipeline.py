@@ -368,6 +368,7 @@ class Pipeline:
 
     def _lose(self, tr: RoverTrack) -> None:
         tr.filter = None
+        tr.lost_at = self._frames
         tr.box = None
         tr.uv = None
         tr.theta_rad = None
@@ -387,6 +388,7 @@ class Pipeline:
                 obs = acquired[tr.index]
                 m = obs.measurement
                 tr.filter = self.filters.create_filter(m.xy_cm, obs.r_cm2)
+                tr.lost_at = None
             elif tr.index in measured and tr.filter is not None:
                 obs = measured[tr.index]
                 m = obs.measurement

@@ -23,6 +23,9 @@ STEADY_FRAMES = 8  # the consecutive frames whose areas show a whole marker's ar
 STEADY_SLOPE = 0.01  # the most those areas may rise or fall per frame, as a share of the learned area
 STEADY_STEP = 0.06  # the most the last area may differ from the median of the frames before it (same share)
 STEADY_SCATTERS = 5.0  # a steady area may lie this many of the rover's own area scatters below its learned area
+LEARN_SPAN = (0.8, 1.25)  # areas first learned: within this share of the nominal area (a quality over 0.8)
+RELEARN_FRAMES = 60  # lost this long (2 s at 30 fps), a rover may learn its area afresh (RoverTrack.relearn)
+RELEARN_NEARER = 1.1  # ... from a blob nearer the nominal area than its learned area is, by this factor
 
 
 @dataclass(frozen=True)
@@ -51,6 +54,7 @@ class RoverTrack:
     two_tone: TwoToneHeading = field(default_factory=TwoToneHeading)  # a two-tone marker's heading through time
     seen: tuple[float, float, float] | None = None  # where (cm) and when (s, the stream's time) it was last measured
     offset_cm: tuple[float, float] = (0.0, 0.0)  # the centre correction last applied (edge.centre_offsets)
+    lost_at: int | None = None  # the frame it was lost in (None while tracked, or before it was first seen)
 
     @property
     def lost(self) -> bool:
@@ -152,7 +156,9 @@ class RoverTrack:
             self.measured(frame, m.area_cm2)
         steady = learned and ratio < low and self.steady_below(ratio, expected_area_cm2, config, frame)
         if not low <= ratio <= high and not steady:
-            return False
+            if not (learned and self.relearn(m.area_cm2, config.marker_area_cm2, frame)):
+                return False
+            self.areas.clear()  # learned afresh from this blob on, as when the rover was first seen
         aspect = max(config.marker_length_cm, config.marker_width_cm) / min(
             config.marker_length_cm, config.marker_width_cm
         )
@@ -171,6 +177,25 @@ class RoverTrack:
         """
         low, _ = self.area_band(expected_cm2, config.min_area_fraction, config.max_area_fraction, STEADY_SCATTERS)
         return ratio >= low and self.steady(frame, expected_cm2)
+
+    def relearn(self, area_cm2: float, nominal_cm2: float, frame: int) -> bool:
+        """Should a blob outside the area band make this rover forget its learned area and start learning afresh?
+
+        A learned area can be wrong: measurements that grew a little at a time (a wrong light on the marker made it
+        look a fifth larger, frame after frame) take it along, and from then on the real marker is refused, for
+        good, since refused areas are never learned. When the rover has been lost for :data:`RELEARN_FRAMES` and a
+        blob has stayed level (:meth:`steady`) within the span first learned from (:data:`LEARN_SPAN` of the
+        nominal area) and nearer the nominal area than the learned area is, by :data:`RELEARN_NEARER` at least,
+        the configuration is believed: the blob is the marker and the learned area the mistake. A marker partly
+        hidden is farther from the nominal area than a plausible learned area, and stays refused however long."""
+        if self.lost_at is None or frame - self.lost_at < RELEARN_FRAMES:
+            return False
+        expected = self.expected_area(nominal_cm2)
+        lo, hi = LEARN_SPAN
+        if not lo <= area_cm2 / nominal_cm2 <= hi:
+            return False
+        nearer = abs(math.log(expected / nominal_cm2)) - abs(math.log(area_cm2 / nominal_cm2))
+        return nearer >= math.log(RELEARN_NEARER) and self.steady(frame, expected)
 
     def estimate(self, obs: Observation, theta_rad: float | None, quality: float) -> RoverEstimate:
         """This frame's estimate: the filtered pose and velocity, and the measurement ``obs`` they took in (for a
