@@ -6,9 +6,9 @@
 The simulator renders the scenario into a directory as ``edge-ips sim render`` does (an MPEG-4 part 2 video, as
 ``cv2.VideoWriter`` writes it: 4:2:0 chroma, so the fits' ``auto`` is on for it), then the video is tracked with
 the scene's own ``camera.json`` twice: ``edge_offsets = "auto"`` (the default: a video file's frames came through
-a codec) and ``false``. Reported per run: the wall time per frame (decode, tracking and, with the fits, the fits run
-in the frame loop as ``track`` runs them so its poses repeat), and per rover the mean, p95 and bias (x, y) of the
-poses against ``truth.csv``.
+a codec) and ``false``. Reported per run: the wall time per frame (decode, tracking and, with the fits, the time the
+frame loop waits for them: ``track`` runs them in worker processes but takes each result at a set frame, so its poses
+repeat), and per rover the mean, p95 and bias (x, y) of the poses against ``truth.csv``.
 """
 
 from __future__ import annotations

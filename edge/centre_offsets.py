@@ -15,7 +15,7 @@ used, and :data:`TRUST_CM` of every offset is held back (the fits' own error on 
 
 The fits run in another process (:class:`ProcessFits`: the frame loop keeps its time) or, for benchmarks and
 offline runs that must repeat exactly, in the frame loop with their results held back as long as a worker would
-take (:class:`InlineFits`).
+take (:class:`InlineFits`); ``edge.pooled_fits`` runs that schedule in a pool of worker processes (``edge-ips track``).
 """
 
 from __future__ import annotations
@@ -169,7 +169,8 @@ class Fits(Protocol):
 
 class InlineFits:
     """Fits in the frame loop, one every ``every_frames`` frames, each result released ``delay_frames`` after its
-    job as if a worker had taken that long: runs that repeat exactly (benchmarks, ``edge-ips track``)."""
+    job as if a worker had taken that long: runs that repeat exactly (benchmarks; ``edge-ips track`` runs this schedule
+    in worker processes, ``edge.pooled_fits.PooledFits``)."""
 
     def __init__(self, every_frames: int = 10, delay_frames: int = HELD_BACK_FRAMES) -> None:
         self.every_frames = every_frames

@@ -20,11 +20,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.calibration import load_calibration
-from edge.centre_offsets import InlineFits
 from edge.errors import CalibrationError, ConfigError, SourceError
 from edge.fusion.detections import encode_detections
 from edge.fusion.uncertainty import DetectionBuilder, calibration_error_model
 from edge.messages import encode_pose
+from edge.pooled_fits import PooledFits
 from edge.tracker_config import TrackerConfig
 from edge.trackers.base import CameraPlaneMapping, PlaneMapping
 from edge.trackers.factory import build_tracker
@@ -162,7 +162,8 @@ class TrackJob:
         detections: DetectionBuilder | None = None,
     ) -> TrackSummary:
         """Track every frame; write one pose v1 line per rover per frame where it was seen to ``out``, or with
-        ``detections`` one detections v1 line per frame (the board's measurements, for ``edge-ips fuse``)."""
+        ``detections`` one detections v1 line per frame (the board's measurements, for ``edge-ips fuse``). The tracker
+        is closed after (the edge fits' worker processes stopped)."""
         summary = TrackSummary(rovers=self.rovers, per_rover=dict.fromkeys(self.rovers, 0))
         seq = dict.fromkeys(self.rovers, 0)
         stages: dict[str, list[float]] = {}
@@ -207,6 +208,7 @@ class TrackJob:
                         on_frame(result)
         finally:
             self.frames.close()
+            self.tracker.close()  # the edge fits' workers
         summary.wall_s = time.perf_counter() - t_wall
         summary.stage_ms_median = {k: float(np.median(v)) for k, v in stages.items()}
         return summary
@@ -218,10 +220,11 @@ def open_track_job(video: Path, calibration: Path, config: TrackerConfig, backgr
     try:
         mapping = load_plane_mapping(calibration, frames.size)
         empty = read_background(background, frames.size) if background is not None else None
-        # a video file's frames came through a codec (edge_offsets auto: on); the edge fits in the frame loop, so a
-        # video's poses come out the same on every run
+        # a video file's frames came through a codec (edge_offsets auto: on); the edge fits run in worker processes
+        # on the in-loop schedule (each result taken at a set frame, waited for if need be), so a video's poses come
+        # out the same on every run while the frame loop runs on beside the fits
         config = config.for_source(chroma_spread=True)
-        fits = InlineFits(config.edge_offsets_every) if config.edge_offsets else None
+        fits = PooledFits(config.edge_offsets_every) if config.edge_offsets else None
         tracker = build_tracker(config, mapping, empty, fits=fits)
     except BaseException:
         frames.close()

@@ -1,10 +1,13 @@
 """Centres referred to the marker's fitted edges (edge.centre_offsets, the ``edge_offsets`` tracker setting): the
 fits' samples, the offset they give across the floor, where the fits run (in the loop, in a worker process that
-can fail), and the pipeline's centres on a 4:2:0 stream with and without them."""
+can fail, in a pool of workers on the loop's schedule), and the pipeline's centres on a 4:2:0 stream with and without
+them."""
 
 from __future__ import annotations
 
+import logging
 import math
+import multiprocessing
 import os
 import signal
 from collections.abc import Iterator
@@ -28,6 +31,7 @@ from edge.centre_offsets import (
     fit_offset,
 )
 from edge.coverage import coverage_weights
+from edge.pooled_fits import PooledFits
 from edge.sim.effects import Compression, Effects, Optics
 from edge.sim.render import Renderer
 from edge.sim.scene import GREEN_BGR, RED_BGR, RoverLook, Scene
@@ -323,3 +327,101 @@ def test_a_sample_is_taken_against_the_filtered_centre_noted_for_its_frame(grid)
     fitted = (job.centre_cm[0] + direct.offset_cm[0], job.centre_cm[1] + direct.offset_cm[1])
     assert sample.xy_cm == smoothed
     assert sample.offset_cm == pytest.approx((fitted[0] - smoothed[0], fitted[1] - smoothed[1]), abs=1e-12)
+
+
+def _schedule(fits, jobs: list[EdgeJob], frames: int = 50, hurry_until: int = 5) -> list[tuple[int, bool, list]]:
+    """Each frame: the samples collected, whether a job was taken (hurried for the first frames), the next of ``jobs``
+    handed over when it was."""
+    out = []
+    k = 0
+    for frame in range(frames):
+        samples = fits.collect(frame)
+        ready = fits.ready(frame, hurry=frame < hurry_until)
+        if ready:
+            fits.submit(replace(jobs[k % len(jobs)], frame=frame))
+            k += 1
+        out.append((frame, ready, samples))
+    return out
+
+
+@pytest.fixture(scope="module")
+def three_jobs(grid) -> list[EdgeJob]:
+    """Two windows that give a sample and one too small to (the fit's None)."""
+    return [
+        _job(grid, (150.0, 250.0, 1.0))[0],
+        _job(grid, (200.0, 300.0, 0.3), half_px=13)[0],
+        replace(_job(grid, (205.0, 330.0, 2.6))[0], index=1),
+    ]
+
+
+@pytest.mark.slow
+def test_pooled_fits_give_the_loops_samples_at_the_same_frames(three_jobs):
+    inline = _schedule(InlineFits(every_frames=10, delay_frames=15), three_jobs)
+    fits = PooledFits(every_frames=10, delay_frames=15, workers=2)
+    try:
+        pooled = _schedule(fits, three_jobs)
+        assert fits.worker_pids() and not fits.inline  # the pool did the fits
+    finally:
+        fits.close()
+    assert pooled == inline
+    taken = [frame for frame, ready, _ in inline if ready]
+    assert taken == [0, 1, 2, 3, 4, 14, 24, 34, 44]
+    released = [(frame, [s.frame for s in samples]) for frame, _, samples in inline if samples]
+    # each job's sample 15 frames after it, none from the window too small to fit
+    assert all(f == s + 15 for f, frames_ in released for s in frames_)
+    assert {s.frame for _, _, samples in inline for s in samples} == {0, 2, 3, 14, 24}
+
+
+def _fit_dying_in_a_worker(job: EdgeJob) -> EdgeSample | None:
+    """``fit_offset``, except that in a worker process the job of frame 2 kills its worker."""
+    if job.frame == 2 and multiprocessing.parent_process() is not None:
+        os._exit(3)
+    return fit_offset(job)
+
+
+@pytest.mark.slow
+def test_a_worker_that_dies_leaves_the_fits_to_the_loop_with_the_same_results(three_jobs, caplog):
+    inline = _schedule(InlineFits(every_frames=10, delay_frames=15), three_jobs)
+    fits = PooledFits(every_frames=10, delay_frames=15, workers=2, fit=_fit_dying_in_a_worker)
+    try:
+        with caplog.at_level(logging.WARNING, logger="edge.pooled_fits"):
+            pooled = _schedule(fits, three_jobs)
+        assert fits.inline and fits.worker_pids() == []  # the pool is stopped and not used again
+    finally:
+        fits.close()
+    assert pooled == inline
+    (warning,) = [r for r in caplog.records if r.name == "edge.pooled_fits"]  # logged once
+    assert warning.levelno == logging.WARNING and "runs in the frame loop" in warning.getMessage()
+
+
+@pytest.mark.slow
+def test_a_fit_not_done_after_the_guard_is_fitted_in_the_loop_and_the_pool_stopped(three_jobs, caplog):
+    job = three_jobs[0]
+    fits = PooledFits(every_frames=10, delay_frames=0, workers=1, guard_s=1.0)
+    try:
+        fits.submit(replace(job, frame=0))
+        (pid,) = fits.worker_pids()
+        os.kill(pid, signal.SIGSTOP)  # a worker that never finishes its fit
+        with caplog.at_level(logging.WARNING, logger="edge.pooled_fits"):
+            assert fits.collect(0) == [fit_offset(job)]
+        assert fits.inline and fits.worker_pids() == []
+        assert "not done after 1 s" in caplog.text
+        fits.submit(replace(job, frame=10))  # later jobs: in the loop
+        assert fits.collect(10) == [fit_offset(replace(job, frame=10))]
+    finally:
+        fits.close()
+
+
+def test_a_pool_that_cannot_start_leaves_the_fits_to_the_loop(monkeypatch, caplog):
+    def no_processes(*args, **kwargs):
+        raise OSError(11, "Resource temporarily unavailable")
+
+    monkeypatch.setattr("edge.pooled_fits.ProcessPoolExecutor", no_processes)
+    job = EdgeJob(0, 0, np.zeros((4, 4, 3), np.uint8), np.zeros((2, 4, 4)), (0.0, 0.0), 0.0, SIZE_CM)
+    fits = PooledFits(every_frames=10, delay_frames=3)
+    with caplog.at_level(logging.WARNING, logger="edge.pooled_fits"):
+        fits.submit(job)
+        fits.submit(replace(job, frame=1))
+    assert fits.inline and "could not take a job" in caplog.text and len(caplog.records) == 1
+    assert fits.collect(4) == []  # fitted here: a window of no marker pixels gives no sample
+    assert not fits._pending

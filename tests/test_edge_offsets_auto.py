@@ -13,10 +13,11 @@ from edge.appliance import TrackerInputs, default_tracker_factory
 from edge.calibration.exact import exact_calibration
 from edge.calibration.files import save_calibration
 from edge.camera import paper_camera
-from edge.centre_offsets import InlineFits, ProcessFits
+from edge.centre_offsets import ProcessFits
 from edge.config import EdgeConfig
 from edge.errors import ConfigError
 from edge.offline import open_track_job
+from edge.pooled_fits import PooledFits
 from edge.sim.source import SimSource
 from edge.sources import MemorySource, SourceInfo, VideoFileSource
 from edge.tracker_config import RoverConfig, TrackerConfig, edge_offsets_on, load_tracker_config
@@ -92,13 +93,13 @@ def test_the_appliances_tracker_decides_by_the_opened_source(spread: bool, setti
         tracker.close()
 
 
-def test_a_video_is_tracked_with_the_fits_in_the_loop_unless_turned_off(tmp_path: Path) -> None:
+def test_a_video_is_tracked_with_the_fits_pooled_on_the_loops_schedule_unless_turned_off(tmp_path: Path) -> None:
     clip = write_clip(tmp_path / "clip.avi", frames=2, width=1280, height=720)
     calibration = tmp_path / "calibration.json"
     save_calibration(exact_calibration(paper_camera()), calibration)
     job = open_track_job(clip, calibration, TrackerConfig(rovers=ROVERS))
     try:
-        assert isinstance(job.tracker.offsets.fits, InlineFits)  # type: ignore[attr-defined]
+        assert isinstance(job.tracker.offsets.fits, PooledFits)  # type: ignore[attr-defined]
     finally:
         job.frames.close()
     job = open_track_job(clip, calibration, TrackerConfig(rovers=ROVERS, edge_offsets=False))

@@ -36,6 +36,7 @@ CORE = (
     "edge.white",
     "edge.outline",
     "edge.centre_offsets",
+    "edge.pooled_fits",
     "edge.edges_encoded",
     "edge.edges_held",
     "edge.poses",

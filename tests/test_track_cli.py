@@ -12,8 +12,12 @@ import pytest
 from click.testing import CliRunner
 
 from edge.camera import paper_camera, save_camera
+from edge.centre_offsets import InlineFits
 from edge.cli import main
 from edge.messages import dumps, parse_pose
+from edge.offline import open_track_job
+from edge.pooled_fits import PooledFits
+from edge.tracker_config import TrackerConfig
 from tests.support.track import COLORS, SynthRover, shared_scene
 
 FRAMES = 24
@@ -65,6 +69,30 @@ def test_track_writes_one_pose_per_rover_per_frame_exactly_as_published(clip: Pa
     assert "frames/s processing" in result.output
     assert "detection 88.9%" in result.output  # blue hidden for 8 of 24 frames
     assert "blue: 16 poses" in result.output
+
+
+@pytest.mark.slow
+def test_track_writes_the_same_bytes_with_the_fits_pooled_as_with_them_in_the_loop(
+    clip: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """``track`` runs the edge fits in worker processes on the in-loop schedule: its poses are those of the fits run
+    in the frame loop, byte for byte, and the fits did move them (they are not the poses without the fits)."""
+    outputs = {}
+    for name in ("pooled", "inline", "off"):
+        if name == "inline":
+            monkeypatch.setattr("edge.offline.PooledFits", InlineFits)
+        config = TrackerConfig(edge_offsets=name != "off")
+        job = open_track_job(clip / "video.mp4", clip / "camera.json", config)
+        fits = job.tracker.offsets.fits if job.tracker.offsets is not None else None  # type: ignore[attr-defined]
+        assert type(fits) is {"pooled": PooledFits, "inline": InlineFits, "off": type(None)}[name]
+        job.run(tmp_path / f"{name}.jsonl")
+        if fits is not None:
+            assert sum(job.tracker.offsets.samples(i) for i in range(3)) > 0  # type: ignore[attr-defined]
+        if isinstance(fits, PooledFits):
+            assert not fits.inline and fits.worker_pids() == []  # the pool served, and was stopped by the run
+        outputs[name] = (tmp_path / f"{name}.jsonl").read_bytes()
+    assert outputs["pooled"] == outputs["inline"]
+    assert outputs["pooled"] != outputs["off"]
 
 
 @pytest.mark.slow
