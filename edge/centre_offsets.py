@@ -5,7 +5,7 @@ The coverage centre (``edge.coverage``) is cheap and steady, but a stream's chro
 quantisation) moves it by 0.1-0.4 cm, by an amount the camera, the marker's colour and the rover's body decide: most
 of it changes slowly across the floor (what changes faster, as a rover stops or turns on the spot, is left). The
 full fit of the marker's edges in the
-camera's encoded chroma (``edge.edges_encoded``) takes that spread out, but costs about 0.2 s per marker. So every
+camera's encoded chroma (``edge.edges_encoded``) takes that spread out, but costs about 0.1 s per marker. So every
 ``every_frames`` frames one rover's window (as the camera gave it) goes to a worker that fits its edges; the fitted
 centre minus the fast centre of that frame is a sample of the rover's offset at that place. Each frame the rover's
 fast centre moves by what its samples say there: the samples' mean weighted by their distance on the floor,
@@ -52,7 +52,7 @@ KEEP = 200  # samples kept per rover (the newest)
 TRUST_CM = 0.05  # the fits' own error on some cameras and bodies: this much of an offset is not applied
 INSET_CM = 2.0  # the marker's colour is read this far inside its nominal outline (at most a quarter of its width)
 MIN_INTERIOR_PX = 20
-STALL_FRAMES = 300  # ProcessFits: a fit running this long (10 s at 30 fps; one takes ~0.2 s) is abandoned
+STALL_FRAMES = 300  # ProcessFits: a fit running this long (10 s at 30 fps; one takes ~0.1 s) is abandoned
 HELD_BACK_FRAMES = 15  # InlineFits: a result reaches the tracker this late, as from a worker (~0.2-0.5 s per fit)
 
 

@@ -25,7 +25,7 @@ from edge.centre_offsets import HELD_BACK_FRAMES, EdgeJob, EdgeSample, fit_offse
 
 log = logging.getLogger(__name__)
 
-GUARD_S = 120.0  # a fit (~0.2 s) not done after this long is taken as a stuck worker
+GUARD_S = 120.0  # a fit (~0.1 s) not done after this long is taken as a stuck worker
 MAX_WORKERS = 4  # more gains nothing: at most 1 + delay_frames / every_frames fits are due at once after the start
 
 
