@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 import statistics
 from collections import deque
@@ -26,6 +27,8 @@ STEADY_SCATTERS = 5.0  # a steady area may lie this many of the rover's own area
 LEARN_SPAN = (0.8, 1.25)  # areas first learned: within this share of the nominal area (a quality over 0.8)
 RELEARN_FRAMES = 60  # lost this long (2 s at 30 fps), a rover may learn its area afresh (RoverTrack.relearn)
 RELEARN_NEARER = 1.1  # ... from a blob nearer the nominal area than its learned area is, by this factor
+RELEARN_SHAPE = 0.07  # ... whose elongation is within this share of the marker's aspect (a hidden end shortens it)
+RELEARN_STEP_CM = 3.0  # ... and whose last frames' blobs each lay within this of the next (one blob, not several)
 
 
 @dataclass(frozen=True)
@@ -46,7 +49,10 @@ class RoverTrack:
     misses: int = 0
     level: float = 0.0
     areas: deque[float] = field(default_factory=lambda: deque(maxlen=31))
-    sizes: deque[tuple[int, float]] = field(default_factory=lambda: deque(maxlen=STEADY_FRAMES))  # (frame, area)
+    # (frame, area, where): the blob measured in each of the last frames, where None if not known
+    sizes: deque[tuple[int, float, tuple[float, float] | None]] = field(
+        default_factory=lambda: deque(maxlen=STEADY_FRAMES)
+    )
     box: tuple[int, int, int, int] | None = None
     uv: tuple[float, float] | None = None
     theta_rad: float | None = None
@@ -55,6 +61,7 @@ class RoverTrack:
     seen: tuple[float, float, float] | None = None  # where (cm) and when (s, the stream's time) it was last measured
     offset_cm: tuple[float, float] = (0.0, 0.0)  # the centre correction last applied (edge.centre_offsets)
     lost_at: int | None = None  # the frame it was lost in (None while tracked, or before it was first seen)
+    relearned_at: int | None = None  # the frame a blob was taken by :meth:`relearn` (its areas to be forgotten)
 
     @property
     def lost(self) -> bool:
@@ -92,18 +99,27 @@ class RoverTrack:
         low = min(min_fraction, max(1.0 - scatters * spread, LOWEST_AREA_FRACTION))
         return low, max(max_fraction, 1.0 + 3.0 * spread)
 
-    def measured(self, frame: int, area_cm2: float) -> None:
-        """Note the area of the blob measured for this rover in ``frame`` (whole or not; the last one of a frame)."""
+    def measured(self, frame: int, area_cm2: float, xy_cm: tuple[float, float] | None = None) -> None:
+        """Note the area (and where, ``xy_cm``) of the blob measured for this rover in ``frame`` (whole or not; the
+        last one of a frame)."""
         if self.sizes and self.sizes[-1][0] == frame:
             self.sizes.pop()
-        self.sizes.append((frame, area_cm2))
+        self.sizes.append((frame, area_cm2, xy_cm))
+
+    def one_blob(self, step_cm: float) -> bool:
+        """Did the blobs of the frames in :meth:`steady`'s history each lie within ``step_cm`` of the next (one blob
+        followed, not several measured in turn, as the search for a lost rover may)?"""
+        places = [xy for _, _, xy in self.sizes if xy is not None]
+        if len(places) < len(self.sizes):
+            return False
+        return all(math.dist(a, b) <= step_cm for a, b in itertools.pairwise(places))
 
     def steady(self, frame: int, expected_cm2: float) -> bool:
         """Have the blobs of the last :data:`STEADY_FRAMES` frames up to ``frame`` (each measured, none missed) shown
         one level of area (:func:`steady_areas`)?"""
         if len(self.sizes) < STEADY_FRAMES or self.sizes[0][0] != frame - STEADY_FRAMES + 1:
             return False
-        return steady_areas([a / expected_cm2 for _, a in self.sizes], STEADY_SLOPE, STEADY_STEP)
+        return steady_areas([a / expected_cm2 for _, a, _ in self.sizes], STEADY_SLOPE, STEADY_STEP)
 
     def larger_and_level(self, area_cm2: float, nominal_cm2: float, frame: int) -> bool:
         """Is an accepted blob larger than the learned area and its area level over the last frames
@@ -153,16 +169,18 @@ class RoverTrack:
             else config.acquire_area_range
         )
         if learned:
-            self.measured(frame, m.area_cm2)
+            self.measured(frame, m.area_cm2, m.xy_cm)
         steady = learned and ratio < low and self.steady_below(ratio, expected_area_cm2, config, frame)
+        relearn = False
         if not low <= ratio <= high and not steady:
-            if not (learned and self.relearn(m.area_cm2, config.marker_area_cm2, frame)):
+            if not (learned and self.relearn(m, config, frame)):
                 return False
-            self.areas.clear()  # learned afresh from this blob on, as when the rover was first seen
-        aspect = max(config.marker_length_cm, config.marker_width_cm) / min(
-            config.marker_length_cm, config.marker_width_cm
-        )
-        return m.elongation <= aspect * config.max_elongation_factor
+            relearn = True
+        if m.elongation > _aspect(config) * config.max_elongation_factor:
+            return False
+        if relearn:
+            self.relearned_at = frame  # its areas are forgotten once it is taken (Pipeline)
+        return True
 
     def steady_below(self, ratio: float, expected_cm2: float, config: TrackerSettings, frame: int) -> bool:
         """Is a blob showing less than the area band's share (``ratio`` of the learned area) a whole marker all the
@@ -178,24 +196,28 @@ class RoverTrack:
         low, _ = self.area_band(expected_cm2, config.min_area_fraction, config.max_area_fraction, STEADY_SCATTERS)
         return ratio >= low and self.steady(frame, expected_cm2)
 
-    def relearn(self, area_cm2: float, nominal_cm2: float, frame: int) -> bool:
+    def relearn(self, m: Measurement, config: TrackerSettings, frame: int) -> bool:
         """Should a blob outside the area band make this rover forget its learned area and start learning afresh?
 
         A learned area can be wrong: measurements that grew a little at a time (a wrong light on the marker made it
         look a fifth larger, frame after frame) take it along, and from then on the real marker is refused, for
         good, since refused areas are never learned. When the rover has been lost for :data:`RELEARN_FRAMES` and a
-        blob has stayed level (:meth:`steady`) within the span first learned from (:data:`LEARN_SPAN` of the
-        nominal area) and nearer the nominal area than the learned area is, by :data:`RELEARN_NEARER` at least,
-        the configuration is believed: the blob is the marker and the learned area the mistake. A marker partly
-        hidden is farther from the nominal area than a plausible learned area, and stays refused however long."""
+        blob within the span areas are first learned from (:data:`LEARN_SPAN` of the nominal area) is nearer the
+        nominal area than the learned area is, by :data:`RELEARN_NEARER` at least, has the marker's shape (its
+        elongation within :data:`RELEARN_SHAPE` of the configured aspect) and has stayed level (:meth:`steady`)
+        as one blob (:meth:`one_blob`), the configuration is believed: the blob is the marker and the learned area
+        the mistake. A marker partly hidden is farther from the nominal area than a plausible learned area; where
+        the real marker is off the configured size, so that a hidden part could bring it nearer, the hidden end
+        changes its shape (15 % of its length hidden: elongation 1.28 -> 1.09)."""
         if self.lost_at is None or frame - self.lost_at < RELEARN_FRAMES:
             return False
-        expected = self.expected_area(nominal_cm2)
+        nominal = config.marker_area_cm2
+        expected = self.expected_area(nominal)
         lo, hi = LEARN_SPAN
-        if not lo <= area_cm2 / nominal_cm2 <= hi:
+        if not lo <= m.area_cm2 / nominal <= hi or abs(m.elongation / _aspect(config) - 1.0) > RELEARN_SHAPE:
             return False
-        nearer = abs(math.log(expected / nominal_cm2)) - abs(math.log(area_cm2 / nominal_cm2))
-        return nearer >= math.log(RELEARN_NEARER) and self.steady(frame, expected)
+        nearer = abs(math.log(expected / nominal)) - abs(math.log(m.area_cm2 / nominal))
+        return nearer >= math.log(RELEARN_NEARER) and self.steady(frame, expected) and self.one_blob(RELEARN_STEP_CM)
 
     def estimate(self, obs: Observation, theta_rad: float | None, quality: float) -> RoverEstimate:
         """This frame's estimate: the filtered pose and velocity, and the measurement ``obs`` they took in (for a
@@ -225,6 +247,11 @@ class RoverTrack:
             return True
         x, y, t = self.seen
         return math.hypot(xy_cm[0] - x, xy_cm[1] - y) <= max_speed_cm_s * max(0.0, t_s - t) + slack_cm
+
+
+def _aspect(config: TrackerSettings) -> float:
+    """The marker's length over its width (at least 1)."""
+    return max(config.marker_length_cm, config.marker_width_cm) / min(config.marker_length_cm, config.marker_width_cm)
 
 
 def steady_areas(ratios: Sequence[float], max_slope: float, max_step: float) -> bool:
