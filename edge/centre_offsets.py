@@ -23,6 +23,9 @@ from __future__ import annotations
 import logging
 import math
 import multiprocessing
+import os
+import select
+import threading
 from collections import deque
 from concurrent.futures import Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -167,6 +170,24 @@ class Fits(Protocol):
     def close(self) -> None: ...
 
 
+def exit_with_parent(parent_pid: int) -> None:
+    """A worker process's initializer: end the worker when process ``parent_pid`` ends, however it ends (a
+    ``kill -9``, a crash: no ``finally`` of the parent's runs then, and an idle worker would wait for jobs for
+    ever). A thread waits on the parent's pidfd (Linux 5.3+), else polls the parent's id once a second."""
+
+    def watch() -> None:
+        try:
+            fd = os.pidfd_open(parent_pid)
+        except (AttributeError, OSError):  # not Linux, or an older kernel
+            while os.getppid() == parent_pid:
+                threading.Event().wait(1.0)
+        else:
+            select.select([fd], [], [])  # readable once the parent has ended
+        os._exit(0)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
 class InlineFits:
     """Fits in the frame loop, one every ``every_frames`` frames, each result released ``delay_frames`` after its
     job as if a worker had taken that long: runs that repeat exactly (benchmarks; ``edge-ips track`` runs this schedule
@@ -238,7 +259,12 @@ class ProcessFits:
         try:
             if self._pool is None:
                 # spawn: the appliance runs threads (MQTT, HTTP), which a forked child would inherit half-way
-                self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+                self._pool = ProcessPoolExecutor(
+                    max_workers=1,
+                    mp_context=multiprocessing.get_context("spawn"),
+                    initializer=exit_with_parent,
+                    initargs=(os.getpid(),),
+                )
             self._running = self._pool.submit(fit_offset, job)
             self._started = job.frame
         except Exception as exc:  # the pool cannot start or is broken (its worker died before this job)

@@ -207,8 +207,10 @@ class TrackJob:
                     if on_frame is not None:
                         on_frame(result)
         finally:
-            self.frames.close()
-            self.tracker.close()  # the edge fits' workers
+            try:
+                self.frames.close()
+            finally:
+                self.tracker.close()  # the edge fits' workers
         summary.wall_s = time.perf_counter() - t_wall
         summary.stage_ms_median = {k: float(np.median(v)) for k, v in stages.items()}
         return summary

@@ -7,8 +7,10 @@ A job goes to the pool when it is handed over and is waited for (blocking) only 
 frame until every rover has :data:`~edge.centre_offsets.MIN_SAMPLES` samples) spread over the workers.
 
 The fit is a pure function of the job, so any job the pool does not deliver is fitted in this process instead, with
-the same result: a fit that raised there, a worker that died or could not be started, or a fit not done after
-:data:`GUARD_S`. The first such failure is logged, the pool is stopped, and the rest of the run fits inline.
+the same result: a worker that died or could not be started, or a fit not done after :data:`GUARD_S` (the first
+such failure is logged, the pool is stopped, and the rest of the run fits inline), or a fit that raised in a worker
+(run again here, where it raises as it would in the loop). The workers end with this process, however it ends
+(:func:`~edge.centre_offsets.exit_with_parent`).
 """
 
 from __future__ import annotations
@@ -20,8 +22,9 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
+from concurrent.futures.process import BrokenProcessPool
 
-from edge.centre_offsets import HELD_BACK_FRAMES, EdgeJob, EdgeSample, fit_offset
+from edge.centre_offsets import HELD_BACK_FRAMES, EdgeJob, EdgeSample, exit_with_parent, fit_offset
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +76,12 @@ class PooledFits:
             try:
                 if self._pool is None:
                     # spawn: a forked child would inherit the parent's threads half-way (see ProcessFits)
-                    self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+                    self._pool = ProcessPoolExecutor(
+                        self.workers,
+                        mp_context=multiprocessing.get_context("spawn"),
+                        initializer=exit_with_parent,  # no orphans if this process is killed
+                        initargs=(os.getpid(),),
+                    )
                 future = self._pool.submit(self._fit, job)
             except Exception as exc:  # the pool cannot start, or is broken (a worker died before this job)
                 self._fail(f"a worker process could not take a job ({exc!r})")
@@ -95,8 +103,10 @@ class PooledFits:
                 return future.result(timeout=self.guard_s)
             except FutureTimeout:
                 self._fail(f"a fit was not done after {self.guard_s:.0f} s")
-            except Exception as exc:  # BrokenProcessPool (a worker died), or the fit raised in the worker
-                self._fail(f"a fit in a worker process failed ({exc!r})")
+            except BrokenProcessPool as exc:  # a worker died
+                self._fail(f"a worker process died ({exc!r})")
+            except Exception:  # the fit raised in the worker: the pool serves on; here it raises as in the loop
+                pass
         return self._fit(job)
 
     def _fail(self, reason: str) -> None:

@@ -5,11 +5,15 @@ them."""
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import multiprocessing
 import os
+import select
 import signal
+import subprocess
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
@@ -41,6 +45,7 @@ from edge.trackers.base import CameraPlaneMapping, PlaneGrid
 from edge.trackers.factory import build_tracker
 from edge.trackers.plane import world_blob
 from edge.tracking import Frame
+from tests.conftest import REPO
 
 SIZE_CM = (21.5, 16.8)
 BLACK = (0.035, 0.034, 0.032)
@@ -425,3 +430,66 @@ def test_a_pool_that_cannot_start_leaves_the_fits_to_the_loop(monkeypatch, caplo
     assert fits.inline and "could not take a job" in caplog.text and len(caplog.records) == 1
     assert fits.collect(4) == []  # fitted here: a window of no marker pixels gives no sample
     assert not fits._pending
+
+
+_STARTS_A_WORKER = """
+import json, sys
+import numpy as np
+from edge.centre_offsets import EdgeJob, ProcessFits
+from edge.pooled_fits import PooledFits
+job = EdgeJob(0, 0, np.zeros((4, 4, 3), np.uint8), np.zeros((2, 4, 4)), (0.0, 0.0), 0.0, (21.5, 16.8))
+if sys.argv[1] == "pooled":
+    fits = PooledFits(every_frames=10, delay_frames=0, workers=1)
+    fits.submit(job)
+    fits.collect(0)  # waits for the worker's fit
+else:
+    fits = ProcessFits()
+    fits.submit(job)
+    fits.wait(60.0)
+print(json.dumps(fits.worker_pids()), flush=True)
+sys.stdin.read()  # until killed
+"""
+
+
+def _ends(pid: int, timeout_s: float) -> bool:
+    """Wait (on the process's pidfd) until ``pid`` has ended; False on timeout."""
+    try:
+        fd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        return True
+    try:
+        return bool(select.select([fd], [], [], timeout_s)[0])
+    finally:
+        os.close(fd)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["pooled", "process"])
+def test_the_fits_workers_end_when_the_process_that_started_them_is_killed(kind):
+    """``kill -9`` of ``edge-ips track`` or of the appliance runs no ``finally``: the idle workers would wait for jobs
+    for ever, reparented. They watch their parent and end with it."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _STARTS_A_WORKER, kind],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        cwd=REPO,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+    )
+    try:
+        assert proc.stdout is not None
+        pids = json.loads(proc.stdout.readline())
+        assert len(pids) == 1 and _ends(pids[0], 0.0) is False  # a worker, alive
+    finally:
+        proc.kill()
+        proc.wait()
+    assert _ends(pids[0], 60.0)
+
+
+@pytest.mark.slow
+def test_closing_the_pooled_fits_ends_their_workers(three_jobs):
+    fits = PooledFits(every_frames=10, delay_frames=15, workers=2)
+    _schedule(fits, three_jobs[:1])
+    pids = fits.worker_pids()
+    assert pids
+    fits.close()
+    assert all(_ends(pid, 60.0) for pid in pids)
