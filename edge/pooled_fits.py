@@ -102,6 +102,8 @@ class PooledFits:
             try:
                 return future.result(timeout=self.guard_s)
             except FutureTimeout:
+                if future.done():  # the fit itself raised a TimeoutError: the pool serves on
+                    return self._fit(job)
                 self._fail(f"a fit was not done after {self.guard_s:.0f} s")
             except BrokenProcessPool as exc:  # a worker died
                 self._fail(f"a worker process died ({exc!r})")

@@ -14,6 +14,7 @@ import select
 import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
@@ -399,14 +400,19 @@ def test_a_worker_that_dies_leaves_the_fits_to_the_loop_with_the_same_results(th
     assert warning.levelno == logging.WARNING and "runs in the frame loop" in warning.getMessage()
 
 
+def _fit_stuck_in_a_worker(job: EdgeJob) -> EdgeSample | None:
+    """``fit_offset``, except that in a worker process it never finishes (a stuck worker)."""
+    if multiprocessing.parent_process() is not None:
+        threading.Event().wait()
+    return fit_offset(job)
+
+
 @pytest.mark.slow
 def test_a_fit_not_done_after_the_guard_is_fitted_in_the_loop_and_the_pool_stopped(three_jobs, caplog):
     job = three_jobs[0]
-    fits = PooledFits(every_frames=10, delay_frames=0, workers=1, guard_s=1.0)
+    fits = PooledFits(every_frames=10, delay_frames=0, workers=1, fit=_fit_stuck_in_a_worker, guard_s=1.0)
     try:
         fits.submit(replace(job, frame=0))
-        (pid,) = fits.worker_pids()
-        os.kill(pid, signal.SIGSTOP)  # a worker that never finishes its fit
         with caplog.at_level(logging.WARNING, logger="edge.pooled_fits"):
             assert fits.collect(0) == [fit_offset(job)]
         assert fits.inline and fits.worker_pids() == []
@@ -415,6 +421,25 @@ def test_a_fit_not_done_after_the_guard_is_fitted_in_the_loop_and_the_pool_stopp
         assert fits.collect(10) == [fit_offset(replace(job, frame=10))]
     finally:
         fits.close()
+
+
+def _fit_raising_in_a_worker(job: EdgeJob) -> EdgeSample | None:
+    """``fit_offset``, except that in a worker process the job of frame 2 raises."""
+    if job.frame == 2 and multiprocessing.parent_process() is not None:
+        raise ValueError("a fit that fails in the worker")
+    return fit_offset(job)
+
+
+@pytest.mark.slow
+def test_a_fit_that_raises_in_a_worker_is_fitted_in_the_loop_and_the_pool_serves_on(three_jobs):
+    inline = _schedule(InlineFits(every_frames=10, delay_frames=15), three_jobs)
+    fits = PooledFits(every_frames=10, delay_frames=15, workers=2, fit=_fit_raising_in_a_worker)
+    try:
+        pooled = _schedule(fits, three_jobs)
+        assert not fits.inline and fits.worker_pids()  # the pool still serves
+    finally:
+        fits.close()
+    assert pooled == inline
 
 
 def test_a_pool_that_cannot_start_leaves_the_fits_to_the_loop(monkeypatch, caplog):
