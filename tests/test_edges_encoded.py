@@ -152,7 +152,8 @@ def test_the_held_fit_refuses_profiles_not_centred_on_the_marker(stream_fits):
 @pytest.mark.slow
 def test_the_side_by_side_jacobian_gives_the_fit_of_forward_differences_over_every_residual(grid, monkeypatch):
     """A side's edge and margin move only that side's residuals, so the fit differences that side alone for them
-    (32 side models per Jacobian instead of 56); the fit is the same, to the last bit, as differencing every residual."""
+    (32 side models per Jacobian instead of 56); the fit is the same, to the last bit, as differencing every
+    residual."""
     import edge.edges_encoded as encoded
 
     frames = _frames(grid, Compression(quality=70, chroma="4:2:0"), 0.8)[:2]
