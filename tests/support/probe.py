@@ -9,12 +9,16 @@ The password travels in the environment, never on a command line.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
+import random
+import re
 import shutil
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import uuid
 from collections.abc import Callable, Iterator
@@ -175,6 +179,11 @@ class OtherHost:
         return report
 
 
+def _offset(address: str, n: int) -> str:
+    head, last = address.rsplit(".", 1)
+    return f"{head}.{int(last) + n}"
+
+
 def _non_loopback_address() -> str | None:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         try:
@@ -185,29 +194,54 @@ def _non_loopback_address() -> str | None:
     return None if address.startswith("127.") else address
 
 
+def _free_subnet(ip: str | None) -> int:
+    """A /30 in 10.211.0.0/16 that no interface of this machine holds: a namespace left behind by a killed run, or
+    one of a run beside this one, on the same subnet would take the replies and time the probe out."""
+    used: set[int] = set()
+    if ip is not None:
+        listing = subprocess.run([ip, "-o", "-4", "addr", "show"], capture_output=True, text=True).stdout
+        used = {int(a) * 64 + int(b) // 4 for a, b in re.findall(r"inet 10\.211\.(\d+)\.(\d+)/", listing)}
+    free = [n for n in range(1, 250 * 64) if n not in used]
+    return random.choice(free)
+
+
+@contextmanager
+def _netns_lock() -> Iterator[None]:
+    """Held while a namespace's subnet is chosen and its addresses set, across processes (runs side by side)."""
+    with open(os.path.join(tempfile.gettempdir(), "edgeips-netns.lock"), "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
 @contextmanager
 def other_host() -> Iterator[OtherHost]:
-    """A network namespace with a veth pair to this one (10.211.x.0/30), or a non-loopback address of this host."""
+    """A network namespace with a veth pair to this one (a free /30 in 10.211.0.0/16), or a non-loopback address
+    of this host."""
     name = f"edgeips-{uuid.uuid4().hex[:6]}"
-    subnet = int(name[-2:], 16) % 250 + 1
-    here, there = f"10.211.{subnet}.1", f"10.211.{subnet}.2"
-    outer, inner = f"vo{name[-6:]}", f"vi{name[-6:]}"
     ip = shutil.which("ip")
-    steps = [
-        ["netns", "add", name],
-        ["link", "add", outer, "type", "veth", "peer", "name", inner],
-        ["link", "set", inner, "netns", name],
-        ["addr", "add", f"{here}/30", "dev", outer],
-        ["link", "set", outer, "up"],
-        ["netns", "exec", name, "ip", "addr", "add", f"{there}/30", "dev", inner],
-        ["netns", "exec", name, "ip", "link", "set", inner, "up"],
-        ["netns", "exec", name, "ip", "link", "set", "lo", "up"],
-    ]
-    made = ip is not None and os.geteuid() == 0
-    for step in steps if made else []:
-        if subprocess.run([str(ip), *step], capture_output=True).returncode != 0:
-            made = False
-            break
+    outer, inner = f"vo{name[-6:]}", f"vi{name[-6:]}"
+    with _netns_lock():
+        subnet = _free_subnet(ip)
+        base = f"10.211.{subnet // 64}.{subnet % 64 * 4}"
+        here, there = _offset(base, 1), _offset(base, 2)
+        steps = [
+            ["netns", "add", name],
+            ["link", "add", outer, "type", "veth", "peer", "name", inner],
+            ["link", "set", inner, "netns", name],
+            ["addr", "add", f"{here}/30", "dev", outer],
+            ["link", "set", outer, "up"],
+            ["netns", "exec", name, "ip", "addr", "add", f"{there}/30", "dev", inner],
+            ["netns", "exec", name, "ip", "link", "set", inner, "up"],
+            ["netns", "exec", name, "ip", "link", "set", "lo", "up"],
+        ]
+        made = ip is not None and os.geteuid() == 0
+        for step in steps if made else []:
+            if subprocess.run([str(ip), *step], capture_output=True).returncode != 0:
+                made = False
+                break
     try:
         if made:
             yield OtherHost(address=there, host_address=here, namespace=name)
