@@ -20,6 +20,7 @@ EDGE = Path(__file__).resolve().parent.parent / "edge"
 CORE = (
     "edge.segmentation",
     "edge.coverage",
+    "edge.blob_shape",
     "edge.filtering",
     "edge.two_tone",
     "edge.trackers",

@@ -1,0 +1,151 @@
+"""A blob's shape: whole markers worn down all round by the stream are symmetric, partly hidden ones are not."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from edge.blob_shape import eroded_elongation, point_asymmetry
+from edge.rover_track import symmetric_below
+from edge.trackers.base import Measurement
+
+LENGTH, WIDTH = 21.5, 16.8  # cm: the default marker
+ASPECT = LENGTH / WIDTH
+
+
+def _coverage(polygon_cm: np.ndarray, px_per_cm: float, angle_deg: float, tilt: float, holes=()) -> np.ndarray:
+    """Anti-aliased coverage of ``polygon_cm`` (minus ``holes``) seen by a camera: scaled, turned, and foreshortened
+    along the image's rows by ``tilt`` with a perspective term (a far-side marker is wider than it is tall)."""
+    a = math.radians(angle_deg)
+    rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+
+    def image(points: np.ndarray) -> np.ndarray:
+        p = points @ rot.T * px_per_cm
+        w = 1.0 + 0.03 * p[:, 1] / (px_per_cm * WIDTH / 2)  # the perspective: 3 % larger at the near side
+        return np.column_stack([p[:, 0] / w + 60.0, tilt * p[:, 1] / w + 60.0])
+
+    scale = 16  # draw at 16x and average: coverage to 1/256 of a pixel
+    canvas = np.zeros((120 * scale, 120 * scale), np.uint8)
+    cv2.fillPoly(canvas, [np.rint(image(polygon_cm) * scale).astype(np.int32)], 255)
+    for hole in holes:
+        cv2.fillPoly(canvas, [np.rint(image(hole) * scale).astype(np.int32)], 0)
+    return cv2.resize(canvas, (120, 120), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+
+
+def _rect(length: float, width: float, cx: float = 0.0, cy: float = 0.0) -> np.ndarray:
+    return np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], np.float64) * [length / 2, width / 2] + [cx, cy]
+
+
+@pytest.mark.parametrize(("px_per_cm", "angle", "tilt"), [(1.0, 0.0, 0.45), (1.0, 33.0, 0.45), (2.5, 70.0, 0.8)])
+@pytest.mark.parametrize("worn_cm", [0.0, 0.6, 1.0])
+def test_a_whole_marker_worn_down_all_round_is_nearly_symmetric_at_any_size_angle_and_perspective(
+    px_per_cm: float, angle: float, tilt: float, worn_cm: float
+) -> None:
+    # far side: about 21 x 9 pixels; near side: 54 x 34; the perspective's 3 % alone makes it a little lopsided
+    marker = _rect(LENGTH - 2 * worn_cm, WIDTH - 2 * worn_cm)
+    assert point_asymmetry(_coverage(marker, px_per_cm, angle, tilt)) < 0.1
+
+
+def _hidden(keep: np.ndarray) -> tuple[float, float, float]:
+    """Visible share, centre shift (cm) and elongation (as a share of the marker's) of the marker's part ``keep``
+    (a mask on :data:`GRID`)."""
+    x, y = GRID
+    if keep.mean() < 0.5:
+        return float(keep.mean()), math.nan, math.nan
+    cx, cy = x[keep].mean(), y[keep].mean()
+    dx, dy = x[keep] - cx, y[keep] - cy
+    low, high = np.linalg.eigvalsh(np.cov(np.vstack([dx, dy])))
+    return float(keep.mean()), math.hypot(cx, cy), math.sqrt(high / low) / ASPECT
+
+
+GRID = np.meshgrid(np.linspace(-LENGTH / 2, LENGTH / 2, 431), np.linspace(-WIDTH / 2, WIDTH / 2, 337))
+
+
+def _accepted(hole: np.ndarray, px_per_cm: float, angle: float, tilt: float) -> tuple[bool, float, float]:
+    """Does :func:`edge.rover_track.symmetric_below` take the marker with ``hole`` hidden for whole? And its
+    visible share and centre shift."""
+    x, y = GRID
+    (x0, y0), (x1, y1) = hole.min(axis=0), hole.max(axis=0)
+    share, shift, elongation = _hidden(~((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)))
+    if math.isnan(shift):
+        return False, share, shift
+    weights = _coverage(_rect(LENGTH, WIDTH), px_per_cm, angle, tilt, holes=[hole])
+    m = Measurement((0.0, 0.0), (60.0, 60.0), share, 1.0, share, 0.0, elongation * ASPECT, False, weights)
+    return symmetric_below(m, share, ASPECT), share, shift
+
+
+@pytest.mark.parametrize(
+    "hole",
+    [
+        _rect(14.0, 11.0, LENGTH / 2, WIDTH / 2),  # a box's corner over the marker's corner: 11 % hidden, 1.1 cm off
+        _rect(12.0, 8.0, 0.0, WIDTH / 2),  # a leg on the middle of a long side: 13 %, 1.0 cm
+        _rect(8.0, 10.0, LENGTH / 2, 0.0),  # a foot on the middle of the front: 11 %, 1.1 cm
+        _rect(6.0, 30.0, LENGTH / 2, 0.0),  # a slab's straight edge across the front: 14 %, 1.5 cm
+        _rect(30.0, 4.0, 0.0, WIDTH / 2),  # ... along a side: 12 %, 1.0 cm
+    ],
+)
+@pytest.mark.parametrize(("px_per_cm", "angle", "tilt"), [(1.0, 20.0, 0.45), (2.5, 70.0, 0.8)])
+def test_a_marker_with_a_tenth_of_it_hidden_is_not_taken_for_a_worn_whole_one(
+    hole: np.ndarray, px_per_cm: float, angle: float, tilt: float
+) -> None:
+    accepted, share, shift = _accepted(hole, px_per_cm, angle, tilt)
+    assert 0.8 <= share < 0.9 and shift > 0.7  # below the area band, and its centre well off
+    assert not accepted
+
+
+@pytest.mark.parametrize(("px_per_cm", "angle", "tilt"), [(1.0, 20.0, 0.45), (2.5, 70.0, 0.8)])
+@pytest.mark.parametrize("worn_cm", [0.5, 0.7, 0.9])
+def test_a_whole_marker_worn_below_the_area_band_is_taken(
+    px_per_cm: float, angle: float, tilt: float, worn_cm: float
+) -> None:
+    worn = _rect(LENGTH - 2 * worn_cm, WIDTH - 2 * worn_cm)
+    share = (LENGTH - 2 * worn_cm) * (WIDTH - 2 * worn_cm) / (LENGTH * WIDTH)
+    elongation = (LENGTH - 2 * worn_cm) / (WIDTH - 2 * worn_cm)
+    m = Measurement(
+        (0.0, 0.0), (60.0, 60.0), share, 1.0, share, 0.0, elongation, False, _coverage(worn, px_per_cm, angle, tilt)
+    )
+    assert 0.8 <= share < 0.92 and symmetric_below(m, share, ASPECT)
+
+
+def test_what_a_hidden_part_the_rule_lets_through_can_move_the_centre_is_small() -> None:
+    """Boxes of random size and place over the marker, hiding 8-20 % of it (straight edges, corners, notches), seen
+    at the far side's scale: those taken for a whole worn marker moved its centre 0.35 cm at most (a whole marker's
+    own scatter on a compressed stream)."""
+    rng = np.random.default_rng(7)
+    taken, shifts = 0, []
+    while len(shifts) < 150:
+        w, h = rng.uniform(2.0, 30.0), rng.uniform(2.0, 30.0)
+        cx, cy = (
+            rng.uniform(-LENGTH / 2 - w / 2, LENGTH / 2 + w / 2),
+            rng.uniform(-WIDTH / 2 - h / 2, WIDTH / 2 + h / 2),
+        )
+        accepted, share, shift = _accepted(_rect(w, h, cx, cy), 1.0, rng.uniform(0, 180), 0.45)
+        if not 0.8 <= share <= 0.92:
+            continue
+        shifts.append(shift)
+        if accepted:
+            taken += 1
+            assert shift < 0.35
+    assert taken < len(shifts) / 2 and max(shifts) > 1.0  # most refused, among them the ones well off
+
+
+def test_the_worn_elongation_is_the_marker_s_own_unworn_and_grows_as_it_wears() -> None:
+    assert eroded_elongation(1.0, ASPECT) == 1.0
+    ratios = [0.95, 0.9, 0.85, 0.8, 0.75]
+    values = [eroded_elongation(r, ASPECT) for r in ratios]
+    assert values == sorted(values) and values[0] > 1.0
+    for ratio, value in zip(ratios, values, strict=True):  # against the rectangle worn by the width it takes
+        u = 0.5 * ((LENGTH + WIDTH) - math.sqrt((LENGTH + WIDTH) ** 2 - 4 * (1 - ratio) * LENGTH * WIDTH))
+        assert value == pytest.approx(((LENGTH - u) / (WIDTH - u)) / ASPECT)
+    assert eroded_elongation(0.8, 1.0) == 1.0  # a square stays a square
+    assert eroded_elongation(0.0, ASPECT) == math.inf  # worn away
+
+
+def test_a_blob_with_no_extent_is_not_called_symmetric() -> None:
+    assert point_asymmetry(np.zeros((8, 8), np.float32)) == math.inf
+    line = np.zeros((8, 8), np.float32)
+    line[4, 1:7] = 1.0
+    assert point_asymmetry(line) == math.inf
