@@ -29,7 +29,7 @@ def point_asymmetry(weights: F32) -> float:
     h, w = weights.shape
     m = weights.astype(np.float64)
     s = float(m.sum())
-    if s <= 1e-9:
+    if not (s > 1e-9 and math.isfinite(s)):  # nothing there, or NaN weights
         return math.inf
     y, x = np.mgrid[0:h, 0:w].astype(np.float64)
     dx = x - float((m * x).sum()) / s

@@ -33,6 +33,7 @@ RELEARN_STEP_CM = 3.0  # ... and whose last frames' blobs each lay within this o
 SYMMETRY_FLOOR = 0.8  # a blob below the area band but showing this share of the learned area may be whole ...
 SYMMETRY_SKEW = 0.15  # ... when its point asymmetry (edge.blob_shape) is at most this
 SYMMETRY_SHAPE = 0.05  # ... and its elongation within this share of a rectangle worn down all round to its area
+SYMMETRY_STEP_CM = 0.75  # ... and its centre within this of where the rover's filter expects it
 
 
 @dataclass(frozen=True)
@@ -175,7 +176,13 @@ class RoverTrack:
         if learned:
             self.measured(frame, m.area_cm2, m.xy_cm)
         steady = learned and ratio < low and self.steady_below(ratio, expected_area_cm2, config, frame)
-        symmetric = learned and ratio < low and not steady and symmetric_below(m, ratio, _aspect(config))
+        symmetric = (
+            learned
+            and ratio < low
+            and not steady
+            and self.config.front_color_bgr is None  # a two-tone marker's coloured part has another aspect
+            and symmetric_below(m, ratio, _aspect(config), self.innovation_cm(m))
+        )
         relearn = False
         if not low <= ratio <= high and not steady and not symmetric:
             if not (learned and self.relearn(m, config, frame)):
@@ -186,6 +193,14 @@ class RoverTrack:
         if relearn:
             self.relearned_at = frame  # its areas are forgotten once it is taken (Pipeline)
         return True
+
+    def innovation_cm(self, m: Measurement) -> float | None:
+        """How far the measurement's centre (with the centre correction last applied) lies from where the rover's
+        filter expects it this frame; None while it has no filter (lost, or being acquired)."""
+        if self.filter is None:
+            return None
+        x, y = self.filter.position
+        return math.hypot(m.xy_cm[0] + self.offset_cm[0] - x, m.xy_cm[1] + self.offset_cm[1] - y)
 
     def steady_below(self, ratio: float, expected_cm2: float, config: TrackerSettings, frame: int) -> bool:
         """Is a blob showing less than the area band's share (``ratio`` of the learned area) a whole marker all the
@@ -259,16 +274,23 @@ def _aspect(config: TrackerSettings) -> float:
     return max(config.marker_length_cm, config.marker_width_cm) / min(config.marker_length_cm, config.marker_width_cm)
 
 
-def symmetric_below(m: Measurement, ratio: float, aspect: float) -> bool:
+def symmetric_below(m: Measurement, ratio: float, aspect: float, innovation_cm: float | None) -> bool:
     """Is a blob showing ``ratio`` of the learned area, below the area band, the whole marker worn down all round by
     the stream (``edge.blob_shape``)? At least :data:`SYMMETRY_FLOOR` of the area, its point asymmetry at most
-    :data:`SYMMETRY_SKEW` and its elongation (``aspect``: the marker's) within :data:`SYMMETRY_SHAPE` of a worn
-    rectangle's. A part hidden by a leg or a box makes it lopsided or, cut straight across, of the wrong elongation;
-    what a hidden part that passes both can move the centre is small (0.32 cm at most over 1500 random boxes hiding
-    8-20 % of a marker, 14 of them taken; tests/test_blob_shape.py, docs/tracking.md)."""
-    if ratio < SYMMETRY_FLOOR or m.weights is None:
+    :data:`SYMMETRY_SKEW`, its elongation (``aspect``: the marker's) within :data:`SYMMETRY_SHAPE` of a worn
+    rectangle's, and its centre within :data:`SYMMETRY_STEP_CM` of where the filter expects it (``innovation_cm``;
+    None: no filter, not taken).
+
+    A part hidden by a leg or a box makes the blob lopsided or, cut straight across, of the wrong elongation; of the
+    hidden parts that pass both, one box's moves the centre 0.45 cm at most (tests/test_blob_shape.py). Strips
+    hidden along an end and a side at once leave a smaller rectangle, symmetric and of a worn marker's shape,
+    whose centre is off by the strips' width (1.1 cm at 0.85 of the area): the shape cannot tell, the filter's
+    prediction can (docs/tracking.md, "Is it one whole marker?")."""
+    if ratio < SYMMETRY_FLOOR or m.weights is None or innovation_cm is None:
         return False
-    if abs(m.elongation / aspect / eroded_elongation(ratio, aspect) - 1.0) > SYMMETRY_SHAPE:
+    if not innovation_cm <= SYMMETRY_STEP_CM:
+        return False
+    if not abs(m.elongation / aspect / eroded_elongation(ratio, aspect) - 1.0) <= SYMMETRY_SHAPE:  # NaN: refused
         return False
     return point_asymmetry(m.weights) <= SYMMETRY_SKEW
 

@@ -64,17 +64,23 @@ def _hidden(keep: np.ndarray) -> tuple[float, float, float]:
 GRID = np.meshgrid(np.linspace(-LENGTH / 2, LENGTH / 2, 431), np.linspace(-WIDTH / 2, WIDTH / 2, 337))
 
 
-def _accepted(hole: np.ndarray, px_per_cm: float, angle: float, tilt: float) -> tuple[bool, float, float]:
-    """Does :func:`edge.rover_track.symmetric_below` take the marker with ``hole`` hidden for whole? And its
-    visible share and centre shift."""
+def _accepted(
+    holes: list[np.ndarray], px_per_cm: float, angle: float, tilt: float, innovation_cm: float | None = 0.0
+) -> tuple[bool, float, float]:
+    """Does :func:`edge.rover_track.symmetric_below` take the marker with ``holes`` (boxes along the marker's axes)
+    hidden for whole, its centre ``innovation_cm`` from the filter's prediction (0: the shape alone decides)? And
+    its visible share and centre shift."""
     x, y = GRID
-    (x0, y0), (x1, y1) = hole.min(axis=0), hole.max(axis=0)
-    share, shift, elongation = _hidden(~((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)))
-    if math.isnan(shift):
+    keep = np.ones_like(x, dtype=bool)
+    for hole in holes:
+        (x0, y0), (x1, y1) = hole.min(axis=0), hole.max(axis=0)
+        keep &= ~((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1))
+    share, shift, elongation = _hidden(keep)
+    if math.isnan(shift) or not 0.75 <= share < 1.0:
         return False, share, shift
-    weights = _coverage(_rect(LENGTH, WIDTH), px_per_cm, angle, tilt, holes=[hole])
+    weights = _coverage(_rect(LENGTH, WIDTH), px_per_cm, angle, tilt, holes=holes)
     m = Measurement((0.0, 0.0), (60.0, 60.0), share, 1.0, share, 0.0, elongation * ASPECT, False, weights)
-    return symmetric_below(m, share, ASPECT), share, shift
+    return symmetric_below(m, share, ASPECT, innovation_cm), share, shift
 
 
 @pytest.mark.parametrize(
@@ -91,9 +97,27 @@ def _accepted(hole: np.ndarray, px_per_cm: float, angle: float, tilt: float) -> 
 def test_a_marker_with_a_tenth_of_it_hidden_is_not_taken_for_a_worn_whole_one(
     hole: np.ndarray, px_per_cm: float, angle: float, tilt: float
 ) -> None:
-    accepted, share, shift = _accepted(hole, px_per_cm, angle, tilt)
+    accepted, share, shift = _accepted([hole], px_per_cm, angle, tilt)
     assert 0.8 <= share < 0.9 and shift > 0.7  # below the area band, and its centre well off
-    assert not accepted
+    assert not accepted  # on its shape alone
+
+
+def _plane_elongation(weights: np.ndarray, px_per_cm: float, angle: float, tilt: float) -> float:
+    """The elongation on the floor plane of the coverage drawn by :func:`_coverage` (each pixel at its centre mapped
+    back to the plane, weighted by its coverage and the plane area it spans), as ``world_blob`` measures it."""
+    h, w = weights.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64) + 0.5
+    k = 0.03 / (px_per_cm * WIDTH / 2)
+    q = (v - 60.0) / tilt
+    py = q / (1.0 - k * q)
+    scale = 1.0 + k * py
+    px = (u - 60.0) * scale
+    jw = weights * scale**3 / tilt
+    cx, cy = (jw * px).sum() / jw.sum(), (jw * py).sum() / jw.sum()
+    dx, dy = px - cx, py - cy
+    cov = np.array([[(jw * dx * dx).sum(), (jw * dx * dy).sum()], [(jw * dx * dy).sum(), (jw * dy * dy).sum()]])
+    low, high = np.linalg.eigvalsh(cov)
+    return math.sqrt(high / low)  # rotation and scale do not change it
 
 
 @pytest.mark.parametrize(("px_per_cm", "angle", "tilt"), [(1.0, 20.0, 0.45), (2.5, 70.0, 0.8)])
@@ -101,39 +125,64 @@ def test_a_marker_with_a_tenth_of_it_hidden_is_not_taken_for_a_worn_whole_one(
 def test_a_whole_marker_worn_below_the_area_band_is_taken(
     px_per_cm: float, angle: float, tilt: float, worn_cm: float
 ) -> None:
-    worn = _rect(LENGTH - 2 * worn_cm, WIDTH - 2 * worn_cm)
+    """Worn evenly on the floor (the model; a stream wears it evenly in pixels, which at the far side's
+    foreshortening a worn marker lined up with the image's rows shows as 6-9 % off the model: refused, missing)."""
+    coverage = _coverage(_rect(LENGTH - 2 * worn_cm, WIDTH - 2 * worn_cm), px_per_cm, angle, tilt)
     share = (LENGTH - 2 * worn_cm) * (WIDTH - 2 * worn_cm) / (LENGTH * WIDTH)
-    elongation = (LENGTH - 2 * worn_cm) / (WIDTH - 2 * worn_cm)
-    m = Measurement(
-        (0.0, 0.0), (60.0, 60.0), share, 1.0, share, 0.0, elongation, False, _coverage(worn, px_per_cm, angle, tilt)
-    )
-    assert 0.8 <= share < 0.92 and symmetric_below(m, share, ASPECT)
+    elongation = _plane_elongation(coverage, px_per_cm, angle, tilt)
+    assert elongation == pytest.approx((LENGTH - 2 * worn_cm) / (WIDTH - 2 * worn_cm), rel=0.02)
+    m = Measurement((0.0, 0.0), (60.0, 60.0), share, 1.0, share, 0.0, elongation, False, coverage)
+    assert 0.8 <= share < 0.92 and symmetric_below(m, share, ASPECT, 0.2)
+    assert not symmetric_below(m, share, ASPECT, 1.0)  # its centre not where the filter expects it
+    assert not symmetric_below(m, share, ASPECT, None)  # no filter: lost, or being acquired
+    stretched = Measurement((0.0, 0.0), (60.0, 60.0), share, 1.0, share, 0.0, 1.1 * elongation, False, coverage)
+    assert not symmetric_below(stretched, share, ASPECT, 0.2)  # as a strip hidden along a side makes it
+    blank = Measurement((0.0, 0.0), (60.0, 60.0), share, 1.0, share, 0.0, math.nan, False, coverage)
+    assert not symmetric_below(blank, share, ASPECT, 0.2)
 
 
-def test_what_a_hidden_part_the_rule_lets_through_can_move_the_centre_is_small() -> None:
-    """Boxes of random size and place over the marker, hiding 8-20 % of it (straight edges, corners, notches), seen
-    at the far side's scale: those taken for a whole worn marker moved its centre 0.35 cm at most (a whole marker's
-    own scatter on a compressed stream)."""
+def test_strips_hidden_along_an_end_and_a_side_leave_a_worn_looking_marker_that_only_the_prediction_refuses() -> None:
+    """1.5 cm hidden along the front and along the left side: a smaller rectangle, symmetric and of a worn
+    marker's elongation, 0.84 of its area, its centre 1.1 cm off. Its shape passes; for a rover the filter follows
+    that is also how far its centre lies from the prediction, over the 0.75 cm a worn whole marker's keeps within."""
+    holes = [_rect(3.0, 40.0, LENGTH / 2, 0.0), _rect(40.0, 3.0, 0.0, WIDTH / 2)]
+    for px_per_cm, angle, tilt in [(1.0, 20.0, 0.45), (2.5, 70.0, 0.8)]:
+        accepted, share, shift = _accepted(holes, px_per_cm, angle, tilt)
+        assert 0.83 < share < 0.85 and shift == pytest.approx(1.1, abs=0.01)
+        assert accepted  # the shape cannot tell ...
+        assert not _accepted(holes, px_per_cm, angle, tilt, innovation_cm=shift)[0]  # ... the prediction can
+
+
+@pytest.mark.slow
+def test_what_a_hidden_box_the_shape_lets_through_can_move_the_centre_is_small() -> None:
+    """1500 boxes of random size and place over the marker, hiding 8-20 % of it (straight edges, corners,
+    notches), seen at the far side's scale: the shape alone takes a few for a worn whole marker, and those moved
+    its centre 0.45 cm at most (0.34 with this seed; 0.43 and 0.41 with seeds 0 and 1); the median of all is 1.1."""
     rng = np.random.default_rng(7)
-    taken, shifts = 0, []
-    while len(shifts) < 150:
+    taken, shifts = [], []
+    while len(shifts) < 1500:
         w, h = rng.uniform(2.0, 30.0), rng.uniform(2.0, 30.0)
         cx, cy = (
             rng.uniform(-LENGTH / 2 - w / 2, LENGTH / 2 + w / 2),
             rng.uniform(-WIDTH / 2 - h / 2, WIDTH / 2 + h / 2),
         )
-        accepted, share, shift = _accepted(_rect(w, h, cx, cy), 1.0, rng.uniform(0, 180), 0.45)
+        angle = rng.uniform(0, 180)
+        x, y = GRID
+        share = 1.0 - float(((abs(x - cx) <= w / 2) & (abs(y - cy) <= h / 2)).mean())
         if not 0.8 <= share <= 0.92:
             continue
+        accepted, _, shift = _accepted([_rect(w, h, cx, cy)], 1.0, angle, 0.45)
         shifts.append(shift)
         if accepted:
-            taken += 1
-            assert shift < 0.35
-    assert taken < len(shifts) / 2 and max(shifts) > 1.0  # most refused, among them the ones well off
+            taken.append(shift)
+    assert len(taken) >= 5 and max(taken) < 0.45
+    assert float(np.median(shifts)) > 1.0
 
 
 def test_the_worn_elongation_is_the_marker_s_own_unworn_and_grows_as_it_wears() -> None:
     assert eroded_elongation(1.0, ASPECT) == 1.0
+    # 1 cm worn off every side of the 21.5 x 16.8 cm marker: 19.5 x 14.8 cm, 0.743 of its area
+    assert eroded_elongation(19.5 * 14.8 / (LENGTH * WIDTH), ASPECT) == pytest.approx((19.5 / 14.8) / ASPECT)
     ratios = [0.95, 0.9, 0.85, 0.8, 0.75]
     values = [eroded_elongation(r, ASPECT) for r in ratios]
     assert values == sorted(values) and values[0] > 1.0

@@ -20,7 +20,7 @@ from edge.broker.gate import IDENTIFIER_REJECTED, NOT_AUTHORIZED, PacketLimit, P
 from edge.config import BrokerTarget
 from edge.messages import FORMATION_TOPIC, ROVER_STATUS_WILDCARD, edge_status_topic, pose_topic, rover_status_topic
 from edge.publisher import MqttPublisher
-from tests.support.probe import OtherHost, Probe, edge_states_until_marker, other_host
+from tests.support.probe import OtherHost, Probe, _free_subnet, edge_states_until_marker, other_host
 
 ROVERS = ["red", "green", "blue"]
 EDGE_ID = "edge-t"
@@ -304,6 +304,27 @@ def test_client_ids_belong_to_logins(user: str | None, client_id: str, allowed: 
 def test_other_host_is_not_this_machines_loopback() -> None:
     with other_host() as there:
         assert isinstance(there, OtherHost) and not there.address.startswith("127.")
+
+
+def _ip_listing(tmp_path: Path, holds: list[str]) -> str:
+    """An ``ip`` program whose ``addr show`` lists ``holds`` (``A.B.C.D/N`` or ``A.B.C.D peer E.F.G.H/32``)."""
+    listing = tmp_path / "listing"
+    listing.write_text(
+        "".join(f"9: vo{i}    inet {a} scope global vo{i}\\       valid_lft forever\n" for i, a in enumerate(holds))
+    )
+    program = tmp_path / "ip"
+    program.write_text(f"#!/bin/sh\ncat {listing}\n")
+    program.chmod(0o755)
+    return str(program)
+
+
+def test_a_probe_host_takes_the_subnet_no_interface_holds(tmp_path: Path) -> None:
+    # Every /30 of 10.211.0.0/16 held (one as a point-to-point peer address) but 10.211.17.8/30: that one is taken.
+    holds = [f"10.211.{n // 64}.{n % 64 * 4 + 1}/30" for n in range(1, 250 * 64) if n not in (17 * 64 + 2, 5)]
+    holds.append("10.211.0.21 peer 10.211.0.22/32")
+    assert _free_subnet(_ip_listing(tmp_path, holds)) == 17 * 64 + 2
+    with pytest.raises(RuntimeError, match="namespaces left behind"):
+        _free_subnet(_ip_listing(tmp_path, [*holds, "10.211.17.9/30"]))
 
 
 def _slash30(address: str) -> tuple[str, int]:

@@ -80,10 +80,13 @@ def test_a_larger_level_area_is_learned_and_a_smaller_or_changing_one_is_not() -
 X_CM, Y_CM, LENGTH_CM = 200.0, 300.0, 22.0  # a parked rover: its marker's centre and length along x
 
 
-def _track_parked(frames: int, scale=lambda i: 1.0, hidden=lambda i: 0.0, corner=lambda i: None) -> list:
+def _track_parked(
+    frames: int, scale=lambda i: 1.0, hidden=lambda i: 0.0, corner=lambda i: None, side=lambda i: 0.0
+) -> list:
     """The estimates of a red rover parked at (X_CM, Y_CM) over ``frames`` frames: its marker drawn ``scale(i)``
-    times its size in frame i, the front ``hidden(i)`` of its length under a grey slab, or its front left corner
-    under a grey box overlapping it by ``corner(i)`` (cm along its length, across it)."""
+    times its size in frame i, the front ``hidden(i)`` of its length under a grey slab, its front left corner
+    under a grey box overlapping it by ``corner(i)`` (cm along its length, across it), ``side(i)`` cm of its left
+    side under a grey slab."""
     scene = shared_scene()
     tracker = build_tracker(
         TrackerConfig(rovers=(RoverConfig(id="red", color_bgr=COLORS["red"]),)), scene.mapping, None
@@ -98,6 +101,11 @@ def _track_parked(frames: int, scale=lambda i: 1.0, hidden=lambda i: 0.0, corner
         if hidden(i) > 0.0:
             front, back = X_CM + LENGTH_CM / 2 + 1.0, X_CM + LENGTH_CM / 2 - hidden(i) * LENGTH_CM
             slab = np.array([[back, Y_CM - 12.0], [front, Y_CM - 12.0], [front, Y_CM + 12.0], [back, Y_CM + 12.0]])
+            uv = scene.camera.project(np.column_stack([slab, np.full(4, MARKER_HEIGHT_CM + 0.5)]))
+            cv2.fillPoly(image, [np.rint(uv).astype(np.int32)], (140, 140, 140))
+        if side(i) > 0.0:
+            x0, x1, y0, y1 = X_CM - LENGTH_CM, X_CM + LENGTH_CM, Y_CM + 8.5 - side(i), Y_CM + 20.0
+            slab = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
             uv = scene.camera.project(np.column_stack([slab, np.full(4, MARKER_HEIGHT_CM + 0.5)]))
             cv2.fillPoly(image, [np.rint(uv).astype(np.int32)], (140, 140, 140))
         if corner(i) is not None:
@@ -168,6 +176,18 @@ def test_a_marker_with_a_corner_hidden_stays_missing_though_a_worn_whole_one_of_
     marker worn all round by the stream, but lopsided (and, the first, of the wrong elongation; the second has the
     elongation of a worn marker): missing all that time; tracked again once uncovered."""
     estimates = _track_parked(150, corner=lambda i: overlap_cm if 60 <= i < 120 else None)
+    assert all(e is not None for e in estimates[:60])
+    assert all(e is None for e in estimates[62:120])
+    assert all(e is not None for e in estimates[125:])
+
+
+@pytest.mark.slow
+def test_a_marker_with_strips_hidden_along_an_end_and_a_side_stays_missing_though_its_shape_looks_worn() -> None:
+    """1.5 cm of the marker's front and of its left side hidden for 2 s: a smaller rectangle, 0.84 of its area,
+    symmetric and of a worn marker's elongation, its centre 1.1 cm off. Its shape cannot tell; its centre is not
+    where the filter of a parked rover expects it: missing all that time, tracked again once uncovered."""
+    cut = lambda i: 60 <= i < 120  # noqa: E731
+    estimates = _track_parked(150, hidden=lambda i: 1.5 / LENGTH_CM if cut(i) else 0.0, side=lambda i: 1.5 * cut(i))
     assert all(e is not None for e in estimates[:60])
     assert all(e is None for e in estimates[62:120])
     assert all(e is not None for e in estimates[125:])

@@ -195,13 +195,16 @@ def _non_loopback_address() -> str | None:
 
 
 def _free_subnet(ip: str | None) -> int:
-    """A /30 in 10.211.0.0/16 that no interface of this machine holds: a namespace left behind by a killed run, or
-    one of a run beside this one, on the same subnet would take the replies and time the probe out."""
+    """A /30 in 10.211.0.0/16 that no interface of this machine holds (its index: the third byte times 64 plus the
+    fourth's quarter): a namespace left behind by a killed run, or one of a run beside this one, on the same subnet
+    would take the replies and time the probe out."""
     used: set[int] = set()
     if ip is not None:
         listing = subprocess.run([ip, "-o", "-4", "addr", "show"], capture_output=True, text=True).stdout
-        used = {int(a) * 64 + int(b) // 4 for a, b in re.findall(r"inet 10\.211\.(\d+)\.(\d+)/", listing)}
+        used = {int(a) * 64 + int(b) // 4 for a, b in re.findall(r"inet 10\.211\.(\d+)\.(\d+)[/ ]", listing)}
     free = [n for n in range(1, 250 * 64) if n not in used]
+    if not free:
+        raise RuntimeError("every /30 of 10.211.0.0/16 is held: namespaces left behind? (`ip netns list`)")
     return random.choice(free)
 
 
@@ -223,33 +226,33 @@ def other_host() -> Iterator[OtherHost]:
     name = f"edgeips-{uuid.uuid4().hex[:6]}"
     ip = shutil.which("ip")
     outer, inner = f"vo{name[-6:]}", f"vi{name[-6:]}"
-    with _netns_lock():
-        subnet = _free_subnet(ip)
-        base = f"10.211.{subnet // 64}.{subnet % 64 * 4}"
-        here, there = _offset(base, 1), _offset(base, 2)
-        steps = [
-            ["netns", "add", name],
-            ["link", "add", outer, "type", "veth", "peer", "name", inner],
-            ["link", "set", inner, "netns", name],
-            ["addr", "add", f"{here}/30", "dev", outer],
-            ["link", "set", outer, "up"],
-            ["netns", "exec", name, "ip", "addr", "add", f"{there}/30", "dev", inner],
-            ["netns", "exec", name, "ip", "link", "set", inner, "up"],
-            ["netns", "exec", name, "ip", "link", "set", "lo", "up"],
-        ]
-        made = ip is not None and os.geteuid() == 0
-        for step in steps if made else []:
-            if subprocess.run([str(ip), *step], capture_output=True).returncode != 0:
-                made = False
-                break
+    made = ip is not None and os.geteuid() == 0
     try:
+        with _netns_lock():
+            subnet = _free_subnet(ip if made else None)
+            base = f"10.211.{subnet // 64}.{subnet % 64 * 4}"
+            here, there = _offset(base, 1), _offset(base, 2)
+            steps = [
+                ["netns", "add", name],
+                ["link", "add", outer, "type", "veth", "peer", "name", inner],
+                ["link", "set", inner, "netns", name],
+                ["addr", "add", f"{here}/30", "dev", outer],
+                ["link", "set", outer, "up"],
+                ["netns", "exec", name, "ip", "addr", "add", f"{there}/30", "dev", inner],
+                ["netns", "exec", name, "ip", "link", "set", inner, "up"],
+                ["netns", "exec", name, "ip", "link", "set", "lo", "up"],
+            ]
+            for step in steps if made else []:
+                if subprocess.run([str(ip), *step], capture_output=True).returncode != 0:
+                    made = False
+                    break
         if made:
             yield OtherHost(address=there, host_address=here, namespace=name)
         else:
             address = _non_loopback_address()
             assert address is not None, "neither `ip netns` nor a non-loopback address: no other host to probe from"
             yield OtherHost(address=address, host_address=address)
-    finally:
+    finally:  # also when a step failed half-way: what was made is removed
         if ip is not None:
             subprocess.run([ip, "link", "del", outer], capture_output=True)
             subprocess.run([ip, "netns", "del", name], capture_output=True)
