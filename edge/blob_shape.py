@@ -4,12 +4,14 @@ A compressed stream moves a marker's boundary: 4:2:0 chroma at a low JPEG qualit
 far-side marker's area for a while, all round its outline. A leg, a box's edge or a foot takes a part of one side.
 The two differ in symmetry: a rectangle worn down all round stays symmetric about its centre and grows a little
 more elongated; one with a part hidden is lopsided (its centre moves toward the part left), or, cut straight across
-an end or a side, symmetric but of the wrong elongation. A blob's centre is biased by a hidden part only as far
-as the blob is lopsided, so a symmetric blob of the right elongation gives an unbiased centre whatever its area.
+an end or a side, symmetric but of the wrong elongation. Not every hidden part shows: strips hidden along an end and
+a side at once leave a smaller rectangle of a worn marker's shape whose centre is off by the strips' width, which
+only the rover's motion can tell (``edge.rover_track.symmetric_below`` checks the filter's prediction too).
 
 :func:`point_asymmetry` measures the lopsidedness (third moments in whitened coordinates: unchanged by the
-camera's perspective, to first order, and by the marker's size in pixels); :func:`eroded_elongation` gives the
-elongation a rectangle worn down all round keeps.
+marker's size in pixels and by any affine view of it; the perspective's few percent across a marker are not
+removed and alone give 0.06-0.08); :func:`eroded_elongation` gives the elongation a rectangle worn down all round
+keeps (worn evenly on the floor: a stream wears it evenly in pixels, the same where the view is not foreshortened).
 """
 
 from __future__ import annotations
@@ -23,9 +25,9 @@ from edge.segmentation import F32
 
 def point_asymmetry(weights: F32) -> float:
     """How lopsided the weighted blob ``weights`` ((h, w) coverage) is: the norm of its third central moments in
-    coordinates whitened by its covariance (0 for any shape symmetric about its centre; about 0.35 for a
-    21.5 x 16.8 cm marker with a corner or a side's middle hidden over a seventh of its area). ``inf`` for a blob
-    with no extent."""
+    coordinates whitened by its covariance (0 for any shape symmetric about its centre; 0.34 for a 21.5 x 16.8 cm
+    marker with a 5.5 x 4.5 cm corner hidden, 7 % of it, 0.48 with 12 %). ``inf`` for a blob with no extent, or
+    weights that are not finite."""
     h, w = weights.shape
     m = weights.astype(np.float64)
     s = float(m.sum())
