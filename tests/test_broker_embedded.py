@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ipaddress
 import logging
 import socket
 import struct
@@ -327,17 +328,15 @@ def test_a_probe_host_takes_the_subnet_no_interface_holds(tmp_path: Path) -> Non
         _free_subnet(_ip_listing(tmp_path, [*holds, "10.211.17.9/30"]))
 
 
-def _slash30(address: str) -> tuple[str, int]:
-    head, last = address.rsplit(".", 1)
-    return head, int(last) // 4
-
-
 def test_a_host_left_behind_takes_no_probe_s_replies() -> None:
     # A namespace a killed run left behind (or a run beside this one) holds its subnet: a new one on the same subnet
     # had its replies routed there, and every probe from it timed out (a CI flake, 1 in 250 runs).
     with other_host() as left, other_host() as there, EmbeddedBroker("0.0.0.0", 0) as broker:
         if there.namespace is not None:  # else both are this machine's own non-loopback address
-            assert _slash30(left.host_address) != _slash30(there.host_address)
+            assert (
+                ipaddress.ip_interface(f"{left.host_address}/30").network
+                != ipaddress.ip_interface(f"{there.host_address}/30").network
+            )
         for host in (left, there):
             report = host.probe(broker.port, client_id="probe", timeout_s=30)
             assert report["error"] == "" and report["connack"] is not None, report

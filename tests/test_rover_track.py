@@ -80,6 +80,13 @@ def test_a_larger_level_area_is_learned_and_a_smaller_or_changing_one_is_not() -
 X_CM, Y_CM, LENGTH_CM = 200.0, 300.0, 22.0  # a parked rover: its marker's centre and length along x
 
 
+def _grey_box(scene, image: np.ndarray, x0: float, y0: float, x1: float, y1: float) -> None:
+    """Draw into ``image`` a grey box covering the plane's ``x0..x1`` x ``y0..y1`` (cm) just above the markers."""
+    box = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    uv = scene.camera.project(np.column_stack([box, np.full(4, MARKER_HEIGHT_CM + 0.5)]))
+    cv2.fillPoly(image, [np.rint(uv).astype(np.int32)], (140, 140, 140))
+
+
 def _track_parked(
     frames: int, scale=lambda i: 1.0, hidden=lambda i: 0.0, corner=lambda i: None, side=lambda i: 0.0
 ) -> list:
@@ -99,21 +106,13 @@ def _track_parked(
             [SynthRover("red", X_CM, Y_CM, 0.0, COLORS["red"], marker_cm=size)], noise_sigma=2.0, rng=rng
         )
         if hidden(i) > 0.0:
-            front, back = X_CM + LENGTH_CM / 2 + 1.0, X_CM + LENGTH_CM / 2 - hidden(i) * LENGTH_CM
-            slab = np.array([[back, Y_CM - 12.0], [front, Y_CM - 12.0], [front, Y_CM + 12.0], [back, Y_CM + 12.0]])
-            uv = scene.camera.project(np.column_stack([slab, np.full(4, MARKER_HEIGHT_CM + 0.5)]))
-            cv2.fillPoly(image, [np.rint(uv).astype(np.int32)], (140, 140, 140))
+            back = X_CM + LENGTH_CM / 2 - hidden(i) * LENGTH_CM
+            _grey_box(scene, image, back, Y_CM - 12.0, X_CM + LENGTH_CM / 2 + 1.0, Y_CM + 12.0)
         if side(i) > 0.0:
-            x0, x1, y0, y1 = X_CM - LENGTH_CM, X_CM + LENGTH_CM, Y_CM + 8.5 - side(i), Y_CM + 20.0
-            slab = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
-            uv = scene.camera.project(np.column_stack([slab, np.full(4, MARKER_HEIGHT_CM + 0.5)]))
-            cv2.fillPoly(image, [np.rint(uv).astype(np.int32)], (140, 140, 140))
+            _grey_box(scene, image, X_CM - LENGTH_CM, Y_CM + 8.5 - side(i), X_CM + LENGTH_CM, Y_CM + 20.0)
         if corner(i) is not None:
             a, b = corner(i)
-            x0, y0, x1, y1 = X_CM + LENGTH_CM / 2 - a, Y_CM + 8.5 - b, X_CM + LENGTH_CM / 2 + 8.0, Y_CM + 8.5 + 8.0
-            box = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
-            uv = scene.camera.project(np.column_stack([box, np.full(4, MARKER_HEIGHT_CM + 0.5)]))
-            cv2.fillPoly(image, [np.rint(uv).astype(np.int32)], (140, 140, 140))
+            _grey_box(scene, image, X_CM + LENGTH_CM / 2 - a, Y_CM + 8.5 - b, X_CM + LENGTH_CM / 2 + 8.0, Y_CM + 16.5)
         out.append(next(iter(tracker.process(camera_frame(image, i, 30.0)).estimates), None))
     return out
 

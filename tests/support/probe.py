@@ -10,6 +10,7 @@ The password travels in the environment, never on a command line.
 from __future__ import annotations
 
 import fcntl
+import ipaddress
 import json
 import os
 import random
@@ -31,6 +32,7 @@ import paho.mqtt.client as mqtt
 from tests.conftest import REPO
 
 PASSWORD_ENV = "PROBE_MQTT_PASSWORD"
+PROBE_NETWORK = ipaddress.ip_network("10.211.0.0/16")  # the probes' namespaces take /30s of it
 
 
 class Probe:
@@ -179,11 +181,6 @@ class OtherHost:
         return report
 
 
-def _offset(address: str, n: int) -> str:
-    head, last = address.rsplit(".", 1)
-    return f"{head}.{int(last) + n}"
-
-
 def _non_loopback_address() -> str | None:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         try:
@@ -201,7 +198,8 @@ def _free_subnet(ip: str | None) -> int:
     used: set[int] = set()
     if ip is not None:
         listing = subprocess.run([ip, "-o", "-4", "addr", "show"], capture_output=True, text=True).stdout
-        used = {int(a) * 64 + int(b) // 4 for a, b in re.findall(r"inet 10\.211\.(\d+)\.(\d+)[/ ]", listing)}
+        held = (ipaddress.ip_address(a) for a in re.findall(r"inet (\d+\.\d+\.\d+\.\d+)[/ ]", listing))
+        used = {(int(a) - int(PROBE_NETWORK.network_address)) // 4 for a in held if a in PROBE_NETWORK}
     free = [n for n in range(1, 250 * 64) if n not in used]
     if not free:
         raise RuntimeError("every /30 of 10.211.0.0/16 is held: namespaces left behind? (`ip netns list`)")
@@ -230,8 +228,8 @@ def other_host() -> Iterator[OtherHost]:
     try:
         with _netns_lock():
             subnet = _free_subnet(ip if made else None)
-            base = f"10.211.{subnet // 64}.{subnet % 64 * 4}"
-            here, there = _offset(base, 1), _offset(base, 2)
+            base = PROBE_NETWORK.network_address + 4 * subnet
+            here, there = str(base + 1), str(base + 2)
             steps = [
                 ["netns", "add", name],
                 ["link", "add", outer, "type", "veth", "peer", "name", inner],
