@@ -17,10 +17,15 @@ keeps (worn evenly on the floor: a stream wears it evenly in pixels, the same wh
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
+from numpy.typing import NDArray
 
 from edge.segmentation import F32
+
+FloatArray = NDArray[np.float64]
+IN_VIEW_MARGIN_PX = 1.0  # a blob at the image border is a whole marker when its modelled corners lie this far inside
 
 
 def point_asymmetry(weights: F32) -> float:
@@ -56,3 +61,29 @@ def eroded_elongation(area_ratio: float, aspect: float) -> float:
     # (length - u)(width - u) = r: the smaller root is the width worn off both sides together
     u = 0.5 * ((length + width) - math.sqrt((length + width) ** 2 - 4.0 * (1.0 - r)))
     return ((length - u) / (width - u)) / aspect if width - u > 1e-9 else math.inf
+
+
+def footprint_in_view(
+    to_pixel: Callable[[FloatArray, FloatArray], tuple[FloatArray, FloatArray]],
+    centre_cm: tuple[float, float],
+    axis_rad: float,
+    size_cm: tuple[float, float],
+    image_size: tuple[int, int],
+    margin_px: float,
+) -> bool:
+    """Does a marker of ``size_cm`` (length along ``axis_rad``, width) centred at ``centre_cm`` lie wholly in the
+    image (``image_size``: width, height), every corner at least ``margin_px`` inside its border? ``to_pixel`` maps
+    plane points to pixels (pixel centres at whole numbers: the image spans -0.5 .. size - 0.5).
+
+    A blob that touches the image border is either a marker the border cuts off or a whole one whose blurred edge
+    reaches it. Placed at a cut marker's centre, which moves inward by half the part cut off, the modelled marker
+    still crosses the border (by the other half); a whole marker's lies inside. NaN (no pixel): not in view."""
+    c, s = math.cos(axis_rad), math.sin(axis_rad)
+    hl, hw = 0.5 * size_cm[0], 0.5 * size_cm[1]
+    along = np.array([hl, hl, -hl, -hl])
+    across = np.array([hw, -hw, -hw, hw])
+    u, v = to_pixel(centre_cm[0] + along * c - across * s, centre_cm[1] + along * s + across * c)
+    w, h = image_size
+    lo = margin_px - 0.5
+    inside = (u >= lo) & (u <= w - 0.5 - margin_px) & (v >= lo) & (v <= h - 0.5 - margin_px)
+    return bool(np.all(inside))  # NaN compares False

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.acquisition import acquisition_scale, candidates, low_resolution_classes
+from edge.blob_shape import IN_VIEW_MARGIN_PX, footprint_in_view
 from edge.centre_offsets import CentreOffsets, Fits, ProcessFits
 from edge.errors import ConfigError, SourceError
 from edge.filtering import FilterFactory, one_colour_heading
@@ -253,6 +254,10 @@ class Pipeline:
             size = (self.config.marker_length_cm, self.config.marker_width_cm)
             refine = refine_outline if self.config.outline_fit else refine_axis
             m = refine(window, m, size, tr.index, jacobian=jac)
+            if m.at_image_edge and footprint_in_view(
+                window.local.to_pixel, m.xy_cm, m.axis_rad, size, window.image_size, IN_VIEW_MARGIN_PX
+            ):
+                m = replace(m, at_image_edge=False)  # whole: only its blurred edge reaches the border
             clock.add("outline", time.perf_counter() - t0)
         if not tr.whole_marker(
             m, model.marker_area_cm2, learned, self.config, self._nominal_levels[tr.index], self._frames

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from edge.blob_shape import eroded_elongation, point_asymmetry
+from edge.blob_shape import eroded_elongation, footprint_in_view, point_asymmetry
 from edge.rover_track import symmetric_below
 from edge.trackers.base import Measurement
 
@@ -198,3 +198,28 @@ def test_a_blob_with_no_extent_is_not_called_symmetric() -> None:
     line = np.zeros((8, 8), np.float32)
     line[4, 1:7] = 1.0
     assert point_asymmetry(line) == math.inf
+
+
+def _pixels(x_cm: np.ndarray, y_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A stand-in plane mapping: 2 px per cm, the plane's origin at pixel (100, 50)."""
+    return 100.0 + 2.0 * x_cm, 50.0 + 2.0 * y_cm
+
+
+@pytest.mark.parametrize(
+    ("centre", "axis_deg", "in_view"),
+    [
+        ((200.0, 150.0), 30.0, True),  # in the middle of a 1280 x 720 image
+        ((-49.7 + LENGTH / 2, 100.0), 0.0, True),  # its left end 1.1 px inside the image (u = 0.6)
+        ((-50.05 + LENGTH / 2, 100.0), 0.0, False),  # ... 0.4 px inside: nearer the border than the margin
+        ((-52.0 + LENGTH / 2, 100.0), 0.0, False),  # its end cut off by the border
+        ((100.0, 334.2 - WIDTH / 2), 0.0, True),  # its near side 1.1 px inside the last row (v = 718.4)
+        ((100.0, 334.2 - WIDTH / 2), 90.0, False),  # turned: its end now crosses the last row
+        ((float("nan"), 100.0), 0.0, False),  # no place: not in view
+    ],
+)
+def test_a_marker_is_in_view_when_every_modelled_corner_lies_inside_the_image_by_the_margin(
+    centre: tuple[float, float], axis_deg: float, in_view: bool
+) -> None:
+    """The image spans -0.5 .. 1279.5 x -0.5 .. 719.5 px (pixel centres at whole numbers); the margin is 1 px."""
+    got = footprint_in_view(_pixels, centre, math.radians(axis_deg), (LENGTH, WIDTH), (1280, 720), 1.0)
+    assert got is in_view
