@@ -3,16 +3,59 @@
 A binary mask puts a marker's edge on pixel boundaries; a far-side marker is about 21 x 9 pixels, so that is
 centimetres. Each pixel near the edge is instead unmixed, in linear light, between the marker's colour and what
 surrounds it (the floor, the rover's body): ``docs/tracking.md``, "Sub-pixel edges".
+
+A marker is usually lit by one light, and its colour is one colour. Where the border of a sunlit patch or a
+shadow crosses it, its part in the sun is two or three times brighter than its part in the shade: against the
+marker's mean colour, an edge pixel in the shade looks little covered and one in the sun fully, and the centre
+moves toward the sun by a centimetre. :func:`light_ratio` tells such a marker (its interior's brightness spans more
+than :data:`TWO_LIGHTS`; under one light, compressed chroma and blur leave at most 1.35), and its edge pixels are then
+unmixed against the marker's colour at the brightness it has where they are (:func:`local_mean`).
 """
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
-from edge.segmentation import F32, U8, BoolArray, erode, linear_bgr
+from edge.segmentation import F32, LINEAR, U8, BoolArray, erode, linear_bgr
 
 _CHANNEL_SUM = np.ones((1, 3), np.float32)
+_CODES = np.arange(256, dtype=np.float64)
+TWO_LIGHTS = 1.5  # a marker whose interior's brightness (linear light, p90 / p10) spans this is in two lights
+LOCAL_LIGHT_PX = 4.0  # "where it stands": the marker's level at a pixel is the Gaussian mean of its interior this near
+
+
+def linear_luminance(linear: F32) -> F32:
+    """(h, w) float32: the sum of an (h, w, 3) image's channels in linear light (a brightness, to any scale)."""
+    return np.asarray(cv2.transform(linear, _CHANNEL_SUM), np.float32)  # a tenth of the cost of numpy's sum
+
+
+def light_ratio(luminance: NDArray[np.floating], encoded: bool = False) -> float:
+    """How far the brightness of a marker's interior pixels (``luminance``, linear light, any scale) spans: their
+    90th over their 10th percentile; 0 with fewer than 8 pixels (nothing to tell), inf over a black 10th.
+    ``encoded``: the pixels' mean 8-bit values instead (the window's ``lum``, already at hand): the two percentiles
+    are taken through the tone curve (the order is the same; for one hue within a few per cent of the above)."""
+    n = luminance.size
+    if n < 8:
+        return 0.0
+    k_lo, k_hi = int(0.1 * (n - 1)), int(0.9 * (n - 1) + 0.5)  # order statistics: several times np.percentile's speed
+    parted = np.partition(luminance.ravel(), (k_lo, k_hi))
+    lo, hi = float(parted[k_lo]), float(parted[k_hi])
+    if encoded:
+        lo, hi = float(np.interp(lo, _CODES, LINEAR)), float(np.interp(hi, _CODES, LINEAR))
+    return hi / lo if lo > 0 else float("inf")
+
+
+def local_mean(values: F32, source: BoolArray, sigma_px: float) -> F32:
+    """(h, w) float32: at every pixel the Gaussian-weighted (``sigma_px``) mean of ``values`` over the ``source``
+    pixels near it (a normalised convolution), drawn to their plain mean where none is near."""
+    weight = source.astype(np.float32)
+    num = cv2.GaussianBlur(values * weight, (0, 0), sigma_px)
+    den = cv2.GaussianBlur(weight, (0, 0), sigma_px)
+    prior = np.float32(0.01)
+    mean = np.float32(cv2.mean(values, mask=source.view(np.uint8))[0])
+    return np.asarray((num + prior * mean) / (den + prior), dtype=np.float32)
 
 
 def marker_level(plane_roi: F32, core: BoolArray, interior: BoolArray | None = None) -> float:
@@ -103,7 +146,7 @@ def _unmix(
         return None
     sample = interior & pure if pure is not None else interior
     marker = _mean(lin, sample if np.count_nonzero(sample) else interior)
-    lum = cv2.transform(lin, _CHANNEL_SUM)  # a tenth of the cost of numpy's sum over three channels
+    lum = linear_luminance(lin)
     lum_outer = lum[outer]
     half = lum_outer.size // 2
     lum_outer.partition(half)  # in place: a fresh array
@@ -120,13 +163,47 @@ def _unmix(
         return None
     # share = (p - D) . (a bb - b ab) / det for every pixel at once: one affine map of the three channels
     r0, r1, r2 = (a0 * bb - b0 * ab) / det, (a1 * bb - b1 * ab) / det, (a2 * bb - b2 * ab) / det
+    ring = region > interior
+    out = interior.astype(np.float32)  # the ring unmixed below, the interior whole (1.0), the rest nothing
+    deep = erode(interior, 1)
+    if light_ratio(lum[deep]) >= TWO_LIGHTS:
+        _unmix_in_two_lights(
+            out, lin, lum, ring, sample if np.count_nonzero(sample) else interior, marker, dark, bright
+        )
+        return out
     affine = np.array([[r0, r1, r2, -(dark[0] * r0 + dark[1] * r1 + dark[2] * r2)]], np.float32)
     share = cv2.transform(lin, affine)
     np.minimum(np.maximum(share, -0.5, out=share), 1.0, out=share)  # clipped in place (np.clip's wrapper costs more)
-    # the ring (region & ~interior) unmixed, the interior whole (1.0), the rest nothing
-    out = interior.astype(np.float32)
-    np.copyto(out, share, where=region > interior)  # cheaper than np.where, which would promote the booleans
+    np.copyto(out, share, where=ring)  # cheaper than np.where, which would promote the booleans
     return out
+
+
+def _unmix_in_two_lights(
+    out: F32,
+    lin: F32,
+    lum: F32,
+    ring: BoolArray,
+    source: BoolArray,
+    marker: tuple[float, float, float],
+    dark: tuple[float, float, float],
+    bright: tuple[float, float, float],
+) -> None:
+    """:func:`_unmix`'s shares for the ``ring`` pixels (into ``out``) of a marker in two lights: each unmixed
+    against the marker's colour scaled to the brightness its interior (``source``) has near it."""
+    ys, xs = np.nonzero(ring)
+    m = np.asarray(marker, np.float32)
+    scale = local_mean(lum, source, LOCAL_LIGHT_PX)[ys, xs] / np.float32(max(float(m.sum()), 1e-6))
+    d = np.asarray(dark, np.float32)
+    b = np.asarray(bright, np.float32) - d
+    a = np.clip(scale, 0.25, 4.0)[:, None] * m - d  # the marker's colour there, less the body's
+    q = lin[ys, xs] - d
+    aa = (a * a).sum(axis=1)
+    ab = a @ b
+    bb = float(b @ b) + 1e-3 * aa  # ridge, as in _unmix
+    det = aa * bb - ab * ab
+    ok = (aa > 1e-6) & (det > 1e-14)
+    share = ((q * a).sum(axis=1) * bb - (q @ b) * ab) / np.where(ok, det, 1.0)
+    out[ys, xs] = np.where(ok, np.clip(share, -0.5, 1.0), out[ys, xs])
 
 
 def _mean(values: F32, mask: BoolArray) -> tuple[float, float, float]:

@@ -14,7 +14,14 @@ from typing import Protocol
 
 import numpy as np
 
-from edge.coverage import coverage_weights, marker_level
+from edge.coverage import (
+    LOCAL_LIGHT_PX,
+    TWO_LIGHTS,
+    coverage_weights,
+    light_ratio,
+    local_mean,
+    marker_level,
+)
 from edge.segmentation import F32, BoolArray, auto_threshold, erode, threshold
 from edge.trackers.plane import (
     CameraPlaneMapping,
@@ -147,6 +154,13 @@ def threshold_marker(
         return None
     interval = auto_threshold(window.plane, candidates, fraction)
     mask = candidates & threshold(window.plane, interval)
+    if light_ratio(window.lum[erode(mask, 2)], encoded=True) >= TWO_LIGHTS:  # its interior, edges left out
+        # a marker in two lights (edge.coverage): half covered is half of its level where it stands
+        inner = erode(mask, 1)
+        mean = float(np.mean(window.plane[inner]))
+        if mean > 0.0:
+            level = local_mean(window.plane, inner, LOCAL_LIGHT_PX)
+            mask = candidates & (window.plane >= np.float32(interval.k_min / mean) * level)
     clock.add("threshold", time.perf_counter() - t0)
     return candidates, mask
 
