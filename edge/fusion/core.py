@@ -21,17 +21,18 @@
   estimated velocity, its covariance grown by the velocity's uncertainty over the gap; a later one (a slower board)
   is put in its place and the last ``replay_s`` are filtered again.
 * **Output**: the first detection of a rover in frame ``k`` of the shared clock (``k = round(t * fps)``) gives that
-  rover's pose for frame ``k``. Live (``pose_time = "measured"``) the pose is the filter's state at its newest
-  measurement's capture instant (on the fuser's clock, to the millisecond below): never dated later than anything
-  measured, so ``arrival - t`` is a true grab-to-pose latency and a rover's idea of its pose's age is right; for a
-  recording (``"frame"``) the state is moved to ``k / fps``. The published pose is the filter's, except around a
-  handover: for ``handover_s`` after the set of boards measuring a rover changes, the pose moves along the
-  filter's velocity smoothed over ``shown_velocity_s`` (the kick a correction gives the filter's velocity is not
-  shown at once), plus at most ``max_correction_cm`` a frame towards the filter, so a better board joining or a
-  worse one leaving moves the rover smoothly and the controllers see no step; what is left of that difference when
-  the handover ends shrinks by ``max_correction_cm`` a frame. Elsewhere a rover that turns or brakes is shown where
-  the filter has it (smoothing every frame held it 10-15 cm behind). A rover not measured for ``timeout_s`` is
-  missing: no pose is published for it (the rovers' own staleness stops them).
+  rover's pose for frame ``k`` (live, one half a frame newer than the last that rounds onto its frame gives the next:
+  the clocks' corrections move captures near a half-frame across it). Live (``pose_time = "measured"``) the pose is
+  the filter's state at its newest measurement's capture instant (on the fuser's clock, to the millisecond below):
+  never dated later than anything measured, so ``arrival - t`` is a true grab-to-pose latency and a rover's idea of
+  its pose's age is right; for a recording (``"frame"``) the state is moved to ``k / fps``. The published pose is the
+  filter's, except around a handover: for ``handover_s`` after the set of boards measuring a rover changes, the pose
+  moves along the filter's velocity smoothed over ``shown_velocity_s`` (the kick a correction gives the filter's
+  velocity is not shown at once), plus at most ``max_correction_cm`` a frame towards the filter, so a better board
+  joining or a worse one leaving moves the rover smoothly and the controllers see no step; what is left of that
+  difference when the handover ends shrinks by ``max_correction_cm`` a frame. Elsewhere a rover that turns or brakes
+  is shown where the filter has it (smoothing every frame held it 10-15 cm behind). A rover not measured for
+  ``timeout_s`` is missing: no pose is published for it (the rovers' own staleness stops them).
 """
 
 from __future__ import annotations
@@ -297,9 +298,10 @@ class Fuser:
         else:  # the newest capture instant, to the wire's millisecond and never later
             t_pose = math.floor(track.t_s * 1e3 + 1e-6) / 1e3
             tick = round(t_pose * s.fps)
-        if tick <= track.last_tick:
+        newer = s.pose_time == "measured" and track.shown is not None and t_pose - track.shown[0] >= 0.5 / s.fps
+        if tick <= track.last_tick and not newer:
             return None  # this frame's pose is out; the detection is in the filter for the next one
-        track.last_tick = tick
+        track.last_tick = tick = max(tick, track.last_tick + 1)  # a newer frame's may round onto the last ("Output")
         return self._pose(r.rover_id, track, tick, t_pose, r.quality)
 
     def _start(self, rover_id: str, m: _Measurement) -> _Track:
