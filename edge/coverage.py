@@ -4,12 +4,13 @@ A binary mask puts a marker's edge on pixel boundaries; a far-side marker is abo
 centimetres. Each pixel near the edge is instead unmixed, in linear light, between the marker's colour and what
 surrounds it (the floor, the rover's body): ``docs/tracking.md``, "Sub-pixel edges".
 
-A marker is usually lit by one light, and its colour is one colour. Where the border of a sunlit patch or a
-shadow crosses it, its part in the sun is two or three times brighter than its part in the shade: against the
-marker's mean colour, an edge pixel in the shade looks little covered and one in the sun fully, and the centre
-moves toward the sun by a centimetre. :func:`light_ratio` tells such a marker (its interior's brightness spans more
-than :data:`TWO_LIGHTS`; under one light, compressed chroma and blur leave at most 1.35), and its edge pixels are then
-unmixed against the marker's colour at the brightness it has where they are (:func:`local_mean`).
+A marker is usually lit by one light, and its colour is one colour. Where the border of a sunlit patch or a shadow
+crosses it, its part in the sun is two or three times brighter than its part in the shade: against the marker's mean
+colour, an edge pixel in the shade looks little covered and one in the sun fully, and the centre moves toward the sun
+(0.3-0.4 cm; 1-1.5 cm with the threshold cutting its shaded part). :func:`light_ratio` tells such a marker (its
+interior's brightness spans more than :data:`TWO_LIGHTS`; under one light, compressed chroma and blur leave at most
+1.35), and its edge pixels are then unmixed against the marker's colour at the brightness it has where they are
+(:func:`local_mean`).
 """
 
 from __future__ import annotations
