@@ -9,7 +9,7 @@ crosses it, its part in the sun is two or three times brighter than its part in 
 colour, an edge pixel in the shade looks little covered and one in the sun fully, and the centre moves toward the sun
 (0.3-0.4 cm; 1-1.5 cm with the threshold cutting its shaded part). :func:`light_ratio` tells such a marker (its
 interior's brightness spans more than :data:`TWO_LIGHTS`; under one light, compressed chroma and blur leave at most
-1.35), and its edge pixels are then unmixed against the marker's colour at the brightness it has where they are
+1.33), and its edge pixels are then unmixed against the marker's colour at the brightness it has where they are
 (:func:`local_mean`).
 """
 

@@ -57,7 +57,7 @@ def test_the_local_mean_is_each_side_s_own_level_across_a_step_and_the_mean_far_
 @pytest.mark.parametrize("body", [(0.035, 0.034, 0.032), (0.12, 0.12, 0.12), (0.8, 0.8, 0.8)])
 def test_a_marker_under_one_light_is_not_taken_for_one_in_two_through_the_harshest_stream(body) -> None:
     """4:2:0 at quality 60 with a 1.2 px blur spreads the chroma (and some of the brightness) of a marker's edge
-    over its neighbours, all round: its interior's brightness spans at most 1.25 under one light, under the 1.5
+    over its neighbours, all round: its interior's brightness spans at most 1.33 under one light, under the 1.5
     that calls it two (the one-light measurement is then kept exactly)."""
     effects = Effects(
         auto_exposure=None, noise=None, motion_blur=False, optics=Optics(1.2), compression=Compression(60, "4:2:0")

@@ -51,9 +51,8 @@ from edge.fusion.detections import Detection, Detections
 from edge.fusion.track import CvState
 
 FloatArray = NDArray[np.float64]
-
-
 NOISE_WINDOW = 256
+HALF_FRAME_SLACK_S = 0.002  # a live capture this near the next frame's rounding is that frame's ("Output")
 NOISE_MIN_SAMPLES = 64
 CHI2_2_MEDIAN = 1.386
 MAX_NOISE_SCALE = 25.0
@@ -299,9 +298,10 @@ class Fuser:
             t_pose = math.floor(track.t_s * 1e3 + 1e-6) / 1e3
             tick = round(t_pose * s.fps)
         newer = s.pose_time == "measured" and track.shown is not None and t_pose - track.shown[0] >= 0.5 / s.fps
-        if tick <= track.last_tick and not newer:
+        late = t_pose * s.fps - track.last_tick >= 0.5 - HALF_FRAME_SLACK_S * s.fps  # at the next frame's rounding
+        if tick <= track.last_tick and not (newer and late):  # half a frame newer, at the next: the next ("Output")
             return None  # this frame's pose is out; the detection is in the filter for the next one
-        track.last_tick = tick = max(tick, track.last_tick + 1)  # a newer frame's may round onto the last ("Output")
+        track.last_tick = tick = max(tick, track.last_tick + 1)
         return self._pose(r.rover_id, track, tick, t_pose, r.quality)
 
     def _start(self, rover_id: str, m: _Measurement) -> _Track:

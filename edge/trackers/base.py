@@ -155,7 +155,7 @@ def threshold_marker(
     interval = auto_threshold(window.plane, candidates, fraction)
     mask = candidates & threshold(window.plane, interval)
     if light_ratio(window.lum[erode(mask, 2)], encoded=True) >= TWO_LIGHTS:  # its interior, edges left out
-        # a marker in two lights (edge.coverage): half covered is half of its level where it stands
+        # a marker in two lights (edge.coverage): the threshold follows its level where it stands
         inner = erode(mask, 1)
         mean = float(np.mean(window.plane[inner]))
         if mean > 0.0:
