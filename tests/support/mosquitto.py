@@ -13,10 +13,15 @@ from benchmarks._common import start_mosquitto, stop_process
 from edge.broker import write_password_file
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+def free_port(taken: set[int] | None = None) -> int:
+    """A port free now on loopback, none of ``taken`` (the system may hand a port just given out, and closed, again:
+    two listeners of one broker were once given the same port, and it did not start)."""
+    while True:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = int(s.getsockname()[1])
+        if port not in (taken or set()):
+            return port
 
 
 def _user_line() -> str:
@@ -55,7 +60,10 @@ class Mosquitto:
                     continue
                 if line.strip().startswith("listener"):
                     original = int(line.split()[1])
-                    port = self.ports.setdefault(original, self.port if not self.ports else free_port())
+                    if original not in self.ports:
+                        taken = {self.port, *self.ports.values()}
+                        self.ports[original] = self.port if not self.ports else free_port(taken)
+                    port = self.ports[original]
                     line = f"listener {port} {self.host}"
                 lines.append(line)
             if not self.ports:  # a file without listeners: its options are for this instance's one listener
