@@ -56,16 +56,19 @@ def render_clip(
     camera: str = "nominal",
     chroma: str | None = None,
     quality: int | None = None,
+    line_time_s: float | None = None,
 ) -> Clip:
     """Render scenario ``name`` for ``seed`` through the nominal camera or one of the family (``camera``);
     ``chroma``, ``quality``: that camera's JPEG chroma sampling (``4:4:4``, ``4:2:2``, ``4:2:0``) or quality
-    replaced, all else kept."""
+    replaced, all else kept; ``line_time_s``: a rolling shutter with that line time (``edge.sim.effects``)."""
     from dataclasses import replace
 
-    from edge.sim.effects import Compression
+    from edge.sim.effects import Compression, RollingShutter
     from edge.sim.scenarios import build
 
     setup = build(name, seed, rovers, frames, heading, camera)  # type: ignore[arg-type]
+    if line_time_s is not None:
+        setup = replace(setup, effects=replace(setup.effects, rolling_shutter=RollingShutter(line_time_s)))
     if chroma is not None or quality is not None:
         drawn = setup.effects.compression or Compression()
         stream = replace(drawn, chroma=chroma or drawn.chroma, quality=quality or drawn.quality)
@@ -240,17 +243,20 @@ def run_clip(
     calibration: str = "camera",
     outline_fit: bool = False,
     edge_offsets: bool | str = False,
+    line_time_us: float = 0.0,
 ) -> Score:
     """Track ``clip`` with ``method`` (the paper baseline gets the empty-scene reference; the others learn it
     unless ``use_background``; ``outline_fit``, ``edge_offsets``: the tracker settings of those names, the edge fits
     in the frame loop with their results held back as a worker would deliver them, ``edge.centre_offsets.InlineFits``;
-    ``edge_offsets="worker"``: in their worker process, as the appliance runs them) and score it."""
+    ``edge_offsets="worker"``: in their worker process, as the appliance runs them; ``line_time_us``: the tracker's
+    rolling-shutter setting) and score it."""
     config = TrackerConfig(
         rovers=clip.rovers,  # type: ignore[arg-type]
         method=method,  # type: ignore[arg-type]
         fps=clip.fps,
         outline_fit=outline_fit,
         edge_offsets=bool(edge_offsets),
+        line_time_us=line_time_us,
     )
     mapping = plane_mapping(clip, calibration)
     with_bg = (method == "paper") if use_background is None else use_background

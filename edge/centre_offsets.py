@@ -391,12 +391,14 @@ class CentreOffsets:
         tr.offset_cm = shift
         return replace(m, xy_cm=(m.xy_cm[0] + shift[0], m.xy_cm[1] + shift[1]))
 
-    def filtered(self, tr: RoverTrack) -> None:
+    def filtered(self, tr: RoverTrack, ahead_cm: tuple[float, float] = (0.0, 0.0)) -> None:
         """The rover's filter has taken this frame's measurement: if its window went to the fits, the fit's sample is
-        taken against the filtered (uncorrected) centre (:meth:`note_reference`)."""
+        taken against the filtered (uncorrected) centre (:meth:`note_reference`), moved on by ``ahead_cm`` to when
+        its row was exposed (a rolling shutter: the window shows it there)."""
         if tr.index == self._sent and tr.filter is not None:
             fx, fy = tr.filter.position
-            self.note_reference(tr.index, self._frame, (fx - tr.offset_cm[0], fy - tr.offset_cm[1]))
+            ref = (fx - tr.offset_cm[0] + ahead_cm[0], fy - tr.offset_cm[1] + ahead_cm[1])
+            self.note_reference(tr.index, self._frame, ref)
 
     def note_reference(self, index: int, frame: int, xy_cm: tuple[float, float]) -> None:
         """The rover's filtered (uncorrected) position in the frame its window went to the fits: the sample is taken

@@ -142,6 +142,8 @@ color_bgr = [190, 90, 30]
                               # process (one rover's window every edge_offsets_every = 10 frames): takes most of a
                               # webcam's colour-dependent bias out; uses up to one more core. auto: on for a camera,
                               # a video or a stream, off for the simulator's uncompressed frames; true / false
+# line_time_us = 0.0          # the camera's rolling shutter, us between two rows' exposures (0: global shutter;
+                              # a webcam at 1280x720 and 30 fps: about 44; docs/deploy.md says how to measure it)
 
 [broker]
 url = "embedded"              # embedded (amqtt in this process), mqtt://[user:pass@]host:port or mqtts://host:port

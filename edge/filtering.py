@@ -81,6 +81,19 @@ class ConstantVelocityFilter:
         largest = 0.5 * (a + d) + math.sqrt(max(0.25 * (a - d) ** 2 + b * b, 0.0))
         return math.sqrt(max(largest, 0.0))
 
+    def back_to_frame_time(
+        self, z_cm: tuple[float, float], r_cm2: FloatArray, delay_s: float
+    ) -> tuple[tuple[float, float], FloatArray]:
+        """A measurement taken ``delay_s`` after the frame's time (its row's exposure under a rolling shutter) moved
+        back to the frame's time along the predicted velocity, its covariance widened by the velocity's over
+        ``delay_s``; as it is while the filter has no velocity (its first frame)."""
+        v = self.velocity
+        if v is None or delay_s <= 0.0:
+            return z_cm, r_cm2
+        p, d2 = self.p, delay_s * delay_s
+        widened = np.asarray(r_cm2, dtype=np.float64) + d2 * np.array([[p[10], p[11]], [p[14], p[15]]])
+        return (z_cm[0] - delay_s * v[0], z_cm[1] - delay_s * v[1]), widened
+
     # -- steps ------------------------------------------------------------------------------------------------
     def predict(self, dt_s: float) -> None:
         """Propagate the state by ``dt_s`` (constant velocity, white-noise acceleration): ``x = F x``,

@@ -34,7 +34,7 @@ from edge.blob_shape import IN_VIEW_MARGIN_PX, footprint_in_view
 from edge.centre_offsets import CentreOffsets, Fits, ProcessFits
 from edge.errors import ConfigError, SourceError
 from edge.filtering import FilterFactory, one_colour_heading
-from edge.rover_track import Observation, RoverTrack
+from edge.rover_track import Observation, RoverTrack, at_frame_time
 from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr
 from edge.tracker_config import TrackerConfig
 from edge.trackers import make_filters, make_tracker
@@ -210,7 +210,8 @@ class Pipeline:
         tr.box = box
         if box is None:
             return None
-        return self._measure(image, tr, box, uv, clock)
+        obs = self._measure(image, tr, box, uv, clock)
+        return None if obs is None else at_frame_time(obs, tr, self.config.line_time_us * 1e-6)
 
     def _window_box(
         self, xy_cm: tuple[float, float], radius_cm: float, shape: tuple[int, ...], hint_uv: tuple[float, float] | None
@@ -408,7 +409,7 @@ class Pipeline:
                 continue
             assert tr.filter is not None
             if self.offsets is not None:
-                self.offsets.filtered(tr)
+                self.offsets.filtered(tr, obs.ahead_cm)
             tr.misses = 0
             tr.uv = m.uv_px
             tr.seen = (m.xy_cm[0], m.xy_cm[1], self._time_s)

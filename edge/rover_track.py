@@ -7,7 +7,7 @@ import math
 import statistics
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,10 +38,24 @@ SYMMETRY_STEP_CM = 0.75  # ... and its centre within this of where the rover's f
 
 @dataclass(frozen=True)
 class Observation:
-    """A measurement that passed the pipeline's checks, with its covariance on the plane (cm^2)."""
+    """A measurement that passed the pipeline's checks, with its covariance on the plane (cm^2). ``ahead_cm``: how
+    far the rover had moved on from the frame's time when its row was exposed (a rolling shutter), taken off
+    ``measurement`` (:func:`at_frame_time`)."""
 
     measurement: Measurement
     r_cm2: FloatArray
+    ahead_cm: tuple[float, float] = (0.0, 0.0)
+
+
+def at_frame_time(obs: Observation, tr: RoverTrack, line_time_s: float) -> Observation:
+    """``obs`` of the tracked rover ``tr`` at the frame's time (its first row's): under a rolling shutter a marker
+    ``v`` rows down was exposed ``v * line_time_s`` later, where the rover had moved on along its velocity."""
+    if line_time_s <= 0.0 or tr.filter is None:
+        return obs
+    m = obs.measurement
+    xy, r = tr.filter.back_to_frame_time(m.xy_cm, obs.r_cm2, max(m.uv_px[1], 0.0) * line_time_s)
+    ahead = (m.xy_cm[0] - xy[0], m.xy_cm[1] - xy[1])
+    return Observation(replace(m, xy_cm=xy), r, ahead)
 
 
 @dataclass

@@ -167,6 +167,14 @@ class TrackerSettings(BaseModel):
     fps: float = Field(
         default=30.0, gt=0.0, le=240.0, description="Frame rate assumed when frames carry no usable time."
     )
+    line_time_us: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=1000.0,
+        description="The camera's rolling shutter: the time between the exposures of two rows, us (0: a global "
+        "shutter; about 44 for 720 rows read out in a 30 fps frame). A moving rover's centre is taken back to the "
+        "frame's time, its first row's.",
+    )
 
     @field_validator("edge_offsets", mode="before")
     @classmethod

@@ -80,6 +80,7 @@ CASES: list[tuple[dict[str, Any], dict[str, Any]]] = [
     ({"heading_min_speed_cm_s": 100.0}, {}),
     ({"accel_sigma_cm_s2": 400.0}, {}),
     ({"measurement_sigma_px": 2.0}, {}),
+    ({"line_time_us": 44.4}, {}),  # moving rovers taken back to the frame's time (tests/test_rolling_shutter.py)
     ({"fps": 10.0}, {"untimed": True}),  # the frame rate assumed when frames carry no usable time
     ({"fps": 10.0}, {"method": "paper", "background_refresh_s": 0.5}),  # and the reference's refresh period
     ({"background_refresh_s": 0.2}, {"method": "paper"}),

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from edge.errors import SimulationError
 from edge.sim.colour import AutoWhiteBalance, ColourResponse
+from edge.sim.world import RoverState
 
 FloatArray = NDArray[np.float64]
 Bgr = tuple[float, float, float]
@@ -100,6 +101,31 @@ class Flicker:
     modulation: float = 0.3
     line_time_s: float = 1.0 / (30.0 * 750.0)  # 720 active rows + blanking at 30 fps
     phase: float = 0.0
+
+
+@dataclass(frozen=True)
+class RollingShutter:
+    """A rolling shutter's skew: row ``r`` is exposed ``r * line_time_s`` after row 0 (whose exposure is centred on
+    the frame's time, as the flicker's rows are), so a moving rover is drawn where it is when its marker's row is
+    exposed: at 30 cm/s about 1 cm lower in the frame than at its top (720 rows at 30 fps). People and the sun do
+    not move fast enough for it to show."""
+
+    line_time_s: float = 1.0 / (30.0 * 750.0)  # 720 active rows + blanking at 30 fps, as Flicker's
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.line_time_s <= 1e-3:
+            raise SimulationError("rolling_shutter: line_time_s must be 0-1 ms")
+
+
+def at_row_times(rovers: tuple[RoverState, ...], rows_px: list[float], line_time_s: float) -> tuple[RoverState, ...]:
+    """``rovers`` at the frame's time moved to where each is when its row (``rows_px``: its marker's centre row) is
+    exposed: along its velocity and turn rate for ``row * line_time_s``."""
+    out = []
+    for r, row in zip(rovers, rows_px, strict=True):
+        dt = max(row, 0.0) * line_time_s
+        theta = math.remainder(r.theta_rad + r.omega_rad_s * dt, math.tau)
+        out.append(replace(r, x_cm=r.x_cm + r.vx_cm_s * dt, y_cm=r.y_cm + r.vy_cm_s * dt, theta_rad=theta))
+    return tuple(out)
 
 
 CHROMA_SAMPLING = {
@@ -264,6 +290,7 @@ class Effects:
     optics: Optics | None = Optics()
     motion_blur: bool = True
     flicker: Flicker | None = None
+    rolling_shutter: RollingShutter | None = None
     compression: Compression | None = None
     drift: IlluminationDrift | None = None
     sun: SunPatch | None = None
@@ -275,7 +302,7 @@ class Effects:
         """One line per active effect with its parameters (for ``scenario.json`` and the docs)."""
         lines = []
         names = ("exposure", "auto_exposure", "colour", "auto_white_balance", "noise", "optics", "vignetting")
-        for name in (*names, "flicker", "compression", "drift"):
+        for name in (*names, "flicker", "rolling_shutter", "compression", "drift"):
             value = getattr(self, name)
             if value is not None:
                 lines.append(f"{name}: {value}")

@@ -30,7 +30,7 @@ from edge.camera import PinholeCamera
 from edge.errors import SimulationError
 from edge.sim.backdrop import Backdrop, encode_linear, prerender
 from edge.sim.colour import tone_encode
-from edge.sim.effects import Effects, Occluder, Prop, drift_factor, sun_state
+from edge.sim.effects import Effects, Occluder, Prop, at_row_times, drift_factor, sun_state
 from edge.sim.raster import coverage, polygon_area
 from edge.sim.scene import RoverLook, Scene, aruco_cells, rectangle_cm
 from edge.sim.sensor import HEADROOM, CameraProcessing, exposure_blur
@@ -123,7 +123,12 @@ class Renderer:
         if frame_index < 0:
             raise SimulationError(f"renderer: frame index must not be negative, got {frame_index}")
         t_s = frame_index / self.fps
-        frame = self._compose(state.rovers, t_s)
+        rovers = state.rovers
+        if self.effects.rolling_shutter is not None and rovers:  # each rover where it is when its row is exposed
+            at = [(r.x_cm, r.y_cm, self._look(r.rover_id).body_height_cm) for r in rovers]
+            rows = [float(v) for v in self.camera.project(np.array(at, float).reshape(-1, 3))[:, 1]]
+            rovers = at_row_times(rovers, rows, self.effects.rolling_shutter.line_time_s)
+        frame = self._compose(rovers, t_s)
         return self._capture(frame, frame_index, t_s)
 
     def background(self, frame_index: int = 0) -> Image:
