@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -26,6 +27,9 @@ from edge.segmentation import F32
 
 FloatArray = NDArray[np.float64]
 IN_VIEW_MARGIN_PX = 1.0  # a blob at the image border is a whole marker when its modelled corners lie this far inside
+OPEN_SHARE = 0.22  # marker_part's opening radius, as a share of the square root of the marker's area (in pixels)
+PART_AREA = (0.75, 1.15)  # ... and the area of the part it keeps, as a share of the marker's expected area
+PARTED = 0.08  # ... when it parts off one piece this large at least (same share)
 
 
 def point_asymmetry(weights: F32) -> float:
@@ -51,6 +55,42 @@ def point_asymmetry(weights: F32) -> float:
     t = [float((m * p).sum()) / s for p in (a * a * a, a * a * b, a * b * b, b * b * b)]
     # the norm of the symmetric third-moment tensor (each mixed term counted as often as it appears)
     return math.sqrt(t[0] ** 2 + 3.0 * t[1] ** 2 + 3.0 * t[2] ** 2 + t[3] ** 2)
+
+
+def marker_part(
+    core: NDArray[np.bool_], expected_px: float, at_px: tuple[float, float]
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]] | None:
+    """The marker's part of a blob ``core`` that joined it to something of its hue (a shadow tinted by the sky's
+    light, another object's coloured part touching it): the blob opened by a disk of radius ``OPEN_SHARE`` of the
+    marker's expected size (``expected_px``; a quarter of a 21.5 x 16.8 cm marker's width), which cuts what joins
+    them and keeps a rectangle but for its corners' rounding, then the part nearest ``at_px`` (window pixels) if its
+    area is a marker's (``PART_AREA``). Returned with what it left of the blob beyond the corners' reach (for the
+    edge weights to leave out); None when the opening parts no piece of ``PARTED`` of the marker's area off (a
+    small marker's ragged edge loses several per cent in bits) or leaves no marker-sized part."""
+    radius = max(1, round(OPEN_SHARE * math.sqrt(max(expected_px, 1.0))))
+    x, y, w, h = cv2.boundingRect(core.view(np.uint8))  # the blob alone, with room for the disk: a few times quicker
+    x0, y0 = max(x - radius, 0), max(y - radius, 0)
+    box = (slice(y0, y + h + radius), slice(x0, x + w + radius))
+    blob = core[box]
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    opened = cv2.morphologyEx(blob.view(np.uint8), cv2.MORPH_OPEN, disk)
+    count, labels, stats, centres = cv2.connectedComponentsWithStats(opened, connectivity=8)
+    lo, hi = PART_AREA
+    fits = [i for i in range(1, count) if lo * expected_px <= stats[i, cv2.CC_STAT_AREA] <= hi * expected_px]
+    if not fits:
+        return None
+    u, v = at_px[0] - x0, at_px[1] - y0
+    best = min(fits, key=lambda i: math.hypot(centres[i][0] - u, centres[i][1] - v))
+    part = labels == best
+    reach = math.ceil((math.sqrt(2.0) - 1.0) * radius)  # a rounded corner lies this far inside the square one
+    ring = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1))
+    rest = blob & ~(cv2.dilate(part.view(np.uint8), ring) > 0)
+    count, _, stats, _ = cv2.connectedComponentsWithStats(rest.view(np.uint8), connectivity=8)
+    if count < 2 or stats[1:, cv2.CC_STAT_AREA].max() < PARTED * expected_px:
+        return None  # no piece parted off, only a ragged edge's bits: the blob is the marker
+    whole_part, whole_rest = np.zeros_like(core), np.zeros_like(core)
+    whole_part[box], whole_rest[box] = part, rest
+    return whole_part, whole_rest
 
 
 def eroded_elongation(area_ratio: float, aspect: float) -> float:

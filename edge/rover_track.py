@@ -34,6 +34,9 @@ SYMMETRY_FLOOR = 0.8  # a blob below the area band but showing this share of the
 SYMMETRY_SKEW = 0.15  # ... when its point asymmetry (edge.blob_shape) is at most this
 SYMMETRY_SHAPE = 0.05  # ... and its elongation within this share of a rectangle worn down all round to its area
 SYMMETRY_STEP_CM = 0.75  # ... and its centre within this of where the rover's filter expects it
+JOINED_RATIO = 1.05  # a blob this much larger than the learned area, lopsided beyond JOINED_SKEW (point asymmetry)
+JOINED_SKEW = 0.35  # and farther than JOINED_STEP_CM from the filter's prediction is the marker joined to something
+JOINED_STEP_CM = 1.5  # of its hue that could not be parted off (edge.blob_shape.marker_part)
 
 
 @dataclass(frozen=True)
@@ -204,9 +207,20 @@ class RoverTrack:
             relearn = True
         if m.elongation > _aspect(config) * config.max_elongation_factor:
             return False
+        if ratio > JOINED_RATIO and self.config.front_color_bgr is None and self._joined(m):
+            return False  # larger, lopsided and pulled off: joined to something of its hue
         if relearn:
             self.relearned_at = frame  # its areas are forgotten once it is taken (Pipeline)
         return True
+
+    def _joined(self, m: Measurement) -> bool:
+        """Is a blob larger than the marker the marker joined to something of its hue? Lopsided, and its centre pulled
+        farther from the prediction than a compressed stream moves a whole one (a far-side marker in a 4:2:0 q60
+        stream: lopsided up to 0.4 at times, 1 cm off; the blue marker joined to a shaded body: 0.6-0.9, 3-4 cm)."""
+        if m.weights is None or point_asymmetry(m.weights) <= JOINED_SKEW:
+            return False
+        step = self.innovation_cm(m)
+        return step is None or step > JOINED_STEP_CM
 
     def innovation_cm(self, m: Measurement) -> float | None:
         """How far the measurement's centre (with the centre correction last applied) lies from where the rover's

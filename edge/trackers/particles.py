@@ -14,6 +14,7 @@ import time
 import numpy as np
 from numpy.typing import NDArray
 
+from edge.blob_shape import marker_part
 from edge.segmentation import (
     Particle,
     fill_holes,
@@ -23,6 +24,8 @@ from edge.segmentation import (
     single_outline,
 )
 from edge.trackers.base import Measurement, RoverModel, StageClock, Window, measure_core, threshold_marker
+
+JOINED_AREA = 1.08  # a blob this much larger than the marker is looked at for a part joined to it (marker_part)
 
 
 class ParticleTracker:
@@ -81,7 +84,14 @@ class ParticleTracker:
             interior = eroded if not holes and self.erosion_iterations == 1 else None
         else:
             core = np.isin(labels, [p.label for p in chosen]) if len(chosen) > 1 else labels == chosen[0].label
-        return measure_core(window, rover, core, candidates, mask, self.ring_px, clock, interior)  # eq. 9-10
+        parted = None
+        if sum(p.total_px for p in chosen) > JOINED_AREA * expected_px:  # the marker joined to something of its hue?
+            ox, oy = window.offset
+            parted = marker_part(core, expected_px, (window.predicted_uv[0] - ox, window.predicted_uv[1] - oy))
+            if parted is not None:
+                core, interior = parted[0], None
+        rest = None if parted is None else parted[1]
+        return measure_core(window, rover, core, candidates, mask, self.ring_px, clock, interior, rest)  # eq. 9-10
 
     @staticmethod
     def _expected_px(window: Window, rover: RoverModel) -> float:
