@@ -143,7 +143,7 @@ color_bgr = [190, 90, 30]
                               # webcam's colour-dependent bias out; uses up to one more core. auto: on for a camera,
                               # a video or a stream, off for the simulator's uncompressed frames; true / false
 # line_time_us = 0.0          # the camera's rolling shutter, us between two rows' exposures (0: global shutter;
-                              # a webcam at 1280x720 and 30 fps: about 44; docs/deploy.md says how to measure it)
+                              # a webcam at 1280x720 and 30 fps: about 44; `edge-ips calibrate line-time` measures it)
 
 [broker]
 url = "embedded"              # embedded (amqtt in this process), mqtt://[user:pass@]host:port or mqtts://host:port

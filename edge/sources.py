@@ -410,21 +410,25 @@ def make_source(
 
 
 def grab_frame(source: FrameSource, settle_frames: int = 10) -> NDArray[np.uint8]:
-    """One frame of a live ``source``: the last of its first ``settle_frames`` (a camera's first frames come before
-    its exposure has settled). Opens and closes the source."""
+    """One frame of a live ``source``: the last of its first ``settle_frames`` (:func:`grab_frames`)."""
+    return grab_frames(source, 1, settle_frames - 1)[0]
+
+
+def grab_frames(source: FrameSource, count: int, settle_frames: int = 9) -> list[NDArray[np.uint8]]:
+    """``count`` consecutive frames of a live ``source`` after its first ``settle_frames`` (a camera's first frames
+    come before its exposure has settled); fewer if it ends first, at least the last it gave. Opens, closes it."""
     source.open()
+    images: list[NDArray[np.uint8]] = []
     try:
-        image = None
-        for _ in range(settle_frames):
-            frame = source.read()
-            if frame is None:
+        for i in range(settle_frames + count):
+            if (frame := source.read()) is None:
                 break
-            image = frame.image
+            images = [*images, frame.image] if i > settle_frames else [frame.image]  # settling frames not kept
     finally:
         source.close()
-    if image is None:
+    if not images:
         raise SourceError("the source delivered no frame")
-    return image
+    return images
 
 
 def camera_source(

@@ -1,4 +1,5 @@
-"""``edge-ips calibrate``: pixels to world cm on the marker plane (points, intrinsics, aruco, check)."""
+"""``edge-ips calibrate``: pixels to world cm on the marker plane (points, intrinsics, aruco, check), and the
+rolling shutter's line time (line-time)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from edge.cli.common import UserError, quiet
+from edge.cli.common import UserError, config_option, load, quiet
 
 if TYPE_CHECKING:
     from edge.calibration.check import CheckResult
@@ -37,8 +38,9 @@ def parse_area(text: str | None) -> tuple[float, float, float, float] | None:
 def calibrate() -> None:
     """Calibrate the camera: pixels to world cm on the marker plane.
 
-    Point pairs (`points`), lens intrinsics from checkerboards (`intrinsics`), ArUco floor markers (`aruco`), and
-    checking a calibration against independently measured points (`check`).
+    Point pairs (`points`), lens intrinsics from checkerboards (`intrinsics`), ArUco floor markers (`aruco`),
+    checking a calibration against independently measured points (`check`), and the rolling shutter's line time
+    from the lamps' flicker (`line-time`).
 
     Example:
 
@@ -226,6 +228,48 @@ def calibrate_aruco_cmd(
     for note in result.notes:
         click.echo(f"note: {note}")
     click.echo(f"wrote {out}")
+
+
+@calibrate.command("line-time")
+@click.option("--source", "source", metavar="SPEC", help="The camera (default: the configuration's [camera] source).")
+@click.option("--mains", "mains_hz", type=click.Choice(["50", "60"]), required=True, help="The mains frequency, Hz.")
+@click.option("--frames", "count", type=click.IntRange(8, 120), default=60, show_default=True, help="Frames to read.")
+@config_option
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object (line_time_us, period_rows, ...).")
+def calibrate_line_time_cmd(
+    source: str | None, mains_hz: str, count: int, config_path: Path | None, as_json: bool
+) -> None:
+    """Measure the camera's rolling-shutter line time ([tracker] line_time_us) from the lamps' flicker bands.
+
+    Lamps on mains power ripple at twice its frequency, and a rolling shutter shows the ripple as horizontal bands
+    that roll from frame to frame; their spacing gives the time between two rows' exposures. Point the camera at
+    the floor under mains-powered lamps with a short manual exposure for the measurement (exposure = 5, 0.5 ms, in
+    [camera.controls]); the camera's size and frame rate are the configuration's (the line time can change with
+    them). At 30 fps under 60 Hz mains (or 25 under 50 Hz) the bands stand still: measure at the other rate.
+
+    Example:
+
+    \b
+        edge-ips calibrate line-time --mains 50 --config /etc/edge-ips/config.toml
+    """
+    import dataclasses
+    import json
+
+    from edge.appliance import default_sim_factory
+    from edge.line_time import line_time_from_flicker
+    from edge.sources import camera_source, grab_frames
+
+    config = load(config_path, **{"camera.source": source}).config
+    frames = grab_frames(camera_source(config.camera, default_sim_factory(config), realtime=False), count)
+    result = line_time_from_flicker(frames, float(mains_hz), config.camera.fps)
+    if as_json:
+        click.echo(json.dumps(dataclasses.asdict(result)))
+        return
+    click.echo(
+        f"line_time_us = {result.line_time_us:.1f}   # bands {result.period_rows:.1f} rows apart, contrast "
+        f"{100 * result.contrast:.1f} %, {100 * result.share:.0f} % of the rows' variation, {result.frames} frames"
+    )
+    click.echo("put it in the [tracker] section of the configuration")
 
 
 @calibrate.command("check")
