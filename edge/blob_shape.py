@@ -73,7 +73,7 @@ def marker_part(
     box = (slice(y0, y + h + radius), slice(x0, x + w + radius))
     blob = core[box]
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
-    opened = cv2.morphologyEx(blob.view(np.uint8), cv2.MORPH_OPEN, disk)
+    opened = cv2.morphologyEx(blob.view(np.uint8), cv2.MORPH_OPEN, disk, borderType=cv2.BORDER_CONSTANT, borderValue=0)
     count, labels, stats, centres = cv2.connectedComponentsWithStats(opened, connectivity=8)
     lo, hi = PART_AREA
     fits = [i for i in range(1, count) if lo * expected_px <= stats[i, cv2.CC_STAT_AREA] <= hi * expected_px]

@@ -51,6 +51,7 @@ class ConstantVelocityFilter:
         self.last_fade = 1.0
         self._pending: list[FloatArray] = []
         self._dt = 1.0 / 30.0
+        self._at_frame_time = False  # back_to_frame_time has moved the estimate to the frame's time
         self._restart(float(xy_cm[0]), float(xy_cm[1]), 0.0, 0.0, r_cm2)
 
     def _restart(self, x: float, y: float, vx: float, vy: float, r_cm2: FloatArray) -> None:
@@ -84,12 +85,17 @@ class ConstantVelocityFilter:
     def back_to_frame_time(
         self, z_cm: tuple[float, float], r_cm2: FloatArray, delay_s: float
     ) -> tuple[tuple[float, float], FloatArray]:
-        """A measurement taken ``delay_s`` after the frame's time (its row's exposure under a rolling shutter) moved
-        back to the frame's time along the predicted velocity, its covariance widened by the velocity's over
-        ``delay_s``; as it is while the filter has no velocity (its first frame)."""
+        """A measurement taken ``delay_s`` after the frame's time (its row's exposure under a rolling shutter;
+        negative: before it) moved to the frame's time along the predicted velocity, its covariance widened by the
+        velocity's over ``delay_s``; as it is while the filter has no velocity (its first two measurements). The
+        first time, the estimate itself, which followed measurements taken at their rows' time, is moved the same
+        way, so the change shows as no step (a step read as braking halved the velocity for several frames)."""
         v = self.velocity
-        if v is None or delay_s <= 0.0:
+        if v is None or delay_s == 0.0:
             return z_cm, r_cm2
+        if not self._at_frame_time:
+            self._at_frame_time = True
+            self.shift(-delay_s * v[0], -delay_s * v[1])
         p, d2 = self.p, delay_s * delay_s
         widened = np.asarray(r_cm2, dtype=np.float64) + d2 * np.array([[p[10], p[11]], [p[14], p[15]]])
         return (z_cm[0] - delay_s * v[0], z_cm[1] - delay_s * v[1]), widened

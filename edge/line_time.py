@@ -6,7 +6,8 @@ from frame to frame (unless the frame rate divides twice the mains frequency: 30
 50 Hz). A short exposure makes them strong (an exposure of whole ripple periods cancels them). Each frame's mean
 row brightness over the median of the frames' (the scene, which the rolling bands leave) is the bands alone; the
 period, among those a rolling shutter can give (read out within one frame period: at least ``fps * rows /
-(2 * mains_hz)`` rows apart; at most one and a half frames' height), whose sinusoid explains most of them (least
+(2 * mains_hz)`` rows apart; at most 0.9 of a frame's height: longer ones are refused, as a fit to less than a
+band lands on the searched range's end), whose sinusoid explains most of them (least
 squares, each frame its own phase) is theirs: a frame holds only 1-3 periods, too few for a spectrum's peak. The
 tracker's ``line_time_us`` (``docs/tracking.md``, "A rolling shutter") is what this prints.
 """
@@ -27,6 +28,8 @@ MIN_FRAMES = 8  # the median over the frames must leave the scene without the ba
 MIN_SHARE = 0.3  # the bands must explain this share of the rows' variation (beyond a slope) ...
 MIN_CONTRAST = 0.002  # ... and be this strong (amplitude, a share of the brightness)
 STEP = 0.004  # the periods tried are this far apart (relative), then refined between the best one's neighbours
+LONGEST = 1.5  # the longest band period tried, in frame heights ...
+EDGE = 0.6  # ... of which a period found beyond this share is refused: too few bands a frame to fit (0.9 frames)
 
 
 class NoFlicker(SourceError):
@@ -65,7 +68,7 @@ def line_time_from_flicker(frames: Sequence[NDArray[np.uint8]], mains_hz: float,
     bands = (rows / np.maximum(np.median(rows, axis=0), 1e-6) - 1.0).T  # (H, n)
     height = bands.shape[0]
     shortest = 0.95 * fps * height / ripple  # read out within a frame period
-    longest = 1.5 * height
+    longest = LONGEST * height
     if shortest >= longest:
         raise NoFlicker(f"{height} rows are too few to show bands {shortest:.0f} rows apart or more")
     trend = _basis(height, None)
@@ -78,6 +81,12 @@ def line_time_from_flicker(frames: Sequence[NDArray[np.uint8]], mains_hz: float,
     period = float(fine[int(np.argmax(explained_fine))])
     share = float(explained_fine.max() / max(float((residual**2).sum()), 1e-30))
     amplitude = float(np.sqrt(2.0 * explained_fine.max() / bands.size))
+    if period > EDGE * longest:
+        raise NoFlicker(
+            f"the bands are {period:.0f} rows apart or more, too far for {height} rows to measure: the camera "
+            f"reads out fast (under {1e6 / (ripple * EDGE * longest):.0f} us a row); measure at a larger image "
+            "size, or leave line_time_us at 0 (its skew is then small)"
+        )
     if share < MIN_SHARE or amplitude < MIN_CONTRAST:
         raise NoFlicker(
             "no flicker bands in the frames: look at the floor under mains-powered lamps (not daylight, not DC LED "

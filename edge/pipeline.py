@@ -34,7 +34,7 @@ from edge.blob_shape import IN_VIEW_MARGIN_PX, footprint_in_view
 from edge.centre_offsets import CentreOffsets, Fits, ProcessFits
 from edge.errors import ConfigError, SourceError
 from edge.filtering import FilterFactory, one_colour_heading
-from edge.rover_track import Observation, RoverTrack, at_frame_time
+from edge.rover_track import Observation, RoverTrack
 from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr
 from edge.tracker_config import TrackerConfig
 from edge.trackers import make_filters, make_tracker
@@ -211,7 +211,7 @@ class Pipeline:
         if box is None:
             return None
         obs = self._measure(image, tr, box, uv, clock)
-        return None if obs is None else at_frame_time(obs, tr, self.config.line_time_us * 1e-6)
+        return None if obs is None else tr.at_frame_time(obs)
 
     def _window_box(
         self, xy_cm: tuple[float, float], radius_cm: float, shape: tuple[int, ...], hint_uv: tuple[float, float] | None
@@ -244,7 +244,7 @@ class Pipeline:
         )
         if window is None:
             return None
-        learned = tr.learned
+        tr.line_time_s = self.config.line_time_us * 1e-6  # a rolling shutter (edge.rover_track)
         model = RoverModel(tr.index, tr.expected_area(self.config.marker_area_cm2), tr.level)
         m = (tracker or self.tracker).measure(window, model, clock)
         if m is None:
@@ -261,7 +261,7 @@ class Pipeline:
                 m = replace(m, at_image_edge=False)  # whole: only its blurred edge reaches the border
             clock.add("outline", time.perf_counter() - t0)
         if not tr.whole_marker(
-            m, model.marker_area_cm2, learned, self.config, self._nominal_levels[tr.index], self._frames
+            m, model.marker_area_cm2, tr.learned, self.config, self._nominal_levels[tr.index], self._frames
         ):
             return None
         if tr.config.front_color_bgr is not None:

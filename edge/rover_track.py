@@ -43,22 +43,11 @@ JOINED_STEP_CM = 1.5  # of its hue that could not be parted off (edge.blob_shape
 class Observation:
     """A measurement that passed the pipeline's checks, with its covariance on the plane (cm^2). ``ahead_cm``: how
     far the rover had moved on from the frame's time when its row was exposed (a rolling shutter), taken off
-    ``measurement`` (:func:`at_frame_time`)."""
+    ``measurement`` (:meth:`RoverTrack.at_frame_time`)."""
 
     measurement: Measurement
     r_cm2: FloatArray
     ahead_cm: tuple[float, float] = (0.0, 0.0)
-
-
-def at_frame_time(obs: Observation, tr: RoverTrack, line_time_s: float) -> Observation:
-    """``obs`` of the tracked rover ``tr`` at the frame's time (its first row's): under a rolling shutter a marker
-    ``v`` rows down was exposed ``v * line_time_s`` later, where the rover had moved on along its velocity."""
-    if line_time_s <= 0.0 or tr.filter is None:
-        return obs
-    m = obs.measurement
-    xy, r = tr.filter.back_to_frame_time(m.xy_cm, obs.r_cm2, max(m.uv_px[1], 0.0) * line_time_s)
-    ahead = (m.xy_cm[0] - xy[0], m.xy_cm[1] - xy[1])
-    return Observation(replace(m, xy_cm=xy), r, ahead)
 
 
 @dataclass
@@ -68,6 +57,7 @@ class RoverTrack:
     config: RoverConfig
     index: int
     filter: ConstantVelocityFilter | None = None
+    line_time_s: float = 0.0  # the camera's rolling shutter (TrackerSettings.line_time_us)
     misses: int = 0
     level: float = 0.0
     areas: deque[float] = field(default_factory=lambda: deque(maxlen=31))
@@ -224,11 +214,28 @@ class RoverTrack:
 
     def innovation_cm(self, m: Measurement) -> float | None:
         """How far the measurement's centre (with the centre correction last applied) lies from where the rover's
-        filter expects it this frame; None while it has no filter (lost, or being acquired)."""
+        filter expects it this frame, when its row was exposed; None while it has no filter (lost, being acquired)."""
         if self.filter is None:
             return None
         x, y = self.filter.position
-        return math.hypot(m.xy_cm[0] + self.offset_cm[0] - x, m.xy_cm[1] + self.offset_cm[1] - y)
+        vx, vy = self.filter.velocity or (0.0, 0.0)
+        dt = self.row_delay_s(m)
+        return math.hypot(m.xy_cm[0] + self.offset_cm[0] - x - vx * dt, m.xy_cm[1] + self.offset_cm[1] - y - vy * dt)
+
+    def row_delay_s(self, m: Measurement) -> float:
+        """How long after the frame's time (its first row's exposure) the marker's row was exposed under a rolling
+        shutter (``line_time_s``); 0 without."""
+        return max(m.uv_px[1], 0.0) * self.line_time_s
+
+    def at_frame_time(self, obs: Observation) -> Observation:
+        """``obs`` at the frame's time: under a rolling shutter a marker lower in the frame was exposed later, where
+        the rover had moved on (along its filter's velocity; as measured while it has none)."""
+        delay = self.row_delay_s(obs.measurement)
+        if delay == 0.0 or self.filter is None:
+            return obs
+        m = obs.measurement
+        xy, r = self.filter.back_to_frame_time(m.xy_cm, obs.r_cm2, delay)
+        return Observation(replace(m, xy_cm=xy), r, (m.xy_cm[0] - xy[0], m.xy_cm[1] - xy[1]))
 
     def steady_below(self, ratio: float, expected_cm2: float, config: TrackerSettings, frame: int) -> bool:
         """Is a blob showing less than the area band's share (``ratio`` of the learned area) a whole marker all the

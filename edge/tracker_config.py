@@ -173,7 +173,7 @@ class TrackerSettings(BaseModel):
         le=1000.0,
         description="The camera's rolling shutter: the time between the exposures of two rows, us (0: a global "
         "shutter; about 44 for 720 rows read out in a 30 fps frame). A moving rover's centre is taken back to the "
-        "frame's time, its first row's.",
+        "frame's time, its first row's (not by method paper).",
     )
 
     @field_validator("edge_offsets", mode="before")

@@ -61,6 +61,13 @@ def test_bands_that_stand_still_from_frame_to_frame_are_not_taken_for_the_scene(
         line_time_from_flicker(_frames(44.4, 60.0, 30.0, count=8), 60.0, 30.0)
 
 
+def test_a_camera_reading_out_too_fast_for_its_bands_to_be_measured_is_refused_not_misread() -> None:
+    """At 10 us a row the bands are 1000 rows apart, more than a 720-row frame: a fit to less than a band landed on
+    the searched range's end (9.26 us for any line time under 12) and was reported."""
+    with pytest.raises(NoFlicker, match="reads out fast"):
+        line_time_from_flicker(_frames(10.0, 50.0, 30.0), 50.0, 30.0)
+
+
 def test_too_few_frames_are_refused() -> None:
     with pytest.raises(NoFlicker, match="at least 8"):
         line_time_from_flicker(_frames(44.4, 50.0, 30.0, count=3), 50.0, 30.0)
@@ -68,7 +75,8 @@ def test_too_few_frames_are_refused() -> None:
 
 @pytest.mark.slow
 def test_calibrate_line_time_reads_the_simulated_lab_and_refuses_a_scene_without_flicker() -> None:
-    """The lab scene's lamps ripple by 20 % (3.3 % bands at its 1/60 s auto exposure), rovers drive through it."""
+    """The lab scene's lamps ripple by 20 % (bands of 3.3 % in linear light at its 1/60 s automatic exposure, 1.5 % in
+    the 8-bit values), rovers drive through it."""
     runner = CliRunner()
     ok = runner.invoke(main, ["calibrate", "line-time", "--source", "sim:lab", "--mains", "50", "--json"])
     assert ok.exit_code == 0, ok.output
