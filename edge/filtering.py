@@ -82,6 +82,12 @@ class ConstantVelocityFilter:
         largest = 0.5 * (a + d) + math.sqrt(max(0.25 * (a - d) ** 2 + b * b, 0.0))
         return math.sqrt(max(largest, 0.0))
 
+    @property
+    def on_frame_time(self) -> bool:
+        """Has :meth:`back_to_frame_time` moved the estimate to the frame's time (it followed measurements taken at
+        their rows' time before)?"""
+        return self._at_frame_time
+
     def back_to_frame_time(
         self, z_cm: tuple[float, float], r_cm2: FloatArray, delay_s: float
     ) -> tuple[tuple[float, float], FloatArray]:

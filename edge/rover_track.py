@@ -219,7 +219,7 @@ class RoverTrack:
             return None
         x, y = self.filter.position
         vx, vy = self.filter.velocity or (0.0, 0.0)
-        dt = self.row_delay_s(m)
+        dt = self.row_delay_s(m) if self.filter.on_frame_time else 0.0  # before: the estimate is at the rows' time
         return math.hypot(m.xy_cm[0] + self.offset_cm[0] - x - vx * dt, m.xy_cm[1] + self.offset_cm[1] - y - vy * dt)
 
     def row_delay_s(self, m: Measurement) -> float:
