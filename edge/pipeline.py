@@ -102,7 +102,8 @@ class Pipeline:
     def reset(self) -> None:
         """Forget every rover and the background: the next frame starts tracking afresh, at its own size."""
         self.maps: PlaneGrid | None = None
-        self.tracks = [RoverTrack(r, i) for i, r in enumerate(self.config.rovers)]
+        line_time_s = self.config.line_time_us * 1e-6  # a rolling shutter (edge.rover_track)
+        self.tracks = [RoverTrack(r, i, line_time_s=line_time_s) for i, r in enumerate(self.config.rovers)]
         for tr in self.tracks:
             self.tracker.reset(tr.index)
             self.acquirer.reset(tr.index)
@@ -244,7 +245,6 @@ class Pipeline:
         )
         if window is None:
             return None
-        tr.line_time_s = self.config.line_time_us * 1e-6  # a rolling shutter (edge.rover_track)
         model = RoverModel(tr.index, tr.expected_area(self.config.marker_area_cm2), tr.level)
         m = (tracker or self.tracker).measure(window, model, clock)
         if m is None:
