@@ -24,9 +24,6 @@ import logging
 import math
 import multiprocessing
 import os
-import select
-import signal
-import threading
 from collections import deque
 from concurrent.futures import Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -37,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.edges_encoded import encoded_edge_centre
+from edge.orphans import exit_with_parent
 from edge.rover_track import RoverTrack
 from edge.trackers.base import Measurement
 from edge.trackers.plane import PlaneGrid
@@ -52,6 +50,7 @@ MAX_RMS = 12.0  # a fit whose residual (8-bit units) is larger did not find a ma
 NEAR_CM = 60.0  # the floor distance over which an offset is taken to hold (the kernel's sigma)
 PRIOR_WEIGHT = 1.0  # the rover's median offset counts as this many samples at the place asked about
 OUTLIER_CM = 0.25  # a sample this far from the rover's median offset (and 3 spreads) is not used
+SAME_PLACE_CM = 2.0  # samples this close together were taken at one place: together they count as one
 KEEP = 200  # samples kept per rover (the newest)
 TRUST_CM = 0.05  # the fits' own error on some cameras and bodies: this much of an offset is not applied
 INSET_CM = 2.0  # the marker's colour is read this far inside its nominal outline (at most a quarter of its width)
@@ -120,38 +119,52 @@ class OffsetMap:
 
     def __init__(self) -> None:
         self.samples: deque[EdgeSample] = deque(maxlen=KEEP)
-        self._cache: tuple[FloatArray, FloatArray, FloatArray] | None = None
+        self._cache: tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None = None
 
     def add(self, sample: EdgeSample) -> None:
         self.samples.append(sample)
         self._cache = None
 
-    def _usable(self) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """(n, 2) places, (n, 2) offsets of the samples that agree with the rover's others, and the median offset."""
+    def _usable(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """(n, 2) places, (n, 2) offsets and (n,) weights of the samples that agree with the rover's others, and the
+        median offset.
+
+        Samples taken at one place (the rover standing, or sampled in quick succession while it has too few) see the
+        same floor and neighbours, so they repeat one error (a tile's joint along an edge, another rover in the band
+        beyond it): each counts as a share of one, the place's samples together as one (declustering), in the median
+        and in the offset at a place alike. Five samples of a rover waiting at its start, each 0.35 cm off where a
+        joint ran along its far edge, would otherwise outvote every later sample."""
         if self._cache is None:
             xy = np.array([s.xy_cm for s in self.samples], dtype=np.float64).reshape(-1, 2)
             d = np.array([s.offset_cm for s in self.samples], dtype=np.float64).reshape(-1, 2)
-            median = np.median(d, axis=0)
+            gap = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
+            share = 1.0 / np.count_nonzero(gap <= SAME_PLACE_CM, axis=1)
+            median = np.array([_weighted_median(d[:, 0], share), _weighted_median(d[:, 1], share)])
             far = np.hypot(*(d - median).T)
-            spread = float(np.median(far)) * 1.4826
+            spread = _weighted_median(far, share) * 1.4826
             keep = far <= max(OUTLIER_CM, 3.0 * spread)
-            self._cache = (xy[keep], d[keep], median)
+            self._cache = (xy[keep], d[keep], share[keep], median)
         return self._cache
 
     def offset(self, x_cm: float, y_cm: float) -> tuple[float, float] | None:
         """The offset to add to a fast centre at (x, y), or None before :data:`MIN_SAMPLES` samples."""
         if len(self.samples) < MIN_SAMPLES:
             return None
-        xy, d, median = self._usable()
+        xy, d, share, median = self._usable()
         if len(xy) == 0:
             return None
-        w = np.exp(-((xy[:, 0] - x_cm) ** 2 + (xy[:, 1] - y_cm) ** 2) / (2.0 * NEAR_CM * NEAR_CM))
+        w = share * np.exp(-((xy[:, 0] - x_cm) ** 2 + (xy[:, 1] - y_cm) ** 2) / (2.0 * NEAR_CM * NEAR_CM))
         total = float(w.sum()) + PRIOR_WEIGHT
         dx = (float(w @ d[:, 0]) + PRIOR_WEIGHT * float(median[0])) / total
         dy = (float(w @ d[:, 1]) + PRIOR_WEIGHT * float(median[1])) / total
         size = math.hypot(dx, dy)
         keep = max(0.0, 1.0 - TRUST_CM / size) if size > 0 else 0.0
         return dx * keep, dy * keep
+
+
+def _weighted_median(values: FloatArray, weights: FloatArray) -> float:
+    """The value below which half the weight lies (the lower one where it falls between two)."""
+    return float(np.quantile(values, 0.5, weights=weights, method="inverted_cdf"))
 
 
 class Fits(Protocol):
@@ -169,32 +182,6 @@ class Fits(Protocol):
         ...
 
     def close(self) -> None: ...
-
-
-def exit_with_parent(parent_pid: int) -> None:
-    """A worker process's initializer (for a pool whose workers are the spawning process's children: the ``spawn``
-    or ``fork`` context): end the worker when process ``parent_pid`` ends, however it ends (a ``kill -9``, a crash:
-    no ``finally`` of the parent's runs then, and an idle worker would wait for jobs for ever). A thread waits on the
-    parent's pidfd (Linux 5.3+), else polls the parent's id once a second. Ctrl-C is the parent's to handle (it stops
-    its workers): a worker ignores SIGINT, which would otherwise come back as the fit's error."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-    def watch() -> None:
-        try:
-            fd = os.pidfd_open(parent_pid)
-        except (AttributeError, OSError):  # not Linux, an older kernel, or the parent gone already
-            while os.getppid() == parent_pid:
-                threading.Event().wait(1.0)
-            os._exit(0)
-        try:
-            if os.getppid() == parent_pid:  # not a later process that took the parent's pid (the fd is of the pid)
-                poller = select.poll()
-                poller.register(fd, select.POLLIN)
-                poller.poll()  # readable once the parent has ended
-        finally:
-            os._exit(0)
-
-    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
 class InlineFits:

@@ -10,7 +10,7 @@ The fit is a pure function of the job, so any job the pool does not deliver is f
 the same result: a worker that died or could not be started, or a fit not done after :data:`GUARD_S` (the first
 such failure is logged, the pool is stopped, and the rest of the run fits inline), or a fit that raised in a worker
 (run again here, where it raises as it would in the loop). The workers end with this process, however it ends
-(:func:`~edge.centre_offsets.exit_with_parent`).
+(:func:`~edge.orphans.exit_with_parent`).
 """
 
 from __future__ import annotations
@@ -24,7 +24,8 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from concurrent.futures.process import BrokenProcessPool
 
-from edge.centre_offsets import HELD_BACK_FRAMES, EdgeJob, EdgeSample, exit_with_parent, fit_offset
+from edge.centre_offsets import HELD_BACK_FRAMES, EdgeJob, EdgeSample, fit_offset
+from edge.orphans import exit_with_parent
 
 log = logging.getLogger(__name__)
 

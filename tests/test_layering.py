@@ -38,6 +38,7 @@ CORE = (
     "edge.outline",
     "edge.centre_offsets",
     "edge.pooled_fits",
+    "edge.orphans",
     "edge.edges_encoded",
     "edge.edges_held",
     "edge.poses",
