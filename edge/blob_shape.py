@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from edge.segmentation import F32
 
 FloatArray = NDArray[np.float64]
-IN_VIEW_MARGIN_PX = 1.0  # a blob at the image border is a whole marker when its modelled corners lie this far inside
+IN_VIEW_MARGIN_PX = 0.0  # a blob at the image border is a whole marker when its modelled corners lie this far inside
 OPEN_SHARE = 0.22  # marker_part's opening radius, as a share of the square root of the marker's area (in pixels)
 PART_AREA = (0.75, 1.15)  # ... and the area of the part it keeps, as a share of the marker's expected area
 PARTED = 0.08  # ... when it parts off one piece this large at least (same share)
