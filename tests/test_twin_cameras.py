@@ -457,7 +457,9 @@ def test_formations_form_across_the_seam_of_two_boards_and_stop_leaves_every_rov
     boards: Boards, record_property: Callable[[str, object], None]
 ) -> None:
     cameras = _cameras(boards.path)
-    for kind in ("line", "rendezvous", "triangle"):
+    # the line (every rover crosses the seam: it forms at about their mean x) and the triangle; the rendezvous's
+    # handover is the line's, and every formation is judged through one board in test_twin_e2e
+    for kind in ("line", "triangle"):
         run = _handed_over(boards, kind, cameras)
         record_property(kind, asdict(run))
         # rovers crossed from one camera's view into the other's, and the other board measured them there: every

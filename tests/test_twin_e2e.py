@@ -3,7 +3,8 @@ publishes poses; each rover's real firmware, its own MQTT client with its own lo
 receives. Once through the embedded broker (the lab started by the edge, the rovers on the state directory's
 logins), once through a Mosquitto set up by ``edge-ips broker-config`` (the lab started by hand with its logins).
 
-Formations are commanded through the dashboard's HTTP API and judged on the poses as published, by the bars of the
+Formations (all three through the embedded broker, the triangle through Mosquitto) are commanded through the
+dashboard's HTTP API and judged on the poses as published, by the bars of the
 closed-loop experiments (docs/experiments.md): line within 3 cm, rendezvous inside 40 cm, triangle 100 +- 3 cm, by
 frame 240 of the formation. STOP, sent while the rovers drive, must leave every rover at rest within 0.5 s (the
 poses from then on move less than the tracker's noise), on the poses and on the lab's ground truth.
@@ -128,7 +129,10 @@ def test_the_dashboards_formations_meet_the_closed_loop_bars_and_stop_leaves_eve
 ) -> None:
     results = []
     stops = []
-    for kind in ("line", "rendezvous", "triangle"):
+    # every formation through the embedded broker; through Mosquitto the hardest, the triangle (the formation law
+    # does not depend on the broker: what does is the command's and the poses' path, and the STOP)
+    kinds = ("line", "rendezvous", "triangle") if twin.broker == "embedded" else ("triangle",)
+    for kind in kinds:
         after = _scatter(twin)
         sent = twin.edge.command(kind, TOKEN, ROVERS)
         t_command = arrival(twin.rec, kind, sent["seq"], after)
