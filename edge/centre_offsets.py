@@ -9,9 +9,10 @@ camera's encoded chroma (``edge.edges_encoded``) takes that spread out, but cost
 ``every_frames`` frames one rover's window (as the camera gave it) goes to a worker that fits its edges; the fitted
 centre minus the fast centre of that frame is a sample of the rover's offset at that place. Each frame the rover's
 fast centre moves by what its samples say there: the samples' mean weighted by their distance on the floor,
-shrunk to the rover's median offset where few are near. Nothing moves before a rover has :data:`MIN_SAMPLES`
-samples, a sample far from the rover's others (another rover in the band beyond the edges, a fit run off) is not
-used, and :data:`TRUST_CM` of every offset is held back (the fits' own error on some bodies and cameras).
+shrunk to the rover's median offset where few are near; samples taken at one place count together as one.
+Nothing moves before a rover has :data:`MIN_SAMPLES` samples, a sample far from the rover's others (another rover
+in the band beyond the edges, a fit run off) is not used, and :data:`TRUST_CM` of every offset is held back (the
+fits' own error on some bodies and cameras).
 
 The fits run in another process (:class:`ProcessFits`: the frame loop keeps its time) or, for benchmarks and
 offline runs that must repeat exactly, in the frame loop with their results held back as long as a worker would
@@ -132,7 +133,7 @@ class OffsetMap:
         Samples taken at one place (the rover standing, or sampled in quick succession while it has too few) see the
         same floor and neighbours, so they repeat one error (a tile's joint along an edge, another rover in the band
         beyond it): each counts as a share of one, the place's samples together as one (declustering), in the median
-        and in the offset at a place alike. Five samples of a rover waiting at its start, each 0.35 cm off where a
+        and in the offset at a place alike. Five samples of a rover waiting at its start, 0.3-0.6 cm off where a
         joint ran along its far edge, would otherwise outvote every later sample."""
         if self._cache is None:
             xy = np.array([s.xy_cm for s in self.samples], dtype=np.float64).reshape(-1, 2)
