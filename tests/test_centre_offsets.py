@@ -114,11 +114,14 @@ def _sample(x: float, y: float, dx: float, dy: float, frame: int = 0) -> EdgeSam
     return EdgeSample(0, frame, (x, y), (dx, dy))
 
 
-def test_no_offset_before_enough_samples_then_the_near_samples_count_most():
+def test_a_rovers_first_samples_move_its_centre_in_part_then_the_near_samples_count_most():
     offsets = OffsetMap()
+    assert offsets.offset(0.0, 0.0) is None
     for k in range(MIN_SAMPLES - 1):
         offsets.add(_sample(0.0, 5.0 * k, 0.3, 0.0, k))
-    assert offsets.offset(0.0, 0.0) is None
+        dx, dy = offsets.offset(0.0, 0.0) or (math.nan, math.nan)
+        # a share of the offset, as many thirds as it has samples, less the fits' own error
+        assert dx == pytest.approx(0.3 * (k + 1) / MIN_SAMPLES - TRUST_CM, abs=1e-9) and dy == 0.0
     offsets.add(_sample(0.0, 10.0, 0.3, 0.0))
     for k in range(3):
         offsets.add(_sample(300.0, 5.0 * k, 0.1, 0.15, k))
