@@ -2,7 +2,7 @@
 """One entry point for a fresh machine: installs from the lock file on first use, then runs the job.
 
     python3 run.py start [OPTIONS]     edge-ips start (simulated camera and embedded broker unless configured)
-    python3 run.py test [PYTEST-ARGS]  the whole test suite
+    python3 run.py test [PYTEST-ARGS]  the whole test suite, on every core (pytest -n auto; -n 0 for one process)
     python3 run.py edge-ips ARGS...    any other edge-ips command
 
 Needs only Python 3.11+ and pip. uv is bootstrapped into ./.tools with pip when it is not on PATH; the project's
@@ -87,7 +87,9 @@ def main(argv: list[str]) -> int:
     if job == "test":
         sync(dev=True)
         ensure_debian_packages()
-        return subprocess.run([str(VENV / "bin" / "python"), "-m", "pytest", *rest], cwd=ROOT).returncode
+        # every core (pytest-xdist); the real-time tests on one worker, one at a time (tests/conftest.py)
+        pytest = [str(VENV / "bin" / "python"), "-m", "pytest", "-n", "auto"]
+        return subprocess.run([*pytest, *rest], cwd=ROOT).returncode
     if job == "start":
         sync(dev=False)
         return subprocess.run([str(VENV / "bin" / "edge-ips"), "start", *rest]).returncode

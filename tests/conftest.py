@@ -27,6 +27,28 @@ def benchmark_module(name: str) -> ModuleType:
     return module
 
 
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The groups pytest-xdist deals out whole (``--dist loadgroup``): a file's tests stay together, so a module
+    fixture (a rendered clip, a compiled firmware) is made once; every ``realtime`` test, whatever its file, shares
+    one group, so two of them never run beside each other and fight for the cores their bars are timed on."""
+    for item in items:
+        group = "realtime" if item.get_closest_marker("realtime") else item.nodeid.split("::", 1)[0]
+        item.add_marker(pytest.mark.xdist_group(group))
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_node_collection_finished(node: object, ids: list[str]) -> None:
+    """Each pytest-xdist worker's test ids carry their group by now (the worker appends ``@group``, the scheduler
+    reads it back). If they do not (``--dist`` other than pyproject.toml's ``loadgroup``, or the groups silently lost
+    as with pytest 9.2 and pytest-xdist 3.8, pytest-xdist#1386), the real-time tests would run beside each other:
+    stop instead."""
+    lost = [nodeid for nodeid in ids if "@" not in nodeid.rsplit("]", 1)[-1]]
+    if lost:
+        why = f"{lost[0]} has no pytest-xdist group: run with --dist loadgroup, on the pytest pyproject.toml pins"
+        pytest.exit(why, returncode=4)
+
+
 @pytest.fixture(scope="session")
 def repo_root() -> Path:
     return REPO

@@ -32,7 +32,7 @@ from tests.support.appliance import edge_config, running
 from tests.support.mosquitto import Mosquitto
 from tests.support.proxy import Proxy
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]
 
 ROVERS = ["red", "green", "blue"]  # the ids the test scene's rovers carry (DEFAULT_ROVERS)
 TIMEOUT_S = 120.0  # failure guard only

@@ -42,7 +42,7 @@ from tests.support.dashboard import clean_env
 from tests.support.mosquitto import Mosquitto, free_port
 from tests.support.runtime import MqttRecorder
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]
 
 ROVERS = ["red", "green", "blue"]
 TOKEN = "e2e-dashboard-token"

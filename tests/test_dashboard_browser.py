@@ -21,7 +21,7 @@ from tests.support.appliance import edge_config, running
 from tests.support.dashboard import EdgeProcess, FormationSubscriber, chromium, clean_env, edge_start
 from tests.support.mosquitto import Mosquitto
 
-pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]  # end to end, or long: left out of the quick loop (-m 'not slow')
 
 TOKEN = "test-dashboard-token"
 ROVERS = ["red", "green", "blue"]

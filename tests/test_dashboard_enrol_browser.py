@@ -28,7 +28,7 @@ from tests.support.dashboard import EdgeProcess, chromium, clean_env, edge_start
 from tests.support.lab import Lab, lab_appliance, tracked_since
 from tests.support.mosquitto import Mosquitto
 
-pytestmark = pytest.mark.slow  # end to end: left out of the quick loop (-m 'not slow')
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]  # end to end: left out of the quick loop (-m 'not slow')
 
 TOKEN = "enrol-browser-token"
 SIM_ROVERS = ["red", "green", "blue"]

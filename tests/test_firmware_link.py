@@ -24,6 +24,8 @@ from edge.rover_host import HostRover, firmware_modules
 from firmware.harness.runner import rover_configs
 from tests.support.mosquitto import Mosquitto
 
+pytestmark = pytest.mark.realtime
+
 fw = firmware_modules()
 fm: Any = fw["formation"]
 motors_mod: Any = fw["motors"]

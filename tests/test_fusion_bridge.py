@@ -25,7 +25,7 @@ from tests.support.proxy import Proxy
 from tests.support.runtime import MqttRecorder, Received
 from tests.test_fusion_live import BOARDS, PY, _env, fuser_states, pose_list, poses_after, process
 
-pytestmark = pytest.mark.slow  # real processes and Mosquittos, seconds each
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]  # real processes and Mosquittos, seconds each
 
 MAX_AGE_S = 1.0  # the fuser's age limit here (a busy machine); the outage below is three times as long
 

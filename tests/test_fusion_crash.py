@@ -36,6 +36,8 @@ from tests.support.mosquitto import Mosquitto
 from tests.support.proxy import Proxy
 from tests.support.runtime import MqttRecorder, Received, stop_process
 
+pytestmark = pytest.mark.realtime
+
 TIMEOUT_S = 60.0  # failure guard only
 FUSERS = ["fuser-a", "fuser-b"]
 PASSWORDS = {"edge": "edge-pw", "viewer": "viewer-pw", "board": "board-pw", **{f: f"{f}-pw" for f in FUSERS}}

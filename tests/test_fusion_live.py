@@ -23,7 +23,7 @@ from tests.support.mosquitto import Mosquitto
 from tests.support.runtime import MqttRecorder, Received, stop_process
 from tests.support.synthetic_board import truth
 
-pytestmark = pytest.mark.slow  # real processes and Mosquittos, seconds each
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]  # real processes and Mosquittos, seconds each
 
 PY = sys.executable
 BOARDS = {"a": ("0,0,450,550", "3"), "b": ("350,0,800,550", "-5")}

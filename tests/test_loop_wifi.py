@@ -17,6 +17,8 @@ from edge.sim.link import LinkSettings
 from edge.sim.loop import LoopConfig, LoopRecord, run
 from edge.sim.report import stale_bound_ms, summarize
 
+pytestmark = pytest.mark.realtime
+
 
 def assert_every_long_outage_stops_its_rover_in_time_and_it_drives_again(record: LoopRecord) -> dict[str, object]:
     m = summarize(record)

@@ -20,6 +20,8 @@ from tests.support.appliance import edge_config, running
 from tests.support.mosquitto import Mosquitto, free_port
 from tests.support.runtime import MqttRecorder, poses, write_clip
 
+pytestmark = pytest.mark.realtime
+
 PROM_LINE = re.compile(
     r'^(# (HELP|TYPE) \w+ .+|(edge_ips|process)_\w+(\{(\w+="[^"]*",?)+\})? (-?[0-9.e+-]+|NaN|\+Inf))$'
 )

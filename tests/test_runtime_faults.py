@@ -17,7 +17,7 @@ from tests.support.appliance import edge_config, running
 from tests.support.mosquitto import Mosquitto
 from tests.support.runtime import MjpegServer, MqttRecorder, poses, statuses
 
-pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]  # end to end, or long: left out of the quick loop (-m 'not slow')
 
 
 def _frame_by_frame(runtime: EdgeRuntime, condition: Callable[[], bool], timeout_s: float = 30.0) -> bool:

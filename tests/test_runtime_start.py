@@ -23,7 +23,7 @@ from tests.conftest import REPO
 from tests.support.mosquitto import Mosquitto, free_port
 from tests.support.runtime import MqttRecorder, poses, stop_process
 
-pytestmark = pytest.mark.slow  # end to end, or long: left out of the quick loop (-m 'not slow')
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]  # end to end, or long: left out of the quick loop (-m 'not slow')
 
 EDGE_IPS = [sys.executable, "-m", "edge.cli"]  # this checkout's edge-ips
 

@@ -16,7 +16,7 @@ import pytest
 from tests.support.dashboard import EdgeProcess, chromium, clean_env, edge_start
 from tests.support.mosquitto import free_port
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]
 
 ROVERS = ["red", "green", "blue"]
 WAIT_MS = 120_000  # failure guard: how long the page may take to show something

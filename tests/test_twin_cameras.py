@@ -54,6 +54,8 @@ from tests.support.twin import (
 )
 from tests.test_fusion_bridge import point_bridge
 
+pytestmark = pytest.mark.realtime
+
 IDS = ["red", "green", "blue"]
 WAIT_S = 120.0  # a failure guard only
 

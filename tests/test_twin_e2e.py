@@ -40,7 +40,7 @@ from tests.support.twin import (
     wait_tracked,
 )
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]
 
 ROVERS = ["red", "green", "blue"]
 TOKEN = "twin-e2e-dashboard-token"

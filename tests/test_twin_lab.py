@@ -26,7 +26,7 @@ from edge.sim.twin.server import LabServer
 from edge.sim.twin.source import LabClient, TwinSource
 from edge.sim.twin.wire import ControlRequest, read_line, send_line, socket_path
 
-pytestmark = pytest.mark.slow  # a lab with three rovers on a broker: seconds
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]  # a lab with three rovers on a broker: seconds
 
 IDS = ["red", "green", "blue"]
 WAIT_S = 60.0  # a failure guard: how long something may take before the test fails
