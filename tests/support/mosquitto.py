@@ -13,15 +13,43 @@ from benchmarks._common import start_mosquitto, stop_process
 from edge.broker import write_password_file
 
 
+def _listener_ports() -> range:
+    """This process's share of the ports below the system's ephemeral range. A port from ``bind(0)`` is itself
+    ephemeral: any outgoing connection (another test's client, a worker beside this one) may take it as its local
+    port before the listener it was chosen for binds, and the listener then fails with "already in use". Ports below
+    the range are never handed out that way; each pytest-xdist worker gets its own slice of them."""
+    try:
+        low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        low = 32768
+    start = 10000 if low > 12000 else 1024
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw")
+    slices = max(int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")), 1)
+    size = (low - start) // slices
+    first = start + (int(worker) if worker.isdigit() else 0) % slices * size
+    return range(first, first + size)
+
+
+_PORTS = _listener_ports()
+_next = [int.from_bytes(os.urandom(2), "big") % len(_PORTS)]  # a run starts anywhere in the slice
+
+
 def free_port(taken: set[int] | None = None) -> int:
-    """A port free now on loopback, none of ``taken`` (the system may hand a port just given out, and closed, again:
-    two listeners of one broker were once given the same port, and it did not start)."""
-    while True:
+    """A port free now on loopback, none of ``taken``: the next of this process's listener ports
+    (:func:`_listener_ports`) that binds; no port is given out twice in the slice's round (the system would hand a
+    port just closed again: two listeners of one broker were once given the same port, and it did not start)."""
+    for _ in range(len(_PORTS)):
+        port = _PORTS[_next[0] % len(_PORTS)]
+        _next[0] += 1
+        if port in (taken or set()):
+            continue
         with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            port = int(s.getsockname()[1])
-        if port not in (taken or set()):
-            return port
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+        return port
+    raise RuntimeError(f"no free port in {_PORTS}")
 
 
 def _user_line() -> str:
