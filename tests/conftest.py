@@ -45,7 +45,7 @@ def pytest_xdist_node_collection_finished(node: object, ids: list[str]) -> None:
     stop instead."""
     lost = [nodeid for nodeid in ids if "@" not in nodeid.rsplit("]", 1)[-1]]
     if lost:
-        why = f"{lost[0]} has no pytest-xdist group: run with --dist loadgroup, on the pytest pyproject.toml pins"
+        why = f"{lost[0]} has no pytest-xdist group: run with --dist loadgroup on a pytest pyproject.toml allows"
         pytest.exit(why, returncode=4)
 
 

@@ -17,7 +17,8 @@ def _listener_ports() -> range:
     """This process's share of the ports below the system's ephemeral range. A port from ``bind(0)`` is itself
     ephemeral: any outgoing connection (another test's client, a worker beside this one) may take it as its local
     port before the listener it was chosen for binds, and the listener then fails with "already in use". Ports below
-    the range are never handed out that way; each pytest-xdist worker gets its own slice of them."""
+    the range are never handed out that way; each pytest-xdist worker gets its own slice of them. Empty where the
+    range starts too low to leave room."""
     try:
         low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
     except (OSError, ValueError, IndexError):
@@ -25,19 +26,22 @@ def _listener_ports() -> range:
     start = 10000 if low > 12000 else 1024
     worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw")
     slices = max(int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")), 1)
-    size = (low - start) // slices
+    size = max(low - start, 0) // slices
+    if size < 100:
+        return range(0)
     first = start + (int(worker) if worker.isdigit() else 0) % slices * size
     return range(first, first + size)
 
 
 _PORTS = _listener_ports()
-_next = [int.from_bytes(os.urandom(2), "big") % len(_PORTS)]  # a run starts anywhere in the slice
+_next = [int.from_bytes(os.urandom(2), "big")]  # a run starts anywhere in the slice
 
 
 def free_port(taken: set[int] | None = None) -> int:
     """A port free now on loopback, none of ``taken``: the next of this process's listener ports
     (:func:`_listener_ports`) that binds; no port is given out twice in the slice's round (the system would hand a
-    port just closed again: two listeners of one broker were once given the same port, and it did not start)."""
+    port just closed again: two listeners of one broker were once given the same port, and it did not start).
+    Without such ports, one from the system (``bind(0)``)."""
     for _ in range(len(_PORTS)):
         port = _PORTS[_next[0] % len(_PORTS)]
         _next[0] += 1
@@ -49,7 +53,12 @@ def free_port(taken: set[int] | None = None) -> int:
             except OSError:
                 continue
         return port
-    raise RuntimeError(f"no free port in {_PORTS}")
+    while True:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = int(s.getsockname()[1])
+        if port not in (taken or set()):
+            return port
 
 
 def _user_line() -> str:
