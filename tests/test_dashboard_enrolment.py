@@ -503,6 +503,19 @@ def test_enrolment_controls_need_the_control_token(
     assert call(floor.port, "GET", "/api/enroll").status == 401  # viewing needs a token too
 
 
+def test_the_trackers_model_reads_ready_exactly_when_enrolment_takes_it_though_the_share_shown_is_rounded() -> None:
+    model = BackgroundModel((200, 1000), 10, None)
+    model.valid[...] = True
+    model.valid.flat[:205] = False  # seen bare: 99.8975 % of the image, under the bar
+    camera = Camera(tracker=SimpleNamespace(background=model))
+    desk = EnrolDesk(camera, None, enabled=True, marker_length_cm=21.5, marker_width_cm=16.8)
+    shown = desk.state()["tracker_model"]
+    assert shown["known"] >= MIN_KNOWN_SHARE  # rounded, the share alone would read as enough (it once did)
+    assert shown["ready"] is False
+    model.valid.flat[:205] = True
+    assert desk.state()["tracker_model"] == {"known": 1.0, "ready": True}
+
+
 @pytest.mark.slow
 def test_forgetting_the_floor_falls_back_to_the_trackers_model(floor: Floor) -> None:
     assert floor.request("POST", "/api/enroll/floor", {})[0] == 200

@@ -39,7 +39,7 @@ function showEnrollStatus() {
   } else {
     img.hidden = true;
     const m = s.tracker_model;
-    const ready = m && m.known >= s.min_known;
+    const ready = m && m.ready;  // the server's own test: the share it sends is rounded
     $("enroll-floor").textContent = !m ? "not captured"
       : `not captured: the tracker's background model is used for the rovers it tracks (${(100 * m.known).toFixed(1)} % of the floor seen${ready ? "" : ", not ready"})`;
     $("enroll-floor").dataset.ready = String(Boolean(ready));
