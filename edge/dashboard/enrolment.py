@@ -261,7 +261,7 @@ class EnrolDesk:
             "enabled": self._unavailable() is None,
             "reason": self._unavailable(),
             "floor": None if floor is None else floor.describe(),
-            # ready: the enrolment's own test (the rounded share alone read 99.9 % as ready at 99.89 %)
+            # ready: the enrolment's own test (rounded, a share just under the bar read as reaching it)
             "tracker_model": None if known is None else {"known": round(known, 4), "ready": known >= MIN_KNOWN_SHARE},
             "min_known": MIN_KNOWN_SHARE,
             "rovers_file": None if path is None else str(path),
