@@ -70,8 +70,8 @@ SimFactory = Callable[[str], FrameSource]
 CalibrationLoader = Callable[[EdgeConfig, FrameSource, SourceInfo, str], Any]
 
 
-def default_sim_factory(config: EdgeConfig) -> SimFactory:
-    """The simulator's source, paced in real time, for ``--source sim[:SCENARIO]``."""
+def default_sim_factory(config: EdgeConfig, *, realtime: bool | None = None) -> SimFactory:
+    """The simulator's source for ``--source sim[:SCENARIO]``, paced as configured unless ``realtime`` says."""
 
     def make(scenario: str) -> FrameSource:
         if scenario.split(":")[0] == "twin":  # the live twin: a lab with the rovers' firmware, seen by its camera(s)
@@ -83,8 +83,8 @@ def default_sim_factory(config: EdgeConfig) -> SimFactory:
         if scenario.startswith("wide"):  # one camera of the wide arena (a board of several)
             from edge.sim.wide_source import WideCameraSource
 
-            return WideCameraSource(scenario, realtime=config.camera.realtime)
-        return SimSource(scenario or "lab", seed=0, realtime=config.camera.realtime)
+            return WideCameraSource(scenario, realtime=config.camera.realtime if realtime is None else realtime)
+        return SimSource(scenario or "lab", seed=0, realtime=config.camera.realtime if realtime is None else realtime)
 
     return make
 
@@ -93,7 +93,7 @@ def grab_configured_frame(config: EdgeConfig) -> NDArray[np.uint8]:
     """One frame of the configured source (its size and controls; the simulator not paced), as a BGR image."""
     from edge.sources import grab_frame
 
-    return grab_frame(camera_source(config.camera, default_sim_factory(config), realtime=False))
+    return grab_frame(camera_source(config.camera, default_sim_factory(config, realtime=False), realtime=False))
 
 
 def default_tracker_factory(inputs: TrackerInputs) -> Tracker:

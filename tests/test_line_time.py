@@ -73,6 +73,19 @@ def test_too_few_frames_are_refused() -> None:
         line_time_from_flicker(_frames(44.4, 50.0, 30.0, count=3), 50.0, 30.0)
 
 
+def test_the_simulator_for_a_reader_of_consecutive_frames_is_not_paced_whatever_the_configuration() -> None:
+    """Paced in real time, a reader slower than the frame rate (a loaded machine) gets the newest frame and skips some:
+    the bands no longer roll by one frame's time (the likely cause of ``calibrate line-time`` taking the sun scene,
+    which has no flicker, for banded in one CI run on 2026-12-04)."""
+    from edge.appliance import default_sim_factory
+    from edge.config import EdgeConfig
+
+    config = EdgeConfig()
+    assert config.camera.realtime  # the default: the simulator delivers at its frame rate
+    assert default_sim_factory(config)("sun").realtime  # type: ignore[attr-defined]
+    assert not default_sim_factory(config, realtime=False)("sun").realtime  # type: ignore[attr-defined]
+
+
 @pytest.mark.slow
 def test_calibrate_line_time_reads_the_simulated_lab_and_refuses_a_scene_without_flicker() -> None:
     """The lab scene's lamps ripple by 20 % (bands of 3.3 % in linear light at its 1/60 s automatic exposure, 1.5 % in

@@ -260,7 +260,8 @@ def calibrate_line_time_cmd(
     from edge.sources import camera_source, grab_frames
 
     config = load(config_path, **{"camera.source": source}).config
-    frames = grab_frames(camera_source(config.camera, default_sim_factory(config), realtime=False), count)
+    unpaced = default_sim_factory(config, realtime=False)  # consecutive frames, however slow the reader
+    frames = grab_frames(camera_source(config.camera, unpaced, realtime=False), count)
     result = line_time_from_flicker(frames, float(mains_hz), config.camera.fps)
     if as_json:
         click.echo(json.dumps(dataclasses.asdict(result)))
