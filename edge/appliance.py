@@ -38,7 +38,8 @@ from edge.fusion.board import detection_builder_for
 from edge.mqttclient import TlsFiles
 from edge.publisher import ConnectionHold, MqttPublisher
 from edge.runtime import EdgeRuntime
-from edge.sources import FrameSource, SimulatedScene, SourceInfo, camera_source, parse_source
+from edge.source_spec import SimFactory, camera_source, parse_source
+from edge.sources import FrameSource, SimulatedScene, SourceInfo
 from edge.tracking import Tracker
 
 if TYPE_CHECKING:
@@ -66,14 +67,13 @@ class TrackerInputs:
 
 
 TrackerFactory = Callable[[TrackerInputs], Tracker]
-SimFactory = Callable[[str], FrameSource]
 CalibrationLoader = Callable[[EdgeConfig, FrameSource, SourceInfo, str], Any]
 
 
-def default_sim_factory(config: EdgeConfig, *, realtime: bool | None = None) -> SimFactory:
-    """The simulator's source for ``--source sim[:SCENARIO]``, paced as configured unless ``realtime`` says."""
+def default_sim_factory(config: EdgeConfig) -> SimFactory:
+    """The simulator's source for ``--source sim[:SCENARIO]``, paced as its caller asks (the live twin: always)."""
 
-    def make(scenario: str) -> FrameSource:
+    def make(scenario: str, *, realtime: bool) -> FrameSource:
         if scenario.split(":")[0] == "twin":  # the live twin: a lab with the rovers' firmware, seen by its camera(s)
             from edge.sim.twin.source import twin_source
 
@@ -83,8 +83,8 @@ def default_sim_factory(config: EdgeConfig, *, realtime: bool | None = None) -> 
         if scenario.startswith("wide"):  # one camera of the wide arena (a board of several)
             from edge.sim.wide_source import WideCameraSource
 
-            return WideCameraSource(scenario, realtime=config.camera.realtime if realtime is None else realtime)
-        return SimSource(scenario or "lab", seed=0, realtime=config.camera.realtime if realtime is None else realtime)
+            return WideCameraSource(scenario, realtime=realtime)
+        return SimSource(scenario or "lab", seed=0, realtime=realtime)
 
     return make
 
@@ -93,7 +93,7 @@ def grab_configured_frame(config: EdgeConfig) -> NDArray[np.uint8]:
     """One frame of the configured source (its size and controls; the simulator not paced), as a BGR image."""
     from edge.sources import grab_frame
 
-    return grab_frame(camera_source(config.camera, default_sim_factory(config, realtime=False), realtime=False))
+    return grab_frame(camera_source(config.camera, default_sim_factory(config), realtime=False))
 
 
 def default_tracker_factory(inputs: TrackerInputs) -> Tracker:

@@ -12,13 +12,16 @@ import socket
 import subprocess
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from edge.config import BrokerTarget, EdgeConfig, broker_target
 from edge.errors import EdgeIpsError
 from edge.messages import edge_status_topic, parse_status
+
+if TYPE_CHECKING:
+    from edge.source_spec import SimFactory
 
 Level = Literal["ok", "warn", "fail"]
 
@@ -40,9 +43,9 @@ def check_config(where: str, env_keys: tuple[str, ...]) -> Check:
     return Check("config", "ok", f"{where}{env}")
 
 
-def check_camera(config: EdgeConfig, sim_factory: Callable[[str], Any] | None = None) -> tuple[Check, Any, Any]:
+def check_camera(config: EdgeConfig, sim_factory: SimFactory | None = None) -> tuple[Check, Any, Any]:
     """Open the source and read one frame. Returns the check, the (closed) source and what it granted."""
-    from edge.sources import camera_source, parse_source
+    from edge.source_spec import camera_source, parse_source
 
     cam = config.camera
     try:
@@ -108,7 +111,7 @@ def check_calibration(config: EdgeConfig, source: Any, info: Any, where: str) ->
         return Check("calibration", "fail", str(exc), "run `edge-ips calibrate` and set calibration.path")
     finally:
         source.close()
-    from edge.sources import parse_source
+    from edge.source_spec import parse_source
 
     if parse_source(config.camera.source).kind == "sim":
         return Check("calibration", "ok", "simulated camera: its exact calibration")
@@ -272,7 +275,7 @@ def run_checks(
     *,
     where: str,
     env_keys: tuple[str, ...] = (),
-    sim_factory: Callable[[str], Any] | None = None,
+    sim_factory: SimFactory | None = None,
 ) -> Iterator[Check]:
     """Every check, in order, as it completes."""
     yield check_config(where, env_keys)

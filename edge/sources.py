@@ -34,7 +34,6 @@ from edge.tracking import Frame
 
 if TYPE_CHECKING:
     from edge.calibration import Calibration
-    from edge.config import CameraSection
     from edge.tracker_config import RoverConfig
 
 log = logging.getLogger("edge.sources")
@@ -360,55 +359,7 @@ class MemorySource:
         pass
 
 
-# -- choosing a source -------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class SourceSpec:
-    """A parsed ``--source`` value."""
-
-    kind: str  # "camera", "file", "stream", "sim"
-    target: str  # device path, file path, URL or scenario name ("" = the simulator's default)
-
-
-def parse_source(text: str) -> SourceSpec:
-    """``0`` / ``/dev/...`` (camera), ``rtsp://``/``http(s)://`` (stream), ``sim[:SCENARIO]``, else a file."""
-    text = text.strip()
-    if text == "sim" or text.startswith("sim:"):
-        return SourceSpec("sim", text[4:])
-    if text.isdigit():
-        return SourceSpec("camera", f"/dev/video{int(text)}")
-    if text.startswith("/dev/"):  # /dev/videoN or a stable name such as /dev/v4l/by-id/usb-...-video-index0
-        return SourceSpec("camera", text)
-    if re.match(r"^(rtsp|rtsps|http|https)://", text):
-        return SourceSpec("stream", text)
-    return SourceSpec("file", text)
-
-
-def make_source(
-    text: str,
-    *,
-    width: int = 1280,
-    height: int = 720,
-    fps: float = 30.0,
-    fourcc: str = "MJPG",
-    controls: CameraControls | None = None,
-    loop: bool = False,
-    realtime: bool = True,
-    stall_timeout_s: float = 2.0,
-    sim_factory: Callable[[str], FrameSource] | None = None,
-) -> FrameSource:
-    """Build (not open) the source named by ``text``; ``sim_factory(scenario)`` builds the simulator's."""
-    spec = parse_source(text)
-    if spec.kind == "camera":
-        return CameraSource(spec.target, width=width, height=height, fps=fps, fourcc=fourcc, controls=controls)
-    if spec.kind == "stream":
-        return StreamSource(spec.target, open_timeout_s=max(2.0, 2 * stall_timeout_s), read_timeout_s=stall_timeout_s)
-    if spec.kind == "sim":
-        if sim_factory is None:
-            raise SourceError("the simulated camera is not available in this build")
-        return sim_factory(spec.target)
-    return VideoFileSource(Path(spec.target), loop=loop, realtime=realtime)
-
-
+# -- reading a few frames ---------------------------------------------------------------------------------------
 def grab_frame(source: FrameSource, settle_frames: int = 10) -> NDArray[np.uint8]:
     """One frame of a live ``source``: the last of its first ``settle_frames`` (:func:`grab_frames`)."""
     return grab_frames(source, 1, settle_frames - 1)[0]
@@ -429,22 +380,3 @@ def grab_frames(source: FrameSource, count: int, settle_frames: int = 9) -> list
     if not images:
         raise SourceError("the source delivered no frame")
     return images
-
-
-def camera_source(
-    camera: CameraSection, sim_factory: Callable[[str], FrameSource] | None = None, *, realtime: bool | None = None
-) -> FrameSource:
-    """The source a configuration's ``[camera]`` section names, built (not opened); ``realtime`` overrides the
-    configured pacing. The one place a section becomes a source (the appliance, ``doctor``, ``rovers enroll``)."""
-    return make_source(
-        camera.source,
-        width=camera.width,
-        height=camera.height,
-        fps=camera.fps,
-        fourcc=camera.fourcc,
-        controls=camera.controls,
-        loop=camera.loop,
-        realtime=camera.realtime if realtime is None else realtime,
-        stall_timeout_s=camera.stall_timeout_s,
-        sim_factory=sim_factory,
-    )

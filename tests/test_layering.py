@@ -49,6 +49,7 @@ CORE = (
 # What the core must not reach, even indirectly: frame sources, the appliance, networking, the simulator, the UI.
 NOT_IN_CORE = (
     "edge.sources",
+    "edge.source_spec",
     "edge.capture",
     "edge.runtime",
     "edge.appliance",

@@ -79,11 +79,15 @@ def test_the_simulator_for_a_reader_of_consecutive_frames_is_not_paced_whatever_
     which has no flicker, for banded in one CI run on 2026-12-04)."""
     from edge.appliance import default_sim_factory
     from edge.config import EdgeConfig
+    from edge.source_spec import camera_source
 
-    config = EdgeConfig()
+    config = EdgeConfig.model_validate({"camera": {"source": "sim:sun"}})
     assert config.camera.realtime  # the default: the simulator delivers at its frame rate
-    assert default_sim_factory(config)("sun").realtime  # type: ignore[attr-defined]
-    assert not default_sim_factory(config, realtime=False)("sun").realtime  # type: ignore[attr-defined]
+    paced = camera_source(config.camera, default_sim_factory(config))
+    unpaced = camera_source(config.camera, default_sim_factory(config), realtime=False)
+    assert paced.realtime and not unpaced.realtime  # type: ignore[attr-defined]
+    off = EdgeConfig.model_validate({"camera": {"source": "sim:sun", "realtime": False}})
+    assert not camera_source(off.camera, default_sim_factory(off)).realtime  # type: ignore[attr-defined]
 
 
 @pytest.mark.slow

@@ -11,6 +11,7 @@ import pytest
 
 from edge.capture import CaptureThread, FrameSlot
 from edge.errors import SourceError
+from edge.source_spec import make_source, parse_source
 from edge.sources import (
     CameraSource,
     Frame,
@@ -18,8 +19,6 @@ from edge.sources import (
     SourceInfo,
     StreamSource,
     VideoFileSource,
-    make_source,
-    parse_source,
 )
 from tests.support.runtime import MjpegServer, scene, write_clip
 
@@ -177,6 +176,20 @@ def test_missing_camera_suggests_the_simulator() -> None:
 def test_unopenable_sources_say_why(tmp_path: Path, text: str, message: str) -> None:
     with pytest.raises(SourceError, match=message):
         make_source(str(tmp_path / text) if text != "sim" else text).open()
+
+
+@pytest.mark.parametrize("realtime", [True, False])
+def test_the_simulator_is_built_paced_as_the_caller_asks(realtime: bool) -> None:
+    """A reader of consecutive frames (``calibrate line-time``) asks for them unpaced; the factory must hear it."""
+    asked: list[tuple[str, bool]] = []
+
+    def factory(scenario: str, *, realtime: bool) -> MemorySource:
+        asked.append((scenario, realtime))
+        return MemorySource([np.zeros((2, 2, 3), np.uint8)], realtime=realtime)
+
+    source = make_source("sim:sun", realtime=realtime, sim_factory=factory)
+    assert asked == [("sun", realtime)]
+    assert isinstance(source, MemorySource) and source.realtime is realtime
 
 
 def test_not_a_video_file_is_refused(tmp_path: Path) -> None:

@@ -257,11 +257,12 @@ def calibrate_line_time_cmd(
 
     from edge.appliance import default_sim_factory
     from edge.line_time import line_time_from_flicker
-    from edge.sources import camera_source, grab_frames
+    from edge.source_spec import camera_source
+    from edge.sources import grab_frames
 
     config = load(config_path, **{"camera.source": source}).config
-    unpaced = default_sim_factory(config, realtime=False)  # consecutive frames, however slow the reader
-    frames = grab_frames(camera_source(config.camera, unpaced, realtime=False), count)
+    # consecutive frames, however slow the reader (a live camera cannot wait: see grab_frames)
+    frames = grab_frames(camera_source(config.camera, default_sim_factory(config), realtime=False), count)
     result = line_time_from_flicker(frames, float(mains_hz), config.camera.fps)
     if as_json:
         click.echo(json.dumps(dataclasses.asdict(result)))

@@ -43,7 +43,7 @@ def start_dashboard(
     from edge.dashboard.events import EventHub, Overlay, pose_event, rovers_event, status_event
     from edge.dashboard.formation import FormationDesk, with_targets
     from edge.dashboard.frames import FrameEncoder
-    from edge.sources import parse_source
+    from edge.source_spec import parse_source
 
     settings = config.dashboard
     overlay = Overlay(calibration, config.tracker.marker_length_cm, config.tracker.marker_width_cm)

@@ -16,9 +16,9 @@ from tests.support.runtime import CentroidTracker, scene
 
 
 def memory_sim(frames: int = 90, fps: float = 30.0) -> Any:
-    """A stand-in for the simulator: pre-rendered scene frames, looped, paced at ``fps``."""
+    """A stand-in for the simulator: pre-rendered scene frames, looped, paced at ``fps`` when its caller asks."""
     images = [scene(i) for i in range(frames)]
-    return lambda scenario: MemorySource(images, fps=fps, loop=True, realtime=True)
+    return lambda scenario, *, realtime: MemorySource(images, fps=fps, loop=True, realtime=realtime)
 
 
 def edge_config(**overrides: Any) -> EdgeConfig:

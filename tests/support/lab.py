@@ -172,7 +172,7 @@ def lab_appliance(
 
     with running(
         edge_config(**{k: v for k, v in settings.items() if v is not None}),
-        sim_factory=lambda scenario: stage,
+        sim_factory=lambda scenario, *, realtime: stage,
         tracker_factory=tracker,
         calibration_loader=lambda *a: lab.calibration,
     ) as app:
