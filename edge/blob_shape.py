@@ -11,7 +11,10 @@ only the rover's motion can tell (``edge.rover_track.symmetric_below`` checks th
 :func:`point_asymmetry` measures the lopsidedness (third moments in whitened coordinates: unchanged by the
 marker's size in pixels and by any affine view of it; the perspective's few percent across a marker are not
 removed and alone give 0.06-0.08); :func:`eroded_elongation` gives the elongation a rectangle worn down all round
-keeps (worn evenly on the floor: a stream wears it evenly in pixels, the same where the view is not foreshortened).
+keeps. A stream wears it evenly in pixels, not on the floor: where the view is foreshortened (the far side's pixel
+spans 2-3 times as much floor along the image's columns as along its rows) the sides that run along the rows lose
+more floor than the others, and a worn marker lined up with the rows is 6-9 % more elongated than one worn evenly
+on the floor (:func:`wear_stretch` gives the ratio for a marker's axis and the view there).
 """
 
 from __future__ import annotations
@@ -93,14 +96,36 @@ def marker_part(
     return whole_part, whole_rest
 
 
-def eroded_elongation(area_ratio: float, aspect: float) -> float:
-    """The elongation (long over short side) of an ``aspect`` rectangle worn down by the same width all round to
-    ``area_ratio`` of its area, as a share of ``aspect`` (1 for no wear; 1.03 for a 21.5 x 16.8 cm marker at 0.8)."""
+def eroded_elongation(area_ratio: float, aspect: float, stretch: float = 1.0) -> float:
+    """The elongation (long over short side) of an ``aspect`` rectangle worn down all round to ``area_ratio`` of its
+    area, as a share of ``aspect`` (1 for no wear; 1.03 for a 21.5 x 16.8 cm marker at 0.8), its long sides worn by
+    ``stretch`` times the floor its ends lose (1: the same width all round; :func:`wear_stretch` for a stream's
+    wear in pixels)."""
     length, width = math.sqrt(aspect), 1.0 / math.sqrt(aspect)  # area 1
-    r = min(max(area_ratio, 0.0), 1.0)
-    # (length - u)(width - u) = r: the smaller root is the width worn off both sides together
-    u = 0.5 * ((length + width) - math.sqrt((length + width) ** 2 - 4.0 * (1.0 - r)))
-    return ((length - u) / (width - u)) / aspect if width - u > 1e-9 else math.inf
+    r, k = min(max(area_ratio, 0.0), 1.0), stretch
+    # (length - u)(width - k u) = r: the smaller root is the length worn off both ends together
+    u = ((k * length + width) - math.sqrt((k * length + width) ** 2 - 4.0 * k * (1.0 - r))) / (2.0 * k)
+    return ((length - u) / (width - k * u)) / aspect if width - k * u > 1e-9 else math.inf
+
+
+def wear_stretch(cm_per_px: FloatArray, axis_rad: float) -> float:
+    """How many times the floor a marker's ends lose its long sides lose, when the stream wears its outline by the
+    same pixels all round: ``cm_per_px`` the plane's (2, 2) Jacobian d(x, y)/d(u, v) at the marker, ``axis_rad`` its
+    long axis on the plane.
+
+    Moving a side ``d`` cm along its normal moves its image ``d |det A| / |A t|`` pixels across it (``A``: the
+    plane-to-image map, ``t``: the side's direction), so ``delta`` pixels are ``delta |A t| / |det A|`` cm: the long
+    sides (along the axis ``a``) over the ends (along ``b``, across it) give ``|A a| / |A b|``; 1 where the view
+    is not foreshortened or nothing is known (a Jacobian with no inverse)."""
+    try:
+        to_image = np.linalg.inv(np.asarray(cm_per_px, dtype=np.float64))
+    except np.linalg.LinAlgError:
+        return 1.0
+    c, s = math.cos(axis_rad), math.sin(axis_rad)
+    along = float(np.hypot(*(to_image @ np.array([c, s]))))
+    across = float(np.hypot(*(to_image @ np.array([-s, c]))))
+    stretch = along / across if across > 0.0 else math.nan
+    return stretch if math.isfinite(stretch) and stretch > 0.0 else 1.0
 
 
 def footprint_in_view(

@@ -261,7 +261,7 @@ class Pipeline:
                 m = replace(m, at_image_edge=False)  # whole: only its blurred edge reaches the border
             clock.add("outline", time.perf_counter() - t0)
         if not tr.whole_marker(
-            m, model.marker_area_cm2, tr.learned, self.config, self._nominal_levels[tr.index], self._frames
+            m, model.marker_area_cm2, tr.learned, self.config, self._nominal_levels[tr.index], self._frames, jac
         ):
             return None
         if tr.config.front_color_bgr is not None:

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.blob_shape import eroded_elongation, point_asymmetry
+from edge.blob_shape import eroded_elongation, point_asymmetry, wear_stretch
 from edge.filtering import ConstantVelocityFilter, HeadingFilter
 from edge.tracker_config import RoverConfig, TrackerSettings
 from edge.trackers.base import Measurement
@@ -153,10 +153,12 @@ class RoverTrack:
         config: TrackerSettings,
         nominal_level: float,
         frame: int,
+        cm_per_px: FloatArray | None = None,
     ) -> bool:
         """Is this blob the rover's whole marker? Its area on the plane, its shape, its colour's strength, and not cut
         off by the image border (``edge.pipeline``; ``nominal_level``: the configured colour's level in its plane,
-        ``frame``: the frame's number, for the areas' history).
+        ``frame``: the frame's number, for the areas' history; ``cm_per_px``: the plane's Jacobian at the marker,
+        for the shape a stream's wear in pixels gives it there).
 
         A partly hidden or cut-off marker would give a biased centre, and a blob of the right hue but the wrong
         size, shape or colour strength (dark clothes, a poster, a reflection) is not a marker: both are reported
@@ -188,7 +190,13 @@ class RoverTrack:
             and ratio < low
             and not steady
             and self.config.front_color_bgr is None  # a two-tone marker's coloured part has another aspect
-            and symmetric_below(m, ratio, _aspect(config), self.innovation_cm(m))
+            and symmetric_below(
+                m,
+                ratio,
+                _aspect(config),
+                self.innovation_cm(m),
+                1.0 if cm_per_px is None else wear_stretch(cm_per_px, m.axis_rad),
+            )
         )
         relearn = False
         if not low <= ratio <= high and not steady and not symmetric:
@@ -309,12 +317,15 @@ def _aspect(config: TrackerSettings) -> float:
     return max(config.marker_length_cm, config.marker_width_cm) / min(config.marker_length_cm, config.marker_width_cm)
 
 
-def symmetric_below(m: Measurement, ratio: float, aspect: float, innovation_cm: float | None) -> bool:
+def symmetric_below(
+    m: Measurement, ratio: float, aspect: float, innovation_cm: float | None, stretch: float = 1.0
+) -> bool:
     """Is a blob showing ``ratio`` of the learned area, below the area band, the whole marker worn down all round by
     the stream (``edge.blob_shape``)? At least :data:`SYMMETRY_FLOOR` of the area, its point asymmetry at most
     :data:`SYMMETRY_SKEW`, its elongation (``aspect``: the marker's) within :data:`SYMMETRY_SHAPE` of a worn
-    rectangle's, and its centre within :data:`SYMMETRY_STEP_CM` of where the filter expects it (``innovation_cm``;
-    None: no filter, not taken).
+    rectangle's (``stretch``: how much more floor its long sides lose than its ends, ``edge.blob_shape.wear_stretch``),
+    and its centre within :data:`SYMMETRY_STEP_CM` of where the filter expects it (``innovation_cm``; None: no
+    filter, not taken).
 
     A part hidden by a leg or a box makes the blob lopsided or, cut straight across, of the wrong elongation; of the
     hidden parts that pass both, one box's moves the centre 0.45 cm at most (tests/test_blob_shape.py). Strips
@@ -325,7 +336,7 @@ def symmetric_below(m: Measurement, ratio: float, aspect: float, innovation_cm: 
         return False
     if not innovation_cm <= SYMMETRY_STEP_CM:
         return False
-    if not abs(m.elongation / aspect / eroded_elongation(ratio, aspect) - 1.0) <= SYMMETRY_SHAPE:  # NaN: refused
+    if not abs(m.elongation / aspect / eroded_elongation(ratio, aspect, stretch) - 1.0) <= SYMMETRY_SHAPE:  # NaN: no
         return False
     return point_asymmetry(m.weights) <= SYMMETRY_SKEW
 
