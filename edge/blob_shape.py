@@ -109,7 +109,7 @@ def eroded_elongation(area_ratio: float, aspect: float, stretch: float = 1.0) ->
 
 
 def wear_stretch(cm_per_px: FloatArray, axis_rad: float) -> float:
-    """How many times the floor a marker's ends lose its long sides lose, when the stream wears its outline by the
+    """How many times as much floor a marker's long sides lose as its ends, when the stream wears its outline by the
     same pixels all round: ``cm_per_px`` the plane's (2, 2) Jacobian d(x, y)/d(u, v) at the marker, ``axis_rad`` its
     long axis on the plane.
 

@@ -261,7 +261,7 @@ def calibrate_line_time_cmd(
     from edge.sources import grab_frames
 
     config = load(config_path, **{"camera.source": source}).config
-    # consecutive frames, however slow the reader (a live camera cannot wait: see grab_frames)
+    # the simulator unpaced: consecutive frames however slow the reader (a live camera paces itself)
     frames = grab_frames(camera_source(config.camera, default_sim_factory(config), realtime=False), count)
     result = line_time_from_flicker(frames, float(mains_hz), config.camera.fps)
     if as_json:
