@@ -22,6 +22,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
+CLEAR_VELOCITY_SIGMAS = 3.0  # a velocity this many of its own sigmas from zero has a direction (a heading's front)
+CLEAR_VELOCITY_UPDATES = 10  # ... once this many measurements are in (from two or three, the noise's direction)
 
 
 @dataclass(frozen=True)
@@ -74,6 +76,18 @@ class ConstantVelocityFilter:
     def velocity(self) -> tuple[float, float] | None:
         """(vx, vy) cm/s once two measurements have been fused, else None."""
         return (self.x[2], self.x[3]) if self.updates >= 2 else None
+
+    def clear_velocity(self, sigmas: float) -> tuple[float, float] | None:
+        """The velocity when its speed is at least ``sigmas`` times its own 1-sigma uncertainty (the largest axis of
+        its covariance) and :data:`CLEAR_VELOCITY_UPDATES` measurements are in, else None: a standing rover's
+        velocity is its measurements' noise, in no direction, and from a few noisier than the filter was told (a
+        harsh stream's far side) often several of its sigmas."""
+        velocity = self.velocity
+        if velocity is None or self.updates < CLEAR_VELOCITY_UPDATES:
+            return None
+        a, b, d = self.p[10], self.p[11], self.p[15]
+        largest = 0.5 * (a + d) + math.sqrt(max(0.25 * (a - d) ** 2 + b * b, 0.0))
+        return velocity if math.hypot(*velocity) >= sigmas * math.sqrt(max(largest, 0.0)) else None
 
     @property
     def position_sigma_cm(self) -> float:
