@@ -18,6 +18,7 @@ from edge.fusion.clock import ClockAligner, _Pair
 from edge.fusion.core import FusedPose, Fuser, FusionSettings
 from edge.fusion.detections import encode_detections
 from edge.fusion.offline import estimate_offsets
+from edge.fusion.track import CvState
 from edge.messages import parse_pose
 from tests.support.fusion import Board, Recording, circle, line, record
 
@@ -397,3 +398,24 @@ def test_a_rover_that_brakes_or_turns_is_shown_where_it_is_not_where_it_was_goin
     worst = max(math.dist((p.x_cm, p.y_cm), _drive(kind, p.t_s)) for p in late)
     # what a constant-velocity filter itself needs to follow the manoeuvre, not the 10-15 cm of the old rule
     assert worst < 1.0, worst
+
+
+@pytest.mark.parametrize("speed", [0.0, 20.0])
+def test_the_fused_direction_of_motion_is_a_heading_only_once_the_velocity_is_clear_of_noise(speed: float) -> None:
+    """Where no board sends a heading, the fuser falls back on the direction of motion; a standing rover's fused
+    velocity is the boards' noise, several cm/s in a random direction at first, and is no heading
+    (``CvState.clear_velocity``, as the single camera's ``ConstantVelocityFilter.clear_velocity``). The boards'
+    noise as their covariances say: the fuser scales an overconfident board's covariances to its innovations."""
+    rng = np.random.default_rng(5)
+    r = 0.2**2
+    f = CvState.start(100.0, 200.0, r, 0.0, r, 50.0)
+    clear = []
+    for k in range(1, 150):
+        f.predict(1 / 30, 20.0)
+        f.update(100.0 + speed * k / 30 + rng.normal(0, 0.2), 200.0 + rng.normal(0, 0.2), r, 0.0, r, math.inf)
+        clear.append(f.clear_velocity())
+    if speed == 0.0:
+        assert f.velocity is not None and all(c is None for c in clear)
+    else:
+        assert all(c is None for c in clear[:8]) and all(c is not None for c in clear[30:])
+        assert clear[-1] == pytest.approx((speed, 0.0), abs=2.0)

@@ -162,10 +162,9 @@ class BoardState:
     def saw_nis(self, nis: float) -> None:
         """Track the board's normalised innovations; its covariances are scaled by their robust level.
 
-        The median of a 2-dof chi-square is 1.386: a board whose detections are truly as good as their covariances
-        say keeps the scale at 1; one whose tracker is overconfident (crowded markers, a worse view than its model
-        knows) gets its covariances widened, so it is neither refused nor trusted too much. A median ignores the
-        few detections of the wrong rover."""
+        The median of a 2-dof chi-square is 1.386: a board whose detections are as good as their covariances say
+        keeps the scale at 1; an overconfident one (crowded markers, a worse view than its model knows) gets its
+        covariances widened, neither refused nor trusted too much. A median ignores the wrong rover's few detections."""
         self._nis.append(min(nis, 1e6))
         self._nis_count += 1
         if len(self._nis) >= NOISE_MIN_SAMPLES and self._nis_count % 32 == 0:
@@ -413,8 +412,9 @@ class Fuser:
         track.shown_boards = recent
         track.shown = None if shown_v is None else (t_pose, x, y, shown_v[0], shown_v[1])
         theta = track.theta_rad if track.t_s - track.theta_t_s <= s.heading_s else None
-        if theta is None and vel is not None and math.hypot(*vel) >= s.heading_min_speed_cm_s:
-            theta = math.atan2(vel[1], vel[0])
+        clear = f.clear_velocity() if theta is None else None  # a standing rover's velocity has no direction
+        if clear is not None and math.hypot(*clear) >= s.heading_min_speed_cm_s:
+            theta = math.atan2(clear[1], clear[0])
         return FusedPose(
             rover_id=rover_id,
             tick=tick,
