@@ -26,6 +26,27 @@ CLEAR_VELOCITY_SIGMAS = 3.0  # a velocity this many of its own sigmas from zero 
 CLEAR_VELOCITY_UPDATES = 10  # ... once this many measurements are in (from two or three, the noise's direction)
 
 
+def largest_sigma(var_x: float, cov_xy: float, var_y: float) -> float:
+    """The standard deviation along the largest axis of the 2 x 2 covariance ``[[var_x, cov_xy], [cov_xy, var_y]]``."""
+    half = 0.5 * (var_x + var_y)
+    return math.sqrt(max(half + math.sqrt(max(0.25 * (var_x - var_y) ** 2 + cov_xy * cov_xy, 0.0)), 0.0))
+
+
+def clear_velocity(
+    velocity: tuple[float, float],
+    covariance: tuple[float, float, float],
+    updates: int,
+    sigmas: float = CLEAR_VELOCITY_SIGMAS,
+) -> tuple[float, float] | None:
+    """A filter's ``velocity`` when its speed is at least ``sigmas`` times its own 1-sigma uncertainty (the largest
+    axis of its ``covariance``: var x, cov, var y) and :data:`CLEAR_VELOCITY_UPDATES` measurements are in
+    (``updates``), else None: a standing rover's velocity is its measurements' noise, in no direction, and from a
+    few noisier than the filter was told (a harsh stream's far side) often several of its sigmas."""
+    if updates < CLEAR_VELOCITY_UPDATES:
+        return None
+    return velocity if math.hypot(*velocity) >= sigmas * largest_sigma(*covariance) else None
+
+
 @dataclass(frozen=True)
 class FilterSettings:
     """Tuning of :class:`ConstantVelocityFilter` (units in the names)."""
@@ -77,24 +98,15 @@ class ConstantVelocityFilter:
         """(vx, vy) cm/s once two measurements have been fused, else None."""
         return (self.x[2], self.x[3]) if self.updates >= 2 else None
 
-    def clear_velocity(self, sigmas: float) -> tuple[float, float] | None:
-        """The velocity when its speed is at least ``sigmas`` times its own 1-sigma uncertainty (the largest axis of
-        its covariance) and :data:`CLEAR_VELOCITY_UPDATES` measurements are in, else None: a standing rover's
-        velocity is its measurements' noise, in no direction, and from a few noisier than the filter was told (a
-        harsh stream's far side) often several of its sigmas."""
-        velocity = self.velocity
-        if velocity is None or self.updates < CLEAR_VELOCITY_UPDATES:
-            return None
-        a, b, d = self.p[10], self.p[11], self.p[15]
-        largest = 0.5 * (a + d) + math.sqrt(max(0.25 * (a - d) ** 2 + b * b, 0.0))
-        return velocity if math.hypot(*velocity) >= sigmas * math.sqrt(max(largest, 0.0)) else None
+    def clear_velocity(self, sigmas: float = CLEAR_VELOCITY_SIGMAS) -> tuple[float, float] | None:
+        """The velocity when it is clear of its own noise (:func:`clear_velocity`), else None."""
+        p = self.p
+        return clear_velocity((self.x[2], self.x[3]), (p[10], p[11], p[15]), self.updates, sigmas)
 
     @property
     def position_sigma_cm(self) -> float:
         """1-sigma radius of the position uncertainty (largest axis)."""
-        a, b, d = self.p[0], self.p[1], self.p[5]
-        largest = 0.5 * (a + d) + math.sqrt(max(0.25 * (a - d) ** 2 + b * b, 0.0))
-        return math.sqrt(max(largest, 0.0))
+        return largest_sigma(self.p[0], self.p[1], self.p[5])
 
     @property
     def on_frame_time(self) -> bool:

@@ -33,7 +33,7 @@ from edge.acquisition import acquisition_scale, candidates, low_resolution_class
 from edge.blob_shape import IN_VIEW_MARGIN_PX, footprint_in_view
 from edge.centre_offsets import CentreOffsets, Fits, ProcessFits
 from edge.errors import ConfigError, SourceError
-from edge.filtering import CLEAR_VELOCITY_SIGMAS, FilterFactory, one_colour_heading
+from edge.filtering import FilterFactory, one_colour_heading
 from edge.rover_track import Observation, RoverTrack
 from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr
 from edge.tracker_config import TrackerConfig
@@ -416,7 +416,7 @@ class Pipeline:
             tr.level = m.level if tr.level <= 0.0 else 0.8 * tr.level + 0.2 * m.level
             if m.quality > 0.8 or tr.larger_and_level(m.area_cm2, self.config.marker_area_cm2, self._frames):
                 tr.areas.append(m.area_cm2)
-            theta = self._heading(tr, tr.filter.clear_velocity(CLEAR_VELOCITY_SIGMAS), m)
+            theta = self._heading(tr, tr.filter.clear_velocity(), m)
             out.append(tr.estimate(obs, theta, round(self._quality(tr, m), 2)))
         clock.add("filter", time.perf_counter() - t0)
         return tuple(out)

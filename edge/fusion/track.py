@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from edge.filtering import CLEAR_VELOCITY_SIGMAS, CLEAR_VELOCITY_UPDATES
+from edge.filtering import CLEAR_VELOCITY_SIGMAS, clear_velocity
 
 
 @dataclass(slots=True)
@@ -57,13 +57,8 @@ class CvState:
         return (self.vx, self.vy) if self.updates >= 2 else None
 
     def clear_velocity(self, sigmas: float = CLEAR_VELOCITY_SIGMAS) -> tuple[float, float] | None:
-        """The velocity when it is clear of its own noise (``edge.filtering.ConstantVelocityFilter.clear_velocity``:
-        ``sigmas`` of its largest standard deviation, after :data:`CLEAR_VELOCITY_UPDATES` updates), else None."""
-        if self.updates < CLEAR_VELOCITY_UPDATES:
-            return None
-        a, b, d = self.puu, self.puv, self.pvv
-        largest = 0.5 * (a + d) + math.sqrt(max(0.25 * (a - d) ** 2 + b * b, 0.0))
-        return (self.vx, self.vy) if math.hypot(self.vx, self.vy) >= sigmas * math.sqrt(max(largest, 0.0)) else None
+        """The velocity when it is clear of its own noise (``edge.filtering.clear_velocity``), else None."""
+        return clear_velocity((self.vx, self.vy), (self.puu, self.puv, self.pvv), self.updates, sigmas)
 
     def predict(self, dt: float, accel_sigma_cm_s2: float) -> None:
         if dt <= 0.0:
