@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from edge.blob_shape import eroded_elongation, footprint_in_view, marker_part, point_asymmetry, wear_stretch
-from edge.rover_track import symmetric_below
+from edge.rover_track import SEEN_FRAMES, RoverTrack, symmetric_below
+from edge.tracker_config import RoverConfig, TrackerSettings
 from edge.trackers.base import Measurement
 
 LENGTH, WIDTH = 21.5, 16.8  # cm: the default marker
@@ -145,6 +146,34 @@ def test_a_whole_marker_worn_below_the_area_band_is_taken(
     assert not symmetric_below(stretched, share, ASPECT, 0.2)  # as a strip hidden along a side makes it
     blank = Measurement((0.0, 0.0), (60.0, 60.0), share, 1.0, share, 0.0, math.nan, False, coverage)
     assert not symmetric_below(blank, share, ASPECT, 0.2)
+
+
+def test_a_lost_rover_s_worn_marker_is_taken_where_it_was_last_seen_and_nowhere_else() -> None:
+    """A parked far-side rover whose blob was refused a few frames running (turning on the spot in a coarse 4:2:0
+    stream, its area under the band and its elongation off a worn marker's) is lost with its filter. Found again
+    where it was last seen, a worn whole marker is taken as the filter's prediction would have let it
+    (``RoverTrack.step_cm``); the same blob a centimetre away, for a rover never seen, or lost for longer than
+    :data:`SEEN_FRAMES`, is not: the prediction it stands in for says nothing there."""
+    worn_cm = 0.7
+    coverage = _coverage(_rect(LENGTH - 2 * worn_cm, WIDTH - 2 * worn_cm), 2.5, 70.0, 0.8)
+    share = (LENGTH - 2 * worn_cm) * (WIDTH - 2 * worn_cm) / (LENGTH * WIDTH)
+    elongation = _plane_elongation(coverage, 2.5, 70.0, 0.8)
+    settings = TrackerSettings()
+    nominal = settings.marker_area_cm2
+
+    def taken(xy: tuple[float, float], seen: bool = True, lost_for: int = 5) -> bool:
+        track = RoverTrack(RoverConfig(id="red", color_bgr=(40, 40, 200)), 0)
+        track.areas.extend([nominal] * 31)
+        track.seen = (100.0, 200.0, 3.0) if seen else None
+        track.lost_at = 90
+        m = Measurement(xy, (60.0, 60.0), share * nominal, 1.0, share, 0.0, elongation, False, coverage)
+        return track.whole_marker(m, track.expected_area(nominal), True, settings, 0.0, 90 + lost_for)
+
+    assert 0.8 <= share < 0.9  # below the area band
+    assert taken((100.3, 200.2))
+    assert not taken((101.0, 200.0))  # farther than a worn whole marker's centre moves
+    assert not taken((100.3, 200.2), seen=False)
+    assert taken((100.3, 200.2), lost_for=SEEN_FRAMES) and not taken((100.3, 200.2), lost_for=SEEN_FRAMES + 1)
 
 
 def test_strips_hidden_along_an_end_and_a_side_leave_a_worn_looking_marker_that_only_the_prediction_refuses() -> None:
