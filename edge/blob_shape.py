@@ -42,20 +42,34 @@ def point_asymmetry(weights: F32) -> float:
     weights that are not finite."""
     h, w = weights.shape
     m = weights.astype(np.float64)
-    s = float(m.sum())
+    # every moment up to the third from one product: raw[b, a] = sum of m * x**a * y**b (about the window's middle)
+    x = np.arange(w, dtype=np.float64) - 0.5 * (w - 1)
+    y = np.arange(h, dtype=np.float64) - 0.5 * (h - 1)
+    raw = np.vander(y, 4, increasing=True).T @ m @ np.vander(x, 4, increasing=True)
+    s = float(raw[0, 0])
     if not (s > 1e-9 and math.isfinite(s)):  # nothing there, or NaN weights
         return math.inf
-    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
-    dx = x - float((m * x).sum()) / s
-    dy = y - float((m * y).sum()) / s
-    xx, xy, yy = (float((m * a * b).sum()) / s for a, b in ((dx, dx), (dx, dy), (dy, dy)))
+    r = raw / s
+    cx, cy = float(r[0, 1]), float(r[1, 0])
+    xx = float(r[0, 2]) - cx * cx
+    xy = float(r[1, 1]) - cx * cy
+    yy = float(r[2, 0]) - cy * cy
     det = xx * yy - xy * xy
     if det <= 1e-12 or xx <= 0.0:
         return math.inf
-    # Cholesky factor of the inverse covariance: a = dx / sqrt(xx), b = (xx dy - xy dx) / sqrt(xx det)
-    a = dx / math.sqrt(xx)
-    b = (xx * dy - xy * dx) / math.sqrt(xx * det)
-    t = [float((m * p).sum()) / s for p in (a * a * a, a * a * b, a * b * b, b * b * b)]
+    # the central third moments E[dx**p dy**q], p + q = 3
+    m30 = float(r[0, 3]) - 3.0 * cx * float(r[0, 2]) + 2.0 * cx**3
+    m03 = float(r[3, 0]) - 3.0 * cy * float(r[2, 0]) + 2.0 * cy**3
+    m21 = float(r[1, 2]) - 2.0 * cx * float(r[1, 1]) - cy * float(r[0, 2]) + 2.0 * cx * cx * cy
+    m12 = float(r[2, 1]) - 2.0 * cy * float(r[1, 1]) - cx * float(r[2, 0]) + 2.0 * cx * cy * cy
+    # whitened by the Cholesky factor of the inverse covariance: a = dx / s1, b = (xx dy - xy dx) / s2
+    s1, s2 = math.sqrt(xx), math.sqrt(xx * det)
+    t = [
+        m30 / s1**3,
+        (xx * m21 - xy * m30) / (s1 * s1 * s2),
+        (xx * xx * m12 - 2.0 * xx * xy * m21 + xy * xy * m30) / (s1 * s2 * s2),
+        (xx**3 * m03 - 3.0 * xx * xx * xy * m12 + 3.0 * xx * xy * xy * m21 - xy**3 * m30) / s2**3,
+    ]
     # the norm of the symmetric third-moment tensor (each mixed term counted as often as it appears)
     return math.sqrt(t[0] ** 2 + 3.0 * t[1] ** 2 + 3.0 * t[2] ** 2 + t[3] ** 2)
 

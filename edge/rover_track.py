@@ -37,7 +37,8 @@ SYMMETRY_STEP_CM = 0.75  # ... and its centre within this of where the rover's f
 SEEN_FRAMES = 60  # lost this long at most, a rover is expected where it was last seen (for SYMMETRY_STEP_CM)
 LOPSIDED_RATIO = 0.98  # a blob below this share of the learned area, more lopsided than the rover's whole marker ...
 LOPSIDED_FLOOR = 0.2  # ... is (twice the median point asymmetry of its whole blobs, plus 0.1; at least this) ...
-LOPSIDED_UNKNOWN = 0.3  # ... or than this before that is known, has a part hidden (RoverTrack.lopsided_limit)
+LOPSIDED_UNKNOWN = 0.4  # ... or than this before that is known, has a part hidden (RoverTrack.lopsided_limit)
+SKEW_EVERY = 3  # a whole blob's point asymmetry is learned in one frame of this many
 JOINED_RATIO = 1.05  # a blob this much larger than the learned area, lopsided beyond JOINED_SKEW (point asymmetry)
 JOINED_SKEW = 0.35  # and farther than JOINED_STEP_CM from the filter's prediction is the marker joined to something
 JOINED_STEP_CM = 1.5  # of its hue that could not be parted off (edge.blob_shape.marker_part)
@@ -65,8 +66,9 @@ class RoverTrack:
     misses: int = 0
     level: float = 0.0
     areas: deque[float] = field(default_factory=lambda: deque(maxlen=31))
-    # whole blobs' point asymmetry over the last 10 s (a part hidden a little more each second barely moves it)
-    skews: deque[float] = field(default_factory=lambda: deque(maxlen=300))
+    # whole blobs' point asymmetry, every SKEW_EVERY frames over the last 10 s at 30 fps (a part hidden a little more
+    # each second barely moves their median)
+    skews: deque[float] = field(default_factory=lambda: deque(maxlen=100))
     # (frame, area, where): the blob measured in each of the last frames, where None if not known
     sizes: deque[tuple[int, float, tuple[float, float] | None]] = field(
         default_factory=lambda: deque(maxlen=STEADY_FRAMES)
@@ -211,8 +213,10 @@ class RoverTrack:
             relearn = True
         if m.elongation > _aspect(config) * config.max_elongation_factor:
             return False
-        one_colour = self.config.front_color_bgr is None  # a two-tone marker's coloured part is another shape
-        skew = point_asymmetry(m.weights) if learned and one_colour and m.weights is not None else None
+        # a two-tone marker's coloured part is another shape; a whole blob's asymmetry is learned every few frames
+        judged = learned and self.config.front_color_bgr is None and m.weights is not None
+        wanted = judged and (ratio < LOPSIDED_RATIO or frame % SKEW_EVERY == 0)
+        skew = point_asymmetry(m.weights) if wanted and m.weights is not None else None
         if skew is not None and ratio < LOPSIDED_RATIO and skew > self.lopsided_limit():
             return False  # smaller than the rover's own marker and more lopsided: a part of it hidden
         if ratio > JOINED_RATIO and self.config.front_color_bgr is None and self._joined(m):
@@ -234,7 +238,8 @@ class RoverTrack:
         further. A hidden corner makes the blob lopsided (6-7 % of the marker: 0.3-0.34). A stream makes a whole
         marker lopsided too, by how coarse it is against the marker: a near-side marker in a clean stream 0.03, a
         far-side one in a 4:2:0 q60-70 stream 0.1 at the median and up to 0.37 at times, mostly at its whole area.
-        The rover's own median follows that; ten seconds of it count, so a part hidden a little more each second
+        The rover's own median follows that (learned from every third frame's whole blob, :data:`SKEW_EVERY`: the
+        measure costs about 20 us); ten seconds of it count, so a part hidden a little more each second
         does not draw the limit up (docs/benchmarks.md, "A marker hidden a little more each frame")."""
         if len(self.skews) < 10:
             return LOPSIDED_UNKNOWN

@@ -89,7 +89,7 @@ def test_a_larger_level_area_is_learned_and_a_smaller_or_changing_one_is_not() -
 def test_how_lopsided_a_smaller_blob_may_be_follows_the_rover_s_own_whole_blobs() -> None:
     """Twice the median point asymmetry of the rover's whole blobs plus 0.1, at least LOPSIDED_FLOOR: a clean
     stream's near-side marker (0.03) gives the floor, a coarse 4:2:0 stream's far-side one (0.12) 0.34; a limit a
-    part hidden a little more each second cannot draw up (ten seconds of whole blobs count)."""
+    part hidden a little more each second cannot draw up (ten seconds of whole blobs count, one frame in three)."""
     track = _track([1.0] * 31)
     assert track.lopsided_limit() == LOPSIDED_UNKNOWN  # nothing known yet
     track.skews.extend([0.03] * 10)
@@ -97,7 +97,7 @@ def test_how_lopsided_a_smaller_blob_may_be_follows_the_rover_s_own_whole_blobs(
     coarse = _track([1.0] * 31)
     coarse.skews.extend([0.12] * 40)
     assert coarse.lopsided_limit() == pytest.approx(0.34)
-    track.skews.extend([0.03] * 50 + [0.25] * 59)  # 2 s of a growing corner at the learned area: the median holds
+    track.skews.extend([0.03] * 70 + [0.25] * 20)  # 2 s of a growing corner (one frame in three): the median holds
     assert track.lopsided_limit() == LOPSIDED_FLOOR
 
 
