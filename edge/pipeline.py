@@ -29,7 +29,7 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.acquisition import acquisition_scale, candidates, low_resolution_classes
+from edge.acquisition import acquisition_scale, candidates, low_resolution_view
 from edge.blob_shape import IN_VIEW_MARGIN_PX, footprint_in_view
 from edge.centre_offsets import CentreOffsets, Fits, ProcessFits
 from edge.errors import ConfigError, SourceError
@@ -337,7 +337,7 @@ class Pipeline:
         full resolution."""
         t0 = time.perf_counter()
         s = self.acquire_scale
-        classes = low_resolution_classes(image, s, self.colors, self.white)
+        view = low_resolution_view(image, s, self.colors, self.white)
         clock.add("acquire", time.perf_counter() - t0)
         found: dict[int, Observation] = {}
         # Where the tracked rovers are: a candidate there is another rover's marker seen in a confusable hue.
@@ -347,7 +347,7 @@ class Pipeline:
             if tr.filter is not None:
                 continue
             t1 = time.perf_counter()
-            places = candidates(classes, tr.index, s)
+            places = candidates(view, tr.index, self.colors)
             clock.add("acquire", time.perf_counter() - t1)
             for u, v in places:
                 xy = self.calibration.pixel_to_world(np.array([[u, v]]))[0]

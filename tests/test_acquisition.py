@@ -1,0 +1,42 @@
+"""The acquisition pass: which blobs of a lost rover's hue are tried first."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from edge.acquisition import CANDIDATES_PER_ROVER, candidates, low_resolution_view
+from edge.segmentation import ColorModel
+
+RED = (55, 85, 167)  # as the family's cross clip with seed 7777 rendered its red marker
+GREEN = (88, 119, 86)
+
+
+def _floor_with_a_cast(cast: tuple[int, int, int]) -> np.ndarray:
+    """A 640 x 360 grey floor, with eight 40 x 40 px patches tinted a sixth of the way toward ``cast``."""
+    image = np.full((360, 640, 3), 128, np.uint8)
+    tint = np.rint(128 + (np.array(cast, np.float64) - 128) / 6).astype(np.uint8)
+    for k in range(8):
+        x, y = 20 + 75 * k, 40 + 30 * (k % 3)
+        image[y : y + 40, x : x + 40] = tint
+    return image
+
+
+def test_the_marker_is_tried_before_larger_patches_with_a_weak_cast_of_its_hue() -> None:
+    """Eight floor patches each larger than the marker, with a sixth of its chroma (a warm white balance and
+    crosstalk give a grey floor such a cast): the marker, 12 x 8 px, is the first candidate. Ranked by area it was
+    not among the six tried, and the rover stayed unfound."""
+    colors = ColorModel.from_colors([RED, GREEN], 30.0, 0.1)
+    image = _floor_with_a_cast(RED)
+    image[300:308, 500:512] = RED
+    view = low_resolution_view(image, 4, colors, None)
+    assert np.count_nonzero(view.classes == 0) > 8 * 90  # the patches are of the marker's hue class, at 1/4 scale
+    places = candidates(view, 0, colors)
+    assert len(places) == CANDIDATES_PER_ROVER
+    u, v = places[0]
+    assert abs(u - 505.5) < 4.0 and abs(v - 303.5) < 4.0
+
+
+def test_no_blob_of_the_hue_gives_no_candidate() -> None:
+    colors = ColorModel.from_colors([RED, GREEN], 30.0, 0.1)
+    view = low_resolution_view(np.full((120, 160, 3), 128, np.uint8), 4, colors, None)
+    assert candidates(view, 0, colors) == []
