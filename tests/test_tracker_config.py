@@ -244,13 +244,14 @@ def test_the_area_and_shape_checks_do_not_apply_to_a_fitted_outline() -> None:
 
 @pytest.mark.slow
 def test_the_background_threshold_tells_the_rover_from_a_poster_of_its_colour() -> None:
-    # A printed poster of the rover's colour, a little bigger than a marker, lies 25 cm beside it on the floor of
-    # the empty scene. Acquisition looks at the biggest blob of the rover's hue first, the poster, in a window
-    # centred on it that also holds the rover: there the poster is nearer the window's centre, and what differs
-    # from the empty scene (eq. 2, ``background_threshold``) is what tells the rover. With a threshold so high
-    # that nothing differs, the poster is taken for the rover and tracked from then on.
+    # A printed poster of the rover's hue, a little bigger than a marker and a little more saturated, lies 25 cm
+    # beside it on the floor of the empty scene. Acquisition looks at the strongest blob of the rover's hue first,
+    # the poster, in a window centred on it that also holds the rover: there the poster is nearer the window's
+    # centre, and what differs from the empty scene (eq. 2, ``background_threshold``) is what tells the rover. With
+    # a threshold so high that nothing differs, the poster is taken for the rover and tracked from then on.
     scene = shared_scene()
-    poster = SynthRover("poster", 150.0, 225.0, 0.0, COLORS["red"], marker_cm=(23.5, 18.0), body_cm=(23.5, 18.0))
+    print_red = (40, 35, 205)  # the marker's red (50, 45, 190), printed a little stronger
+    poster = SynthRover("poster", 150.0, 225.0, 0.0, print_red, marker_cm=(23.5, 18.0), body_cm=(23.5, 18.0))
     rover = SynthRover("red", 150.0, 250.0, 0.0, COLORS["red"])
     rng = np.random.default_rng(3)
     images = [scene.render([poster, rover], noise_sigma=2.0, rng=rng) for _ in range(8)]
