@@ -173,7 +173,8 @@ class RoverTrack:
         as missing instead. A marker whose outline was fitted (``Measurement.outlined``) has shown its size and shape
         edge by edge; the blob's area, noisier in a compressed stream, is then not needed. The colour strength (the
         marker's level in its plane) may follow the light within ``level_range`` of the configured colour, and from
-        frame to frame within a factor of two.
+        frame to frame within a factor of two. A blob smaller than the learned area and more lopsided than the
+        rover's whole marker is (:meth:`lopsided_limit`) has a part hidden, however near the band's middle.
         """
         if m.at_image_edge:
             return False
@@ -216,7 +217,7 @@ class RoverTrack:
         # a two-tone marker's coloured part is another shape; a whole blob's asymmetry is learned every few frames
         judged = learned and self.config.front_color_bgr is None and m.weights is not None
         wanted = judged and (ratio < LOPSIDED_RATIO or frame % SKEW_EVERY == 0)
-        skew = point_asymmetry(m.weights) if wanted and m.weights is not None else None
+        skew = point_asymmetry(m.weights) if wanted and m.weights is not None else None  # (narrows the type)
         if skew is not None and ratio < LOPSIDED_RATIO and skew > self.lopsided_limit():
             return False  # smaller than the rover's own marker and more lopsided: a part of it hidden
         if ratio > JOINED_RATIO and self.config.front_color_bgr is None and self._joined(m):
