@@ -215,16 +215,18 @@ class RoverTrack:
         if m.elongation > _aspect(config) * config.max_elongation_factor:
             return False
         # a two-tone marker's coloured part is another shape; a whole blob's asymmetry is learned every few frames
-        judged = learned and self.config.front_color_bgr is None and m.weights is not None
-        wanted = judged and (ratio < LOPSIDED_RATIO or frame % SKEW_EVERY == 0)
+        smaller = learned and ratio < LOPSIDED_RATIO
+        unchecked = self.filter is None  # being acquired: no prediction to check the blob against
+        judged = self.config.front_color_bgr is None and m.weights is not None
+        wanted = judged and (smaller or unchecked or (learned and frame % SKEW_EVERY == 0))
         skew = point_asymmetry(m.weights) if wanted and m.weights is not None else None  # (narrows the type)
-        if skew is not None and ratio < LOPSIDED_RATIO and skew > self.lopsided_limit():
-            return False  # smaller than the rover's own marker and more lopsided: a part of it hidden
+        if skew is not None and (smaller or unchecked) and skew > self.lopsided_limit():
+            return False  # smaller than the rover's own marker, or found with nothing to check it by, and lopsided
         if ratio > JOINED_RATIO and self.config.front_color_bgr is None and self._joined(m):
             return False  # larger, lopsided and pulled off: joined to something of its hue
         if relearn:
             self.relearned_at = frame  # its areas are forgotten once it is taken (Pipeline)
-        elif skew is not None and ratio >= LOPSIDED_RATIO:
+        elif skew is not None and learned and ratio >= LOPSIDED_RATIO:
             self.skews.append(skew)
         return True
 

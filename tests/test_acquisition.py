@@ -40,3 +40,20 @@ def test_no_blob_of_the_hue_gives_no_candidate() -> None:
     colors = ColorModel.from_colors([RED, GREEN], 30.0, 0.1)
     view = low_resolution_view(np.full((120, 160, 3), 128, np.uint8), 4, colors, None)
     assert candidates(view, 0, colors) == []
+
+
+def test_a_marker_touching_a_patch_with_a_weak_cast_of_its_hue_is_tried_where_the_marker_is() -> None:
+    """The marker (12 x 8 px) lies against a 60 x 60 px floor patch with a sixth of its chroma: at a quarter of the
+    resolution they make one blob, whose centroid is some 20 px from the marker. The candidate is placed on the
+    blob's strong part, the marker, so the window measured there holds it."""
+    colors = ColorModel.from_colors([RED, GREEN], 30.0, 0.1)
+    image = np.full((360, 640, 3), 128, np.uint8)
+    image[100:160, 300:360] = np.rint(128 + (np.array(RED, np.float64) - 128) / 6).astype(np.uint8)
+    image[152:160, 360:372] = RED  # touching the patch's lower right corner
+    view = low_resolution_view(image, 4, colors, None)
+    labels = view.classes == 0
+    assert np.count_nonzero(labels) > 200  # the patch is of the marker's hue class
+    places = candidates(view, 0, colors)
+    assert len(places) == 1  # one blob: the patch and the marker together
+    u, v = places[0]
+    assert abs(u - 365.5) < 4.0 and abs(v - 155.5) < 4.0

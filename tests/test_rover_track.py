@@ -101,6 +101,27 @@ def test_how_lopsided_a_smaller_blob_may_be_follows_the_rover_s_own_whole_blobs(
     assert track.lopsided_limit() == LOPSIDED_FLOOR
 
 
+def test_a_rover_being_found_again_is_not_taken_from_a_lopsided_blob_of_its_area() -> None:
+    """Lost, a rover has no prediction to check a blob against: a blob of its area but lopsided (its marker half
+    hidden and joined to something of its hue: occlusion 11404 took one 8.4 cm off) is refused, and a whole
+    marker's symmetric blob taken."""
+    from edge.blob_shape import point_asymmetry
+
+    settings = TrackerSettings()
+    nominal = settings.marker_area_cm2
+    whole = np.zeros((40, 60), np.float32)
+    whole[10:30, 10:36] = 1.0
+    joined = whole.copy()
+    joined[10:30, 23:36] = 0.0  # half the marker hidden ...
+    joined[26:36, 23:50] = 1.0  # ... and a patch of its hue beside it
+    assert point_asymmetry(joined) > LOPSIDED_UNKNOWN > point_asymmetry(whole)
+    for weights, taken in ((whole, True), (joined, False)):
+        track = _track([nominal] * 31)
+        track.lost_at = 10
+        m = Measurement((100.0, 200.0), (30.0, 20.0), nominal, 1.0, 1.0, 0.0, 21.5 / 16.8, False, weights)
+        assert track.whole_marker(m, track.expected_area(nominal), True, settings, 0.0, 20) is taken
+
+
 X_CM, Y_CM, LENGTH_CM = 200.0, 300.0, 22.0  # a parked rover: its marker's centre and length along x
 
 
