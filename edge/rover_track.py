@@ -217,9 +217,9 @@ class RoverTrack:
         # a two-tone marker's coloured part is another shape; a whole blob's asymmetry is learned every few frames
         smaller = learned and ratio < LOPSIDED_RATIO
         unchecked = self.filter is None  # being acquired: no prediction to check the blob against
-        judged = self.config.front_color_bgr is None and m.weights is not None
-        wanted = judged and (smaller or unchecked or (learned and frame % SKEW_EVERY == 0))
-        skew = point_asymmetry(m.weights) if wanted and m.weights is not None else None  # (narrows the type)
+        weights = m.weights if self.config.front_color_bgr is None else None
+        wanted = smaller or unchecked or (learned and frame % SKEW_EVERY == 0)
+        skew = point_asymmetry(weights) if weights is not None and wanted else None
         if skew is not None and (smaller or unchecked) and skew > self.lopsided_limit():
             return False  # smaller than the rover's own marker, or found with nothing to check it by, and lopsided
         if ratio > JOINED_RATIO and self.config.front_color_bgr is None and self._joined(m):
