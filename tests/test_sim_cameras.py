@@ -10,13 +10,14 @@ import pytest
 
 from edge.camera import paper_camera
 from edge.errors import SimulationError
-from edge.sim.cameras import BODY_ALBEDOS, draw_bodies, draw_camera
+from edge.sim.cameras import BODY_ALBEDOS, draw_bodies, draw_camera, draw_processing
 from edge.sim.colour import AutoWhiteBalance, ColourResponse, awb_gains, crosstalk_matrix, tone_encode
-from edge.sim.effects import Compression, Effects, Prop
+from edge.sim.effects import BAYER_PHASES, DEMOSAIC, Compression, Effects, Prop, SignalProcessing
 from edge.sim.render import Renderer
 from edge.sim.scenarios import SCENARIOS, build
 from edge.sim.scene import EIGHT_HUES, FloorLook, Scene, fleet_looks
-from edge.sim.sensor import jpeg_roundtrip
+from edge.sim.sensor import demosaic, jpeg_roundtrip, sharpen_luma
+from edge.sim.setup import scenario_rng
 from edge.sim.world import WorldState
 from tests.support.sim import clean_effects
 
@@ -169,3 +170,61 @@ def test_grey_world_white_balance_drifts_as_a_warm_sunlit_patch_grows():
     assert np.ptp(gains[:, 0]) > 0.01  # the blue gain follows the clouds over the patch
     frame = renderer.render(setup.world().state_at(1.0), 30)
     assert cv2.mean(frame)[0] > 0  # renders with it
+
+
+def _step(width: int = 32) -> np.ndarray:
+    """A green marker on the left half, a grey floor on the right (an edge across the columns)."""
+    image = np.zeros((width, width, 3), np.uint8)
+    image[:, : width // 2] = (40, 180, 60)
+    image[:, width // 2 :] = (150, 150, 150)
+    return image
+
+
+@pytest.mark.parametrize("method", DEMOSAIC)
+@pytest.mark.parametrize("phase", BAYER_PHASES)
+def test_demosaicing_gives_a_uniform_colour_back_and_puts_colour_fringes_on_an_edge(method, phase):
+    flat = np.full((16, 16, 3), (40, 180, 60), np.uint8)
+    assert np.abs(demosaic(flat, 2.2, method, phase).astype(int) - flat).max() <= 1
+    image = _step()
+    out = demosaic(image, 2.2, method, phase).astype(int)
+    assert np.abs(out[4:-4, :12] - image[4:-4, :12]).max() <= 1  # away from the edge: as it was
+    assert np.abs(out[4:-4, 12:20] - image[4:-4, 12:20]).max() > 20  # at the edge: colours interpolated across it
+
+
+def test_sharpening_overshoots_an_edge_on_both_sides_and_leaves_the_chroma_alone():
+    image = _step()
+    out = sharpen_luma(image, 1.0, 1.0)
+    luma_in = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(int)[16]
+    luma_out = cv2.cvtColor(out, cv2.COLOR_BGR2GRAY).astype(int)[16]
+    assert luma_out[15] < luma_in[15] - 5 and luma_out[16] > luma_in[16] + 5  # a dark and a bright halo
+    assert np.array_equal(luma_out[:10], luma_in[:10]) and np.array_equal(luma_out[-10:], luma_in[-10:])
+    chroma = out[16, 14].astype(int) - luma_out[14]
+    assert np.abs(chroma - (image[16, 14].astype(int) - luma_in[14])).max() <= 1  # the same added to B, G and R
+    assert np.array_equal(sharpen_luma(image, 0.0, 1.0), image)
+
+
+def test_the_family_draws_every_processor_from_its_own_stream_of_the_seed():
+    drawn = [draw_processing(np.random.default_rng(s)) for s in range(40)]
+    assert {p.demosaic for p in drawn} == set(DEMOSAIC) and {p.bayer_phase for p in drawn} == set(BAYER_PHASES)
+    assert all(0.0 <= p.sharpen <= 1.5 and 0.6 <= p.sharpen_sigma_px <= 1.4 for p in drawn)
+    assert max(p.sharpen for p in drawn) > 1.0 and min(p.sharpen for p in drawn) < 0.3
+    setup = build("lab", seed=4, camera="family")
+    processing = setup.effects.processing
+    assert processing is not None and str(processing.demosaic) in setup.camera_name
+    # the rest of the seed's camera is what it drew before the processor joined the family
+    before = draw_camera(scenario_rng("lab/camera", 4))
+    assert before.processing is None and setup.camera_name.startswith(before.name + " ")
+    with pytest.raises(SimulationError, match="demosaic"):
+        SignalProcessing("nearest")
+    with pytest.raises(SimulationError, match="sharpen"):
+        SignalProcessing(sharpen=-1.0)
+
+
+@pytest.mark.slow
+def test_a_camera_with_a_processor_renders_a_grey_floor_grey():
+    plain = _render(clean_effects())
+    processed = _render(
+        Effects(**{**clean_effects().__dict__, "processing": SignalProcessing("edge-aware", (1, 0), 1.2)})
+    )
+    centre = (slice(300, 420), slice(560, 720))
+    assert np.abs(plain[centre].astype(int) - processed[centre].astype(int)).max() <= 2

@@ -14,10 +14,15 @@ differently from another (the ranges are those of consumer webcams and their MJP
 | automatic white balance | on in half the cameras (strength 0.4-0.9, lag) |
 | sensor noise | read noise 0.002-0.008, full well 800-6000 e-, 20-60 % demosaicing correlation |
 | vignetting | strength 0.2-0.7 |
+| Bayer demosaicing | bilinear or edge-aware, the filter at any of its four phases |
+| sharpening of the luma | an unsharp mask of 0-1.5 times the detail finer than 0.6-1.4 px |
 
 and :func:`draw_bodies` the rovers' bodies: black, dark grey or white (each rover its own), 8-20 cm tall (one
 height per fleet: the marker plane is one plane), with 0.2-2.5 cm of the body's top showing around the marker.
-All optics act on linear light before the tone curve and the JPEG encoder, as in a real camera.
+All optics act on linear light before the tone curve and the JPEG encoder, as in a real camera; the demosaicing
+on the sensor's light, the sharpening on the encoded luma just before the encoder. :func:`draw_processing` draws
+the processor from its own stream of the seed, so a seed's camera is otherwise the one it drew before the processor
+was part of the family.
 """
 
 from __future__ import annotations
@@ -28,7 +33,17 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from edge.sim.colour import AutoWhiteBalance, ColourResponse, crosstalk_matrix
-from edge.sim.effects import Compression, Effects, Exposure, Optics, SensorNoise, Vignetting
+from edge.sim.effects import (
+    BAYER_PHASES,
+    DEMOSAIC,
+    Compression,
+    Effects,
+    Exposure,
+    Optics,
+    SensorNoise,
+    SignalProcessing,
+    Vignetting,
+)
 from edge.sim.scene import RoverLook
 
 BODY_ALBEDOS = {"black": 0.035, "dark grey": 0.12, "white": 0.80}
@@ -47,6 +62,12 @@ class CameraDraw:
     colour: ColourResponse
     gamma: float
     auto_white_balance: AutoWhiteBalance | None
+    processing: SignalProcessing | None = None
+
+    def with_processing(self, processing: SignalProcessing) -> CameraDraw:
+        """This camera with ``processing`` as its image processor (named in its description)."""
+        sharpen = f" sharpen {processing.sharpen:.2f}" if processing.sharpen > 0.0 else ""
+        return replace(self, name=f"{self.name} {processing.demosaic}{sharpen}", processing=processing)
 
     def apply(self, effects: Effects) -> Effects:
         """``effects`` seen by this camera (the scene's light, exposure time and motion are kept)."""
@@ -59,6 +80,7 @@ class CameraDraw:
             compression=self.compression,
             colour=self.colour,
             auto_white_balance=self.auto_white_balance or effects.auto_white_balance,
+            processing=self.processing,
         )
 
 
@@ -98,6 +120,13 @@ def draw_camera(rng: np.random.Generator) -> CameraDraw:
         gamma,
         awb,
     )
+
+
+def draw_processing(rng: np.random.Generator) -> SignalProcessing:
+    """A webcam's image processor (see the module's table): its demosaicing and its sharpening."""
+    method = DEMOSAIC[int(rng.integers(len(DEMOSAIC)))]
+    phase = BAYER_PHASES[int(rng.integers(len(BAYER_PHASES)))]
+    return SignalProcessing(method, phase, float(rng.uniform(0.0, 1.5)), float(rng.uniform(0.6, 1.4)))
 
 
 def draw_bodies(looks: tuple[RoverLook, ...], rng: np.random.Generator) -> tuple[RoverLook, ...]:

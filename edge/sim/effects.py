@@ -151,6 +151,32 @@ class Compression:
             raise SimulationError("compression: quality must be 1-100")
 
 
+DEMOSAIC = ("bilinear", "edge-aware")
+BAYER_PHASES = ((0, 0), (0, 1), (1, 0), (1, 1))  # where the filter's blue sites start (row, column)
+
+
+@dataclass(frozen=True)
+class SignalProcessing:
+    """The camera's image signal processor between the sensor and the encoder: a Bayer colour filter whose missing
+    colours are interpolated (``demosaic``: ``bilinear`` or ``edge-aware``, OpenCV's two quick methods; the blue
+    sites start at ``bayer_phase``), and luma sharpening (an unsharp mask of ``sharpen`` times the detail finer than
+    a Gaussian of ``sharpen_sigma_px``; 0: none). Webcams do both: the demosaicing puts colour fringes on sharp edges,
+    the sharpening overshoots every edge (a dark halo outside a bright one)."""
+
+    demosaic: str | None = "bilinear"
+    bayer_phase: tuple[int, int] = (0, 0)
+    sharpen: float = 0.0
+    sharpen_sigma_px: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.demosaic is not None and self.demosaic not in DEMOSAIC:
+            raise SimulationError(f"signal processing: demosaic must be one of {', '.join(DEMOSAIC)}")
+        if self.bayer_phase not in BAYER_PHASES:
+            raise SimulationError("signal processing: bayer_phase must be (0 or 1, 0 or 1)")
+        if not 0.0 <= self.sharpen <= 4.0 or self.sharpen_sigma_px <= 0.0:
+            raise SimulationError("signal processing: sharpen must be 0-4 and its sigma positive")
+
+
 # -- scene effects ----------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class IlluminationDrift:
@@ -292,6 +318,7 @@ class Effects:
     flicker: Flicker | None = None
     rolling_shutter: RollingShutter | None = None
     compression: Compression | None = None
+    processing: SignalProcessing | None = None
     drift: IlluminationDrift | None = None
     sun: SunPatch | None = None
     glare: Glare | None = None
@@ -302,7 +329,7 @@ class Effects:
         """One line per active effect with its parameters (for ``scenario.json`` and the docs)."""
         lines = []
         names = ("exposure", "auto_exposure", "colour", "auto_white_balance", "noise", "optics", "vignetting")
-        for name in (*names, "flicker", "rolling_shutter", "compression", "drift"):
+        for name in (*names, "flicker", "rolling_shutter", "compression", "processing", "drift"):
             value = getattr(self, name)
             if value is not None:
                 lines.append(f"{name}: {value}")

@@ -19,8 +19,8 @@ and noise, so figures can be checked on unseen seeds.
 
 Every scenario can be seen through the nominal camera (``camera="nominal"``, the C920-like camera of the docs) or
 through a camera of the family drawn from the seed (``camera="family"``, :mod:`edge.sim.cameras`: chroma sampling,
-JPEG quality, blur, tone curve, crosstalk, white balance, noise, vignetting, and the rovers' body colours, height
-and margins).
+JPEG quality, blur, tone curve, crosstalk, white balance, noise, vignetting, the processor's demosaicing and
+sharpening, and the rovers' body colours, height and margins).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from edge.sim.builders import (
     build_sun,
     lens_camera,
 )
-from edge.sim.cameras import draw_bodies, draw_camera
+from edge.sim.cameras import draw_bodies, draw_camera, draw_processing
 from edge.sim.scene import HEADINGS, Heading
 from edge.sim.setup import FPS, SimSetup, lab_effects, scenario_rng
 
@@ -88,6 +88,7 @@ class Scenario:
             rng = scenario_rng(f"{self.name}/camera", seed)
             drawn = draw_camera(rng)
             looks = draw_bodies(looks, rng)
+            drawn = drawn.with_processing(draw_processing(scenario_rng(f"{self.name}/processing", seed)))
             setup = replace(setup, effects=drawn.apply(setup.effects), camera_name=drawn.name)
         return replace(setup, scene=replace(setup.scene, rovers=looks))
 

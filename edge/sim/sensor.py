@@ -9,6 +9,7 @@ sends. Each effect's physical parameters are in :mod:`edge.sim.effects`.
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 from typing import Any, cast
 
 import cv2
@@ -25,6 +26,7 @@ from edge.sim.effects import (
     Effects,
     Flicker,
     SensorNoise,
+    SignalProcessing,
     drift_factor,
     sun_state,
 )
@@ -110,6 +112,8 @@ class CameraProcessing:
                 lut = noise_sigma_lut(self.effects.noise, gain, self.gamma)
                 self._sigma_luts[key] = lut
             draw = noise.draw(rng)
+        processing = self.effects.processing
+        mosaic = processing is not None and processing.demosaic is not None  # tone after the demosaicing
         frame: Image = np.empty((self.height_px, self.width_px, 3), dtype=np.uint8)
         for r0 in range(0, self.height_px, ROW_BAND):
             r1 = min(r0 + ROW_BAND, self.height_px)
@@ -123,10 +127,23 @@ class CameraProcessing:
                 cv2.multiply(rows, band[r0:r1], dst=rows, scale=1.0 / 128.0)
             if noise is not None and lut is not None:
                 noise.add(rows, r0, lut, draw)
-            if self.tone is not None:
+            if self.tone is not None and not mosaic:
                 cv2.LUT(rows, self.tone, dst=rows)
+        if processing is not None:
+            frame = self._process(frame, processing)
         if self.effects.compression is not None:
             frame = jpeg_roundtrip(frame, self.effects.compression.quality, self.effects.compression.chroma)
+        return frame
+
+    def _process(self, frame: Image, processing: SignalProcessing) -> Image:
+        """The image signal processor's steps: demosaicing on the sensor's light (``frame`` in the working power
+        code, its tone curve applied after), then sharpening of the encoded luma."""
+        if processing.demosaic is not None:
+            frame = demosaic(frame, self.gamma, processing.demosaic, processing.bayer_phase)
+            if self.tone is not None:
+                cv2.LUT(frame, self.tone, dst=frame)
+        if processing.sharpen > 0.0:
+            frame = sharpen_luma(frame, processing.sharpen, processing.sharpen_sigma_px)
         return frame
 
     # -- time-dependent camera state ----------------------------------------------------------------------------
@@ -261,6 +278,55 @@ def motion_kernel(displacement_px: FloatArray) -> NDArray[np.float32] | None:
     weight = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
     kernel = np.bincount(index, weights=weight, minlength=size * size).reshape(size, size)
     return (kernel / kernel.sum()).astype(np.float32)
+
+
+_BAYER_CODES = {
+    ("bilinear", (0, 0)): cv2.COLOR_BayerRG2BGR,
+    ("bilinear", (0, 1)): cv2.COLOR_BayerGR2BGR,
+    ("bilinear", (1, 0)): cv2.COLOR_BayerGB2BGR,
+    ("bilinear", (1, 1)): cv2.COLOR_BayerBG2BGR,
+    ("edge-aware", (0, 0)): cv2.COLOR_BayerRG2BGR_EA,
+    ("edge-aware", (0, 1)): cv2.COLOR_BayerGR2BGR_EA,
+    ("edge-aware", (1, 0)): cv2.COLOR_BayerGB2BGR_EA,
+    ("edge-aware", (1, 1)): cv2.COLOR_BayerBG2BGR_EA,
+}  # OpenCV names a pattern by the second row's second and third sites: blue at (0, 0) is its "RG"
+
+
+def bayer_mosaic(image: NDArray[np.generic], phase: tuple[int, int]) -> NDArray[np.generic]:
+    """(h, w) raw frame of a Bayer colour filter over ``image`` (h, w, 3 BGR): blue at the sites starting at
+    ``phase`` (row, column), red at the opposite ones, green at the other two."""
+    by, bx = phase
+    raw = image[..., 1].copy()
+    raw[by::2, bx::2] = image[by::2, bx::2, 0]
+    raw[1 - by :: 2, 1 - bx :: 2] = image[1 - by :: 2, 1 - bx :: 2, 2]
+    return raw
+
+
+@lru_cache(maxsize=8)
+def _linear_tables(gamma: float) -> tuple[NDArray[np.uint16], NDArray[np.uint8]]:
+    code = np.arange(256, dtype=np.float64) / 255.0
+    to_linear = np.rint(code**gamma * 65535.0).astype(np.uint16).reshape(1, 256)  # a cv2.LUT table
+    level = np.arange(65536, dtype=np.float64) / 65535.0
+    to_code = np.rint(level ** (1.0 / gamma) * 255.0).astype(np.uint8)
+    return to_linear, to_code
+
+
+def demosaic(code: Image, gamma: float, method: str, phase: tuple[int, int]) -> Image:
+    """``code`` (8-bit, a power law ``gamma`` of the light) seen through a Bayer filter and interpolated back to
+    three colours by ``method`` (:data:`edge.sim.effects.DEMOSAIC`), in linear light as a camera's processor does;
+    returned in the same code. A uniform colour comes back unchanged; a sharp edge gets colour fringes."""
+    to_linear, to_code = _linear_tables(round(gamma, 4))
+    raw = bayer_mosaic(cv2.LUT(code, to_linear), phase)
+    interpolated = np.asarray(cv2.cvtColor(np.ascontiguousarray(raw), _BAYER_CODES[(method, phase)]), np.uint16)
+    return np.asarray(to_code.take(interpolated), dtype=np.uint8)
+
+
+def sharpen_luma(image: Image, amount: float, sigma_px: float) -> Image:
+    """An unsharp mask on the luma: ``amount`` times the luma's detail finer than a Gaussian of ``sigma_px`` added
+    to all three channels alike (which leaves the chroma as it was), as a webcam sharpens before encoding."""
+    luma = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(np.float32)
+    detail = cv2.addWeighted(luma, amount, cv2.GaussianBlur(luma, (0, 0), sigma_px), -amount, 0.0)
+    return np.asarray(cv2.add(image, cv2.merge([detail, detail, detail]), dtype=cv2.CV_8U), dtype=np.uint8)
 
 
 def jpeg_roundtrip(image: NDArray[np.uint8], quality: int, chroma: str = "4:2:0") -> NDArray[np.uint8]:
