@@ -30,6 +30,7 @@ ControlName = Literal[
     "exposure_dynamic_framerate",
     "gain",
     "power_line",
+    "sharpness",
 ]
 EXPOSURE_MANUAL, EXPOSURE_APERTURE_PRIORITY = 1, 3  # V4L2_CID_EXPOSURE_AUTO menu items a UVC camera offers
 POWER_LINE_MENU = {0: 0, 50: 1, 60: 2}  # Hz -> V4L2_CID_POWER_LINE_FREQUENCY menu item (0 = no flicker filter)
@@ -87,6 +88,12 @@ class CameraControls(BaseModel):
     )
     gain: int | None = Field(default=None, ge=0, le=INT32_MAX)
     power_line_hz: Literal[0, 50, 60] | None = Field(default=None, description="Mains frequency (flicker), 0: off.")
+    sharpness: int | None = Field(
+        default=None,
+        ge=0,
+        le=INT32_MAX,
+        description="The camera's own sharpening; its least (C920: 0 of 0-255) is none: its halos move marker centres.",
+    )
 
     @model_validator(mode="after")
     def _manual_values_need_manual_modes(self) -> CameraControls:
@@ -116,6 +123,7 @@ class CameraControls(BaseModel):
             ("white_balance_k", self.white_balance_k),
             ("exposure", self.exposure),
             ("gain", self.gain),
+            ("sharpness", self.sharpness),
         ]
         return [(name, value) for name, value in steps if value is not None]
 
@@ -180,6 +188,17 @@ def _apply_one(device: ControlDevice, name: ControlName, value: int) -> Granted:
 def apply_controls(device: ControlDevice, controls: CameraControls) -> ControlsReport:
     """Set every control ``controls`` asks for, automatic modes first, and read each back."""
     return ControlsReport(tuple(_apply_one(device, name, value) for name, value in controls.wanted()))
+
+
+def sharpening_on(device: ControlDevice) -> str | None:
+    """What the camera's sharpening is set to when it is above the camera's least (which is none on UVC cameras),
+    or None. A sharpened edge overshoots on both sides (a dark halo outside a bright one), unlike the optics' blur the
+    marker edges are measured against: ``docs/benchmarks.md``, "The camera family's image processor"."""
+    info = device.query("sharpness")
+    if info is None:
+        return None
+    value = device.get("sharpness")
+    return f"sharpness {value} (the camera's least is {info.minimum})" if value > info.minimum else None
 
 
 def automatic_modes_on(device: ControlDevice) -> list[str]:

@@ -115,6 +115,7 @@ reopen_max_s = 8.0
 # exposure_dynamic_framerate = false  # example. false: the camera keeps its frame rate in low light
 # gain = 64                   # example
 # power_line_hz = 50          # example. Mains frequency: 50 or 60 (flicker under lamps), 0 = off
+# sharpness = 0               # example. The camera's own sharpening; its least is none (C920: 0 of 0-255)
 
 [calibration]
 path = "calibration.json"     # example. From `edge-ips calibrate`; relative paths are relative to this file.

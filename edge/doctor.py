@@ -1,8 +1,9 @@
 """``edge-ips doctor``: is this board ready to run ``edge-ips start``? One line per check, with a fix hint.
 
-Checks the configuration, the camera (opens, resolution, fps), its controls (granted as configured; autofocus and
-auto white balance off under a calibration), the calibration (loads, matches the resolution), the broker (connects,
-may publish) and the clock (synchronised: poses carry the board's wall-clock time).
+Checks the configuration, the camera (opens, resolution, fps), its controls (granted as configured; autofocus, auto
+white balance and the camera's sharpening off under a calibration), the calibration (loads, matches the
+resolution), the broker (connects, may publish) and the clock (synchronised: poses carry the board's wall-clock
+time).
 """
 
 from __future__ import annotations
@@ -83,6 +84,7 @@ def check_controls(config: EdgeConfig, source: Any) -> Check | None:
     report = source.controls_report
     try:
         modes = source.automatic_modes()
+        sharpening = source.sharpening()
     except EdgeIpsError as exc:
         return Check("controls", "warn", f"cannot read the camera's controls: {exc}", "check the camera's driver")
     if modes and config.calibration.path is not None:
@@ -94,6 +96,13 @@ def check_controls(config: EdgeConfig, source: Any) -> Check | None:
             "under a calibration",
             "set [camera.controls] autofocus = false, focus = N, auto_white_balance = false, white_balance_k = K "
             "(docs/deploy.md gives the C920's)",
+        )
+    if sharpening and config.calibration.path is not None:
+        return Check(
+            "controls",
+            "warn",
+            f"the camera sharpens its frames ({sharpening}): the halos move marker centres",
+            "set [camera.controls] sharpness to the camera's least (docs/deploy.md gives the C920's)",
         )
     if not report.ok:
         return Check("controls", "warn", f"not all granted: {report.line()}", "see docs/deploy.md, camera controls")

@@ -27,6 +27,7 @@ from edge.camera_controls import (
     ControlsReport,
     apply_controls,
     automatic_modes_on,
+    sharpening_on,
 )
 from edge.clock import SYSTEM_CLOCK, Clock
 from edge.errors import SourceError
@@ -219,6 +220,14 @@ class CameraSource(_OpenCvSource):
         device = self._open_controls(self.path)
         try:
             return automatic_modes_on(device)
+        finally:
+            device.close()
+
+    def sharpening(self) -> str | None:
+        """The camera's sharpening when it is on (:func:`edge.camera_controls.sharpening_on`), else None."""
+        device = self._open_controls(self.path)
+        try:
+            return sharpening_on(device)
         finally:
             device.close()
 

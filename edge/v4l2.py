@@ -24,6 +24,7 @@ CONTROL_IDS: dict[ControlName, int] = {
     "gain": _USER_BASE + 19,  # V4L2_CID_GAIN
     "power_line": _USER_BASE + 24,  # V4L2_CID_POWER_LINE_FREQUENCY
     "white_balance_k": _USER_BASE + 26,  # V4L2_CID_WHITE_BALANCE_TEMPERATURE
+    "sharpness": _USER_BASE + 27,  # V4L2_CID_SHARPNESS
     "exposure_auto": _CAMERA_BASE + 1,  # V4L2_CID_EXPOSURE_AUTO
     "exposure": _CAMERA_BASE + 2,  # V4L2_CID_EXPOSURE_ABSOLUTE
     "exposure_dynamic_framerate": _CAMERA_BASE + 3,  # V4L2_CID_EXPOSURE_AUTO_PRIORITY

@@ -30,6 +30,7 @@ C920: dict[ControlName, tuple[int, int, int, int, tuple[int, ...], ControlName |
     "exposure_dynamic_framerate": (0, 1, 1, 1, (), None),
     "gain": (0, 255, 1, 0, (), None),
     "power_line": (0, 2, 1, 2, (0, 1, 2), None),
+    "sharpness": (0, 255, 1, 128, (), None),
 }
 MANUAL = {"focus_auto": 0, "white_balance_auto": 0, "exposure_auto": 1}  # the value that makes a slave active
 
