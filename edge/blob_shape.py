@@ -41,7 +41,9 @@ def point_asymmetry(weights: F32) -> float:
     marker with a 5.5 x 4.5 cm corner hidden, 7 % of it, 0.48 with 12 %). ``inf`` for a blob with no extent, or
     weights that are not finite."""
     h, w = weights.shape
-    m = weights.astype(np.float64)
+    # a shape has no negative mass: the coverage's negative shares (a sharpened edge's dark halo, noise beyond the
+    # edge, kept there so that they average out of the centre) count as nothing
+    m = np.maximum(weights, 0.0, dtype=np.float64)
     # every moment up to the third from one product: raw[b, a] = sum of m * x**a * y**b (about the window's middle)
     x = np.arange(w, dtype=np.float64) - 0.5 * (w - 1)
     y = np.arange(h, dtype=np.float64) - 0.5 * (h - 1)
