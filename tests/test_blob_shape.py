@@ -414,3 +414,18 @@ def test_with_the_view_s_stretch_a_marker_with_a_tenth_hidden_is_still_refused_o
     stretch = wear_stretch(np.linalg.inv(_to_image(1.0, angle, 0.45)), math.radians(angle))
     assert 0.8 <= share < 0.9 and shift > 0.7
     assert not symmetric_below(m, share, ASPECT, 0.0, stretch)
+
+
+def test_a_sharpened_edge_s_dark_halo_does_not_make_a_whole_marker_lopsided() -> None:
+    """A camera that sharpens puts a dark halo outside a bright edge; the coverage keeps its negative shares (so
+    that they average out of the centre), and where the halo is on one side only (the floor's; the black body
+    beside the other side cannot get darker) its lever arm made a whole marker look as lopsided as one with a
+    corner hidden (0.3 and more: refused as partly hidden). A shape has no negative mass."""
+    weights = np.zeros((30, 40), np.float32)
+    weights[10:20, 8:32] = 1.0
+    assert point_asymmetry(weights) == pytest.approx(0.0, abs=1e-9)
+    weights[9, 8:32] = -0.5  # the halo beyond one long side
+    weights[8, 8:32] = -0.2
+    assert point_asymmetry(weights) == pytest.approx(0.0, abs=1e-9)
+    weights[10:13, 8:14] = 0.0  # a hidden corner still shows
+    assert point_asymmetry(weights) > 0.2
