@@ -304,15 +304,23 @@ def bench_accuracy(
 
 
 def family_clip(
-    name: str, seed: int, frames: int | None, chroma: str | None = None, quality: int | None = None
+    name: str,
+    seed: int,
+    frames: int | None,
+    chroma: str | None = None,
+    quality: int | None = None,
+    sharpen: float | None = None,
+    demosaic: str | None = None,
 ) -> object:
     """Scenario ``name`` (``crowd8``: the crowd with the eight-hue palette) through the family's camera for ``seed``
-    (``chroma``, ``quality``: with that JPEG chroma sampling or quality instead of the camera's own)."""
+    (``chroma``, ``quality``, ``sharpen``, ``demosaic``: with that JPEG chroma sampling or quality, or that
+    processor's sharpening or demosaicing, instead of the camera's own)."""
+    stream = {"chroma": chroma, "quality": quality, "sharpen": sharpen, "demosaic": demosaic}
     if name == "crowd8":
-        clip = render_clip("crowd", seed, frames, rovers=8, camera="family", chroma=chroma, quality=quality)
+        clip = render_clip("crowd", seed, frames, rovers=8, camera="family", **stream)  # type: ignore[arg-type]
         clip.name = "crowd8"
         return clip
-    return render_clip(name, seed, frames, camera="family", chroma=chroma, quality=quality)
+    return render_clip(name, seed, frames, camera="family", **stream)  # type: ignore[arg-type]
 
 
 def bars_hold(r: dict[str, float], per_colour: list[dict[str, float]]) -> list[str]:
@@ -343,13 +351,15 @@ def bench_family(
     chroma: str | None = None,
     quality: int | None = None,
     edge_offsets: bool = False,
+    sharpen: float | None = None,
+    demosaic: str | None = None,
 ) -> None:
     """Render each scenario and seed once through the family's camera, track it with each calibration, print a
     table per calibration."""
     runs: dict[str, list[tuple[object, Score]]] = {c: [] for c in calibrations}
     for name in scenarios:
         for seed in seeds:
-            clip = family_clip(name, seed, frames, chroma, quality)
+            clip = family_clip(name, seed, frames, chroma, quality, sharpen, demosaic)
             about = SimpleNamespace(name=name, seed=seed, camera_name=clip.camera_name, bodies=clip.bodies)  # type: ignore[attr-defined]
             for c in calibrations:
                 score = run_clip(clip, "particles", calibration=c, outline_fit=outline_fit, edge_offsets=edge_offsets)  # type: ignore[arg-type]
@@ -473,7 +483,21 @@ def main() -> None:
         default=None,
         help="family: every camera with this JPEG quality instead of its own (all else kept)",
     )
+    parser.add_argument(
+        "--sharpen",
+        type=float,
+        default=None,
+        help="family: every camera's processor sharpening by this much instead of its own (0: none; all else kept)",
+    )
+    parser.add_argument(
+        "--demosaic",
+        choices=("bilinear", "edge-aware", "none"),
+        default=None,
+        help="family: every camera's processor demosaicing so instead of its own (none: no Bayer filter)",
+    )
     args = parser.parse_args()
+    if args.sharpen is not None and not 0.0 <= args.sharpen <= 4.0:
+        parser.error("--sharpen must be 0-4")
     print(f"# edge-ips tracking benchmark, {time.strftime('%Y-%m-%d %H:%M')}\n")
     if args.what == "stages" and args.baseline is not None:
         compare_stages(args.frames or 150, args.seed, args.baseline, args.reps)
@@ -505,6 +529,8 @@ def main() -> None:
             args.chroma,
             args.quality,
             args.edge_offsets,
+            args.sharpen,
+            args.demosaic,
         )
 
 

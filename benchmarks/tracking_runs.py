@@ -57,13 +57,17 @@ def render_clip(
     chroma: str | None = None,
     quality: int | None = None,
     line_time_s: float | None = None,
+    sharpen: float | None = None,
+    demosaic: str | None = None,
 ) -> Clip:
     """Render scenario ``name`` for ``seed`` through the nominal camera or one of the family (``camera``);
     ``chroma``, ``quality``: that camera's JPEG chroma sampling (``4:4:4``, ``4:2:2``, ``4:2:0``) or quality
-    replaced, all else kept; ``line_time_s``: a rolling shutter with that line time (``edge.sim.effects``)."""
+    replaced, all else kept; ``line_time_s``: a rolling shutter with that line time (``edge.sim.effects``);
+    ``sharpen``, ``demosaic``: its processor's sharpening (0: none) or demosaicing (``none``: no Bayer filter)."""
     from dataclasses import replace
 
-    from edge.sim.effects import Compression, RollingShutter
+    from edge.sim.cameras import processing_name
+    from edge.sim.effects import Compression, RollingShutter, SignalProcessing
     from edge.sim.scenarios import build
 
     setup = build(name, seed, rovers, frames, heading, camera)  # type: ignore[arg-type]
@@ -78,6 +82,20 @@ def render_clip(
             camera_name=setup.camera_name.replace(drawn.chroma, stream.chroma, 1).replace(
                 f"q{drawn.quality}", f"q{stream.quality}", 1
             ),
+        )
+    if sharpen is not None or demosaic is not None:
+        had = setup.effects.processing
+        processor = replace(
+            had or SignalProcessing(None),
+            sharpen=(had.sharpen if had else 0.0) if sharpen is None else sharpen,
+            demosaic=(had.demosaic if had else None)
+            if demosaic is None
+            else (None if demosaic == "none" else demosaic),
+        )
+        setup = replace(
+            setup,
+            effects=replace(setup.effects, processing=processor),
+            camera_name=setup.camera_name.removesuffix(processing_name(had)) + processing_name(processor),
         )
     renderer = setup.renderer()
     world = setup.world()

@@ -66,8 +66,7 @@ class CameraDraw:
 
     def with_processing(self, processing: SignalProcessing) -> CameraDraw:
         """This camera with ``processing`` as its image processor (named in its description)."""
-        sharpen = f" sharpen {processing.sharpen:.2f}" if processing.sharpen > 0.0 else ""
-        return replace(self, name=f"{self.name} {processing.demosaic}{sharpen}", processing=processing)
+        return replace(self, name=self.name + processing_name(processing), processing=processing)
 
     def apply(self, effects: Effects) -> Effects:
         """``effects`` seen by this camera (the scene's light, exposure time and motion are kept)."""
@@ -120,6 +119,15 @@ def draw_camera(rng: np.random.Generator) -> CameraDraw:
         gamma,
         awb,
     )
+
+
+def processing_name(processing: SignalProcessing | None) -> str:
+    """How a camera's description names its processor: `` bilinear sharpen 0.60`` (empty: none)."""
+    if processing is None:
+        return ""
+    demosaic = f" {processing.demosaic}" if processing.demosaic is not None else ""
+    sharpen = f" sharpen {processing.sharpen:.2f}" if processing.sharpen > 0.0 else ""
+    return demosaic + sharpen
 
 
 def draw_processing(rng: np.random.Generator) -> SignalProcessing:
