@@ -84,14 +84,9 @@ def render_clip(
             ),
         )
     if sharpen is not None or demosaic is not None:
-        had = setup.effects.processing
-        processor = replace(
-            had or SignalProcessing(None),
-            sharpen=(had.sharpen if had else 0.0) if sharpen is None else sharpen,
-            demosaic=(had.demosaic if had else None)
-            if demosaic is None
-            else (None if demosaic == "none" else demosaic),
-        )
+        had = setup.effects.processing or SignalProcessing(None)  # none: no filter, no sharpening
+        method = had.demosaic if demosaic is None else {"none": None}.get(demosaic, demosaic)
+        processor = replace(had, sharpen=had.sharpen if sharpen is None else sharpen, demosaic=method)
         setup = replace(
             setup,
             effects=replace(setup.effects, processing=processor),

@@ -73,7 +73,7 @@ def candidates(view: LowResolution, index: int, colors: ColorModel) -> list[tupl
     was never tried), and such a patch can touch the marker and make one blob with it (occlusion 11404: its centre
     23 px from the marker's, whose window then missed it for 2 s)."""
     mask = (view.classes == index).view(np.uint8)
-    n, labels, _, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    n, labels = cv2.connectedComponents(mask, connectivity=8)
     if n <= 1:
         return []
     where = np.flatnonzero(mask)

@@ -222,7 +222,7 @@ class RoverTrack:
         skew = point_asymmetry(weights) if weights is not None and wanted else None
         if skew is not None and (smaller or unchecked) and skew > self.lopsided_limit():
             return False  # smaller than the rover's own marker, or found with nothing to check it by, and lopsided
-        if ratio > JOINED_RATIO and self.config.front_color_bgr is None and self._joined(m):
+        if ratio > JOINED_RATIO and weights is not None and self._joined(m, skew):
             return False  # larger, lopsided and pulled off: joined to something of its hue
         if relearn:
             self.relearned_at = frame  # its areas are forgotten once it is taken (Pipeline)
@@ -248,11 +248,12 @@ class RoverTrack:
             return LOPSIDED_UNKNOWN
         return max(LOPSIDED_FLOOR, 2.0 * float(statistics.median(self.skews)) + 0.1)
 
-    def _joined(self, m: Measurement) -> bool:
+    def _joined(self, m: Measurement, skew: float | None = None) -> bool:
         """Is a blob larger than the marker the marker joined to something of its hue? Lopsided, and its centre pulled
         farther from the prediction than a compressed stream moves a whole one (a far-side marker in a 4:2:0 q60
-        stream: lopsided up to 0.4 at times, 1 cm off; the blue marker joined to a shaded body: 0.6-0.9, 3-4 cm)."""
-        if m.weights is None or point_asymmetry(m.weights) <= JOINED_SKEW:
+        stream: lopsided up to 0.4 at times, 1 cm off; the blue marker joined to a shaded body: 0.6-0.9, 3-4 cm).
+        ``skew``: the blob's point asymmetry when :meth:`whole_marker` measured it this frame."""
+        if m.weights is None or (point_asymmetry(m.weights) if skew is None else skew) <= JOINED_SKEW:
             return False
         step = self.innovation_cm(m)
         return step is None or step > JOINED_STEP_CM
