@@ -15,6 +15,7 @@ from edge.segmentation import (
     BackgroundModel,
     ColorModel,
     auto_threshold,
+    close,
     color_planes,
     erode,
     fill_holes,
@@ -326,3 +327,19 @@ def test_one_particle_is_opened_filled_and_measured_from_its_outline_as_by_the_s
 @given(masks)
 def test_the_one_outline_path_agrees_with_the_stages_on_any_mask(mask):
     _one_particle_or_stages(mask)
+
+
+def test_closing_fills_gaps_up_to_twice_its_iterations_and_leaves_the_outline() -> None:
+    mask = np.zeros((30, 40), bool)
+    mask[5:25, 5:20] = True
+    mask[5:25, 24:35] = True  # a gap of 4 columns between two parts
+    mask[5:25, 37:39] = True  # ... and one of 2 beside a strip
+    closed = close(mask, 2)
+    assert closed[5:25, 5:39].all()  # both gaps filled
+    assert not (closed & ~mask)[:5].any() and not (closed & ~mask)[25:].any()  # nothing grown above or below
+    assert not closed[:, :5].any() and not closed[:, 39:].any()  # nor beyond the ends
+    assert not close(mask, 1)[10, 21]  # one iteration fills 2 columns, not 4
+    assert close(mask, 1)[10, 35:37].all()
+    assert close(mask, 0) is mask
+    mask[:, :2] = True  # a part on the image's border keeps its pixels there
+    assert (close(mask, 2) >= mask).all()
