@@ -125,7 +125,7 @@ def test_a_marker_driving_into_a_sunlit_patch_keeps_its_shaded_end() -> None:
     shaded strip is darker and less saturated, and the camera's sharpening darkens its first rows past the light's
     edge: thresholded, it came apart from the sunlit part in strips, the two-lights test's erosion took it all away,
     and the blob without its rear was 1-2.5 cm toward the sun and refused in 4 of these frames. Now the mask's gaps are
-    closed before the test: found in every frame, within 0.5 cm (0.43 at most)."""
+    closed before the test: found in every frame, within 0.5 cm (0.35 at most)."""
     from tests.conftest import benchmark_module
 
     runs = benchmark_module("tracking_runs")
