@@ -7,7 +7,7 @@ simulator's camera family.
                                                  [--calibration camera|points] [--heading plain|two_tone]
     python benchmarks/bench_tracking.py family   [--scenarios lab,...,crowd8] [--seeds 0,1] [--frames N]
                                                  [--calibration camera|points] [--detail] [--chroma 4:4:4]
-                                                 [--quality 95]
+                                                 [--quality 95] [--floor tiles|beige|wood|white|dark]
     python benchmarks/bench_tracking.py all
 
 Frames come from the simulator (``edge.sim``) rendered in memory first, so only the tracker is timed. Timing runs on
@@ -61,6 +61,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from tracking_runs import Score, frame_of, render_clip, run_clip, summary  # noqa: E402
 
 from edge.centre_offsets import KEEP, EdgeSample, OffsetMap  # noqa: E402
+from edge.sim.scene import FLOORS  # noqa: E402
 from edge.tracker_config import TrackerConfig  # noqa: E402
 from edge.trackers.base import CameraPlaneMapping  # noqa: E402
 from edge.trackers.factory import build_tracker  # noqa: E402
@@ -311,11 +312,13 @@ def family_clip(
     quality: int | None = None,
     sharpen: float | None = None,
     demosaic: str | None = None,
+    floor: str = "tiles",
 ) -> object:
     """Scenario ``name`` (``crowd8``: the crowd with the eight-hue palette) through the family's camera for ``seed``
     (``chroma``, ``quality``, ``sharpen``, ``demosaic``: with that JPEG chroma sampling or quality, or that
-    processor's sharpening or demosaicing, instead of the camera's own)."""
-    stream = {"chroma": chroma, "quality": quality, "sharpen": sharpen, "demosaic": demosaic}
+    processor's sharpening or demosaicing, instead of the camera's own; ``floor``: on that floor,
+    ``edge.sim.scene.FLOORS``)."""
+    stream = {"chroma": chroma, "quality": quality, "sharpen": sharpen, "demosaic": demosaic, "floor": floor}
     if name == "crowd8":
         clip = render_clip("crowd", seed, frames, rovers=8, camera="family", **stream)  # type: ignore[arg-type]
         clip.name = "crowd8"
@@ -353,13 +356,14 @@ def bench_family(
     edge_offsets: bool = False,
     sharpen: float | None = None,
     demosaic: str | None = None,
+    floor: str = "tiles",
 ) -> None:
-    """Render each scenario and seed once through the family's camera, track it with each calibration, print a
-    table per calibration."""
+    """Render each scenario and seed once through the family's camera (on ``floor``), track it with each
+    calibration, print a table per calibration."""
     runs: dict[str, list[tuple[object, Score]]] = {c: [] for c in calibrations}
     for name in scenarios:
         for seed in seeds:
-            clip = family_clip(name, seed, frames, chroma, quality, sharpen, demosaic)
+            clip = family_clip(name, seed, frames, chroma, quality, sharpen, demosaic, floor)
             about = SimpleNamespace(name=name, seed=seed, camera_name=clip.camera_name, bodies=clip.bodies)  # type: ignore[attr-defined]
             for c in calibrations:
                 score = run_clip(clip, "particles", calibration=c, outline_fit=outline_fit, edge_offsets=edge_offsets)  # type: ignore[arg-type]
@@ -495,6 +499,12 @@ def main() -> None:
         default=None,
         help="family: every camera's processor demosaicing so instead of its own (none: no Bayer filter)",
     )
+    parser.add_argument(
+        "--floor",
+        choices=tuple(FLOORS),
+        default="tiles",
+        help="family: every scenario on a floor of this material instead of the default grey tiles",
+    )
     args = parser.parse_args()
     if args.sharpen is not None and not 0.0 <= args.sharpen <= 4.0:
         parser.error("--sharpen must be 0-4")
@@ -531,6 +541,7 @@ def main() -> None:
             args.edge_offsets,
             args.sharpen,
             args.demosaic,
+            args.floor,
         )
 
 

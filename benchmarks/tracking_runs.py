@@ -59,18 +59,20 @@ def render_clip(
     line_time_s: float | None = None,
     sharpen: float | None = None,
     demosaic: str | None = None,
+    floor: str = "tiles",
 ) -> Clip:
     """Render scenario ``name`` for ``seed`` through the nominal camera or one of the family (``camera``);
     ``chroma``, ``quality``: that camera's JPEG chroma sampling (``4:4:4``, ``4:2:2``, ``4:2:0``) or quality
     replaced, all else kept; ``line_time_s``: a rolling shutter with that line time (``edge.sim.effects``);
-    ``sharpen``, ``demosaic``: its processor's sharpening (0: none) or demosaicing (``none``: no Bayer filter)."""
+    ``sharpen``, ``demosaic``: its processor's sharpening (0: none) or demosaicing (``none``: no Bayer filter);
+    ``floor``: the floor's material (``edge.sim.scene.FLOORS``; named after the bodies when not the default tiles)."""
     from dataclasses import replace
 
     from edge.sim.cameras import processing_name
     from edge.sim.effects import Compression, RollingShutter, SignalProcessing
     from edge.sim.scenarios import build
 
-    setup = build(name, seed, rovers, frames, heading, camera)  # type: ignore[arg-type]
+    setup = build(name, seed, rovers, frames, heading, camera, floor)  # type: ignore[arg-type]
     if line_time_s is not None:
         setup = replace(setup, effects=replace(setup.effects, rolling_shutter=RollingShutter(line_time_s)))
     if chroma is not None or quality is not None:
@@ -132,7 +134,7 @@ def render_clip(
         renderer.background(0),
         setup.marker_height_cm,
         setup.camera_name,
-        f"{bodies} bodies {setup.marker_height_cm:.0f} cm",
+        f"{bodies} bodies {setup.marker_height_cm:.0f} cm" + ("" if floor == "tiles" else f" on {floor}"),
     )
 
 

@@ -118,8 +118,27 @@ def test_lens_scenario_really_distorts():
         (lambda: build("lab", rovers=0), "--rovers must be at least 1"),
         (lambda: build("lab", frames=0), "--frames must be at least 1"),
         (lambda: build("crowd", rovers=400), "1 to 64"),
+        (lambda: build("lab", floor="lava"), "--floor must be one of tiles, beige, wood, white, dark"),
     ],
 )
 def test_bad_scenario_requests_are_clear_errors(call, message):
     with pytest.raises(SimulationError, match=message):
         call()
+
+
+def test_a_scenario_on_another_floor_shows_that_floor_and_keeps_all_else():
+    """The floor's material is a choice of its own: the same seed on wood is the same run (world, camera, bodies),
+    only the empty floor's colour changes: through the nominal camera warmer and darker than the default grey tiles,
+    lighter on white. (A camera of the family with automatic white balance greys the wood, as a webcam's does.)"""
+    tiles, wood = (build("lab", seed=3, frames=2, camera="family", floor=f) for f in ("tiles", "wood"))
+    assert wood.camera_name == tiles.camera_name and wood.scene.rovers == tiles.scene.rovers
+    assert tiles.scene.floor == build("lab", seed=3, frames=2, camera="family").scene.floor  # the default
+    means = {}
+    for name in ("tiles", "wood", "white"):
+        image = build("lab", seed=3, frames=2, floor=name).renderer().background(0)
+        h, w = image.shape[:2]
+        b, g, r = image[h // 3 : 2 * h // 3, w // 3 : 2 * w // 3].reshape(-1, 3).mean(axis=0)  # the floor alone
+        means[name] = (float(b), float(g), float(r))
+    assert means["wood"][2] > means["wood"][0] + 30  # red well above blue: a warm floor
+    assert abs(means["tiles"][2] - means["tiles"][0]) < 15  # the default is near grey
+    assert sum(means["white"]) > sum(means["tiles"]) > sum(means["wood"])

@@ -42,7 +42,7 @@ from edge.sim.builders import (
     lens_camera,
 )
 from edge.sim.cameras import draw_bodies, draw_camera, draw_processing
-from edge.sim.scene import HEADINGS, Heading
+from edge.sim.scene import FLOORS, HEADINGS, Heading
 from edge.sim.setup import FPS, SimSetup, lab_effects, scenario_rng
 
 __all__ = ["FPS", "SCENARIOS", "Scenario", "SimSetup", "build", "get_scenario", "lab_effects", "lens_camera"]
@@ -67,9 +67,11 @@ class Scenario:
         frames: int | None = None,
         heading: Heading = "plain",
         camera: CameraChoice = "nominal",
+        floor: str = "tiles",
     ) -> SimSetup:
         """The run for ``seed``; ``heading`` puts heading markers (two-tone or ArUco) on every rover; ``camera``:
-        the nominal camera, or one of the family drawn from the seed (with bodies drawn from the family too)."""
+        the nominal camera, or one of the family drawn from the seed (with bodies drawn from the family too);
+        ``floor``: the floor's material (``edge.sim.scene.FLOORS``)."""
         n = self.default_rovers if rovers is None else rovers
         f = self.default_frames if frames is None else frames
         if n < 1:
@@ -80,6 +82,8 @@ class Scenario:
             raise SimulationError(f"scenario {self.name}: --camera must be one of {', '.join(CAMERAS)}")
         if heading not in HEADINGS:
             raise SimulationError(f"scenario {self.name}: --heading must be one of {', '.join(HEADINGS)}")
+        if floor not in FLOORS:
+            raise SimulationError(f"scenario {self.name}: --floor must be one of {', '.join(FLOORS)}")
         setup = self.builder(seed, n, f)
         looks = setup.scene.rovers
         if heading != "plain":
@@ -90,7 +94,7 @@ class Scenario:
             looks = draw_bodies(looks, rng)
             drawn = drawn.with_processing(draw_processing(scenario_rng(f"{self.name}/processing", seed)))
             setup = replace(setup, effects=drawn.apply(setup.effects), camera_name=drawn.name)
-        return replace(setup, scene=replace(setup.scene, rovers=looks))
+        return replace(setup, scene=replace(setup.scene, rovers=looks, floor=FLOORS[floor]))
 
 
 SCENARIOS: dict[str, Scenario] = {
@@ -158,7 +162,9 @@ def build(
     frames: int | None = None,
     heading: Heading = "plain",
     camera: CameraChoice = "nominal",
+    floor: str = "tiles",
 ) -> SimSetup:
     """The :class:`SimSetup` of scenario ``name`` for ``seed`` (``rovers``/``frames`` default to the scenario's;
-    ``heading``: ``plain``, ``two_tone`` or ``aruco`` markers; ``camera``: ``nominal`` or ``family``)."""
-    return get_scenario(name).build(seed, rovers, frames, heading, camera)
+    ``heading``: ``plain``, ``two_tone`` or ``aruco`` markers; ``camera``: ``nominal`` or ``family``; ``floor``: a
+    material of ``edge.sim.scene.FLOORS``)."""
+    return get_scenario(name).build(seed, rovers, frames, heading, camera, floor)

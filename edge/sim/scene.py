@@ -100,6 +100,26 @@ class FloorLook:
     roughness_deg: float = 3.0
 
 
+# Floors of other materials (``Scenario.build``'s ``floor``): a lab's floor is rarely the default grey tiles, and
+# its colour is what every marker edge mixes with on the floor side, what the background and the local light are
+# read from, and, warm and lit by the sun, what comes nearest a marker's hue.
+FLOORS: dict[str, FloorLook] = {
+    "tiles": FloorLook(),
+    "beige": FloorLook(base_bgr=(0.42, 0.50, 0.58), tile_cm=30.0, grout_bgr=(0.30, 0.34, 0.38)),
+    "wood": FloorLook(
+        tile_cm=15.0,  # planks' joints
+        base_bgr=(0.16, 0.27, 0.42),
+        tile_variation=0.12,
+        speckle=0.15,
+        grout_cm=0.2,
+        grout_bgr=(0.08, 0.13, 0.20),
+        specular=0.05,
+    ),
+    "white": FloorLook(base_bgr=(0.70, 0.72, 0.74), grout_bgr=(0.45, 0.46, 0.47)),
+    "dark": FloorLook(base_bgr=(0.10, 0.10, 0.11), tile_variation=0.03, grout_bgr=(0.06, 0.06, 0.06)),
+}
+
+
 @dataclass(frozen=True)
 class TapeLook:
     """Masking tape laid just outside the working area's edge (the paper's Fig. 1 outline)."""
