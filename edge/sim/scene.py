@@ -107,7 +107,7 @@ FLOORS: dict[str, FloorLook] = {
     "tiles": FloorLook(),
     "beige": FloorLook(base_bgr=(0.42, 0.50, 0.58), tile_cm=30.0, grout_bgr=(0.30, 0.34, 0.38)),
     "wood": FloorLook(
-        tile_cm=15.0,  # planks' joints
+        tile_cm=15.0,  # parquet: squares of 15 cm
         base_bgr=(0.16, 0.27, 0.42),
         tile_variation=0.12,
         speckle=0.15,
