@@ -318,12 +318,12 @@ def family_clip(
     (``chroma``, ``quality``, ``sharpen``, ``demosaic``: with that JPEG chroma sampling or quality, or that
     processor's sharpening or demosaicing, instead of the camera's own; ``floor``: on that floor,
     ``edge.sim.scene.FLOORS``)."""
-    stream = {"chroma": chroma, "quality": quality, "sharpen": sharpen, "demosaic": demosaic, "floor": floor}
+    overrides = {"chroma": chroma, "quality": quality, "sharpen": sharpen, "demosaic": demosaic, "floor": floor}
     if name == "crowd8":
-        clip = render_clip("crowd", seed, frames, rovers=8, camera="family", **stream)  # type: ignore[arg-type]
+        clip = render_clip("crowd", seed, frames, rovers=8, camera="family", **overrides)  # type: ignore[arg-type]
         clip.name = "crowd8"
         return clip
-    return render_clip(name, seed, frames, camera="family", **stream)  # type: ignore[arg-type]
+    return render_clip(name, seed, frames, camera="family", **overrides)  # type: ignore[arg-type]
 
 
 def bars_hold(r: dict[str, float], per_colour: list[dict[str, float]]) -> list[str]:
