@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
 from edge.segmentation import F32, ColorModel, opponent_planes
-from edge.trackers.base import PlaneGrid, PlaneMapping
+from edge.trackers.base import SURROUND_IGNORED, PlaneGrid, PlaneMapping
 from edge.trackers.plane import WithWorkingArea
 from edge.white import LocalWhite
 
@@ -63,25 +63,42 @@ def low_resolution_view(
 
 def candidates(view: LowResolution, index: int, colors: ColorModel) -> list[tuple[float, float]]:
     """Full-resolution image places of the blobs of rover ``index``'s hue class, the strongest in its colour plane
-    first (each blob's peak), :data:`CANDIDATES_PER_ROVER` at most; each blob's place is the strength-weighted centre
-    of its pixels at half its peak or more.
+    first (each blob's peak), :data:`CANDIDATES_PER_ROVER` at most. A blob's strong part is its pixels halfway from
+    the floor's level to its peak or more (the floor's level: the frame's median in the rover's plane, less
+    ``SURROUND_IGNORED`` of the peak, 0 at least, as ``edge.trackers.base.surrounded`` takes it in a window); each
+    connected strong part is a candidate, placed at its strength-weighted centre.
 
     A marker is its hue at its full strength; a camera's white balance and crosstalk can give the floor a weak cast
     of the same hue in patches larger than a marker (the family's cross clip with seed 7777, a 4:4:4 camera with
     14 % crosstalk and a warm white balance: six floor patches at a sixth of the red marker's strength, each larger
     than it, were tried and refused while the parked red rover went unfound for 1.7 s; ranked by area, the marker
     was never tried), and such a patch can touch the marker and make one blob with it (occlusion 11404: its centre
-    23 px from the marker's, whose window then missed it for 2 s)."""
+    23 px from the marker's, whose window then missed it for 2 s). On a floor of the marker's hue class (warm wood
+    under a red or orange marker) the whole floor is one blob with the marker, at about half its strength: half the
+    peak took in the stronger planks, and the candidate, their centre with the marker's, lay far from it (the
+    family's crowd clip with seed 4321 on wood: the orange marker was never tried)."""
     mask = (view.classes == index).view(np.uint8)
     n, labels = cv2.connectedComponents(mask, connectivity=8)
     if n <= 1:
         return []
+    plane = colors.plane(index, view.c1, view.c2)
     where = np.flatnonzero(mask)
     label = labels.ravel()[where]
-    value = colors.plane(index, view.c1, view.c2).ravel()[where].astype(np.float64)
+    value = plane.ravel()[where].astype(np.float64)
     peak = np.full(n, -np.inf)
     np.maximum.at(peak, label, value)
-    weight = np.where(value >= 0.5 * peak[label], value, 0.0)
+    # each blob's strong part: halfway from the floor's level to its peak (edge.trackers.base.surrounded)
+    floor = _median(plane) - SURROUND_IGNORED * peak[label]
+    level = np.where(floor > 0.0, floor, 0.0)
+    strong = value >= level + 0.5 * (peak[label] - level)
+    keep = np.zeros(mask.size, np.uint8)
+    keep[where[strong]] = 1
+    n, labels = cv2.connectedComponents(keep.reshape(mask.shape), connectivity=8)
+    where = where[strong]
+    label = labels.ravel()[where]
+    weight = value[strong]
+    peak = np.full(n, -np.inf)
+    np.maximum.at(peak, label, weight)
     total = np.bincount(label, weight, minlength=n)
     rows, cols = np.divmod(where, mask.shape[1])
     u = np.bincount(label, weight * cols, minlength=n) / np.maximum(total, 1e-9)
@@ -89,3 +106,10 @@ def candidates(view: LowResolution, index: int, colors: ColorModel) -> list[tupl
     order = np.argsort(-peak[1:], kind="stable")[:CANDIDATES_PER_ROVER] + 1
     s = view.scale
     return [((float(u[k]) + 0.5) * s - 0.5, (float(v[k]) + 0.5) * s - 0.5) for k in order.tolist()]
+
+
+def _median(plane: F32) -> float:
+    """The median of ``plane`` from every 4th row (the floor's level in it: the floor fills most of a frame)."""
+    flat = plane[::4].ravel()
+    half = flat.size // 2
+    return float(np.partition(flat, half)[half])
