@@ -8,6 +8,7 @@ simulator's camera family.
     python benchmarks/bench_tracking.py family   [--scenarios lab,...,crowd8] [--seeds 0,1] [--frames N]
                                                  [--calibration camera|points] [--detail] [--chroma 4:4:4]
                                                  [--quality 95] [--floor tiles|beige|wood|white|dark]
+    python benchmarks/bench_tracking.py acquire  [--seed S] [--reps R]
     python benchmarks/bench_tracking.py all
 
 Frames come from the simulator (``edge.sim``) rendered in memory first, so only the tracker is timed. Timing runs on
@@ -26,6 +27,10 @@ Accuracy, per scenario and tracker, against the simulator's ground truth (marker
 
 ``paper`` is the straightforward full-frame pipeline of the paper (edge/trackers/paper.py), run in the same loop on
 the same frames with the scenario's empty-scene reference, so speed-up and accuracy gain are ratios of one run.
+
+``acquire``: the reacquisition pass's cost per lost rover (``edge.acquisition``: the 1/4-resolution view, then each
+rover's candidates), on the first frame of the family's twelve-hue crowd clip on each floor; it runs only while a
+rover is lost.
 
 ``family``: every scenario through a camera of the simulator's family drawn from the seed (chroma sampling, JPEG
 quality, blur, tone curve, crosstalk, white balance, noise, vignetting; the rovers' body colours, height and
@@ -58,8 +63,9 @@ if importlib.util.find_spec("edge") is None:  # run from a checkout without the 
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from tracking_runs import Score, frame_of, render_clip, run_clip, summary  # noqa: E402
+from tracking_runs import Score, frame_of, plane_mapping, render_clip, run_clip, summary  # noqa: E402
 
+from edge.acquisition import candidates, low_resolution_view  # noqa: E402
 from edge.centre_offsets import KEEP, EdgeSample, OffsetMap  # noqa: E402
 from edge.sim.scene import FLOORS  # noqa: E402
 from edge.tracker_config import TrackerConfig  # noqa: E402
@@ -304,6 +310,35 @@ def bench_accuracy(
         )
 
 
+def bench_acquire(seed: int, reps: int) -> None:
+    """The acquisition pass's time on the first frame of the family's crowd clip for ``seed`` on every floor: the
+    low-resolution view once per frame, the candidates once per lost rover (median of ``reps`` runs)."""
+    print(f"## Acquisition pass ({machine()})")
+    print(f"family crowd clip seed {seed}, first frame, 12 rovers, median of {reps} runs\n")
+    print("| floor | view ms | candidates ms per rover (median / max) | places tried per rover (mean) |")
+    print("|---|---|---|---|")
+    for floor in FLOORS:
+        clip = render_clip("crowd", seed, 1, camera="family", floor=floor)  # type: ignore[arg-type]
+        config = TrackerConfig(rovers=clip.rovers, method="particles", fps=clip.fps)
+        tracker = build_tracker(config, plane_mapping(clip, "camera"), None)
+        tracker.process(frame_of(clip.frames[0], 0, clip.fps))  # the scale, the local white
+        image, scale = clip.frames[0], tracker.acquire_scale
+        view_ms, per_rover, places = [], [], []
+        for _ in range(reps):
+            t0 = time.perf_counter()
+            view = low_resolution_view(image, scale, tracker.colors, tracker.white)
+            view_ms.append((time.perf_counter() - t0) * 1e3)
+            for k in range(len(clip.rovers)):
+                t1 = time.perf_counter()
+                places.append(len(candidates(view, k, tracker.colors)))
+                per_rover.append((time.perf_counter() - t1) * 1e3)
+        rover_ms = np.median(np.reshape(per_rover, (reps, -1)), axis=0)
+        print(
+            f"| {floor} | {np.median(view_ms):.2f} | {np.median(rover_ms):.2f} / {np.max(rover_ms):.2f} "
+            f"| {np.mean(places):.1f} |"
+        )
+
+
 def family_clip(
     name: str,
     seed: int,
@@ -448,7 +483,7 @@ def main() -> None:
     if sys.argv[1:2] == ["_stage_worker"]:
         stage_worker(sys.argv[2])
         return
-    parser.add_argument("what", choices=("stages", "scale", "accuracy", "family", "all"))
+    parser.add_argument("what", choices=("stages", "scale", "accuracy", "family", "acquire", "all"))
     parser.add_argument("--frames", type=int, default=None)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--seeds", default="0")
@@ -472,7 +507,7 @@ def main() -> None:
         default=None,
         help="stages: compare with the tracker of this other checkout (e.g. of main), runs interleaved",
     )
-    parser.add_argument("--reps", type=int, default=10, help="stages --baseline: runs of each tracker")
+    parser.add_argument("--reps", type=int, default=10, help="stages --baseline: runs of each tracker; acquire: runs")
     parser.add_argument(
         "--chroma",
         choices=("4:2:0", "4:2:2", "4:4:4"),
@@ -518,6 +553,8 @@ def main() -> None:
     if args.what in ("scale", "all"):
         bench_scale(args.frames or 120, [int(c) for c in args.counts.split(",")], args.seed)
         print()
+    if args.what == "acquire":
+        bench_acquire(args.seed, args.reps)
     if args.what in ("accuracy", "all"):
         if args.calibration == "both":
             parser.error("--calibration both is for the family table")
