@@ -14,8 +14,9 @@ finds every marker-sized blob of colour that is not on the empty floor, and meas
 
 Rovers are named by hue when no ids are given. Two markers whose hues are closer than their spreads plus a margin
 for the light changing across the room cannot be told apart reliably under this camera and light: that is said,
-naming both. Arrays in, dataclasses out: the CLI (``edge-ips rovers enroll``) and the dashboard call
-:func:`enroll` with a frame and a background and write :meth:`Enrolment.toml`.
+naming both; so is a marker that stands out too little from the empty floor in its colour plane (a floor near
+its hue: ``edge.floor_contrast``). Arrays in, dataclasses out: the CLI (``edge-ips rovers enroll``) and the
+dashboard call :func:`enroll` with a frame and a background and write :meth:`Enrolment.toml`.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.errors import EnrollmentError
+from edge.floor_contrast import floor_warnings
 from edge.messages import id_problem
 from edge.tracker_config import RoverConfig
 from edge.trackers.base import PlaneMapping
@@ -265,6 +267,8 @@ def enroll(
     markers = [_measure(frame, (f1, f2, flum), blob, light, calibration, nominal_cm2) for blob in blobs]
     named = _name(markers, ids)
     warnings = _too_close(named) + _odd_sizes(named, marker_length_cm, marker_width_cm)
+    seen = [(m.rover_id, m.color_bgr, m.uv_px, math.sqrt(m.pixels)) for m in named]
+    warnings += floor_warnings(background, seen, calibration)  # a floor near a marker's hue (edge.floor_contrast)
     return Enrolment(tuple(named), tuple(warnings), tuple(ignored), (w, h))
 
 

@@ -20,7 +20,7 @@ from edge.camera import PinholeCamera, paper_camera
 from edge.runtime import EdgeRuntime
 from edge.sim.render import Renderer
 from edge.sim.scenarios import lab_effects
-from edge.sim.scene import RoverLook, Scene, marker_albedo_for_hue
+from edge.sim.scene import FLOORS, RoverLook, Scene, marker_albedo_for_hue
 from edge.sim.world import RoverState, WorldState
 from edge.sources import SourceInfo
 from edge.tracker_config import RoverConfig, TrackerConfig
@@ -48,11 +48,13 @@ def spread_out(n: int) -> list[Pose]:
 class Lab:
     """The paper's camera over the lab floor with ``looks`` on it; frames of the rovers and of the empty floor."""
 
-    def __init__(self, looks: Sequence[RoverLook], seed: int = 0, camera: PinholeCamera | None = None) -> None:
+    def __init__(
+        self, looks: Sequence[RoverLook], seed: int = 0, camera: PinholeCamera | None = None, floor: str = "tiles"
+    ) -> None:
         self.looks = tuple(looks)
         self.camera = camera or paper_camera()
         effects = lab_effects(np.random.default_rng(seed))
-        self.renderer = Renderer(self.camera, Scene(rovers=self.looks), effects, seed=seed)
+        self.renderer = Renderer(self.camera, Scene(rovers=self.looks, floor=FLOORS[floor]), effects, seed=seed)
         self.calibration = exact_calibration(self.camera)
 
     def frame(self, poses: Sequence[Pose], index: int = 5) -> np.ndarray:
