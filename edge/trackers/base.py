@@ -8,6 +8,7 @@ a :class:`Measurement` in world centimetres, the marker's area centroid on the p
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -63,6 +64,8 @@ SURROUND_IGNORED = 0.1  # a surround this much of the marker's level in its plan
 # a marker is at least this many times its surround's level in its plane (surrounded); the brightest planks of the
 # simulator's wood reach about 1.4 times its median in a window, a red marker on it 1.6-2.5 times
 STANDOUT = 1.5
+ACROSS_MIN = 0.3  # across_floor: the marker's hue at least this far across the floor's (the sine: 17 deg)
+GRAIN = 4.0  # clear_of_grain: a marker's level this many times the surround's grain above it, across the floor's hue
 
 
 @dataclass(frozen=True)
@@ -155,7 +158,8 @@ def threshold_marker(
 ) -> tuple[BoolArray, BoolArray] | None:
     """Stage ``threshold`` of the binary trackers: the window's pixels of the rover's hue class (``candidates``) and
     those of them inside the automatic interval of its colour plane (``mask``); None when the window has none, or
-    when nothing in it stands out from a floor of its hue class (:func:`surrounded`).
+    when nothing in it stands out from a floor of its hue class (:func:`surrounded`), in its plane or across the
+    floor's hue (:func:`across_floor`, :func:`clear_of_grain`).
 
     A marker in two lights (the edge of a sunlit patch across it) is thresholded against its level where it stands.
     Whether it is in two lights is judged on its interior with the mask's gaps of up to :data:`SHADE_GAP_PX` closed;
@@ -172,21 +176,28 @@ def threshold_marker(
     if not np.count_nonzero(candidates):  # quicker than any() on a window
         clock.add("threshold", time.perf_counter() - t0)
         return None
-    interval = surrounded(auto_threshold(window.plane, candidates, fraction), window.plane, fraction)
-    if interval is None:  # nothing stands out from a floor of the marker's hue class
+    plane = window.plane
+    interval = surrounded(auto_threshold(plane, candidates, fraction), plane, fraction)
+    if interval is None:  # nothing stands out from a floor of its hue class in its plane: look across the floor's hue
+        across = across_floor(window.c1, window.c2, window.hue)
+        if across is not None:
+            plane, interval = across, surrounded(auto_threshold(across, candidates, fraction), across, fraction)
+            if interval is not None and not clear_of_grain(across, interval):
+                interval = None
+    if interval is None:
         clock.add("threshold", time.perf_counter() - t0)
         return None
-    mask = candidates & threshold(window.plane, interval)
+    mask = candidates & threshold(plane, interval)
     # its interior, edges left out, its gaps of up to SHADE_GAP_PX closed first (see the docstring): eroding the
     # closed mask twice is eroding its dilation twice more
     gap = SHADE_GAP_PX // 2
     if light_ratio(window.lum[erode(dilate(mask, gap), gap + 2)], encoded=True) >= TWO_LIGHTS:
         # a marker in two lights (edge.coverage): the threshold follows its level where it stands
         inner = erode(mask, 1)
-        mean = float(np.mean(window.plane[inner])) if np.count_nonzero(inner) else 0.0
+        mean = float(np.mean(plane[inner])) if np.count_nonzero(inner) else 0.0
         if mean > 0.0:
-            floor = np.float32(interval.k_min / mean) * local_mean(window.plane, inner, LOCAL_LIGHT_PX)
-            mask = candidates & (window.plane >= floor)
+            floor = np.float32(interval.k_min / mean) * local_mean(plane, inner, LOCAL_LIGHT_PX)
+            mask = candidates & (plane >= floor)
             closed = close(mask, gap)
             if _parts(closed) < _parts(mask):  # a shaded end apart from the rest: joined (a neck: left alone)
                 mask = closed
@@ -215,6 +226,43 @@ def surrounded(interval: ThresholdInterval, plane: F32, fraction: float) -> Thre
         return None
     level = median - SURROUND_IGNORED * interval.k_max
     return ThresholdInterval(level + fraction * (interval.k_max - level), interval.k_max)
+
+
+def across_floor(c1: F32, c2: F32, hue: tuple[float, float]) -> F32 | None:
+    """The chroma ``c1``, ``c2`` along the part of the marker's hue direction ``hue`` that lies across the floor's:
+    the floor (the median chroma, every 4th row) 0 in it give or take its grain, the marker its chroma times the
+    sine of the angle between the two hues. None when the floor has no hue or the two are less than
+    ``asin(ACROSS_MIN)`` apart.
+
+    A far-side red marker on warm wood under a warm white balance stood only 1.2 times the wood's level in its own
+    plane (occlusion 1000 on wood, frames 279-337, missing); the wood's hue is some 25 deg from red's, and across
+    it the marker stood 9-13 times the wood's grain."""
+    f1 = float(np.median(c1[::4]))
+    f2 = float(np.median(c2[::4]))
+    norm = math.hypot(f1, f2)
+    if norm <= 0.0:
+        return None
+    f1, f2 = f1 / norm, f2 / norm
+    d1, d2 = hue
+    along = d1 * f1 + d2 * f2
+    e1, e2 = d1 - along * f1, d2 - along * f2
+    size = math.hypot(e1, e2)
+    if size < ACROSS_MIN:
+        return None
+    return np.asarray(c1 * np.float32(e1 / size) + c2 * np.float32(e2 / size), np.float32)
+
+
+def clear_of_grain(plane: F32, interval: ThresholdInterval) -> bool:
+    """Does the interval's top stand :data:`GRAIN` times the plane's grain (its median absolute deviation, every 4th
+    row) or more above its median? Across the floor's hue the floor's level is 0 and only its grain is left:
+    a window of wood alone had its top 1.5-2.7 times the grain above the median (once 5.3, a marker partly
+    hidden), a window of a marker 9-13 times."""
+    rows = plane[::4].ravel()
+    half = rows.size // 2
+    median = float(np.partition(rows, half)[half])
+    deviation = np.abs(rows - np.float32(median))
+    grain = float(np.partition(deviation, half)[half])
+    return interval.k_max - median >= GRAIN * grain
 
 
 def _parts(mask: BoolArray) -> int:

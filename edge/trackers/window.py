@@ -46,6 +46,7 @@ class Window:
     ``local``: its homography at the window's centre (for point queries). ``image_size``: (w, h) of the frame.
     ``predicted_uv``: where the filter expects the marker centre, in image pixels. ``raw``: the crop as the camera
     gave it (``bgr`` is seen under the configured white, ``edge.white``; the reference is compared with ``raw``).
+    ``hue``: the rover's hue direction in the chroma plane (unit ``(c1, c2)``), the one ``plane`` projects on.
     """
 
     box: tuple[int, int, int, int]
@@ -63,6 +64,7 @@ class Window:
     image_size: tuple[int, int]
     background_threshold: float = 0.2
     raw: U8 | None = None
+    hue: tuple[float, float] = (1.0, 0.0)
     _others: dict[int, BoolArray | None] = field(default_factory=dict, repr=False)
 
     @property
@@ -145,6 +147,7 @@ def prepare_window(
         image_size=(image.shape[1], image.shape[0]),
         background_threshold=background_threshold,
         raw=raw,
+        hue=(float(colors.directions[rover_index][0]), float(colors.directions[rover_index][1])),
     )
 
 
