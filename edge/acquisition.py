@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM
 from edge.segmentation import F32, ColorModel, opponent_planes
-from edge.trackers.base import SURROUND_IGNORED, PlaneGrid, PlaneMapping
+from edge.trackers.base import SURROUND_IGNORED, PlaneGrid, PlaneMapping, sampled_median
 from edge.trackers.plane import WithWorkingArea
 from edge.white import LocalWhite
 
@@ -88,7 +88,7 @@ def candidates(view: LowResolution, index: int, colors: ColorModel) -> list[tupl
     peak = np.full(n, -np.inf)
     np.maximum.at(peak, label, value)
     # each blob's strong part: halfway from the floor's level to its peak (edge.trackers.base.surrounded)
-    floor = _median(plane) - SURROUND_IGNORED * peak[label]
+    floor = sampled_median(plane) - SURROUND_IGNORED * peak[label]  # the floor fills most of a frame
     level = np.where(floor > 0.0, floor, 0.0)
     strong = value >= level + 0.5 * (peak[label] - level)
     keep = np.zeros(mask.size, np.uint8)
@@ -106,10 +106,3 @@ def candidates(view: LowResolution, index: int, colors: ColorModel) -> list[tupl
     order = np.argsort(-peak[1:], kind="stable")[:CANDIDATES_PER_ROVER] + 1
     s = view.scale
     return [((float(u[k]) + 0.5) * s - 0.5, (float(v[k]) + 0.5) * s - 0.5) for k in order.tolist()]
-
-
-def _median(plane: F32) -> float:
-    """The median of ``plane`` from every 4th row (the floor's level in it: the floor fills most of a frame)."""
-    flat = plane[::4].ravel()
-    half = flat.size // 2
-    return float(np.partition(flat, half)[half])

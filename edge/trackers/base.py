@@ -217,9 +217,7 @@ def surrounded(interval: ThresholdInterval, plane: F32, fraction: float) -> Thre
     in 30-94 % of its frames on 8 of 18 family runs on wood, docs/benchmarks.md, "Floors of other materials"). In a
     window of wood alone the interval's top is the wood's own brightest planks, and the bound halfway to them let
     plank-sized patches through as markers (a red rover hidden by a person was "found" 90-240 cm away)."""
-    rows = plane[::4].ravel()  # every 4th row: the floor's median as well, at a tenth of np.median's cost
-    half = rows.size // 2
-    median = float(np.partition(rows, half)[half])
+    median = sampled_median(plane)
     if median <= SURROUND_IGNORED * interval.k_max:
         return interval
     if interval.k_max < STANDOUT * median:
@@ -237,8 +235,7 @@ def across_floor(c1: F32, c2: F32, hue: tuple[float, float]) -> F32 | None:
     A far-side red marker on warm wood under a warm white balance stood only 1.2 times the wood's level in its own
     plane (occlusion 1000 on wood, frames 279-337, missing); the wood's hue is some 25 deg from red's, and across
     it the marker stood 9-13 times the wood's grain."""
-    f1 = float(np.median(c1[::4]))
-    f2 = float(np.median(c2[::4]))
+    f1, f2 = sampled_median(c1), sampled_median(c2)
     norm = math.hypot(f1, f2)
     if norm <= 0.0:
         return None
@@ -257,12 +254,17 @@ def clear_of_grain(plane: F32, interval: ThresholdInterval) -> bool:
     row) or more above its median? Across the floor's hue the floor's level is 0 and only its grain is left:
     a window of wood alone had its top 1.5-2.7 times the grain above the median (once 5.3, a marker partly
     hidden), a window of a marker 9-13 times."""
-    rows = plane[::4].ravel()
-    half = rows.size // 2
-    median = float(np.partition(rows, half)[half])
-    deviation = np.abs(rows - np.float32(median))
-    grain = float(np.partition(deviation, half)[half])
+    median = sampled_median(plane)
+    grain = sampled_median(np.abs(plane - np.float32(median)))
     return interval.k_max - median >= GRAIN * grain
+
+
+def sampled_median(values: F32) -> float:
+    """The median of ``values`` (H, W) from every 4th row: a floor's level in a window or a frame as well as from
+    every row, at a tenth of ``np.median``'s cost (a partition, no sort)."""
+    rows = values[::4].ravel()
+    half = rows.size // 2
+    return float(np.partition(rows, half)[half])
 
 
 def _parts(mask: BoolArray) -> int:

@@ -56,6 +56,7 @@ class Window:
     lum: F32
     classes: NDArray[np.int16]
     plane: F32
+    hue: tuple[float, float]
     reference: U8 | None
     reference_valid: BoolArray
     grid: PlaneGrid
@@ -64,7 +65,6 @@ class Window:
     image_size: tuple[int, int]
     background_threshold: float = 0.2
     raw: U8 | None = None
-    hue: tuple[float, float] = (1.0, 0.0)
     _others: dict[int, BoolArray | None] = field(default_factory=dict, repr=False)
 
     @property
@@ -139,6 +139,7 @@ def prepare_window(
         lum=lum,
         classes=classes,
         plane=plane,
+        hue=(float(colors.directions[rover_index][0]), float(colors.directions[rover_index][1])),
         reference=reference,
         reference_valid=valid,
         grid=maps,
@@ -147,7 +148,6 @@ def prepare_window(
         image_size=(image.shape[1], image.shape[0]),
         background_threshold=background_threshold,
         raw=raw,
-        hue=(float(colors.directions[rover_index][0]), float(colors.directions[rover_index][1])),
     )
 
 
