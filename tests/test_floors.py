@@ -190,3 +190,13 @@ def test_a_faint_patch_across_a_nearly_grey_floor_s_hue_is_not_a_marker() -> Non
     interval = ThresholdInterval(1.65, 3.3)
     assert not clear_of_grain(plane, interval, 70.0)
     assert clear_of_grain(plane, interval, 3.3 / ACROSS_SHARE)  # the grain alone passes
+
+
+@pytest.mark.slow
+def test_no_red_rover_is_taken_from_a_greyed_wooden_floor_beyond_the_tape() -> None:
+    """The family's occlusion clip with held-out seed 14641 (4:2:2 q66, a white balance that greys the wood) on the
+    wooden floor: at frame 309 a faint patch of wood beyond the working area's tape cleared the grain rule across
+    the wood's hue and was reported as the red rover, 161 cm away. No pose of it is more than 5 cm off to frame
+    320."""
+    _, errors = _red_on_wood("occlusion", 14641, 321)
+    assert errors and max(errors.values()) < 5.0, max(errors.values())
