@@ -14,7 +14,8 @@ size the appliance tracks with, against one of two empty scenes:
   has seen all but ``MIN_KNOWN_SHARE`` of the image without a tracked rover on it.
 
 The answer lists each marker (proposed id, colour, size, two-tone front, the tracked rover standing on it), the
-warnings (hues too close to tell apart, odd sizes) and the ``[[rovers]]`` TOML, which the page offers to download.
+warnings (hues too close to tell apart, odd sizes, a floor near a marker's hue) and the ``[[rovers]]`` TOML, which
+the page offers to download.
 ``POST /api/enroll/save`` writes the last enrolment (never text from the request) to ``dashboard.rovers_file``
 when that is configured: an existing file is replaced only when the request says so (the page asks first), and a
 configuration with other sections never (:func:`edge.enroll.save_enrolment`). The appliance keeps tracking with the
