@@ -48,11 +48,23 @@ def floor_contrast(
     pixel ``uv_px`` about ``side_px`` across, against the empty floor ``background`` (H, W, 3 BGR): the floor's level
     is its mean plane value over a window of :data:`WINDOW_SIDES` sides (the median in the tracker; the mean of a box
     filter is the same on a floor and costs one pass), at the marker's place and at the highest in view."""
+    b1, b2, _ = opponent_planes(background)
+    return _contrast(b1, b2, rover_id, color_bgr, uv_px, side_px)
+
+
+def _contrast(
+    b1: NDArray[np.float32],
+    b2: NDArray[np.float32],
+    rover_id: str,
+    color_bgr: Sequence[int],
+    uv_px: tuple[float, float],
+    side_px: float,
+) -> FloorContrast:
+    """:func:`floor_contrast` on the empty floor's opponent chroma ``b1``, ``b2`` (computed once for every marker)."""
     c1, c2, _ = chroma_of_bgr(color_bgr)
     level = math.hypot(c1, c2)
     if level <= 0.0:
         raise ValueError(f"marker colour {tuple(color_bgr)} is grey: it has no hue")
-    b1, b2, _ = opponent_planes(background)
     plane = (b1 * np.float32(c1 / level) + b2 * np.float32(c2 / level)).astype(np.float32)
     k = max(3, round(WINDOW_SIDES * side_px) | 1)
     floor = np.asarray(cv2.blur(plane, (k, k), borderType=cv2.BORDER_REFLECT), np.float32)
@@ -75,7 +87,8 @@ def floor_warnings(
 ) -> list[str]:
     """:func:`contrast_warnings` for ``markers`` (``(rover_id, color_bgr, uv_px, side_px)`` each) against the empty
     floor ``background``, the most marker-like places named on the floor through ``calibration``."""
-    contrasts = [floor_contrast(background, *m) for m in markers]
+    b1, b2, _ = opponent_planes(background)
+    contrasts = [_contrast(b1, b2, *m) for m in markers]
     where: list[tuple[float, float] | None] = []
     for c in contrasts:
         xy = calibration.pixel_to_world(np.array([c.worst_uv_px], np.float64))[0]
