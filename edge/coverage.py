@@ -78,6 +78,7 @@ def coverage_weights(
     pure: BoolArray | None = None,
     linear: F32 | None = None,
     interior: BoolArray | None = None,
+    apart: BoolArray | None = None,
 ) -> F32:
     """(h, w) float32 share of each pixel covered by the marker whose filled binary mask is ``core``.
 
@@ -88,9 +89,10 @@ def coverage_weights(
     marker's share ``a`` by least squares (linear unmixing). ``M`` is the mean of the interior's ``pure`` pixels
     (glare excluded), ``D`` and ``F`` the means of the darker and brighter halves of a band just outside the ring.
     Shares below 0 are kept (down to -0.5) so noise on background pixels averages out instead of biasing.
-    ``exclude``: pixels of something else (another rover's marker); ``linear``: ``linear_bgr(bgr_roi)`` when the
-    caller has it already (else only the part near the core is linearised); ``interior``: ``erode(core, 1)`` when
-    the caller has it already.
+    ``exclude``: ring pixels that may be something else (of another rover's hue), given no share; ``apart``: pixels
+    of other things (another rover's marker), left out of the band ``D`` and ``F`` come from; ``linear``:
+    ``linear_bgr(bgr_roi)`` when the caller has it already (else only the part near the core is linearised);
+    ``interior``: ``erode(core, 1)`` when the caller has it already.
 
     Unmixed in the camera's 8-bit values instead, a pixel half covered by the black body looked 73 % marker: the
     edge moved out on the dark side (towards the camera, where the body's side shows), by 0.4 cm with a 1.2 px blur.
@@ -113,6 +115,7 @@ def coverage_weights(
         None if exclude is None else exclude[rows, cols],
         None if pure is None else pure[rows, cols],
         None if interior is None else interior[rows, cols],  # erosion of the crop: the same pixels (see _unmix)
+        None if apart is None else apart[rows, cols],
     )
     if weights is not None:
         full[rows, cols] = weights
@@ -126,6 +129,7 @@ def _unmix(
     exclude: BoolArray | None,
     pure: BoolArray | None,
     interior: BoolArray | None = None,
+    apart: BoolArray | None = None,
 ) -> F32 | None:
     """:func:`coverage_weights` on a crop that holds the core's outer band (``lin``: the crop in linear light;
     ``interior``: ``erode(core, 1)``, of the crop or cropped from a larger one: the crop ends at least the outer
@@ -138,7 +142,8 @@ def _unmix(
     outer = (dist <= ring_px + 3) > region
     if exclude is not None:
         region = region > (exclude > core)  # region & (~exclude | core)
-        outer = outer > exclude
+    if apart is not None:
+        outer = outer > apart
     if interior is None:
         interior = erode(core, 1)
     if not np.count_nonzero(interior):  # count_nonzero: a quarter of the cost of any() on a crop

@@ -273,3 +273,38 @@ def test_the_marker_axis_is_the_blobs_where_no_plane_shows_a_rectangle():
     m = Measurement((0.0, 0.0), (60.0, 50.0), 361.0, 1.0, 1.0, 0.31, 1.28, False, weights)
     flat = np.full(lum.shape, 50.0, np.float32)
     assert marker_axis((flat,), m, np.eye(2) * 0.5, np.ones(lum.shape, bool), (21.5, 16.8)) == (0.31, 0.0)
+
+
+def test_another_rover_s_marker_is_its_hue_at_its_saturation_not_a_pale_body_of_that_hue():
+    """A white body in the shade of a sunlit room is lit by the sky: pale blue, a fifth to a quarter of the blue
+    marker's saturation (the family's sun clip). It is of the blue rover's hue class, but it is not a marker: the
+    red marker's edge is unmixed against it (``edge.coverage``). A patch as saturated as the blue marker is one."""
+    scene = shared_scene()
+    colors = ColorModel.from_colors([COLORS["red"], COLORS["green"], COLORS["blue"]], 30.0, 0.35)
+    blue = np.asarray(COLORS["blue"], np.float64)
+    grey = np.full(3, blue.mean())
+    image = np.full((480, 640, 3), 120, np.uint8)
+    image[200:240, 300:330] = np.round(grey + 0.35 * (blue - grey)).astype(np.uint8)  # the pale body
+    image[200:240, 330:360] = COLORS["blue"]  # another rover's marker
+    image[210:230, 305:325] = COLORS["red"]  # this rover's marker, on the body
+    maps = PlaneGrid(scene.mapping, (640, 480))
+    window = prepare_window(
+        image,
+        (290, 190, 370, 250),
+        rover_index=0,
+        predicted_uv=(315.0, 220.0),
+        colors=colors,
+        maps=maps,
+        background=BackgroundModel(image.shape[:2], 100),
+        background_threshold=0.2,
+        clock=NullClock(),
+    )
+    assert window is not None
+    body = np.zeros(window.classes.shape, bool)
+    body[11:49, 11:39] = True  # the pale body, a pixel in from its edges (window coordinates) ...
+    body[19:41, 14:36] = False  # ... around the red marker
+    others, markers = window.others(0), window.other_markers(0)
+    assert others is not None and markers is not None
+    assert others[body].all()  # of the blue rover's hue class ...
+    assert not markers[body].any()  # ... but not its marker
+    assert markers[11:49, 41:69].all()  # the blue marker is

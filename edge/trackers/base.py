@@ -292,17 +292,20 @@ def measure_core(
     parted: BoolArray | None = None,
 ) -> Measurement | None:
     """Stages ``measure`` and ``calibration`` of the binary trackers: the marker whose interior is ``core`` (its
-    thresholded pixels ``mask``), weighted by grey-level edge coverage (pixels of other rovers' hues left out, and
-    ``parted``: what was parted off the marker's blob, ``edge.blob_shape.marker_part``) and turned into its area
-    centroid on the world plane. ``interior``: ``erode(core, 1)`` when the caller has it."""
+    thresholded pixels ``mask``), weighted by grey-level edge coverage (pixels of other rovers' hues left out; of the
+    surround's colours only those as saturated as a marker; and ``parted``: what was parted off the marker's blob,
+    ``edge.blob_shape.marker_part``) and turned into its area centroid on the world plane. ``interior``:
+    ``erode(core, 1)`` when the caller has it."""
     t0 = time.perf_counter()
     if interior is None:  # for both: the marker's level and its pure colour are taken inside its edge
         interior = erode(core, 1)
     level = marker_level(window.plane, core, interior)
     exclude = window.others(rover.index)  # the pixels of ``~candidates`` of other rovers' hues
+    apart = window.other_markers(rover.index)  # ... and of those, the ones as saturated as a marker
     if parted is not None:
         exclude = parted if exclude is None else exclude | parted
-    weights = coverage_weights(window.bgr, core, ring_px, exclude=exclude, pure=mask, interior=interior)
+        apart = parted if apart is None else apart | parted
+    weights = coverage_weights(window.bgr, core, ring_px, exclude=exclude, pure=mask, interior=interior, apart=apart)
     t1 = time.perf_counter()
     clock.add("measure", t1 - t0)
     blob = world_blob(weights, window.offset, window.grid)

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -31,6 +32,7 @@ from edge.tracking import StageClock
 from edge.white import LocalWhite
 
 WINDOW_PAD_PX = 6  # room for the marker's edge band (2 px ring + 3 px outer band) where a centimetre is few pixels
+OTHER_MARKER = 0.4  # a pixel of another rover's hue is its marker's at this share of that marker's saturation or more
 
 
 @dataclass(kw_only=True)
@@ -47,6 +49,8 @@ class Window:
     ``predicted_uv``: where the filter expects the marker centre, in image pixels. ``raw``: the crop as the camera
     gave it (``bgr`` is seen under the configured white, ``edge.white``; the reference is compared with ``raw``).
     ``hue``: the rover's hue direction in the chroma plane (unit ``(c1, c2)``), the one ``plane`` projects on.
+    ``marker_like``: (N,) per rover, the relative saturation (``|c| / lum``) a pixel of its hue needs to be taken for
+    its marker by :meth:`other_markers`.
     """
 
     box: tuple[int, int, int, int]
@@ -57,6 +61,7 @@ class Window:
     classes: NDArray[np.int16]
     plane: F32
     hue: tuple[float, float]
+    marker_like: NDArray[np.float32]
     reference: U8 | None
     reference_valid: BoolArray
     grid: PlaneGrid
@@ -78,6 +83,23 @@ class Window:
             others = (self.classes >= 0) & (self.classes != index)
             self._others[index] = others if np.count_nonzero(others) else None
         return self._others[index]
+
+    def other_markers(self, index: int) -> BoolArray | None:
+        """The pixels of other rovers' markers (None where there are none): of :meth:`others`, those saturated as a
+        marker is (``marker_like``: :data:`OTHER_MARKER` of that marker's nominal saturation) or more.
+
+        The hue classes take far paler pixels (``min_saturation_fraction``): a white body in the shade of a sunlit
+        room, lit by the sky, is pale blue, a fifth to a quarter of a blue marker's saturation, and of the blue
+        rover's class. It is no marker, and is what the red marker's edge mixes with (``edge.coverage``): left out
+        of its surround, the red marker's area fell by a fifth (docs/benchmarks.md, "A pale body of another rover's
+        hue")."""
+        others = self.others(index)
+        if others is None:
+            return None
+        saturation = cv2.magnitude(self.c1, self.c2)
+        need = self.marker_like.take(np.maximum(self.classes, 0)) * np.maximum(self.lum, np.float32(4.0))
+        markers = others & (saturation >= need)
+        return markers if np.count_nonzero(markers) else None
 
     @cached_property
     def linear(self) -> F32:
@@ -140,6 +162,7 @@ def prepare_window(
         classes=classes,
         plane=plane,
         hue=(float(colors.directions[rover_index][0]), float(colors.directions[rover_index][1])),
+        marker_like=(OTHER_MARKER * colors.saturations).astype(np.float32),
         reference=reference,
         reference_valid=valid,
         grid=maps,
