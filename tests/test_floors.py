@@ -200,3 +200,20 @@ def test_no_red_rover_is_taken_from_a_greyed_wooden_floor_beyond_the_tape() -> N
     320."""
     _, errors = _red_on_wood("occlusion", 14641, 321)
     assert errors and max(errors.values()) < 5.0, max(errors.values())
+
+
+@pytest.mark.slow
+def test_a_red_rover_leaving_a_sunlit_patch_of_wood_beside_a_pale_blue_body_is_kept() -> None:
+    """The family's sun clip with seed 1000 on the wooden floor: the red rover, on a white body, drives out of the
+    window's sunlit patch into the shade at frame 120. In the shade the body, lit by the sky, is pale blue, of the
+    blue rover's hue class, and was left out of the band the marker's edge takes its surround colours from: the
+    area fell to 0.8 of the marker's and the rover was refused as partly hidden from frame 122 for up to 38 frames
+    (1.3 s). Now it is missing for 2 frames running at most (its area in the sun is still 1.05-1.2 of the marker's:
+    docs/benchmarks.md, "A pale body of another rover's hue ..."), and every pose is within 1.5 cm."""
+    clip, errors = _red_on_wood("sun", 1000, 176)
+    seen = [i for i in range(100, 176) if clip.truth[i]["red"][5] >= 0.99]
+    assert len(seen) > 60
+    missing = [i for i in seen if i not in errors]
+    assert len(missing) <= 5, missing
+    assert not any(i + 1 in missing and i + 2 in missing for i in missing), missing
+    assert max(errors[i] for i in seen if i in errors) < 1.5
