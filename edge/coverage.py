@@ -99,13 +99,10 @@ def coverage_weights(
     The outline fit (``edge.outline``) refines the centre further; these shares give the area and its start.
     """
     full = core.astype(np.float32)
-    # Everything below happens within the outer band's reach of the core: its bounding box, grown by that much.
-    x, y, w, h = cv2.boundingRect(core.view(np.uint8))
-    if w == 0 or h == 0:
+    box = reach_box(core, ring_px)  # everything below happens within it
+    if box is None:
         return full
-    reach = ring_px + 3
-    rows = slice(max(0, y - reach), min(core.shape[0], y + h + reach))
-    cols = slice(max(0, x - reach), min(core.shape[1], x + w + reach))
+    rows, cols = box
     # the crop in linear light (contiguous: cv2 would copy it); the look-up table is per pixel, so of the crop alone
     lin = linear_bgr(bgr_roi[rows, cols]) if linear is None else np.ascontiguousarray(linear[rows, cols])
     weights = _unmix(
@@ -120,6 +117,18 @@ def coverage_weights(
     if weights is not None:
         full[rows, cols] = weights
     return full
+
+
+def reach_box(core: BoolArray, ring_px: int) -> tuple[slice, slice] | None:
+    """The rows and columns of the window :func:`coverage_weights` reads for the marker ``core``: its bounding box
+    grown by the outer band's reach (``ring_px + 3``); None for an empty core."""
+    x, y, w, h = cv2.boundingRect(core.view(np.uint8))
+    if w == 0 or h == 0:
+        return None
+    reach = ring_px + 3
+    return slice(max(0, y - reach), min(core.shape[0], y + h + reach)), slice(
+        max(0, x - reach), min(core.shape[1], x + w + reach)
+    )
 
 
 def _unmix(

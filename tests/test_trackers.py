@@ -303,7 +303,7 @@ def test_another_rover_s_marker_is_its_hue_at_its_saturation_not_a_pale_body_of_
     body = np.zeros(window.classes.shape, bool)
     body[11:49, 11:39] = True  # the pale body, a pixel in from its edges (window coordinates) ...
     body[19:41, 14:36] = False  # ... around the red marker
-    others, markers = window.others(0), window.other_markers(0)
+    others, markers = window.others(0), window.other_markers(0, (slice(0, 60), slice(0, 80)))
     assert others is not None and markers is not None
     assert others[body].all()  # of the blue rover's hue class ...
     assert not markers[body].any()  # ... but not its marker

@@ -23,6 +23,7 @@ from edge.coverage import (
     light_ratio,
     local_mean,
     marker_level,
+    reach_box,
 )
 from edge.segmentation import F32, BoolArray, ThresholdInterval, auto_threshold, close, dilate, erode, threshold
 from edge.trackers.plane import (
@@ -301,7 +302,8 @@ def measure_core(
         interior = erode(core, 1)
     level = marker_level(window.plane, core, interior)
     exclude = window.others(rover.index)  # the pixels of ``~candidates`` of other rovers' hues
-    apart = window.other_markers(rover.index)  # ... and of those, the ones as saturated as a marker
+    box = reach_box(core, ring_px)  # ... and of those, the ones as saturated as a marker, where the unmixing reads
+    apart = None if box is None else window.other_markers(rover.index, box)
     if parted is not None:
         exclude = parted if exclude is None else exclude | parted
         apart = parted if apart is None else apart | parted

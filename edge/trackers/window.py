@@ -13,7 +13,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -84,9 +83,11 @@ class Window:
             self._others[index] = others if np.count_nonzero(others) else None
         return self._others[index]
 
-    def other_markers(self, index: int) -> BoolArray | None:
-        """The pixels of other rovers' markers (None where there are none): of :meth:`others`, those saturated as a
-        marker is (``marker_like``: :data:`OTHER_MARKER` of that marker's nominal saturation) or more.
+    def other_markers(self, index: int, box: tuple[slice, slice]) -> BoolArray | None:
+        """The pixels of other rovers' markers within ``box`` (rows, columns; None where there are none there): of
+        :meth:`others`, those saturated as a marker is (``marker_like``: :data:`OTHER_MARKER` of that marker's
+        nominal saturation) or more. ``box``: the part a stage reads (``edge.coverage.reach_box``); the rest of the
+        window is left unmarked.
 
         The hue classes take far paler pixels (``min_saturation_fraction``): a white body in the shade of a sunlit
         room, lit by the sky, is pale blue, a fifth to a quarter of a blue marker's saturation, and of the blue
@@ -96,10 +97,17 @@ class Window:
         others = self.others(index)
         if others is None:
             return None
-        saturation = cv2.magnitude(self.c1, self.c2)
-        need = self.marker_like.take(np.maximum(self.classes, 0)) * np.maximum(self.lum, np.float32(4.0))
-        markers = others & (saturation >= need)
-        return markers if np.count_nonzero(markers) else None
+        part = others[box]
+        if not np.count_nonzero(part):
+            return None
+        c1, c2, lum = self.c1[box], self.c2[box], self.lum[box]
+        need = self.marker_like.take(np.maximum(self.classes[box], 0)) * np.maximum(lum, np.float32(4.0))
+        strong = part & (np.sqrt(c1 * c1 + c2 * c2) >= need)
+        if not np.count_nonzero(strong):
+            return None
+        markers = np.zeros_like(others)
+        markers[box] = strong
+        return markers
 
     @cached_property
     def linear(self) -> F32:
