@@ -31,7 +31,6 @@ from edge.tracking import StageClock
 from edge.white import LocalWhite
 
 WINDOW_PAD_PX = 6  # room for the marker's edge band (2 px ring + 3 px outer band) where a centimetre is few pixels
-OTHER_MARKER = 0.4  # a pixel of another rover's hue is its marker's at this share of that marker's saturation or more
 
 
 @dataclass(kw_only=True)
@@ -49,7 +48,7 @@ class Window:
     gave it (``bgr`` is seen under the configured white, ``edge.white``; the reference is compared with ``raw``).
     ``hue``: the rover's hue direction in the chroma plane (unit ``(c1, c2)``), the one ``plane`` projects on.
     ``marker_like``: (N,) per rover, the relative saturation (``|c| / lum``) a pixel of its hue needs to be taken for
-    its marker by :meth:`other_markers`.
+    its marker by :meth:`other_markers` (``ColorModel.marker_like``).
     """
 
     box: tuple[int, int, int, int]
@@ -85,9 +84,9 @@ class Window:
 
     def other_markers(self, index: int, box: tuple[slice, slice]) -> BoolArray | None:
         """The pixels of other rovers' markers within ``box`` (rows, columns; None where there are none there): of
-        :meth:`others`, those saturated as a marker is (``marker_like``: :data:`OTHER_MARKER` of that marker's
-        nominal saturation) or more. ``box``: the part a stage reads (``edge.coverage.reach_box``); the rest of the
-        window is left unmarked.
+        :meth:`others`, those saturated as a marker is (``marker_like``: ``edge.segmentation.OTHER_MARKER`` of that
+        marker's nominal saturation) or more. ``box``: the part a stage reads (``edge.coverage.reach_box``); the
+        rest of the window is left unmarked.
 
         The hue classes take far paler pixels (``min_saturation_fraction``): a white body in the shade of a sunlit
         room, lit by the sky, is pale blue, a fifth to a quarter of a blue marker's saturation, and of the blue
@@ -101,7 +100,7 @@ class Window:
         if not np.count_nonzero(part):
             return None
         c1, c2, lum = self.c1[box], self.c2[box], self.lum[box]
-        need = self.marker_like.take(np.maximum(self.classes[box], 0)) * np.maximum(lum, np.float32(4.0))
+        need = self.marker_like.take(self.classes[box], mode="clip") * np.maximum(lum, np.float32(4.0))
         strong = part & (np.sqrt(c1 * c1 + c2 * c2) >= need)
         if not np.count_nonzero(strong):
             return None
@@ -170,7 +169,7 @@ def prepare_window(
         classes=classes,
         plane=plane,
         hue=(float(colors.directions[rover_index][0]), float(colors.directions[rover_index][1])),
-        marker_like=(OTHER_MARKER * colors.saturations).astype(np.float32),
+        marker_like=colors.marker_like,
         reference=reference,
         reference_valid=valid,
         grid=maps,
