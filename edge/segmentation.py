@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import cached_property, lru_cache
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -39,7 +39,6 @@ _INV_SQRT2 = 1.0 / math.sqrt(2.0)
 _INV_SQRT6 = 1.0 / math.sqrt(6.0)
 HUE_BINS = 720  # 0.5 degree resolution of the hue look-up table
 NO_ROVER = -1
-OTHER_MARKER = 0.4  # a pixel of a rover's hue is its marker's at this share of that marker's saturation or more
 # BGR -> (c1, c2, luminance), the rows of :func:`opponent_planes`
 _OPPONENT = np.array(
     [[0.0, -_INV_SQRT2, _INV_SQRT2], [-2.0 * _INV_SQRT6, _INV_SQRT6, _INV_SQRT6], [1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0]],
@@ -132,12 +131,6 @@ class ColorModel:
             lut[HUE_BINS] = lut[0]
         min_sat = min_saturation_fraction * (min(sats) if sats else 1.0)
         return cls(np.asarray(dirs, dtype=np.float32).reshape(-1, 2), np.asarray(sats), lut, min_sat)
-
-    @cached_property
-    def marker_like(self) -> NDArray[np.float32]:
-        """(N,) the relative saturation (``|c| / lum``) a pixel of each rover's hue needs to be taken for its marker
-        rather than something pale of its hue (:data:`OTHER_MARKER` of the marker's; ``edge.trackers.window``)."""
-        return (OTHER_MARKER * self.saturations).astype(np.float32)
 
     def classify(self, c1: F32, c2: F32, lum: F32) -> NDArray[np.int16]:
         """(H, W) chroma planes -> (H, W) int16 rover index per pixel (NO_ROVER for grey/dark/other hues)."""

@@ -31,6 +31,7 @@ from edge.tracking import StageClock
 from edge.white import LocalWhite
 
 WINDOW_PAD_PX = 6  # room for the marker's edge band (2 px ring + 3 px outer band) where a centimetre is few pixels
+OTHER_MARKER = 0.4  # a pixel of another rover's hue is its marker's at this share of that marker's saturation or more
 
 
 @dataclass(kw_only=True)
@@ -47,8 +48,7 @@ class Window:
     ``predicted_uv``: where the filter expects the marker centre, in image pixels. ``raw``: the crop as the camera
     gave it (``bgr`` is seen under the configured white, ``edge.white``; the reference is compared with ``raw``).
     ``hue``: the rover's hue direction in the chroma plane (unit ``(c1, c2)``), the one ``plane`` projects on.
-    ``marker_like``: (N,) per rover, the relative saturation (``|c| / lum``) a pixel of its hue needs to be taken for
-    its marker by :meth:`other_markers` (``ColorModel.marker_like``).
+    ``saturations``: (N,) each rover's marker's relative saturation (``|c| / lum``; ``ColorModel.saturations``).
     """
 
     box: tuple[int, int, int, int]
@@ -59,7 +59,7 @@ class Window:
     classes: NDArray[np.int16]
     plane: F32
     hue: tuple[float, float]
-    marker_like: NDArray[np.float32]
+    saturations: NDArray[np.float64]
     reference: U8 | None
     reference_valid: BoolArray
     grid: PlaneGrid
@@ -84,8 +84,8 @@ class Window:
 
     def other_markers(self, index: int, box: tuple[slice, slice]) -> BoolArray | None:
         """The pixels of other rovers' markers within ``box`` (rows, columns; None where there are none there): of
-        :meth:`others`, those saturated as a marker is (``marker_like``: ``edge.segmentation.OTHER_MARKER`` of that
-        marker's nominal saturation) or more. ``box``: the part a stage reads (``edge.coverage.reach_box``); the
+        :meth:`others`, those saturated as a marker is (:data:`OTHER_MARKER` of that marker's ``saturations``) or
+        more. ``box``: the part a stage reads (``edge.coverage.reach_box``); the
         rest of the window is left unmarked.
 
         The hue classes take far paler pixels (``min_saturation_fraction``): a white body in the shade of a sunlit
@@ -100,7 +100,8 @@ class Window:
         if not np.count_nonzero(part):
             return None
         c1, c2, lum = self.c1[box], self.c2[box], self.lum[box]
-        need = self.marker_like.take(self.classes[box], mode="clip") * np.maximum(lum, np.float32(4.0))
+        like = (OTHER_MARKER * self.saturations.take(self.classes[box], mode="clip")).astype(np.float32)
+        need = like * np.maximum(lum, np.float32(4.0))
         strong = part & (np.sqrt(c1 * c1 + c2 * c2) >= need)
         if not np.count_nonzero(strong):
             return None
@@ -169,7 +170,7 @@ def prepare_window(
         classes=classes,
         plane=plane,
         hue=(float(colors.directions[rover_index][0]), float(colors.directions[rover_index][1])),
-        marker_like=colors.marker_like,
+        saturations=colors.saturations,
         reference=reference,
         reference_valid=valid,
         grid=maps,
