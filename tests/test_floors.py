@@ -85,23 +85,31 @@ def test_a_marker_stands_out_from_a_floor_of_its_hue_class_by_its_level(marker, 
         assert passed[where].all() and not passed[~where].any()
 
 
-def _red_on_wood(scenario: str, seed: int, frames: int) -> tuple[Any, dict[int, float]]:
-    """The family's ``scenario`` clip for ``seed`` on the simulator's wooden floor, tracked: the clip and the red
-    rover's error (cm) in every frame it has a pose."""
+def _on_wood(
+    scenario: str, seed: int, frames: int, rover: str = "red", rovers: int | None = None
+) -> tuple[Any, dict[int, tuple[float, float]]]:
+    """The family's ``scenario`` clip for ``seed`` on the simulator's wooden floor (``rovers``: with that many),
+    tracked: the clip and the ``rover``'s error (x, y in cm) in every frame it has a pose."""
     from tests.conftest import benchmark_module
 
     runs = benchmark_module("tracking_runs")
-    clip = runs.render_clip(scenario, seed, frames, camera="family", floor="wood")
+    clip = runs.render_clip(scenario, seed, frames, rovers=rovers, camera="family", floor="wood")
     tracker = build_tracker(
         TrackerConfig(rovers=clip.rovers, method="particles", fps=clip.fps), runs.plane_mapping(clip, "camera"), None
     )
     errors = {}
     for i, image in enumerate(clip.frames):
         for e in tracker.process(runs.frame_of(image, i, clip.fps)).estimates:
-            if e.rover_id == "red":
-                x, y = clip.truth[i]["red"][:2]
-                errors[i] = math.hypot(e.x_cm - x, e.y_cm - y)
+            if e.rover_id == rover:
+                x, y = clip.truth[i][rover][:2]
+                errors[i] = (e.x_cm - x, e.y_cm - y)
     return clip, errors
+
+
+def _red_on_wood(scenario: str, seed: int, frames: int) -> tuple[Any, dict[int, float]]:
+    """:func:`_on_wood` for the red rover: its distance from the truth (cm) in every frame it has a pose."""
+    clip, errors = _on_wood(scenario, seed, frames)
+    return clip, {i: math.hypot(*e) for i, e in errors.items()}
 
 
 @pytest.mark.slow
@@ -217,3 +225,19 @@ def test_a_red_rover_leaving_a_sunlit_patch_of_wood_beside_a_pale_blue_body_is_k
     assert len(missing) <= 5, missing
     assert not any(i + 1 in missing and i + 2 in missing for i in missing), missing
     assert max(errors[i] for i in seen if i in errors) < 1.5
+
+
+@pytest.mark.slow
+def test_a_far_side_purple_marker_s_edge_on_wood_counts_though_it_looks_magenta() -> None:
+    """The family's crowd of eight hues with seed 4321 (4:2:0 q60, blur 1.1 px) on the wooden floor: the purple
+    rover on a white body drives along the far side. Its edge pixels mixed with the warm wood are magenta, of the
+    magenta rover's hue class, and were given no share of the marker: its far edge lost half a pixel, and in
+    frames 200-300 its centre sat 1.12 cm toward the camera (1.15 cm off on average). The floor the background
+    model knows there explains them as purple and wood mixed; now it is within 0.6 cm in y on average there, and
+    0.75 cm off. (Till frame 140 the rover stands where it started and the floor under it is not known yet:
+    docs/benchmarks.md, "Edge pixels of another hue on the floor".)"""
+    _, errors = _on_wood("crowd", 4321, 300, rover="purple", rovers=8)
+    late = np.array([errors[i] for i in range(200, 300) if i in errors])
+    assert len(late) >= 95
+    assert float(late[:, 1].mean()) > -0.6, late[:, 1].mean()
+    assert float(np.hypot(late[:, 0], late[:, 1]).mean()) < 0.75

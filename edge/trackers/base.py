@@ -19,6 +19,7 @@ import numpy as np
 from edge.coverage import (
     LOCAL_LIGHT_PX,
     TWO_LIGHTS,
+    Floor,
     coverage_weights,
     light_ratio,
     local_mean,
@@ -307,7 +308,14 @@ def measure_core(
     if parted is not None:
         exclude = parted if exclude is None else exclude | parted
         apart = parted if apart is None else apart | parted
-    weights = coverage_weights(window.bgr, core, ring_px, exclude=exclude, pure=mask, interior=interior, apart=apart)
+    floor = (
+        None
+        if window.reference is None or window.raw is None
+        else Floor(window.raw, window.reference, window.reference_valid)
+    )
+    weights = coverage_weights(
+        window.bgr, core, ring_px, exclude=exclude, pure=mask, interior=interior, apart=apart, floor=floor
+    )
     t1 = time.perf_counter()
     clock.add("measure", t1 - t0)
     blob = world_blob(weights, window.offset, window.grid)
