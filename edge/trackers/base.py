@@ -296,8 +296,9 @@ def measure_core(
     """Stages ``measure`` and ``calibration`` of the binary trackers: the marker whose interior is ``core`` (its
     thresholded pixels ``mask``), weighted by grey-level edge coverage (pixels of other rovers' hues left out; of the
     surround's colours only those as saturated as a marker; and ``parted``: what was parted off the marker's blob,
-    ``edge.blob_shape.marker_part``) and turned into its area centroid on the world plane. ``interior``:
-    ``erode(core, 1)`` when the caller has it."""
+    ``edge.blob_shape.marker_part``) and turned into its area centroid on the world plane. Edge pixels of other hues
+    that the floor under them explains are the marker's (``edge.coverage.on_the_floor``), unless something was
+    parted off. ``interior``: ``erode(core, 1)`` when the caller has it."""
     t0 = time.perf_counter()
     if interior is None:  # for both: the marker's level and its pure colour are taken inside its edge
         interior = erode(core, 1)
@@ -308,9 +309,10 @@ def measure_core(
     if parted is not None:
         exclude = parted if exclude is None else exclude | parted
         apart = parted if apart is None else apart | parted
+    # the floor explains edge pixels of other hues as this marker's; not those parted off (of its own hue, joined)
     floor = (
         None
-        if window.reference is None or window.raw is None
+        if window.reference is None or window.raw is None or parted is not None
         else Floor(window.raw, window.reference, window.reference_valid)
     )
     weights = coverage_weights(
