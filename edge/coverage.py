@@ -181,7 +181,8 @@ def _unmix(
     if np.count_nonzero(outer) < 4:
         return None
     sample = interior & pure if pure is not None else interior
-    marker = _mean(lin, sample if np.count_nonzero(sample) else interior)
+    source = sample if np.count_nonzero(sample) else interior  # the marker's pure colour: glare left out
+    marker = _mean(lin, source)
     lum = linear_luminance(lin)
     lum_outer = lum[outer]
     half = lum_outer.size // 2
@@ -203,11 +204,9 @@ def _unmix(
     out = interior.astype(np.float32)  # the ring unmixed below, the interior whole (1.0), the rest nothing
     deep = erode(interior, 1)
     if floor is not None and others is not None and np.count_nonzero(others):
-        on_the_floor(out, others > interior, floor, sample if np.count_nonzero(sample) else interior)
+        on_the_floor(out, others > interior, floor, source)
     if light_ratio(lum[deep]) >= TWO_LIGHTS:
-        _unmix_in_two_lights(
-            out, lin, lum, ring, sample if np.count_nonzero(sample) else interior, marker, dark, bright
-        )
+        _unmix_in_two_lights(out, lin, lum, ring, source, marker, dark, bright)
         return out
     affine = np.array([[r0, r1, r2, -(dark[0] * r0 + dark[1] * r1 + dark[2] * r2)]], np.float32)
     share = cv2.transform(lin, affine)

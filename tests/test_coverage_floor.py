@@ -29,8 +29,7 @@ def _render(marker: bool = True, body: bool = True, other: bool = False) -> tupl
     u, v = (xs + 0.5) / SS - 0.5, (ys + 0.5) / SS - 0.5
     x0, y0, x1, y1 = RECT
     if body:
-        big[(v >= y1 + 1.3) & (u > x0 - 2) & (u < x1 + 2)] = LINEAR[np.asarray(WHITE)]
-        big[(v >= y1) & (v < y1 + 1.3) & (u > x0 - 2) & (u < x1 + 2)] = LINEAR[np.asarray(WHITE)]
+        big[(v >= y1) & (u > x0 - 2) & (u < x1 + 2)] = LINEAR[np.asarray(WHITE)]
     if other:
         big[(v >= y0 - 5) & (v < y0) & (u >= x0 + 4) & (u < x1 - 4)] = LINEAR[np.asarray(MAGENTA)]
     inside = (u >= x0) & (u < x1) & (v >= y0) & (v < y1)
