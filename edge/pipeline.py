@@ -30,12 +30,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.acquisition import acquisition_scale, candidates, low_resolution_view
+from edge.background import BackgroundModel
 from edge.blob_shape import IN_VIEW_MARGIN_PX, footprint_in_view
 from edge.centre_offsets import CentreOffsets, Fits, ProcessFits
 from edge.errors import ConfigError, SourceError
 from edge.filtering import FilterFactory, one_colour_heading
 from edge.rover_track import Observation, RoverTrack
-from edge.segmentation import BackgroundModel, ColorModel, chroma_of_bgr
+from edge.segmentation import ColorModel, chroma_of_bgr
 from edge.tracker_config import TrackerConfig
 from edge.trackers import make_filters, make_tracker
 from edge.trackers.base import Measurement, RoverModel, Window, WindowTracker, measurement_covariance
@@ -242,6 +243,7 @@ class Pipeline:
             clock=clock,
             white=self.white,
             others=[t.box for t in self.tracks if t is not tr and t.box is not None],
+            unseen_since=None if tr.filter is not None else tr.lost_at or 0,
         )
         if window is None:
             return None
@@ -288,8 +290,7 @@ class Pipeline:
         """
         assert self.maps is not None
         x0, y0, x1, y1 = window.box
-        wx = self.maps.x_cm[y0:y1, x0:x1]
-        wy = self.maps.y_cm[y0:y1, x0:x1]
+        wx, wy = self.maps.x_cm[y0:y1, x0:x1], self.maps.y_cm[y0:y1, x0:x1]
         others = (window.classes >= 0) & (window.classes != tr.index)
         reach = self.config.marker_radius_cm + 1.0
         for other in self.tracks:
@@ -335,6 +336,7 @@ class Pipeline:
     def _acquire(self, image: NDArray[np.uint8], clock: StageTimes) -> dict[int, Observation]:
         """Find lost rovers from a 1/``acquire_scale`` resolution pass (``edge.acquisition``), then measure them at
         full resolution."""
+        assert self.background is not None
         t0 = time.perf_counter()
         s = self.acquire_scale
         view = low_resolution_view(image, s, self.colors, self.white)
@@ -367,7 +369,8 @@ class Pipeline:
                 if m is None:
                     continue
                 tr.box = box
-                found[tr.index] = m
+                found[tr.index] = m  # what the reference copied since it was lost may show it (edge.background)
+                self.background.forget(box, tr.lost_at or 0, m.measurement.weights)
                 taken.append(m.measurement.xy_cm)
                 break
         return found
@@ -375,9 +378,7 @@ class Pipeline:
     def _lose(self, tr: RoverTrack) -> None:
         tr.filter = None
         tr.lost_at = self._frames
-        tr.box = None
-        tr.uv = None
-        tr.theta_rad = None
+        tr.box = tr.uv = tr.theta_rad = None
         tr.heading.reset()
         tr.two_tone.reset()
         self.tracker.reset(tr.index)
@@ -437,10 +438,8 @@ class Pipeline:
             return tr.two_tone.heading_rad if tr.two_tone.confident else None
         square = abs(self.config.marker_length_cm - self.config.marker_width_cm) < 0.05 * self.config.marker_length_cm
         axis = None if square else m.axis_rad
-        min_speed = self.config.heading_min_speed_cm_s
-        tr.theta_rad = one_colour_heading(
-            tr.heading, axis, m.axis_coherence, vel, tr.theta_rad, min_speed, self._time_s
-        )
+        speed = self.config.heading_min_speed_cm_s
+        tr.theta_rad = one_colour_heading(tr.heading, axis, m.axis_coherence, vel, tr.theta_rad, speed, self._time_s)
         return tr.theta_rad
 
     def _exclusion_box(self, box: tuple[int, int, int, int], shape: tuple[int, ...]) -> tuple[int, int, int, int]:

@@ -10,9 +10,7 @@ reconstruction (Fig. 13). Here the same stages are generalised and made lighting
   surround has half the projection), which gives sub-pixel *coverage* weights at the marker's edge; the hue
   angle and the relative saturation ``|c| / luminance`` do not change with the illumination level, which makes
   the marker *classification* independent of drift and flicker.
-* **Background model** (eq. 2): the reference is compared in normalised chroma (lighting-invariant), and is
-  refreshed a band of rows per frame, never inside the regions of rovers being tracked, so a parked rover is not
-  absorbed into the reference.
+* **Background model** (eq. 2): in ``edge.background``.
 * **Automatic threshold interval** (Fig. 11-12): ``k_max`` is the marker's current maximum in its plane (a
   robust high percentile) and ``k_min`` a fixed fraction of it (the paper subtracts a constant; a fraction keeps
   the interval right when the light changes by a third).
@@ -151,93 +149,6 @@ def color_planes(bgr: U8, model: ColorModel) -> F32:
     """(H, W, 3) uint8 -> (N, H, W) float32: one plane per marker colour (the paper's R, G, B planes for N)."""
     c1, c2, _ = opponent_planes(bgr)
     return np.stack([model.plane(i, c1, c2) for i in range(model.directions.shape[0])])
-
-
-# -- background model (eq. 2) ------------------------------------------------------------------------------------
-def normalised_chroma(bgr: U8) -> tuple[F32, F32]:
-    """Chroma divided by luminance: unchanged when the light level changes (drift, flicker, exposure)."""
-    c1, c2, lum = opponent_planes(bgr)
-    inv = np.float32(1.0) / np.maximum(lum, np.float32(8.0))
-    return np.asarray(c1 * inv, np.float32), np.asarray(c2 * inv, np.float32)
-
-
-def subtract_background(current: U8, reference: U8, threshold: float) -> BoolArray:
-    """eq. 2 in a lighting-invariant space: ``|chroma(I_c) - chroma(I_r)| > Th`` per pixel, (H, W) bool.
-
-    ``threshold`` is in units of normalised chroma (0.1 is a clearly different colour; a 35% change of the light
-    level changes nothing).
-    """
-    a1, a2 = normalised_chroma(current)
-    b1, b2 = normalised_chroma(reference)
-    d1, d2 = a1 - b1, a2 - b2
-    return np.asarray(d1 * d1 + d2 * d2 > np.float32(threshold * threshold))
-
-
-class BackgroundModel:
-    """The reference frame ``I_r`` of eq. 2, refreshed periodically without absorbing tracked rovers.
-
-    The paper replaces the whole reference on a timer. Here a band of rows is refreshed every frame so that the
-    whole reference is renewed once per ``period_frames`` at a constant, small cost, and pixels inside
-    ``exclude`` boxes (the rovers being tracked, parked or not) are never copied. ``valid`` marks pixels whose
-    reference is known to show the empty scene: all of them when an empty frame was given, else only those
-    refreshed at least once while no tracked rover covered them.
-    """
-
-    def __init__(self, shape_hw: tuple[int, int], period_frames: int, empty_scene: U8 | None = None) -> None:
-        h, w = shape_hw
-        self.period_frames = max(1, int(period_frames))
-        self.reference: U8 = np.zeros((h, w, 3), np.uint8)
-        self.valid: BoolArray = np.zeros((h, w), bool)
-        self._next_row = 0
-        self._band = max(1, math.ceil(h / self.period_frames))
-        if empty_scene is not None:
-            if empty_scene.shape[:2] != (h, w):
-                raise ValueError(f"empty scene is {empty_scene.shape[1]}x{empty_scene.shape[0]}, frames are {w}x{h}")
-            self.reference[...] = empty_scene
-            self.valid[...] = True
-        self._started = empty_scene is not None
-
-    @property
-    def shape_hw(self) -> tuple[int, int]:
-        return self.reference.shape[0], self.reference.shape[1]
-
-    def refresh(self, frame: U8, exclude: Sequence[tuple[int, int, int, int]]) -> slice:
-        """Copy the next band of rows of ``frame`` into the reference, except inside ``exclude`` boxes; returns the
-        rows it refreshed.
-
-        ``exclude``: ``(x0, y0, x1, y1)`` pixel boxes (exclusive ends). The first call with no empty scene copies
-        the whole frame (so the reference is never black) but marks nothing valid under the boxes.
-        """
-        h = self.reference.shape[0]
-        if not self._started:
-            rows = slice(0, h)
-            self._started = True
-        else:
-            r0 = self._next_row
-            rows = slice(r0, min(h, r0 + self._band))
-            self._next_row = 0 if rows.stop >= h else rows.stop
-        # The band is copied whole and the boxes' parts of it put back: a dozen times quicker than a masked copy.
-        held = []
-        for x0, y0, x1, y1 in exclude:
-            ya, yb = max(y0, rows.start), min(y1, rows.stop)
-            if ya < yb and x0 < x1:
-                part = (slice(ya, yb), slice(max(0, x0), max(0, x1)))
-                held.append((part, self.reference[part].copy(), self.valid[part].copy()))
-        first = rows.start == 0 and rows.stop == h and not self.valid.any()
-        # first frame: a reference to compare with everywhere, valid only outside the boxes
-        self.reference[rows] = frame[rows]
-        self.valid[rows] = True
-        for part, reference, valid in held:
-            if not first:
-                self.reference[part] = reference
-            self.valid[part] = valid
-        return rows
-
-    def foreground(self, frame_roi: U8, roi: tuple[int, int, int, int], threshold: float) -> BoolArray:
-        """eq. 2 inside ``roi`` = ``(x0, y0, x1, y1)``: True where the frame differs from a *valid* reference."""
-        x0, y0, x1, y1 = roi
-        diff = subtract_background(frame_roi, self.reference[y0:y1, x0:x1], threshold)
-        return np.asarray(diff & self.valid[y0:y1, x0:x1])
 
 
 # -- automatic threshold interval (section IV.C) -----------------------------------------------------------------

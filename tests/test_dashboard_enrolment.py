@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from edge.appliance import Appliance
+from edge.background import BackgroundModel
 from edge.config_load import load_config
 from edge.dashboard.enrolment import (
     MIN_KNOWN_SHARE,
@@ -34,7 +35,6 @@ from edge.dashboard.enrolment import (
 )
 from edge.enroll import EnrolledMarker
 from edge.httpserver import Request
-from edge.segmentation import BackgroundModel
 from edge.sim.scene import RoverLook, fleet_looks, marker_albedo_for_hue
 from edge.tracker_config import RoverConfig, TrackerConfig
 from edge.trackers.factory import build_tracker

@@ -241,3 +241,21 @@ def test_a_far_side_purple_marker_s_edge_on_wood_counts_though_it_looks_magenta(
     assert len(late) >= 95
     assert float(late[:, 1].mean()) > -0.6, late[:, 1].mean()
     assert float(np.hypot(late[:, 0], late[:, 1]).mean()) < 0.75
+
+
+@pytest.mark.slow
+def test_a_red_rover_driving_along_the_border_of_a_sunlit_patch_of_wood_is_kept() -> None:
+    """The family's sun clip with seed 16661 on the wooden floor: the red rover drives along the border of a sunlit
+    patch, the sunlit wood beside its marker. The threshold started from the window's median, the shaded wood's;
+    the sunlit wood passed with the marker, the blob was 2-3 times the marker's area and refused in frames 136-168
+    (a rover stopped for a second in a closed loop). Where the floor joins the marker, each pixel that shows the
+    empty scene is now held against the floor's own level under it, as the background model's reference shows it
+    (``edge.trackers.base.above_floor``): in 120-175 it is missing in 10 frames, 2 running at most, and every pose
+    is within 1.5 cm."""
+    clip, errors = _red_on_wood("sun", 16661, 176)
+    seen = [i for i in range(120, 176) if clip.truth[i]["red"][5] >= 0.99]
+    assert len(seen) > 50
+    missing = [i for i in seen if i not in errors]
+    assert len(missing) <= 12, missing
+    assert not any(i + 1 in missing and i + 2 in missing for i in missing), missing
+    assert max(errors[i] for i in seen if i in errors) < 1.5

@@ -19,6 +19,7 @@ EDGE = Path(__file__).resolve().parent.parent / "edge"
 # edge fits of the centre offsets, the pose-publishing rule, and the clock and errors they share.
 CORE = (
     "edge.segmentation",
+    "edge.background",
     "edge.coverage",
     "edge.blob_shape",
     "edge.filtering",

@@ -8,11 +8,11 @@ import pytest
 from hypothesis import given
 from hypothesis.extra import numpy as hnp
 
+from edge.background import BackgroundModel, subtract_background
 from edge.coverage import coverage_weights
 from edge.segmentation import (
     LINEAR,
     NO_ROVER,
-    BackgroundModel,
     ColorModel,
     auto_threshold,
     close,
@@ -25,7 +25,6 @@ from edge.segmentation import (
     outline_particle,
     reconstruct,
     single_outline,
-    subtract_background,
     threshold,
 )
 from tests.support.track import COLORS

@@ -8,8 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
+from edge.background import BackgroundModel
 from edge.camera import MARKER_HEIGHT_CM
-from edge.segmentation import BackgroundModel, ColorModel, dilate
+from edge.segmentation import ColorModel, dilate
 from edge.tracker_config import TrackerConfig
 from edge.trackers import METHODS, make_tracker
 from edge.trackers.base import Measurement, NullClock, PlaneGrid, RoverModel, world_blob

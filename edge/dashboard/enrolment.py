@@ -46,9 +46,9 @@ from edge.errors import EnrollmentError, describe_validation
 from edge.httpserver import Request, Response, json_response
 
 if TYPE_CHECKING:
+    from edge.background import BackgroundModel
     from edge.httpserver import HttpServer
     from edge.metrics import Snapshot
-    from edge.segmentation import BackgroundModel
     from edge.trackers.base import PlaneMapping
     from edge.tracking import Frame, FrameResult
 

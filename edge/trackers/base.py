@@ -16,6 +16,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from edge.background import subtract_background
 from edge.coverage import (
     LOCAL_LIGHT_PX,
     TWO_LIGHTS,
@@ -68,6 +69,7 @@ SURROUND_IGNORED = 0.1  # a surround this much of the marker's level in its plan
 STANDOUT = 1.5
 ACROSS_MIN = 0.3  # across_floor: the marker's hue at least this far across the floor's (the sine: 17 deg)
 GRAIN = 4.0  # clear_of_grain: a marker's level this many times the surround's grain above it, across the floor's hue
+JOINED_FLOOR = 1.08  # joined_to_floor: a mask this much larger than the marker has floor in it (as JOINED_AREA)
 ACROSS_SHARE = 0.1  # clear_of_grain: a marker's top across the floor's hue at least this share of its top in its plane
 
 
@@ -192,6 +194,12 @@ def threshold_marker(
         clock.add("threshold", time.perf_counter() - t0)
         return None
     mask = candidates & threshold(plane, interval)
+    # a coloured floor's level was taken from the window's median and the floor joined the marker: the floor's own
+    above = None
+    if plane is window.plane and interval is not plain and joined_to_floor(window, rover, mask):
+        above = above_floor(window, interval.k_max, fraction)
+    if above is not None:
+        mask &= above
     # its interior, edges left out, its gaps of up to SHADE_GAP_PX closed first (see the docstring): eroding the
     # closed mask twice is eroding its dilation twice more
     gap = SHADE_GAP_PX // 2
@@ -200,11 +208,13 @@ def threshold_marker(
         inner = erode(mask, 1)
         mean = float(np.mean(plane[inner])) if np.count_nonzero(inner) else 0.0
         if mean > 0.0:
-            floor = np.float32(interval.k_min / mean) * local_mean(plane, inner, LOCAL_LIGHT_PX)
-            mask = candidates & (plane >= floor)
+            here = local_mean(plane, inner, LOCAL_LIGHT_PX)  # the marker's level where it stands
+            mask = candidates & (plane >= np.float32(interval.k_min / mean) * here)
             closed = close(mask, gap)
             if _parts(closed) < _parts(mask):  # a shaded end apart from the rest: joined (a neck: left alone)
                 mask = closed
+            if above is not None:
+                mask &= above
     clock.add("threshold", time.perf_counter() - t0)
     return candidates, mask
 
@@ -228,6 +238,37 @@ def surrounded(interval: ThresholdInterval, plane: F32, fraction: float) -> Thre
         return None
     level = median - SURROUND_IGNORED * interval.k_max
     return ThresholdInterval(level + fraction * (interval.k_max - level), interval.k_max)
+
+
+def joined_to_floor(window: Window, rover: RoverModel, mask: BoolArray) -> bool:
+    """Does ``mask`` hold more than :data:`JOINED_FLOOR` times the marker's expected pixels where it is predicted
+    (the floor passed with the marker)?"""
+    px = window.local.area_at(*window.predicted_uv)
+    return px > 0.0 and int(np.count_nonzero(mask)) > JOINED_FLOOR * rover.marker_area_cm2 / px
+
+
+def above_floor(window: Window, k_max: float, fraction: float) -> BoolArray | None:
+    """The pixels that are not the empty scene, or stand ``fraction`` of the way from the floor's own level under
+    them to the marker's ``k_max``: the background model's reference, where it is valid and the pixel shows it
+    (eq. 2), in the marker's plane less :data:`SURROUND_IGNORED` of ``k_max`` (as :func:`surrounded` takes the
+    window's median). None without a reference.
+
+    A warm floor in two lights has two levels, and the window's median is the larger part's. Beside a red marker in
+    the shade a sunlit patch of wood was above the bound taken from the shaded wood, passed with the marker, and the
+    blob, 2-3 times the marker's area, was refused (the family's sun clip with seed 16661 on wood: the red rover
+    missing for 33 frames running). The reference knows the sunlit wood's own level. Only where the pixel shows the
+    empty scene: round a marker the image shows the rover's body, and the reference the floor the body now hides.
+    Taken only where the floor joined the marker (:func:`joined_to_floor`): elsewhere the median's bound is kept,
+    and a marker's measured area with it (docs/benchmarks.md, "The floor's own level under each pixel")."""
+    floor = window.floor_plane
+    if floor is None or window.reference is None:
+        return None
+    top = np.float32(k_max)
+    level = np.maximum(floor - np.float32(SURROUND_IGNORED) * top, np.float32(0.0))
+    bound = level + np.float32(fraction) * (top - level)
+    seen = window.bgr if window.raw is None else window.raw
+    changed = subtract_background(seen, window.reference, window.background_threshold)
+    return np.asarray((window.plane >= bound) | changed | ~window.reference_valid)
 
 
 def across_floor(c1: F32, c2: F32, hue: tuple[float, float]) -> F32 | None:

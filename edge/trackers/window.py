@@ -16,15 +16,14 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import NDArray
 
+from edge.background import BackgroundModel, subtract_background
 from edge.segmentation import (
     F32,
     U8,
-    BackgroundModel,
     BoolArray,
     ColorModel,
     linear_bgr,
     opponent_planes,
-    subtract_background,
 )
 from edge.trackers.plane import LocalPlaneMap, PlaneGrid, PlaneMapping
 from edge.tracking import StageClock
@@ -49,6 +48,7 @@ class Window:
     gave it (``bgr`` is seen under the configured white, ``edge.white``; the reference is compared with ``raw``).
     ``hue``: the rover's hue direction in the chroma plane (unit ``(c1, c2)``), the one ``plane`` projects on.
     ``saturations``: (N,) each rover's marker's relative saturation (``|c| / lum``; ``ColorModel.saturations``).
+    ``gains``: the per-channel gains ``bgr`` was seen under (``LocalWhite.gains``; None: ``bgr`` is ``raw``).
     """
 
     box: tuple[int, int, int, int]
@@ -68,6 +68,7 @@ class Window:
     image_size: tuple[int, int]
     background_threshold: float = 0.2
     raw: U8 | None = None
+    gains: NDArray[np.float64] | None = None
     _others: dict[int, BoolArray | None] = field(default_factory=dict, repr=False)
 
     @property
@@ -110,6 +111,17 @@ class Window:
         return markers
 
     @cached_property
+    def floor_plane(self) -> F32 | None:
+        """The background reference's crop in the rover's colour plane, seen under the window's white (``gains``):
+        the floor's own level at every pixel where ``reference_valid`` (None without a reference)."""
+        if self.reference is None:
+            return None
+        seen = self.reference if self.gains is None else LocalWhite.correct(self.reference, self.gains)
+        c1, c2, _ = opponent_planes(seen)
+        d1, d2 = self.hue
+        return np.asarray(c1 * np.float32(d1) + c2 * np.float32(d2), np.float32)
+
+    @cached_property
     def linear(self) -> F32:
         """``bgr`` in linear light (``edge.segmentation.linear_bgr``), computed once for the window's stages."""
         return linear_bgr(self.bgr)
@@ -141,17 +153,21 @@ def prepare_window(
     clock: StageClock,
     white: LocalWhite | None = None,
     others: Sequence[tuple[int, int, int, int]] = (),
+    unseen_since: int | None = None,
 ) -> Window | None:
     """The per-window stages before a tracker runs: the window seen under the configured white (``edge.white``),
     colour planes, hue classes, background subtraction (eq. 2). ``box``: the window in the image; ``rover_index``:
     whose colour plane to extract; ``predicted_uv``: where the filter expects the marker (image pixels); ``others``:
-    the other tracked rovers' boxes (not floor, for the local light)."""
+    the other tracked rovers' boxes (not floor, for the local light); ``unseen_since``: the refresh since which the
+    rover was not tracked (``BackgroundModel.valid_since``: the reference copied since may show it), None while
+    it is."""
     x0, y0, x1, y1 = box
     t0 = time.perf_counter()
     raw = image[y0:y1, x0:x1]
-    valid = background.valid[y0:y1, x0:x1]
+    valid = background.valid[y0:y1, x0:x1] if unseen_since is None else background.valid_since(box, unseen_since)
     reference = background.reference[y0:y1, x0:x1] if np.count_nonzero(valid) else None
-    crop = raw if white is None else white.correct(raw, white.gains(box, raw, reference, valid, others))
+    gains = None if white is None else white.gains(box, raw, reference, valid, others)
+    crop = raw if gains is None else LocalWhite.correct(raw, gains)
     c1, c2, lum = opponent_planes(crop)  # RGB colour planes extraction, generalised to N colours
     classes = colors.classify(c1, c2, lum)
     plane = colors.plane(rover_index, c1, c2)
@@ -179,6 +195,7 @@ def prepare_window(
         image_size=(image.shape[1], image.shape[0]),
         background_threshold=background_threshold,
         raw=raw,
+        gains=gains,
     )
 
 
