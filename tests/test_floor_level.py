@@ -22,6 +22,26 @@ WARM = (0.62, 0.8, 1.12)  # BGR factors that make the grey tiles a warm floor, a
 SUN = (1.2, 1.35, 1.45)  # the sunlit patch: brighter and warmer
 
 
+def _window(
+    image: np.ndarray, box: tuple[int, int, int, int], uv: tuple[float, float], empty: np.ndarray | None
+) -> Window:
+    """The red rover's window ``box`` of ``image`` (red, green and blue rovers), as the pipeline prepares it, with
+    ``empty`` as the background reference (or none)."""
+    window = prepare_window(
+        image,
+        box,
+        rover_index=0,
+        predicted_uv=uv,
+        colors=ColorModel.from_colors([COLORS["red"], COLORS["green"], COLORS["blue"]], 30.0, 0.35),
+        maps=PlaneGrid(shared_scene().mapping, (image.shape[1], image.shape[0])),
+        background=BackgroundModel(image.shape[:2], 100, empty),
+        background_threshold=0.2,
+        clock=NullClock(),
+    )
+    assert window is not None
+    return window
+
+
 def _beside_the_sun(known: bool, sun_from_px: int = 18) -> tuple[Window, np.ndarray]:
     """A red marker on a warm floor, a sunlit patch starting ``sun_from_px`` right of its centre (it reaches 60 px
     up and down from it); the window around it prepared with the empty floor as the background reference
@@ -37,20 +57,8 @@ def _beside_the_sun(known: bool, sun_from_px: int = 18) -> tuple[Window, np.ndar
         empty, image = scene.render([], sun=sun), scene.render([rover], sun=sun)
     finally:
         scene.floor = grey
-    colors = ColorModel.from_colors([COLORS["red"], COLORS["green"], COLORS["blue"]], 30.0, 0.35)
     box = (u - 40, v - 25, u + 40, v + 25)
-    window = prepare_window(
-        image,
-        box,
-        rover_index=0,
-        predicted_uv=(float(uv[0]), float(uv[1])),
-        colors=colors,
-        maps=PlaneGrid(scene.mapping, (image.shape[1], image.shape[0])),
-        background=BackgroundModel(image.shape[:2], 100, empty if known else None),
-        background_threshold=0.2,
-        clock=NullClock(),
-    )
-    assert window is not None
+    window = _window(image, box, (float(uv[0]), float(uv[1])), empty if known else None)
     corners = scene.camera.project(_rect(rover.x, rover.y, rover.theta, *rover.marker_cm, MARKER_HEIGHT_CM))
     marker = np.zeros(window.plane.shape, np.uint8)
     cv2.fillPoly(marker, [np.rint((corners - box[:2]) * 16).astype(np.int32)], 1, shift=4)
@@ -101,22 +109,10 @@ def test_the_floor_under_the_rover_s_body_is_not_the_floor_round_its_marker() ->
 def _grey_window(known: bool) -> Window:
     scene = shared_scene()
     rover = SynthRover("red", 150.0, 200.0, 0.0, COLORS["red"])
-    image = scene.render([rover])
     uv = scene.camera.project(np.array([[rover.x, rover.y, MARKER_HEIGHT_CM]]))[0]
     u, v = int(uv[0]), int(uv[1])
-    window = prepare_window(
-        image,
-        (u - 40, v - 25, u + 40, v + 25),
-        rover_index=0,
-        predicted_uv=(float(uv[0]), float(uv[1])),
-        colors=ColorModel.from_colors([COLORS["red"], COLORS["green"], COLORS["blue"]], 30.0, 0.35),
-        maps=PlaneGrid(scene.mapping, (image.shape[1], image.shape[0])),
-        background=BackgroundModel(image.shape[:2], 100, scene.render([]) if known else None),
-        background_threshold=0.2,
-        clock=NullClock(),
-    )
-    assert window is not None
-    return window
+    box = (u - 40, v - 25, u + 40, v + 25)
+    return _window(scene.render([rover]), box, (float(uv[0]), float(uv[1])), scene.render([]) if known else None)
 
 
 def test_the_floor_s_own_level_changes_nothing_on_grey_tiles_and_says_nothing_where_the_floor_is_not_known() -> None:
