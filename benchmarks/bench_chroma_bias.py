@@ -35,9 +35,9 @@ margin.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import itertools
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -45,7 +45,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-if importlib.util.find_spec("edge") is None:  # run from a checkout without the package installed
+# the checkout this script is in, ahead of an installed edge (an editable install may be another checkout's): a
+# benchmark measures the code beside it, unless PYTHONPATH says which (stages --baseline runs another checkout so)
+if not os.environ.get("PYTHONPATH"):
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from edge import edges_encoded

@@ -19,14 +19,15 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import importlib.util  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
 
-if importlib.util.find_spec("edge") is None:  # run from a checkout without the package installed
+# the checkout this script is in, ahead of an installed edge (an editable install may be another checkout's): a
+# benchmark measures the code beside it, unless PYTHONPATH says which (stages --baseline runs another checkout so)
+if not os.environ.get("PYTHONPATH"):
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
