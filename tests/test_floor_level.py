@@ -1,7 +1,8 @@
 """The floor's own level under every pixel (``edge.trackers.base.above_floor``): a warm floor in two lights (the
 edge of a sunlit patch beside a marker) has two levels in the marker's plane, and the window's median is the
-shaded one's; the background model's reference knows both. And what the reference showed while a rover was unseen
-is not taken for the floor once it is found (``BackgroundModel.valid_since``, ``forget``)."""
+shaded one's; the background model's reference knows both. It is used where the floor joined the marker
+(``joined_to_floor``), at the pixels that show the empty scene. And what the reference showed while a rover was
+unseen is not taken for the floor once it is found (``BackgroundModel.valid_since``, ``forget``)."""
 
 from __future__ import annotations
 
