@@ -103,6 +103,16 @@ class ConstantVelocityFilter:
         p = self.p
         return clear_velocity((self.x[2], self.x[3]), (p[10], p[11], p[15]), self.updates, sigmas)
 
+    def direction_sigma_rad(self) -> float:
+        """1-sigma of the direction of motion: the velocity's uncertainty across it over the speed (inf standing)."""
+        vx, vy = self.x[2], self.x[3]
+        speed2 = vx * vx + vy * vy
+        if speed2 <= 0.0:
+            return math.inf
+        p = self.p
+        across = (vy * vy * p[10] - 2.0 * vx * vy * p[11] + vx * vx * p[15]) / speed2
+        return math.sqrt(max(across, 0.0) / speed2)
+
     @property
     def position_sigma_cm(self) -> float:
         """1-sigma radius of the position uncertainty (largest axis)."""
@@ -314,16 +324,25 @@ def _inv2(a: float, b: float, c: float, d: float) -> tuple[float, float, float, 
 
 HEADING_ACCEL_SIGMA_RAD_S2 = 4.0  # how fast a rover's turn rate may change (a turn starts or ends in about 0.2 s)
 HEADING_RESET_RAD = math.radians(60.0)  # a heading this far from the filtered one starts the filter afresh
+SMALL_MARKER_PX = 800.0  # a marker smaller than this in the image: its edges' axis scatters more than they look
+SMALL_MARKER_POWER = 0.6  # ... as (SMALL_MARKER_PX / its pixels) to this power (a line fit's: 0.75)
 
 
-def heading_sigma_rad(coherence: float) -> float:
+def heading_sigma_rad(coherence: float, marker_px: float = math.inf) -> float:
     """The scatter of one frame's heading from a one-colour marker: from clearly coherent edges a degree or two, from
     weakly coherent ones a few, from the blob's axis or the direction of motion (which stand in for them below
-    ``MIN_EDGE_COHERENCE``, ``checked_axis``) several."""
-    if coherence >= STRONG_EDGE_COHERENCE:
-        return math.radians(1.5)
+    ``MIN_EDGE_COHERENCE``, ``checked_axis``) several.
+
+    Edges' coherence says how clearly they show a rectangle, not how many pixels show it: a far-side marker of 200
+    pixels through a blurred 4:2:0 stream (25 x 9 pixels) gives as coherent edges as a near one of 1600, and an axis
+    4-5 times as scattered (over the simulator's camera family, 10 degrees at the 95th percentile against 2). A
+    line's direction fitted to ``n`` edge pixels along its length scatters as ``n ** -1.5``, a marker's as its area
+    ``marker_px`` to the power -0.75; the family's scatter falls as -0.6 (blur and chroma spread are not a line's
+    white noise), so edges' sigma grows by ``(SMALL_MARKER_PX / marker_px) ** SMALL_MARKER_POWER`` below that
+    size."""
     if coherence >= MIN_EDGE_COHERENCE:
-        return math.radians(4.0)
+        small = (SMALL_MARKER_PX / marker_px) ** SMALL_MARKER_POWER if 0.0 < marker_px < SMALL_MARKER_PX else 1.0
+        return math.radians(1.5 if coherence >= STRONG_EDGE_COHERENCE else 4.0) * small
     return math.radians(8.0)
 
 
@@ -381,7 +400,9 @@ class HeadingFilter:
         self.angle = None
 
 
-MOTION_HEADING_SIGMA_RAD = math.radians(5.0)  # the direction of motion as a heading at 6-20 cm/s: a few degrees
+MOTION_HEADING_SIGMA_RAD = math.radians(
+    5.0
+)  # the direction of motion as a heading at 6-20 cm/s: a few degrees (at least)
 MOTION_HEADING_GATE_RAD = math.radians(30.0)  # farther off, the rover is not driving along its axis (pushed, skidding)
 
 
@@ -393,19 +414,24 @@ def one_colour_heading(
     last_heading_rad: float | None,
     min_speed_cm_s: float,
     t_s: float,
+    marker_px: float = math.inf,
+    motion_sigma_rad: float = 0.0,
 ) -> float | None:
     """A one-colour marker's heading at the stream's time ``t_s``: its long axis ``axis_rad`` (None for a square
     marker) checked against the motion (:func:`checked_axis`), pointed the way the rover drives or kept from the last
-    heading (:func:`axis_heading`), through the rover's ``heading`` filter with the scatter of its source, and the
-    direction of motion as a second measurement while the rover drives (one frame's axis can be 10-20 deg off);
-    None (and the filter reset) when there is nothing to tell it by."""
+    heading (:func:`axis_heading`), through the rover's ``heading`` filter with the scatter of its source (for edges,
+    by the marker's size in the image, ``marker_px``), and the direction of motion as a second measurement while the
+    rover drives (one frame's axis can be 10-20 deg off), with the scatter its filter gives it (``motion_sigma_rad``,
+    :meth:`ConstantVelocityFilter.direction_sigma_rad`; :data:`MOTION_HEADING_SIGMA_RAD` at least); None (and the
+    filter reset) when there is nothing to tell it by."""
     axis = None if axis_rad is None else checked_axis(axis_rad, coherence, velocity_cm_s)
     theta = axis_heading(axis, velocity_cm_s, last_heading_rad, min_speed_cm_s)
     if theta is None:
         heading.reset()
         return None
-    theta = heading.update(theta, heading_sigma_rad(coherence if axis is not None else 0.0), t_s)
+    theta = heading.update(theta, heading_sigma_rad(coherence if axis is not None else 0.0, marker_px), t_s)
     if axis is not None and velocity_cm_s is not None and math.hypot(*velocity_cm_s) >= MOTION_AXIS_MIN_SPEED_CM_S:
         motion = math.atan2(velocity_cm_s[1], velocity_cm_s[0])
-        theta = heading.update(motion, MOTION_HEADING_SIGMA_RAD, t_s, MOTION_HEADING_GATE_RAD)
+        sigma = max(MOTION_HEADING_SIGMA_RAD, motion_sigma_rad)
+        theta = heading.update(motion, sigma, t_s, MOTION_HEADING_GATE_RAD)
     return theta

@@ -34,7 +34,7 @@ from edge.background import BackgroundModel
 from edge.blob_shape import IN_VIEW_MARGIN_PX, footprint_in_view
 from edge.centre_offsets import CentreOffsets, Fits, ProcessFits
 from edge.errors import ConfigError, SourceError
-from edge.filtering import FilterFactory, one_colour_heading
+from edge.filtering import FilterFactory
 from edge.rover_track import Observation, RoverTrack
 from edge.segmentation import ColorModel, chroma_of_bgr
 from edge.tracker_config import TrackerConfig
@@ -431,16 +431,15 @@ class Pipeline:
         return m.quality * (0.5 + 0.5 * min(1.0, max(0.0, tr.two_tone.evidence)))
 
     def _heading(self, tr: RoverTrack, vel: tuple[float, float] | None, m: Measurement) -> float | None:
-        """A two-tone marker's own heading while the evidence for its front end is strong (else None: the
-        direction of motion would be the opposite of the body's whenever the rover backs up); for a one-colour
-        marker its long axis through its heading filter (``edge.filtering.one_colour_heading``)."""
+        """A two-tone marker's own heading while the evidence for its front end is strong (else None: the direction
+        of motion is the opposite of the body's when the rover backs up); for a one-colour marker its long axis
+        through its heading filter (``edge.filtering.one_colour_heading``), by the marker's size in the image."""
         if tr.config.front_color_bgr is not None:
             return tr.two_tone.heading_rad if tr.two_tone.confident else None
         square = abs(self.config.marker_length_cm - self.config.marker_width_cm) < 0.05 * self.config.marker_length_cm
-        axis = None if square else m.axis_rad
-        speed = self.config.heading_min_speed_cm_s
-        tr.theta_rad = one_colour_heading(tr.heading, axis, m.axis_coherence, vel, tr.theta_rad, speed, self._time_s)
-        return tr.theta_rad
+        assert self.maps is not None
+        px = self.maps.pixels_of(self.config.marker_area_cm2, *m.uv_px)
+        return tr.one_colour_heading(m, square, vel, self.config.heading_min_speed_cm_s, self._time_s, px)
 
     def _exclusion_box(self, box: tuple[int, int, int, int], shape: tuple[int, ...]) -> tuple[int, int, int, int]:
         """The search window grown to cover the rover's body below and around the marker."""

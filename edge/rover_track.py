@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.blob_shape import eroded_elongation, point_asymmetry, wear_stretch
-from edge.filtering import ConstantVelocityFilter, HeadingFilter
+from edge.filtering import ConstantVelocityFilter, HeadingFilter, one_colour_heading
 from edge.tracker_config import RoverConfig, TrackerSettings
 from edge.trackers.base import Measurement
 from edge.tracking import RoverEstimate
@@ -91,6 +91,33 @@ class RoverTrack:
     def learned(self) -> bool:
         """Enough whole-marker areas seen to know this rover's own marker area."""
         return len(self.areas) >= 10
+
+    def one_colour_heading(
+        self,
+        m: Measurement,
+        square: bool,
+        velocity_cm_s: tuple[float, float] | None,
+        min_speed_cm_s: float,
+        t_s: float,
+        marker_px: float,
+    ) -> float | None:
+        """This rover's heading from its one-colour marker's measurement ``m`` (``edge.filtering.one_colour_heading``;
+        no axis when the marker is ``square``), its edges weighed by the marker's size in the image (``marker_px``)
+        and the direction of motion by its filter's scatter across it."""
+        motion_sigma = self.filter.direction_sigma_rad() if self.filter is not None else 0.0
+        axis = None if square else m.axis_rad
+        self.theta_rad = one_colour_heading(
+            self.heading,
+            axis,
+            m.axis_coherence,
+            velocity_cm_s,
+            self.theta_rad,
+            min_speed_cm_s,
+            t_s,
+            marker_px,
+            motion_sigma,
+        )
+        return self.theta_rad
 
     def expected_area(self, nominal_cm2: float) -> float:
         """The marker area to expect: the median of this rover's recent areas once learned, within half to twice

@@ -9,11 +9,14 @@ import pytest
 
 from edge.filtering import (
     CLEAR_VELOCITY_SIGMAS,
+    SMALL_MARKER_POWER,
+    SMALL_MARKER_PX,
     ConstantVelocityFilter,
     FilterSettings,
     HeadingFilter,
     checked_axis,
     heading_sigma_rad,
+    one_colour_heading,
 )
 
 DT = 1.0 / 30.0
@@ -267,3 +270,74 @@ def test_a_driving_rovers_velocity_is_clear_once_the_filter_has_settled(speed: f
     f, _ = run(lambda t: (50.0 + speed * t * 0.6, 300.0 + speed * t * 0.8))
     clear = f.clear_velocity(CLEAR_VELOCITY_SIGMAS)
     assert clear is not None and clear == pytest.approx((0.6 * speed, 0.8 * speed), abs=1.5)
+
+
+def test_a_small_marker_s_edges_count_for_less_than_a_large_one_s_of_the_same_coherence() -> None:
+    """Coherence says how clearly the edges show a rectangle, not how many pixels show it."""
+    for coherence in (0.4, 0.8):
+        large = heading_sigma_rad(coherence)
+        assert heading_sigma_rad(coherence, SMALL_MARKER_PX * 2.0) == large
+        assert heading_sigma_rad(coherence, SMALL_MARKER_PX) == pytest.approx(large)
+        assert heading_sigma_rad(coherence, SMALL_MARKER_PX / 4.0) == pytest.approx(large * 4.0**SMALL_MARKER_POWER)
+    # the blob's axis or the motion standing in for edges: their own scatter, whatever the size
+    assert heading_sigma_rad(0.0, 100.0) == heading_sigma_rad(0.0)
+
+
+def _filter_moving(velocity: tuple[float, float], cov: tuple[float, float, float]) -> ConstantVelocityFilter:
+    f = ConstantVelocityFilter(FilterSettings(), (0.0, 0.0), np.eye(2))
+    f.x = [0.0, 0.0, *velocity]
+    f.p[10], f.p[11], f.p[14], f.p[15] = cov[0], cov[1], cov[1], cov[2]
+    return f
+
+
+def test_the_direction_of_motion_s_scatter_is_the_velocity_s_across_it_over_the_speed() -> None:
+    # 20 cm/s along x, velocity sigma 1 cm/s along and 2 cm/s across: 0.1 rad
+    assert _filter_moving((20.0, 0.0), (1.0, 0.0, 4.0)).direction_sigma_rad() == pytest.approx(0.1)
+    # the same turned by 90 degrees
+    assert _filter_moving((0.0, -20.0), (4.0, 0.0, 1.0)).direction_sigma_rad() == pytest.approx(0.1)
+    # turned by 45 degrees, the covariance with it
+    c, s = math.cos(math.pi / 4), math.sin(math.pi / 4)
+    cov = (c * c * 1.0 + s * s * 4.0, c * s * (1.0 - 4.0), s * s * 1.0 + c * c * 4.0)
+    assert _filter_moving((20.0 * c, 20.0 * s), cov).direction_sigma_rad() == pytest.approx(0.1)
+    assert _filter_moving((0.0, 0.0), (1.0, 0.0, 1.0)).direction_sigma_rad() == math.inf
+
+
+def _turning_rover_headings(
+    marker_px: float, motion_sigma_rad: float, motion_noise_deg: float, axis_noise_deg: float = 6.0, coherence=0.6
+) -> np.ndarray:
+    """Errors (deg) of one_colour_heading for a rover driving a steady 20 deg/s arc at 20 cm/s for 10 s, its edges'
+    axis (of ``coherence``) scattered by ``axis_noise_deg`` (6: a far-side marker's) and its filter's direction of
+    motion by ``motion_noise_deg``."""
+    rng = np.random.default_rng(11)
+    heading = HeadingFilter()
+    theta, errors = None, []
+    for k in range(300):
+        t = k / 30.0
+        truth = 0.4 + math.radians(20.0) * t
+        axis = truth + math.radians(axis_noise_deg) * rng.standard_normal()
+        motion = truth + math.radians(motion_noise_deg) * rng.standard_normal()
+        velocity = (20.0 * math.cos(motion), 20.0 * math.sin(motion))
+        theta = one_colour_heading(heading, axis, coherence, velocity, theta, 3.0, t, marker_px, motion_sigma_rad)
+        assert theta is not None
+        if k >= 30:
+            errors.append(abs(math.degrees(math.remainder(theta - truth, math.tau))))
+    return np.asarray(errors)
+
+
+def test_a_small_marker_s_scattered_axes_move_its_heading_less() -> None:
+    """A far-side marker (200 px) whose coherent-looking edges scatter by 6 degrees, and its direction of motion
+    by 3: weighed by its size the heading leans on the motion and its own turn, and is nearer the truth."""
+    as_large = _turning_rover_headings(math.inf, 0.0, 3.0)
+    by_size = _turning_rover_headings(200.0, 0.0, 3.0)
+    assert np.percentile(by_size, 95) < 0.8 * np.percentile(as_large, 95)
+    assert np.median(by_size) < np.median(as_large)
+
+
+def test_a_scattered_direction_of_motion_moves_the_heading_less_when_its_filter_says_so() -> None:
+    """A direction of motion scattered by 20 degrees (a far-side rover's position noise at a crawl) and a large
+    marker's clearly coherent edges (1.5 degrees): told its scatter, the heading follows the edges; told 5 degrees,
+    the motion pulls it about."""
+    told = _turning_rover_headings(math.inf, math.radians(20.0), 20.0, 1.5)
+    untold = _turning_rover_headings(math.inf, 0.0, 20.0, 1.5)
+    assert np.percentile(told, 95) < 0.8 * np.percentile(untold, 95)
+    assert np.median(told) < 0.8 * np.median(untold)

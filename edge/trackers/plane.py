@@ -179,6 +179,12 @@ class PlaneGrid:
         self.xy_cm: FloatArray = np.stack([image(xs), image(ys)])
         self.x_cm, self.y_cm, self.area_cm2 = self.xy_cm[0], self.xy_cm[1], image(areas)
 
+    def pixels_of(self, area_cm2: float, u: float, v: float) -> float:
+        """How many image pixels ``area_cm2`` of the plane covers at pixel ``(u, v)`` (inf off the plane)."""
+        h, w = self.area_cm2.shape
+        per_pixel = float(self.area_cm2[min(max(int(v), 0), h - 1), min(max(int(u), 0), w - 1)])
+        return area_cm2 / per_pixel if per_pixel > 0.0 else math.inf
+
     def tile_of(self, u: float, v: float) -> int | None:
         if not (math.isfinite(u) and math.isfinite(v)):
             return None
