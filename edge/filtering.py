@@ -324,6 +324,9 @@ def _inv2(a: float, b: float, c: float, d: float) -> tuple[float, float, float, 
 
 HEADING_ACCEL_SIGMA_RAD_S2 = 4.0  # how fast a rover's turn rate may change (a turn starts or ends in about 0.2 s)
 HEADING_RESET_RAD = math.radians(60.0)  # a heading this far from the filtered one starts the filter afresh
+SCATTER_FRAMES = 15.0  # a rover's own headings' scatter is the running mean of about this many frames' ...
+SCATTER_CAP = 3.0  # ... normalised innovations, each capped at this many sigmas (one wild frame is not a trend)
+SCATTER_MAX = 4.0  # a sigma is widened at most this many times by it
 SMALL_MARKER_PX = 800.0  # a marker smaller than this in the image: its edges' axis scatters more than they look
 SMALL_MARKER_POWER = 0.6  # ... as (SMALL_MARKER_PX / its pixels) to this power (a line fit's: 0.75)
 
@@ -334,12 +337,10 @@ def heading_sigma_rad(coherence: float, marker_px: float = math.inf) -> float:
     ``MIN_EDGE_COHERENCE``, ``checked_axis``) several.
 
     Edges' coherence says how clearly they show a rectangle, not how many pixels show it: a far-side marker of 200
-    pixels through a blurred 4:2:0 stream (25 x 9 pixels) gives as coherent edges as a near one of 1600, and an axis
-    4-5 times as scattered (over the simulator's camera family, 10 degrees at the 95th percentile against 2). A
-    line's direction fitted to ``n`` edge pixels along its length scatters as ``n ** -1.5``, a marker's as its area
-    ``marker_px`` to the power -0.75; the family's scatter falls as -0.6 (blur and chroma spread are not a line's
-    white noise), so edges' sigma grows by ``(SMALL_MARKER_PX / marker_px) ** SMALL_MARKER_POWER`` below that
-    size."""
+    pixels through a blurred 4:2:0 stream gives as coherent edges as a near one of 1600, and an axis 4-5 times as
+    scattered. A line fitted to ``n`` pixels scatters as ``n ** -1.5``, a marker's axis as its area ``marker_px``
+    to the power -0.75; the camera family's falls as -0.6 (blur and chroma spread are not white noise), so edges'
+    sigma grows by ``(SMALL_MARKER_PX / marker_px) ** SMALL_MARKER_POWER`` below that size."""
     if coherence >= MIN_EDGE_COHERENCE:
         small = (SMALL_MARKER_PX / marker_px) ** SMALL_MARKER_POWER if 0.0 < marker_px < SMALL_MARKER_PX else 1.0
         return math.radians(1.5 if coherence >= STRONG_EDGE_COHERENCE else 4.0) * small
@@ -353,7 +354,14 @@ class HeadingFilter:
     One frame's axis from a far-side marker through a harsh stream is 10-20 degrees off now and then while its edges
     still look coherent; the rover's heading cannot move that much in a frame. The turn rate follows turns (no lag
     once a turn is under way), and a heading more than :data:`HEADING_RESET_RAD` from the filtered one (the rover
-    reversed, or was lost and found turned) starts it afresh."""
+    reversed, or was lost and found turned) starts it afresh.
+
+    Each frame's own heading (not the direction of motion given with a gate) is also weighed by how far this
+    rover's recent ones fell from the prediction: ``scatter`` is the running mean over :data:`SCATTER_FRAMES`
+    frames of their normalised innovation squared (each capped at :data:`SCATTER_CAP` sigmas), and a sigma is
+    widened by its square root when that is over 1 (at most :data:`SCATTER_MAX` times), never narrowed: a far-side
+    marker through a harsh stream scatters more than its coherence and size tell, a near one does not (innovation-
+    based measurement noise, as adaptive Kalman filters estimate it)."""
 
     def __init__(self, accel_sigma_rad_s2: float = HEADING_ACCEL_SIGMA_RAD_S2) -> None:
         self.q = accel_sigma_rad_s2**2
@@ -361,6 +369,7 @@ class HeadingFilter:
         self.rate = 0.0
         self.p = [0.0, 0.0, 0.0, 0.0]
         self.t_s = 0.0
+        self.scatter = 1.0  # kept through a reset: it belongs to where the rover is seen and through which camera
 
     def update(self, z_rad: float, sigma_rad: float, t_s: float, gate_rad: float | None = None) -> float:
         """Take the heading ``z_rad`` measured at the stream's time ``t_s``; the filtered heading. With ``gate_rad``
@@ -375,11 +384,6 @@ class HeadingFilter:
         dt = max(0.0, t_s - self.t_s)
         angle = self.angle + self.rate * dt
         innovation = math.remainder(z_rad - angle, math.tau)
-        if gate_rad is not None and abs(innovation) > gate_rad:
-            return self.angle
-        if abs(innovation) > HEADING_RESET_RAD:
-            self.angle, self.rate, self.p, self.t_s = z_rad, 0.0, [r, 0.0, 0.0, 1.0], t_s
-            return z_rad
         p00, p01, p10, p11 = self.p
         p00, p01, p10, p11 = (
             p00 + dt * (p10 + p01) + dt * dt * p11 + self.q * dt**4 / 4,
@@ -387,6 +391,15 @@ class HeadingFilter:
             p10 + dt * p11 + self.q * dt**3 / 2,
             p11 + self.q * dt * dt,
         )
+        if gate_rad is None:
+            nis = min(innovation * innovation / (r + p00), SCATTER_CAP * SCATTER_CAP)
+            self.scatter += (nis - self.scatter) / SCATTER_FRAMES
+            r *= min(max(self.scatter, 1.0), SCATTER_MAX * SCATTER_MAX)
+        elif abs(innovation) > gate_rad:
+            return self.angle
+        if abs(innovation) > HEADING_RESET_RAD:
+            self.angle, self.rate, self.p, self.t_s = z_rad, 0.0, [r, 0.0, 0.0, 1.0], t_s
+            return z_rad
         # update
         s = p00 + r
         k0, k1 = p00 / s, p10 / s

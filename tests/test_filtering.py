@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from edge import filtering
 from edge.filtering import (
     CLEAR_VELOCITY_SIGMAS,
     SMALL_MARKER_POWER,
@@ -341,3 +342,23 @@ def test_a_scattered_direction_of_motion_moves_the_heading_less_when_its_filter_
     untold = _turning_rover_headings(math.inf, 0.0, 20.0, 1.5)
     assert np.percentile(told, 95) < 0.8 * np.percentile(untold, 95)
     assert np.median(told) < 0.8 * np.median(untold)
+
+
+def test_edges_scattering_more_than_they_claim_are_widened_by_their_own_innovations(monkeypatch) -> None:
+    """A large marker's coherent edges (claimed 1.5 degrees) that scatter by 6 (a harsh stream's far side, where
+    size alone does not tell): the filter learns it from how far they fall from its prediction, and leans on the
+    motion and its turn; edges as good as they claim are not widened."""
+    adapted = _turning_rover_headings(math.inf, 0.0, 3.0, 6.0)
+    monkeypatch.setattr(filtering, "SCATTER_MAX", 1.0)
+    fixed = _turning_rover_headings(math.inf, 0.0, 3.0, 6.0)
+    assert np.percentile(adapted, 95) < 0.8 * np.percentile(fixed, 95)
+
+    honest = HeadingFilter()
+    rng = np.random.default_rng(3)
+    for k in range(150):
+        honest.update(0.4 + math.radians(1.5) * rng.standard_normal(), math.radians(1.5), k / 30.0)
+    assert honest.scatter < 1.5
+    wild = HeadingFilter()
+    for k in range(150):
+        wild.update(0.4 + math.radians(6.0) * rng.standard_normal(), math.radians(1.5), k / 30.0)
+    assert wild.scatter > 4.0
