@@ -413,9 +413,7 @@ class HeadingFilter:
         self.angle = None
 
 
-MOTION_HEADING_SIGMA_RAD = math.radians(
-    5.0
-)  # the direction of motion as a heading at 6-20 cm/s: a few degrees (at least)
+MOTION_HEADING_SIGMA_RAD = math.radians(5.0)  # the direction of motion as a heading at 6-20 cm/s: a few degrees
 MOTION_HEADING_GATE_RAD = math.radians(30.0)  # farther off, the rover is not driving along its axis (pushed, skidding)
 
 
