@@ -313,8 +313,8 @@ def test_another_rover_s_marker_is_its_hue_at_its_saturation_not_a_pale_body_of_
 
 @pytest.mark.parametrize("y_cm", [60.0, 275.0, 480.0])
 def test_the_pixels_a_marker_covers_are_its_outline_s_area_in_the_image(y_cm: float) -> None:
-    """What a marker's heading is weighed by: a 21.5 x 16.8 cm marker covers about 1600 pixels on the near side of
-    the paper's floor and a seventh of that on the far side."""
+    """What a marker's heading is weighed by: a 21.5 x 16.8 cm marker covers about 1640 pixels on the near side of
+    the paper's floor (y 60 cm), 505 in the middle and 225 on the far side (y 480)."""
     scene = shared_scene()
     maps = PlaneGrid(scene.mapping, (1280, 720))
     corners = np.array([[-10.75, -8.4], [10.75, -8.4], [10.75, 8.4], [-10.75, 8.4]]) + np.array([200.0, y_cm])
@@ -322,5 +322,6 @@ def test_the_pixels_a_marker_covers_are_its_outline_s_area_in_the_image(y_cm: fl
     outline_px = cv2.contourArea(uv.astype(np.float32))
     centre = scene.camera.project(np.array([[200.0, y_cm, MARKER_HEIGHT_CM]]))[0]
     assert maps.pixels_of(21.5 * 16.8, *centre) == pytest.approx(outline_px, rel=0.03)
+    assert 200.0 < maps.pixels_of(21.5 * 16.8, *centre) < 1700.0
     # a point off the image is taken at the nearest pixel on it
     assert maps.pixels_of(21.5 * 16.8, -50.0, centre[1]) == pytest.approx(maps.pixels_of(21.5 * 16.8, 0.0, centre[1]))
