@@ -369,8 +369,8 @@ class Pipeline:
                 if m is None:
                     continue
                 tr.box = box
-                found[tr.index] = m  # what the reference copied since it was lost may show it (edge.background)
-                self.background.forget(box, tr.lost_at or 0, m.measurement.weights)
+                found[tr.index] = m
+                self.background.forget(box, tr.lost_at or 0, m.measurement.weights)  # copied while it was lost
                 taken.append(m.measurement.xy_cm)
                 break
         return found
