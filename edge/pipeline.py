@@ -398,6 +398,7 @@ class Pipeline:
                 tr.lost_at = None
                 if tr.relearned_at == self._frames:
                     tr.areas.clear()  # taken by RoverTrack.relearn: learned afresh from here, as when first seen
+                    tr.cores.clear()
             elif tr.index in measured and tr.filter is not None:
                 obs = measured[tr.index]
                 m = obs.measurement
@@ -415,8 +416,7 @@ class Pipeline:
             tr.uv = m.uv_px
             tr.seen = (m.xy_cm[0], m.xy_cm[1], self._time_s)
             tr.level = m.level if tr.level <= 0.0 else 0.8 * tr.level + 0.2 * m.level
-            if m.quality > 0.8 or tr.larger_and_level(m.area_cm2, self.config.marker_area_cm2, self._frames):
-                tr.areas.append(m.area_cm2)
+            tr.learn(m, self.config.marker_area_cm2, self._frames)
             theta = self._heading(tr, tr.filter.clear_velocity(), m)
             out.append(tr.estimate(obs, theta, round(self._quality(tr, m), 2)))
         clock.add("filter", time.perf_counter() - t0)

@@ -6,13 +6,13 @@ import itertools
 import math
 import statistics
 from collections import deque
-from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.blob_shape import eroded_elongation, point_asymmetry, wear_stretch
+from edge.area_checks import steady_areas, symmetric_below
+from edge.blob_shape import point_asymmetry, wear_stretch
 from edge.filtering import ConstantVelocityFilter, HeadingFilter, one_colour_heading
 from edge.tracker_config import RoverConfig, TrackerSettings
 from edge.trackers.base import Measurement
@@ -30,11 +30,8 @@ RELEARN_FRAMES = 60  # lost this long (2 s at 30 fps), a rover may learn its are
 RELEARN_NEARER = 1.1  # ... from a blob nearer the nominal area than its learned area is, by this factor
 RELEARN_SHAPE = 0.07  # ... whose elongation is within this share of the marker's aspect (a hidden end shortens it)
 RELEARN_STEP_CM = 3.0  # ... and whose last frames' blobs each lay within this of the next (one blob, not several)
-SYMMETRY_FLOOR = 0.8  # a blob below the area band but showing this share of the learned area may be whole ...
-SYMMETRY_SKEW = 0.15  # ... when its point asymmetry (edge.blob_shape) is at most this
-SYMMETRY_SHAPE = 0.05  # ... and its elongation within this share of a rectangle worn down all round to its area
-SYMMETRY_STEP_CM = 0.75  # ... and its centre within this of where the rover's filter expects it
-SEEN_FRAMES = 60  # lost this long at most, a rover is expected where it was last seen (for SYMMETRY_STEP_CM)
+CORE_BAND = 0.06  # a blob whose binary core shows its learned core's area within this share is whole (core_whole)
+SEEN_FRAMES = 60  # lost this long at most, a rover is expected where it was last seen (area_checks.SYMMETRY_STEP_CM)
 LOPSIDED_RATIO = 0.98  # a blob below this share of the learned area, more lopsided than the rover's whole marker ...
 LOPSIDED_FLOOR = 0.2  # ... is (twice the median point asymmetry of its whole blobs, plus 0.1; at least this) ...
 LOPSIDED_UNKNOWN = 0.4  # ... or than this before that is known, has a part hidden (RoverTrack.lopsided_limit)
@@ -66,6 +63,7 @@ class RoverTrack:
     misses: int = 0
     level: float = 0.0
     areas: deque[float] = field(default_factory=lambda: deque(maxlen=31))
+    cores: deque[float] = field(default_factory=lambda: deque(maxlen=31))  # the binary cores' areas of whole blobs
     # whole blobs' point asymmetry, every SKEW_EVERY frames over the last 10 s at 30 fps (a part hidden a little more
     # each second barely moves their median)
     skews: deque[float] = field(default_factory=lambda: deque(maxlen=100))
@@ -145,6 +143,27 @@ class RoverTrack:
         spread = 1.4826 * float(mad) / expected_cm2
         low = min(min_fraction, max(1.0 - scatters * spread, LOWEST_AREA_FRACTION))
         return low, max(max_fraction, 1.0 + 3.0 * spread)
+
+    def learn(self, m: Measurement, nominal_cm2: float, frame: int) -> None:
+        """Learn the areas of a blob taken for this rover: its area when it is near the learned one (its quality) or
+        larger and level (:meth:`larger_and_level`), its binary core's when near the learned core (or none yet)."""
+        if m.quality > 0.8 or self.larger_and_level(m.area_cm2, nominal_cm2, frame):
+            self.areas.append(m.area_cm2)
+        if m.core_cm2 > 0.0 and (len(self.cores) < 10 or 0.8 <= m.core_cm2 / statistics.median(self.cores) <= 1.25):
+            self.cores.append(m.core_cm2)
+
+    def core_whole(self, m: Measurement, ratio: float, config: TrackerSettings) -> bool:
+        """Is a blob whose area is ``ratio`` of the learned one, outside the area band, whole by its binary core? The
+        core's area at least 1 - :data:`CORE_BAND` of the rover's learned core area and at most that much over it
+        (``max_area_fraction`` over it for an area below the band); the lopsided and joined checks follow as for any
+        blob. The unmixed area rests on the surround's colours; where they fail (a body's sky-lit white top face
+        round the marker, brighter than all of them) it fell to 0.65 of a whole marker's while the core stayed at
+        0.95-1.11 of the core learned in the sun; a part hidden takes both down (docs/tracking.md, "Is it one whole
+        marker?")."""
+        if m.core_cm2 <= 0.0 or len(self.cores) < 10:
+            return False
+        core = m.core_cm2 / statistics.median(self.cores)
+        return 1.0 - CORE_BAND <= core <= (config.max_area_fraction if ratio < 1.0 else 1.0 + CORE_BAND)
 
     def measured(self, frame: int, area_cm2: float, xy_cm: tuple[float, float] | None = None) -> None:
         """Note the area (and where, ``xy_cm``) of the blob measured for this rover in ``frame`` (whole or not; the
@@ -234,8 +253,10 @@ class RoverTrack:
                 1.0 if cm_per_px is None else wear_stretch(cm_per_px, m.axis_rad),
             )
         )
+        inside = low <= ratio <= high
+        cored = learned and not inside and not steady and not symmetric and self.core_whole(m, ratio, config)
         relearn = False
-        if not low <= ratio <= high and not steady and not symmetric:
+        if not inside and not steady and not symmetric and not cored:
             if not (learned and self.relearn(m, config, frame)):
                 return False
             relearn = True
@@ -394,45 +415,3 @@ class RoverTrack:
 def _aspect(config: TrackerSettings) -> float:
     """The marker's length over its width (at least 1)."""
     return max(config.marker_length_cm, config.marker_width_cm) / min(config.marker_length_cm, config.marker_width_cm)
-
-
-def symmetric_below(
-    m: Measurement, ratio: float, aspect: float, innovation_cm: float | None, stretch: float = 1.0
-) -> bool:
-    """Is a blob showing ``ratio`` of the learned area, below the area band, the whole marker worn down all round by
-    the stream (``edge.blob_shape``)? At least :data:`SYMMETRY_FLOOR` of the area, its point asymmetry at most
-    :data:`SYMMETRY_SKEW`, its elongation (``aspect``: the marker's) within :data:`SYMMETRY_SHAPE` of a worn
-    rectangle's (``stretch``: how much more floor its long sides lose than its ends, ``edge.blob_shape.wear_stretch``),
-    and its centre within :data:`SYMMETRY_STEP_CM` of where the rover is expected (``innovation_cm``:
-    :meth:`RoverTrack.step_cm`; None: nowhere known, not taken).
-
-    A part hidden by a leg or a box makes the blob lopsided or, cut straight across, of the wrong elongation; of the
-    hidden parts that pass both, one box's moves the centre 0.45 cm at most (tests/test_blob_shape.py). Strips
-    hidden along an end and a side at once leave a smaller rectangle, symmetric and of a worn marker's shape,
-    whose centre is off by the strips' width (1.1 cm at 0.85 of the area): the shape cannot tell, the filter's
-    prediction can (docs/tracking.md, "Is it one whole marker?")."""
-    if ratio < SYMMETRY_FLOOR or m.weights is None or innovation_cm is None:
-        return False
-    if not innovation_cm <= SYMMETRY_STEP_CM:
-        return False
-    if not abs(m.elongation / aspect / eroded_elongation(ratio, aspect, stretch) - 1.0) <= SYMMETRY_SHAPE:  # NaN: no
-        return False
-    return point_asymmetry(m.weights) <= SYMMETRY_SKEW
-
-
-def steady_areas(ratios: Sequence[float], max_slope: float, max_step: float) -> bool:
-    """Do consecutive frames' blob areas (``ratios``: shares of the learned area, oldest first) stay at one level?
-
-    A marker a leg or a person hides shows less of its area from frame to frame (the visible share falls or, as it
-    comes out, rises, by a few percent a frame), or at once; a whole marker's area in a compressed stream moves
-    with the stream's chroma at its boundary: it may settle below its learned area for a while (the marker turns,
-    its surround changes), scattered by a few percent a frame, but does not keep falling. Level: the least-squares
-    slope over the frames is within ``max_slope`` per frame and the last ratio within ``max_step`` of the median of
-    the ones before it."""
-    n = len(ratios)
-    if n < 3:
-        return False
-    mean_t = 0.5 * (n - 1)
-    mean_r = sum(ratios) / n
-    slope = sum((t - mean_t) * (r - mean_r) for t, r in enumerate(ratios)) / sum((t - mean_t) ** 2 for t in range(n))
-    return abs(slope) <= max_slope and abs(ratios[-1] - statistics.median(ratios[:-1])) <= max_step

@@ -8,8 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
+from edge.area_checks import symmetric_below
 from edge.blob_shape import eroded_elongation, footprint_in_view, marker_part, point_asymmetry, wear_stretch
-from edge.rover_track import SEEN_FRAMES, RoverTrack, symmetric_below
+from edge.rover_track import SEEN_FRAMES, RoverTrack
 from edge.tracker_config import RoverConfig, TrackerSettings
 from edge.trackers.base import Measurement
 
@@ -73,7 +74,7 @@ def _accepted(
     innovation_cm: float | None = 0.0,
     stretch: float = 1.0,
 ) -> tuple[bool, float, float]:
-    """Does :func:`edge.rover_track.symmetric_below` take the marker with ``holes`` (boxes along the marker's axes)
+    """Does :func:`edge.area_checks.symmetric_below` take the marker with ``holes`` (boxes along the marker's axes)
     hidden for whole, its centre ``innovation_cm`` from the filter's prediction (0: the shape alone decides)? And
     its visible share and centre shift."""
     x, y = GRID

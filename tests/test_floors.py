@@ -112,11 +112,12 @@ def _red_on_wood(scenario: str, seed: int, frames: int) -> tuple[Any, dict[int, 
     return clip, {i: math.hypot(*e) for i, e in errors.items()}
 
 
-def _kept_on_wood(scenario: str, seed: int, frames: range, most_missing: int) -> None:
-    """The red rover of the family's ``scenario`` clip for ``seed`` on wood, in view in most of ``frames``, is
+def _kept_on_wood(scenario: str, seed: int, frames: range, most_missing: int, rover: str = "red") -> None:
+    """The ``rover`` of the family's ``scenario`` clip for ``seed`` on wood, in view in most of ``frames``, is
     missing in ``most_missing`` of them at most, never 3 running, and every pose there is within 1.5 cm."""
-    clip, errors = _red_on_wood(scenario, seed, frames.stop)
-    seen = [i for i in frames if clip.truth[i]["red"][5] >= 0.99]
+    clip, xy_errors = _on_wood(scenario, seed, frames.stop, rover=rover)
+    errors = {i: math.hypot(*e) for i, e in xy_errors.items()}
+    seen = [i for i in frames if clip.truth[i][rover][5] >= 0.99]
     assert len(seen) > 0.9 * len(frames)
     missing = [i for i in seen if i not in errors]
     assert len(missing) <= most_missing, missing
@@ -231,6 +232,17 @@ def test_a_red_rover_leaving_a_sunlit_patch_of_wood_beside_a_pale_blue_body_is_k
     (1.3 s). Now it is missing for 2 frames running at most (its area in the sun is still 1.05-1.2 of the marker's:
     docs/benchmarks.md, "A pale body of another rover's hue ..."), and every pose is within 1.5 cm."""
     _kept_on_wood("sun", 1000, range(100, 176), most_missing=5)
+
+
+@pytest.mark.slow
+def test_a_blue_rover_on_a_white_body_leaving_a_sunlit_patch_of_wood_is_kept() -> None:
+    """The family's daylight clip with seed 1000 on the wooden floor (4:4:4 q84, sharpened 1.49): the blue rover, on
+    a white body, drives out of the window's sunlit patch at frame 320. In the shade the body's top face round the
+    marker, lit by the sky, is brighter than anything in the band the edge takes its surround colours from, and the
+    marker's unmixed area fell to 0.65 of the one learned in the sun: refused as partly hidden in frames 322-429
+    (3.6 s). Its binary core stayed within 1 % of the learned core's area, and now says it is whole
+    (``edge.rover_track.RoverTrack.core_whole``): missing in 2 frames at most there, every pose within 1.5 cm."""
+    _kept_on_wood("daylight", 1000, range(300, 431), most_missing=2, rover="blue")
 
 
 @pytest.mark.slow

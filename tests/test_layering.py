@@ -35,6 +35,7 @@ CORE = (
     "edge.pipeline",
     "edge.acquisition",
     "edge.rover_track",
+    "edge.area_checks",
     "edge.white",
     "edge.outline",
     "edge.centre_offsets",

@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from edge.area_checks import steady_areas
 from edge.camera import MARKER_HEIGHT_CM
 from edge.rover_track import (
     LOPSIDED_FLOOR,
@@ -15,7 +16,6 @@ from edge.rover_track import (
     STEADY_SLOPE,
     STEADY_STEP,
     RoverTrack,
-    steady_areas,
 )
 from edge.tracker_config import RoverConfig, TrackerConfig, TrackerSettings
 from edge.trackers.base import Measurement
@@ -359,3 +359,47 @@ def test_a_larger_lopsided_blob_is_joined_only_when_it_pulls_the_centre_off_the_
     symmetric = _lopsided((X_CM + 3.0, Y_CM))
     symmetric.weights[23:35, 44:58] = 0.0  # type: ignore[index]
     assert not track._joined(symmetric)
+
+
+def _cored(area: float, core: float, hidden: bool = False) -> Measurement:
+    """A blob of a 29 x 23 px marker whose unmixed area is ``area`` and binary core's ``core`` (a track's learned
+    ones are 1.0), symmetric; ``hidden``: its weights lack a corner (a box over it: lopsided)."""
+    weights = np.zeros((40, 50), np.float32)
+    weights[8:31, 10:39] = 1.0
+    if hidden:
+        weights[8:21, 29:39] = 0.0
+    return Measurement((X_CM, Y_CM), (25.0, 20.0), area, 1.0, 0.7, 0.0, 1.28, False, weights, core_cm2=core)
+
+
+@pytest.mark.parametrize(
+    ("area", "core", "hidden", "whole"),
+    [
+        (0.65, 0.98, False, True),  # the edge model's surround failed (a sky-lit rim): the core shows a whole marker
+        (0.65, 1.10, False, True),  # the core a little larger (the threshold in another light): not a hidden part
+        (0.65, 0.90, False, False),  # the core down with the area: a part hidden
+        (0.65, 0.98, True, False),  # the core's area, but lopsided (a corner hidden): refused as ever
+        (1.40, 1.02, False, True),  # too large by the edge model, the core as learned
+        (1.40, 1.12, False, False),  # too large by both: joined to something
+    ],
+)
+def test_a_blob_outside_the_area_band_is_whole_when_its_binary_core_shows_the_learned_core(
+    area: float, core: float, hidden: bool, whole: bool
+) -> None:
+    """The family's daylight clips on wood: a blue marker on a white body, leaving a sunlit patch, measured 0.65-0.75
+    of its area in the shade (the body's sky-lit top face, brighter than the surround the edge is unmixed against)
+    and was refused for 70-105 frames, while its binary core stayed at 0.95-1.11 of the one learned in the sun."""
+    settings = TrackerSettings()
+    track = _track([1.0] * 31)
+    track.cores.extend([1.0] * 31)
+    assert track.whole_marker(_cored(area, core, hidden), 1.0, True, settings, 0.0, 100) is whole
+    bare = _track([1.0] * 31)  # no core learned (a tracker that gives none): the area band alone decides
+    assert not bare.whole_marker(_cored(area, core, hidden), 1.0, True, settings, 0.0, 100)
+
+
+def test_a_rover_learns_its_binary_core_from_blobs_near_it_and_forgets_it_with_its_area() -> None:
+    track = _track([1.0] * 31)
+    for core in [1.0] * 12 + [0.7, 1.4]:  # the last two: far off the learned core (a part hidden, something joined)
+        track.learn(_cored(1.0, core), 1.0, 0)
+    assert list(track.cores) == [1.0] * 12
+    track.learn(_cored(1.0, 0.0), 1.0, 0)  # no core measured
+    assert len(track.cores) == 12

@@ -97,7 +97,9 @@ class Measurement:
     ``at_image_edge``: the blob touches the border of the image (the marker may be cut off); ``weights``: the
     (h, w) float32 coverage of each window pixel by the marker that the centre was taken from (None if the tracker
     has none), so a later step can re-weigh an edge it knows more about (a two-tone marker's inner edge);
-    ``outlined``: the centre and axis come from the marker's fitted outline, whose size matched the marker's
+    ``core_cm2``: the area on the plane of the blob's binary core (its thresholded pixels, holes filled; 0: not
+    known), a second measure of its size that does not rest on the edge model; ``outlined``: the centre and axis
+    come from the marker's fitted outline, whose size matched the marker's
     (``edge.trackers.refine``); ``axis_coherence``: how clearly the marker's edges showed that axis (0..1; 0: the
     blob's principal axis).
     """
@@ -113,6 +115,7 @@ class Measurement:
     weights: F32 | None = field(default=None, compare=False, repr=False)
     outlined: bool = False
     axis_coherence: float = 0.0
+    core_cm2: float = 0.0
 
     def with_axis(self, axis_rad: float, coherence: float) -> Measurement:
         """This measurement with its long axis and that axis's coherence replaced (``dataclasses.replace`` costs ten
@@ -129,6 +132,7 @@ class Measurement:
             self.weights,
             self.outlined,
             coherence,
+            self.core_cm2,
         )
 
 
@@ -155,6 +159,7 @@ def make_measurement(
         blob.elongation,
         edge,
         weights,
+        core_cm2=int(np.count_nonzero(core)) * window.local.area_at(blob.u_px, blob.v_px),
     )
 
 
