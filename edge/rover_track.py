@@ -158,7 +158,7 @@ class RoverTrack:
         (``max_area_fraction`` over it for an area below the band); the lopsided and joined checks follow as for any
         blob. The unmixed area rests on the surround's colours; where they fail (a body's sky-lit white top face
         round the marker, brighter than all of them) it fell to 0.65 of a whole marker's while the core stayed at
-        0.95-1.11 of the core learned in the sun; a part hidden takes both down (docs/tracking.md, "Is it one whole
+        0.95-1.19 of the core learned in the sun; a part hidden takes both down (docs/tracking.md, "Is it one whole
         marker?")."""
         if m.core_cm2 <= 0.0 or len(self.cores) < 10:
             return False

@@ -387,7 +387,7 @@ def test_a_blob_outside_the_area_band_is_whole_when_its_binary_core_shows_the_le
 ) -> None:
     """The family's daylight clips on wood: a blue marker on a white body, leaving a sunlit patch, measured 0.65-0.75
     of its area in the shade (the body's sky-lit top face, brighter than the surround the edge is unmixed against)
-    and was refused for 71-105 frames, while its binary core stayed at 0.95-1.11 of the one learned in the sun."""
+    and was refused for 71-105 frames, while its binary core stayed at 0.95-1.19 of the one learned in the sun."""
     settings = TrackerSettings()
     track = _track([1.0] * 31)
     track.cores.extend([1.0] * 31)
