@@ -253,10 +253,9 @@ class RoverTrack:
                 1.0 if cm_per_px is None else wear_stretch(cm_per_px, m.axis_rad),
             )
         )
-        inside = low <= ratio <= high
-        cored = learned and not inside and not steady and not symmetric and self.core_whole(m, ratio, config)
         relearn = False
-        if not inside and not steady and not symmetric and not cored:
+        whole = low <= ratio <= high or steady or symmetric
+        if not whole and not (learned and self.core_whole(m, ratio, config)):
             if not (learned and self.relearn(m, config, frame)):
                 return False
             relearn = True
