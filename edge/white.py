@@ -134,7 +134,7 @@ class LocalWhite:
         return np.array([min(max(g * scale, 1.0 / MAX_GAIN), MAX_GAIN) for g in gains])
 
     def frame_gains(self, shape_hw: tuple[int, int]) -> NDArray[np.float32]:
-        """(h, w, 3) gains over a whole (downscaled) frame from the coarse map alone (the acquisition pass)."""
+        """(h, w, 3) gains over a whole (downscaled) frame from the light map alone (the acquisition pass)."""
         gains = self.white / np.maximum(self.light, 1e-6)
         gains /= gains.mean(axis=2, keepdims=True)
         gains = np.clip(gains, 1.0 / MAX_GAIN, MAX_GAIN).astype(np.float32)

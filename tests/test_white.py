@@ -216,7 +216,7 @@ def test_a_floors_own_tint_from_block_to_block_is_not_taken_for_the_light_and_a_
     rng = np.random.default_rng(3)
     blocks = 1.0 + rng.uniform(-0.06, 0.06, (8, 10, 1)) * np.array([1.0, 0.0, -1.0])  # a tint per block
     floor = np.repeat(np.repeat(130.0 * blocks, 32, axis=0), 32, axis=1)
-    floor[64:192, 96:224] *= (0.7, 1.0, 1.3)  # a warm sunlit patch over 4 x 4 blocks
+    floor[64:192, 96:224] *= (0.9, 1.3, 1.7)  # a sunlit patch over 4 x 4 blocks: brighter and warmer
     floor = np.clip(floor, 0, 255).astype(np.uint8)
     white = LocalWhite(floor, np.ones(floor.shape[:2], bool))
     outside = np.ones((8, 10), bool)
