@@ -397,8 +397,7 @@ class Pipeline:
                 tr.filter = self.filters.create_filter(m.xy_cm, obs.r_cm2)
                 tr.lost_at = None
                 if tr.relearned_at == self._frames:
-                    tr.areas.clear()  # taken by RoverTrack.relearn: learned afresh from here, as when first seen
-                    tr.cores.clear()
+                    tr.forget_sizes()  # taken by RoverTrack.relearn: learned afresh from here, as when first seen
             elif tr.index in measured and tr.filter is not None:
                 obs = measured[tr.index]
                 m = obs.measurement

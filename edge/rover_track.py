@@ -31,6 +31,7 @@ RELEARN_NEARER = 1.1  # ... from a blob nearer the nominal area than its learned
 RELEARN_SHAPE = 0.07  # ... whose elongation is within this share of the marker's aspect (a hidden end shortens it)
 RELEARN_STEP_CM = 3.0  # ... and whose last frames' blobs each lay within this of the next (one blob, not several)
 CORE_BAND = 0.06  # a blob whose binary core shows its learned core's area within this share is whole (core_whole)
+CORES_KNOWN = 10  # whole blobs' cores learned before a rover's core is known (before it, every one is learned)
 SEEN_FRAMES = 60  # lost this long at most, a rover is expected where it was last seen (area_checks.SYMMETRY_STEP_CM)
 LOPSIDED_RATIO = 0.98  # a blob below this share of the learned area, more lopsided than the rover's whole marker ...
 LOPSIDED_FLOOR = 0.2  # ... is (twice the median point asymmetry of its whole blobs, plus 0.1; at least this) ...
@@ -149,8 +150,15 @@ class RoverTrack:
         larger and level (:meth:`larger_and_level`), its binary core's when near the learned core (or none yet)."""
         if m.quality > 0.8 or self.larger_and_level(m.area_cm2, nominal_cm2, frame):
             self.areas.append(m.area_cm2)
-        if m.core_cm2 > 0.0 and (len(self.cores) < 10 or 0.8 <= m.core_cm2 / statistics.median(self.cores) <= 1.25):
+        if m.core_cm2 > 0.0 and (
+            len(self.cores) < CORES_KNOWN or 0.8 <= m.core_cm2 / statistics.median(self.cores) <= 1.25
+        ):
             self.cores.append(m.core_cm2)
+
+    def forget_sizes(self) -> None:
+        """Forget the learned areas and cores (a blob taken by :meth:`relearn`: learned afresh from it)."""
+        self.areas.clear()
+        self.cores.clear()
 
     def core_whole(self, m: Measurement, ratio: float, config: TrackerSettings) -> bool:
         """Is a blob whose area is ``ratio`` of the learned one, outside the area band, whole by its binary core? The
@@ -160,7 +168,7 @@ class RoverTrack:
         round the marker, brighter than all of them) it fell to 0.65 of a whole marker's while the core stayed at
         0.95-1.19 of the core learned in the sun; a part hidden takes both down (docs/tracking.md, "Is it one whole
         marker?")."""
-        if m.core_cm2 <= 0.0 or len(self.cores) < 10:
+        if m.core_cm2 <= 0.0 or len(self.cores) < CORES_KNOWN:
             return False
         core = m.core_cm2 / statistics.median(self.cores)
         return 1.0 - CORE_BAND <= core <= (config.max_area_fraction if ratio < 1.0 else 1.0 + CORE_BAND)
