@@ -223,6 +223,44 @@ def test_particles_choose_the_marker_nearest_the_prediction_in_a_window_far_from
         assert math.hypot(m.xy_cm[0] - target.x, m.xy_cm[1] - target.y) < 0.3
 
 
+def test_particles_never_take_a_part_of_the_empty_scene_for_the_rover_when_another_particle_differs_from_it():
+    """A poster of the rover's hue lies in the empty scene, just where the filter predicted the rover; the rover is
+    35 cm away (three marker radii: farther than the nearness to the prediction alone would let it win). The poster
+    is part of the empty scene (eq. 2: none of it differs from the reference), the rover is not: the rover is
+    measured, however near the prediction the poster is."""
+    scene = shared_scene()
+    rover = SynthRover("red", 200.0, 285.0, 0.0, COLORS["red"])
+    poster = SynthRover("poster", 200.0, 250.0, 0.0, (40, 35, 205), marker_cm=(22.0, 17.0), body_cm=(22.0, 17.0))
+    image = scene.render([poster, rover], noise_sigma=2.0, rng=np.random.default_rng(5))
+    empty = scene.render([poster])
+    uv = scene.camera.project(np.array([[r.x, r.y, MARKER_HEIGHT_CM] for r in (poster, rover)]))
+    lo, hi = uv.min(axis=0), uv.max(axis=0)
+    box = (int(lo[0]) - 40, int(lo[1]) - 40, int(hi[0]) + 41, int(hi[1]) + 41)
+    config = TrackerConfig(rovers=(rover.config(), SynthRover("other", 0, 0, 0, COLORS["blue"]).config()))
+    colors = ColorModel.from_colors([r.color_bgr for r in config.rovers], 30.0, 0.35)
+    maps = PlaneGrid(scene.mapping, (image.shape[1], image.shape[0]))
+
+    def measured(background: np.ndarray | None) -> tuple[float, float]:
+        window = prepare_window(
+            image,
+            box,
+            rover_index=0,
+            predicted_uv=(float(uv[0, 0]), float(uv[0, 1])),
+            colors=colors,
+            maps=maps,
+            background=BackgroundModel(image.shape[:2], 100, background),
+            background_threshold=0.2,
+            clock=NullClock(),
+        )
+        assert window is not None
+        m = make_tracker("particles").measure(window, RoverModel(0, MARKER_AREA, 0.0), StageTimes())
+        assert m is not None
+        return m.xy_cm
+
+    assert math.dist(measured(empty), (rover.x, rover.y)) < 0.5
+    assert math.dist(measured(None), (poster.x, poster.y)) < 0.5  # with no empty scene to tell, the nearer one
+
+
 def _marker_on_a_body(theta: float, cm_per_px: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
     """Luminance and marker coverage of a 21.5 x 16.8 cm marker on a dark body seen from above and in front: the
     body's top shows 2 px round the marker, its side below it, down to a foot outline that the camera sees turned

@@ -111,9 +111,10 @@ class ParticleTracker:
         """The marker's particle, plus any fragments of it (a marker split by a glare band stays whole).
 
         Particles are scored by area (Table II) and solidity, and by nearness to the prediction; when several
-        qualify, background subtraction (eq. 2) breaks the tie: a particle that is part of the empty scene (a
-        sticker, a poster of the same hue) is not the rover. ``labels``: the label image of several particles (None
-        with one).
+        qualify, background subtraction (eq. 2) adds what share of each differs from the empty scene; and a particle
+        that is part of the empty scene (under a fifth of it differs: a sticker, a poster of the same hue) is never
+        the rover while another one differs from it (over half), however near the prediction it lies.
+        ``labels``: the label image of several particles (None with one).
         """
         if not particles:
             return []
@@ -133,8 +134,13 @@ class ParticleTracker:
         if len(plausible) > 1:
             assert labels is not None  # None only with one particle
             t0 = time.perf_counter()
+            differs = {p.label: window.foreground_fraction(labels == p.label) for p in plausible}
             for p in plausible:
-                scores[p.label] += 0.5 * window.foreground_fraction(labels == p.label)
+                scores[p.label] += 0.5 * differs[p.label]
+            if max(differs.values()) > 0.5:  # part of the empty scene loses to what differs from it
+                for p in plausible:
+                    if differs[p.label] < 0.2:
+                        scores[p.label] = -math.inf
             clock.add("subtraction", time.perf_counter() - t0)
         best = max(particles, key=lambda p: scores[p.label])
         if scores[best.label] == -math.inf:
