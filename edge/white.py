@@ -12,9 +12,14 @@ floor: its reference is a local white reference at every pixel.
   colours were configured under;
 * a coarse map of the reference's colour (blocks of 32 pixels, a tile or more of floor: the floor's own pattern,
   grout and tape average out, the light's slow variation across the room, a sunlit patch, stays), refreshed as the
-  reference is; a block whose colour no light has (a poster of a marker's hue on the floor) counts as the white.
+  reference is; a block whose colour no light has (a poster of a marker's hue on the floor) counts as the white;
+* ``light``: that map with each block's colour the median of its own and its 8 neighbours' (per channel). A wooden
+  floor's planks differ in tint from one block to the next by as much as a sunlit patch differs from the lamps (0.02
+  to 0.05 in chromaticity), and block by block each plank's tint was corrected as if it were the light. The median
+  about halves a block's own tint and keeps the light of a patch three blocks wide or more (docs/benchmarks.md,
+  "The light's map smoothed over its blocks").
 
-For a window, the light there now is the coarse map's colour there, corrected by how the floor just around the
+For a window, the light there now is the light map's colour there, corrected by how the floor just around the
 window has changed since the reference was taken (median ratio of the window's border pixels to the reference's:
 the automatic white balance and passing clouds act between refreshes). The window's pixels are then divided by that
 light's colour and multiplied by ``white`` (a von Kries correction, per channel in linear light, brightness kept):
@@ -59,6 +64,7 @@ class LocalWhite:
         the whole view's mean colour (a few rovers in it change it little)."""
         self.white = _chromaticity(_mean_colour(reference, np.ones(valid.shape, bool)))
         self.coarse = np.zeros((0, 0, 3))
+        self.light = self.coarse
         self._edges: list[int] = []
         self.update(reference, valid)
 
@@ -77,6 +83,8 @@ class LocalWhite:
         edges = self._edges
         for i in blocks:
             self.coarse[i] = self._block_row(reference[edges[i] : edges[i + 1]], valid[edges[i] : edges[i + 1]], nw)
+        if blocks:
+            self.light = np.asarray(cv2.medianBlur(self.coarse.astype(np.float32), 3), np.float64)
 
     def _block_row(self, strip: U8, valid: BoolArray, blocks: int) -> FloatArray:
         """(blocks, 3) the light's chromaticity in each block of a strip of the reference."""
@@ -104,7 +112,7 @@ class LocalWhite:
         x0, y0, x1, y1 = box
         cy = min(self.coarse.shape[0] - 1, ((y0 + y1) // 2) // BLOCK_PX)
         cx = min(self.coarse.shape[1] - 1, ((x0 + x1) // 2) // BLOCK_PX)
-        coarse = self.coarse[cy, cx].tolist()  # three numbers: plain floats are quicker than arrays
+        coarse = self.light[cy, cx].tolist()  # three numbers: plain floats are quicker than arrays
         light = coarse
         if reference is not None and valid is not None:
             border = _border_index(*valid.shape[:2])
@@ -126,8 +134,8 @@ class LocalWhite:
         return np.array([min(max(g * scale, 1.0 / MAX_GAIN), MAX_GAIN) for g in gains])
 
     def frame_gains(self, shape_hw: tuple[int, int]) -> NDArray[np.float32]:
-        """(h, w, 3) gains over a whole (downscaled) frame from the coarse map alone (the acquisition pass)."""
-        gains = self.white / np.maximum(self.coarse, 1e-6)
+        """(h, w, 3) gains over a whole (downscaled) frame from the light map alone (the acquisition pass)."""
+        gains = self.white / np.maximum(self.light, 1e-6)
         gains /= gains.mean(axis=2, keepdims=True)
         gains = np.clip(gains, 1.0 / MAX_GAIN, MAX_GAIN).astype(np.float32)
         return np.asarray(cv2.resize(gains, (shape_hw[1], shape_hw[0]), interpolation=cv2.INTER_LINEAR))

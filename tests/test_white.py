@@ -206,3 +206,25 @@ def test_two_tone_rovers_driving_in_a_row_through_the_lens_scenario_are_all_trac
         row = runs.summary(s)
         assert row["det"] >= 0.99, (rid, row)
         assert row["max"] < 2.0, (rid, row)
+
+
+def test_a_floors_own_tint_from_block_to_block_is_not_taken_for_the_light_and_a_sunlit_patch_is():
+    """A wooden floor's planks differ in tint from one 32-pixel block to the next by as much as a sunlit patch's light
+    differs from the lamps' (the family's wood: a block 0.02-0.05 warmer or cooler than the room's white), and block
+    by block each tint was corrected as if it were the light. The light's map is the median of each block and its 8
+    neighbours: a block's own tint is about halved, the light of a patch of 3 blocks or more is kept."""
+    rng = np.random.default_rng(3)
+    blocks = 1.0 + rng.uniform(-0.06, 0.06, (8, 10, 1)) * np.array([1.0, 0.0, -1.0])  # a tint per block
+    floor = np.repeat(np.repeat(130.0 * blocks, 32, axis=0), 32, axis=1)
+    floor[64:192, 96:224] *= (0.9, 1.3, 1.7)  # a sunlit patch over 4 x 4 blocks: brighter and warmer
+    floor = np.clip(floor, 0, 255).astype(np.uint8)
+    white = LocalWhite(floor, np.ones(floor.shape[:2], bool))
+    outside = np.ones((8, 10), bool)
+    outside[1:7, 2:8] = False  # the patch and the blocks beside it
+    lamps = np.median(white.coarse[outside], axis=0)  # the lamps' light, the floor's tints about it
+    tint = np.abs(white.coarse[outside] - lamps).max(axis=1)
+    left = np.abs(white.light[outside] - lamps).max(axis=1)
+    assert np.median(left) < 0.6 * np.median(tint)  # about halved
+    sun = np.median(white.coarse[2:6, 3:7].reshape(-1, 3), axis=0)  # the patch's light, its planks' tints about it
+    inside = white.light[3:5, 4:6].reshape(-1, 3)  # its central blocks
+    assert np.abs(inside - sun).max() < 0.1 * np.abs(sun - lamps).max()
