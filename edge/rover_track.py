@@ -32,9 +32,8 @@ RELEARN_SHAPE = 0.07  # ... whose elongation is within this share of the marker'
 RELEARN_STEP_CM = 3.0  # ... and whose last frames' blobs each lay within this of the next (one blob, not several)
 CORE_BAND = 0.06  # a blob whose binary core shows its learned core's area within this share is whole (core_whole)
 CORES_KNOWN = 10  # whole blobs' cores learned before a rover's core is known (before it, every one is learned)
-CORE_OVER = 1.25  # a core over this share of the learned one is not learned (RoverTrack.learn); found again with
-# one over CORE_JOINED, a rover's blob holds more of its hue than its marker does (RoverTrack.core_joined)
-CORE_JOINED = 1.3
+CORE_OVER = 1.25  # a blob's core over this share of the learned core is not learned (RoverTrack.learn)
+CORE_JOINED = 1.3  # a lost rover's blob whose core is over this share of it holds more than its marker (core_joined)
 SEEN_FRAMES = 60  # lost this long at most, a rover is expected where it was last seen (area_checks.SYMMETRY_STEP_CM)
 LOPSIDED_RATIO = 0.98  # a blob below this share of the learned area, more lopsided than the rover's whole marker ...
 LOPSIDED_FLOOR = 0.2  # ... is (twice the median point asymmetry of its whole blobs, plus 0.1; at least this) ...
