@@ -171,9 +171,14 @@ class RoverTrack:
         was 1.44 of the learned one. With no prediction to check it by, it was taken."""
         if self.filter is not None or self.lost_at is None or frame - self.lost_at >= RELEARN_FRAMES:
             return False
+        core = self.core_ratio(m)
+        return core is not None and core > CORE_JOINED
+
+    def core_ratio(self, m: Measurement) -> float | None:
+        """The blob's binary core as a share of the learned core (None: no core measured, or not known yet)."""
         if m.core_cm2 <= 0.0 or len(self.cores) < CORES_KNOWN:
-            return False
-        return m.core_cm2 > CORE_JOINED * statistics.median(self.cores)
+            return None
+        return m.core_cm2 / statistics.median(self.cores)
 
     def core_whole(self, m: Measurement, ratio: float, config: TrackerSettings) -> bool:
         """Is a blob whose area is ``ratio`` of the learned one, outside the area band, whole by its binary core? The
@@ -183,10 +188,10 @@ class RoverTrack:
         round the marker, brighter than all of them) it fell to 0.65 of a whole marker's while the core stayed at
         0.95-1.19 of the core learned in the sun; a part hidden takes both down (docs/tracking.md, "Is it one whole
         marker?")."""
-        if m.core_cm2 <= 0.0 or len(self.cores) < CORES_KNOWN:
-            return False
-        core = m.core_cm2 / statistics.median(self.cores)
-        return 1.0 - CORE_BAND <= core <= (config.max_area_fraction if ratio < 1.0 else 1.0 + CORE_BAND)
+        core = self.core_ratio(m)
+        return core is not None and 1.0 - CORE_BAND <= core <= (
+            config.max_area_fraction if ratio < 1.0 else 1.0 + CORE_BAND
+        )
 
     def measured(self, frame: int, area_cm2: float, xy_cm: tuple[float, float] | None = None) -> None:
         """Note the area (and where, ``xy_cm``) of the blob measured for this rover in ``frame`` (whole or not; the

@@ -189,6 +189,23 @@ def test_unknown_tracker_name_is_refused():
         make_tracker("kalman")
 
 
+def _window(image, box, uv, colors, maps, background):
+    """The window ``box`` of ``image`` for rover 0, predicted at image point ``uv`` (as the pipeline prepares it)."""
+    window = prepare_window(
+        image,
+        box,
+        rover_index=0,
+        predicted_uv=(float(uv[0]), float(uv[1])),
+        colors=colors,
+        maps=maps,
+        background=background,
+        background_threshold=0.2,
+        clock=NullClock(),
+    )
+    assert window is not None
+    return window
+
+
 def test_particles_choose_the_marker_nearest_the_prediction_in_a_window_far_from_the_image_origin():
     """Two markers of the same hue in one window (a rover meeting a red poster): the one the filter predicted is
     measured, wherever in the image the window lies (the particles' centres are in window pixels, the prediction
@@ -206,18 +223,7 @@ def test_particles_choose_the_marker_nearest_the_prediction_in_a_window_far_from
     bg = BackgroundModel(image.shape[:2], 100)
     for target in (a, b):
         i = 0 if target is a else 1
-        window = prepare_window(
-            image,
-            box,
-            rover_index=0,
-            predicted_uv=(float(uv[i, 0]), float(uv[i, 1])),
-            colors=colors,
-            maps=maps,
-            background=bg,
-            background_threshold=0.2,
-            clock=NullClock(),
-        )
-        assert window is not None
+        window = _window(image, box, uv[i], colors, maps, bg)
         m = make_tracker("particles").measure(window, RoverModel(0, MARKER_AREA, 0.0), StageTimes())
         assert m is not None
         assert math.hypot(m.xy_cm[0] - target.x, m.xy_cm[1] - target.y) < 0.3
@@ -241,18 +247,7 @@ def test_particles_never_take_a_part_of_the_empty_scene_for_the_rover_when_anoth
     maps = PlaneGrid(scene.mapping, (image.shape[1], image.shape[0]))
 
     def measured(background: np.ndarray | None) -> tuple[float, float]:
-        window = prepare_window(
-            image,
-            box,
-            rover_index=0,
-            predicted_uv=(float(uv[0, 0]), float(uv[0, 1])),
-            colors=colors,
-            maps=maps,
-            background=BackgroundModel(image.shape[:2], 100, background),
-            background_threshold=0.2,
-            clock=NullClock(),
-        )
-        assert window is not None
+        window = _window(image, box, uv[0], colors, maps, BackgroundModel(image.shape[:2], 100, background))
         m = make_tracker("particles").measure(window, RoverModel(0, MARKER_AREA, 0.0), StageTimes())
         assert m is not None
         return m.xy_cm
