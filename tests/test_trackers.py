@@ -33,19 +33,7 @@ def measure(method, image, rover: SynthRover, offset_px=(0.0, 0.0), background=N
     r = config.marker_radius_cm + 6.0
     us, vs = local.to_pixel(rover.x + r * np.array([-1, 1, 1, -1.0]), rover.y + r * np.array([-1, -1, 1, 1.0]))
     box = (int(us.min()) - 3, int(vs.min()) - 3, int(us.max()) + 4, int(vs.max()) + 4)
-    bg = BackgroundModel(image.shape[:2], 100, background)
-    window = prepare_window(
-        image,
-        box,
-        rover_index=0,
-        predicted_uv=(float(uv[0]), float(uv[1])),
-        colors=colors,
-        maps=maps,
-        background=bg,
-        background_threshold=0.2,
-        clock=NullClock(),
-    )
-    assert window is not None
+    window = _window(image, box, uv, colors, maps, BackgroundModel(image.shape[:2], 100, background))
     tracker = tracker or make_tracker(method)
     return tracker.measure(window, RoverModel(0, MARKER_AREA, 0.0), StageTimes())
 
