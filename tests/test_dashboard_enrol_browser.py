@@ -107,14 +107,26 @@ def enroll(page: Any, ids: str, status: str = "200", attempts: int = 8, backgrou
     raise AssertionError(f"the background had a marker in it at each of {attempts} enrolments")
 
 
+UNTRACKED_IN_MODEL = "markers differ from its background model"
+
+
 def enroll_tracked(page: Any, ids: str, attempts: int = 5) -> None:
-    """Enroll until the tracker had every rover in the enrolled frame (on a loaded machine it loses one now and
-    then: the rovers move further between the frames it gets to); each enrolment is answered, none is waited for."""
+    """Enroll until the tracker had every rover in the enrolled frame and every one differed from its background
+    model. On a loaded machine the tracker loses a rover now and then (the rovers move further between the frames
+    it gets to), and the model learns a rover it does not track into the floor: where that rover then stands, it
+    does not differ from the model, and the enrolment says so (a warning, with fewer markers than tracked rovers:
+    the page once enrolled red and green alone). Then the test asks again after the next 60 frames, as
+    :func:`enroll` does when the model has a marker where the frame has none."""
     for _ in range(attempts):
         enroll(page, ids)
+        warnings = page.evaluate("() => enrolling.result.warnings")
+        if any(UNTRACKED_IN_MODEL in w for w in warnings):
+            frame = page.evaluate("() => state.lastPose.frame")
+            page.wait_for_function("f => state.lastPose.frame > f + 60", arg=frame, timeout=WAIT_MS)
+            continue
         if page.evaluate("() => enrolling.result.markers.every(m => m.tracked_as !== null)"):
             return
-    raise AssertionError(f"the tracker missed a rover in each of {attempts} enrolled frames")
+    raise AssertionError(f"the tracker missed a rover, or its model had one, in each of {attempts} enrolled frames")
 
 
 def test_the_simulators_rovers_are_enrolled_by_hue_each_on_the_rover_tracked_there(page: Any) -> None:
