@@ -161,18 +161,24 @@ class ThresholdInterval:
 
 
 def auto_threshold(
-    plane_roi: F32, candidates: BoolArray, fraction: float, percentile: float = 90.0
+    plane_roi: F32, candidates: BoolArray, fraction: float, percentile: float = 90.0, marker_px: float | None = None
 ) -> ThresholdInterval:
     """The threshold interval updated from the marker's maximum (Fig. 12).
 
     ``k_max`` is a high percentile of the plane over the candidate pixels (robust to a hot pixel, unlike the
     paper's plain maximum) and ``k_min = fraction * k_max``: with ``fraction = 0.5`` the boundary sits where a
     pixel is half covered by the marker. Returns ``k_max = 0`` when there are no candidates.
+
+    ``marker_px``: the marker's expected area in pixels. When there are more candidates than that (a floor of the
+    marker's hue class fills the window), the percentile is taken over that many of the brightest: the marker's
+    own top, not the floor's (``edge.trackers.base.threshold_marker``).
     """
     vals = plane_roi[candidates]
     if vals.size == 0:
         return ThresholdInterval(0.0, 0.0)
     k = min(vals.size - 1, int(vals.size * percentile / 100.0))
+    if marker_px is not None and vals.size > marker_px:
+        k = vals.size - 1 - int(marker_px * (100.0 - percentile) / 100.0)
     vals.partition(k)  # in place: a fresh array
     k_max = float(vals[k])
     return ThresholdInterval(fraction * k_max, k_max)
