@@ -35,18 +35,37 @@ def _env(**extra: str) -> dict[str, str]:
 
 @contextmanager
 def edge_process(args: list[str], cwd: Path, env: dict[str, str]) -> Iterator[subprocess.Popen[str]]:
-    proc = subprocess.Popen(
-        [*EDGE_IPS, "start", "--http-port", "0", *args],
-        cwd=cwd,
-        env={**env, "PYTHONPATH": str(REPO)},
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    """``edge-ips start --http-port 0 ARGS`` in ``cwd``, stopped with SIGTERM at the end. Its output goes to files
+    there (:func:`output`), not to pipes: a pipe nobody reads fills, and an edge that then writes a log line blocks
+    (the live twin's test once waited 30 s for an exit after SIGTERM, under a loaded suite)."""
+    with open(cwd / "edge.out", "w") as out, open(cwd / "edge.err", "w") as err:
+        proc = subprocess.Popen(
+            [*EDGE_IPS, "start", "--http-port", "0", *args],
+            cwd=cwd,
+            env={**env, "PYTHONPATH": str(REPO)},
+            stdout=out,
+            stderr=err,
+            text=True,
+        )
+        try:
+            yield proc
+        finally:
+            stop_process(proc)
+
+
+def output(cwd: Path) -> tuple[str, str]:
+    """What :func:`edge_process` in ``cwd`` wrote to its stdout and stderr."""
+    return (cwd / "edge.out").read_text(), (cwd / "edge.err").read_text()
+
+
+def exit_code(proc: subprocess.Popen[str], cwd: Path, timeout_s: float) -> int:
+    """``proc``'s exit code; a failure with its log's end if it has not exited within ``timeout_s`` (a failure
+    guard, not a bar)."""
     try:
-        yield proc
-    finally:
-        stop_process(proc)
+        return proc.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        tail = "\n".join(output(cwd)[1].splitlines()[-30:])
+        raise AssertionError(f"edge-ips start had not exited within {timeout_s:.0f} s; its log ends:\n{tail}") from None
 
 
 def test_start_with_the_simulator_publishes_live_poses_that_mosquitto_sub_shows(
@@ -61,7 +80,7 @@ def test_start_with_the_simulator_publishes_live_poses_that_mosquitto_sub_shows(
             timeout=150,
         )
         edge.send_signal(signal.SIGTERM)
-        assert edge.wait(30) == 0
+        assert exit_code(edge, tmp_path, 30) == 0
     lines = shown.stdout.strip().splitlines()
     assert len(lines) == 60, shown.stderr
     truth_source = SimSource("lab", seed=0, realtime=False)
@@ -85,8 +104,8 @@ def test_start_with_no_configuration_runs_the_live_twin_and_the_embedded_broker(
         assert rec.wait_for(lambda m: len(poses(m)) >= 30, 90)
         assert rec.wait_for(lambda m: any(b'"state":"online","camera":"ok"' in x.payload for x in m), 30)
         edge.send_signal(signal.SIGTERM)
-        assert edge.wait(30) == 0
-    stdout, stderr = edge.communicate()
+        assert exit_code(edge, tmp_path, 30) == 0
+    stdout, stderr = output(tmp_path)
     assert stdout.splitlines()[0].startswith("dashboard: http://localhost:PORT/?token=")  # the token made for it
     first = stderr.splitlines()[0]
     assert "source sim:twin (no configuration found, so the live twin; " in first
@@ -102,7 +121,7 @@ def test_start_refuses_wrong_broker_credentials_before_starting(tmp_path: Path) 
     with Mosquitto(tmp_path / "mq", users={"edge": "right"}) as broker:
         url = f"mqtt://edge:wrong@127.0.0.1:{broker.port}"
         with edge_process(["--source", "sim", "--broker", url], tmp_path, _env()) as edge:
-            assert edge.wait(120) == 2
-            _, stderr = edge.communicate()
+            assert exit_code(edge, tmp_path, 120) == 2
+    _, stderr = output(tmp_path)
     assert stderr.strip().splitlines()[-1].startswith("Error: broker mqtt://edge@127.0.0.1")
     assert "refused" in stderr and "wrong" not in stderr and "Traceback" not in stderr
