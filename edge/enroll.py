@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.errors import EnrollmentError
+from edge.floor_change import changed_from, planes
 from edge.floor_contrast import floor_warnings
 from edge.messages import id_problem
 from edge.tracker_config import RoverConfig
@@ -45,7 +46,6 @@ FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
 MIN_SATURATION = 0.25  # relative saturation |chroma| / luminance of a marker's coloured part (floors: < 0.1)
-CHROMA_CHANGE = 0.12  # normalised chroma difference from the empty floor that counts as "something is there"
 AREA_RANGE = (0.25, 1.6)  # a coloured blob's area as a share of the nominal marker's: smaller is debris, larger not
 MIN_FRONT_SHARE = 0.1  # a light part smaller than this share of the marker is a reflection, not a two-tone front
 LIGHT_MARGIN_DEG = 10.0  # how far a hue may move between places in a room (lamps, window light) beyond its spread
@@ -125,12 +125,6 @@ class Enrolment:
 
 
 # -- measuring -------------------------------------------------------------------------------------------------------
-def _planes(image: U8) -> tuple[FloatArray, FloatArray, FloatArray]:
-    f = image.astype(np.float64)
-    b, g, r = f[..., 0], f[..., 1], f[..., 2]
-    return (r - g) / math.sqrt(2.0), (r + g - 2.0 * b) / math.sqrt(6.0), (b + g + r) / 3.0
-
-
 def _saturation(c1: FloatArray, c2: FloatArray, lum: FloatArray) -> FloatArray:
     return np.asarray(np.hypot(c1, c2) / np.maximum(lum, 8.0))
 
@@ -233,16 +227,9 @@ def enroll(
     h, w = frame.shape[:2]
     if frame.ndim != 3 or background.shape != frame.shape:
         raise EnrollmentError(f"the frame is {w}x{h} but the background is {background.shape[1]}x{background.shape[0]}")
-    f1, f2, flum = _planes(frame)
-    b1, b2, blum = _planes(background)
-    changed = (
-        np.hypot(
-            f1 / np.maximum(flum, 8.0) - b1 / np.maximum(blum, 8.0),
-            f2 / np.maximum(flum, 8.0) - b2 / np.maximum(blum, 8.0),
-        )
-        > CHROMA_CHANGE
-    )
-    changed |= np.abs(flum - blum) > np.maximum(20.0, 0.25 * blum)
+    f1, f2, flum = planes(frame)
+    b1, b2, blum = planes(background)
+    changed = changed_from((f1, f2, flum), (b1, b2, blum))
     open3 = np.ones((3, 3), np.uint8)
     frame_sat, back_sat = _saturation(f1, f2, flum), _saturation(b1, b2, blum)
     colored = cv2.morphologyEx((changed & (frame_sat >= MIN_SATURATION)).astype(np.uint8), cv2.MORPH_OPEN, open3)
@@ -284,7 +271,7 @@ def _pixel_areas_cm2(calibration: PlaneMapping, box: tuple[int, int, int, int]) 
 
 def _measure(
     frame: U8,
-    planes: tuple[FloatArray, FloatArray, FloatArray],
+    frame_planes: tuple[FloatArray, FloatArray, FloatArray],
     blob: _Blob,
     light: BoolArray,
     calibration: PlaneMapping,
@@ -296,7 +283,7 @@ def _measure(
     is the share of the pixel the marker covers (chroma is linear in coverage: the black body, the white front and
     the grey floor add none). Counting pixels instead would count every edge pixel in full.
     """
-    c1, c2, lum = planes
+    c1, c2, lum = frame_planes
     h, w = lum.shape
     inner = _interior(blob.mask)
     color = _median_bgr(frame, inner)

@@ -80,6 +80,7 @@ def page(edge: EdgeProcess, browser: Any) -> Iterator[Any]:
 
 
 BACKGROUND_HAS_A_MARKER = "the background image has a marker in it"
+MODEL_HAS_A_ROVER = "the tracker's background model has"  # a rover it learned as floor, where it stands now
 
 
 def enroll(page: Any, ids: str, status: str = "200", attempts: int = 8, background_refused: bool = False) -> None:
@@ -87,7 +88,9 @@ def enroll(page: Any, ids: str, status: str = "200", attempts: int = 8, backgrou
     and stand there while the tracker finds them again, and the refreshed background takes in a marker there until
     they drive off and it is refreshed (background_refresh_s). Enrolment rightly refuses such a background (with
     a 400, the status the ids-count refusal is waited for with: the message tells them apart); then the test asks
-    again after the next 60 frames, unless that refusal is what it waits for (``background_refused``)."""
+    again after the next 60 frames, unless that refusal is what it waits for (``background_refused``). So it does
+    when the model has learned a tracked rover as floor where it now stands (also a 400: a CI run once had blue
+    left out of the enrolment at frame 477, and the ids-count refusal said two markers for three ids)."""
     for _ in range(attempts):
         page.fill("#enroll-ids", ids)
         page.evaluate("() => { document.getElementById('enroll-message').dataset.status = ''; }")
@@ -98,7 +101,7 @@ def enroll(page: Any, ids: str, status: str = "200", attempts: int = 8, backgrou
         )
         got = page.evaluate("() => document.getElementById('enroll-message').dataset.status")
         message = page.locator("#enroll-message").text_content()
-        if BACKGROUND_HAS_A_MARKER in message and not background_refused:  # a 400 too: the message tells
+        if (BACKGROUND_HAS_A_MARKER in message and not background_refused) or MODEL_HAS_A_ROVER in message:
             frame = page.evaluate("() => state.lastPose.frame")
             page.wait_for_function("f => state.lastPose.frame > f + 60", arg=frame, timeout=WAIT_MS)
             continue

@@ -211,6 +211,29 @@ def test_the_trackers_model_says_when_it_does_not_account_for_every_rover(lab: L
 
 
 @pytest.mark.slow
+def test_a_rover_the_trackers_model_learned_as_floor_is_named_and_the_enrolment_refused(lab: Lab) -> None:
+    """The model learns what the tracker does not track into its floor: a rover that stood untracked where it
+    stands now is in the model there, does not differ from it, and would be left out of the enrolment (the browser
+    test once enrolled red and green alone, with a warning). It is named, where it stands, and nothing is enrolled:
+    enrolling again once it has moved, or against a captured floor, takes it."""
+    frame = lab.frame(POSES)
+    model = _model(lab, 1.0)
+    x, y, _ = POSES[2]
+    u, v = (round(float(c)) for c in lab.calibration.world_to_pixel(np.array([[x, y]], np.float64))[0])
+    box = (slice(v - 40, v + 40), slice(u - 40, u + 40))
+    model.reference[box] = frame[box]  # the third rover, learned where it stands
+    camera = Camera(tracker=Learned(model))
+    camera.shows(frame, *_tracked(lab, POSES))
+    desk = EnrolDesk(camera, lab.calibration, enabled=True, marker_length_cm=21.5, marker_width_cm=16.8)
+    status, out = post(desk.post_enroll)
+    rover = lab.looks[2].rover_id
+    assert status == 400, out
+    assert out["error"].startswith(f"the tracker's background model has {rover} in it at ({x:.0f}, {y:.0f}) cm")
+    camera.tracker = Learned(_model(lab, 1.0))  # the model without it: every rover is enrolled
+    assert post(desk.post_enroll)[0] == 200
+
+
+@pytest.mark.slow
 def test_two_tone_fronts_and_hues_too_close_to_tell_apart_are_in_the_answer() -> None:
     looks = (RoverLook("a", marker_albedo_for_hue(0.0), heading="two_tone"),
              RoverLook("b", marker_albedo_for_hue(12.0), heading="two_tone"),

@@ -43,6 +43,7 @@ from edge.dashboard.frames import encode_jpeg
 from edge.dashboard.server import hex_color
 from edge.enroll import EnrolledMarker, Enrolment, enroll, save_enrolment
 from edge.errors import EnrollmentError, describe_validation
+from edge.floor_change import in_background
 from edge.httpserver import Request, Response, json_response
 
 if TYPE_CHECKING:
@@ -375,6 +376,17 @@ class EnrolDesk:
                 raise Refused(400, f"the empty floor is {fw}x{fh} but the camera now sends {w}x{h}: capture it again")
             ids = [i.strip() for i in req.ids if i.strip()] if req.ids else None
             length_cm, width_cm = self.marker_size_cm
+            if floor.kind == "tracker" and result is not None:
+                places = [(e.x_cm, e.y_cm) for e in result.estimates]
+                hidden = in_background(frame.image, floor.image, calibration, places, 0.25 * width_cm)
+                if hidden is not None:
+                    e = result.estimates[hidden]
+                    raise Refused(
+                        400,
+                        f"the tracker's background model has {e.rover_id} in it at ({e.x_cm:.0f}, {e.y_cm:.0f}) cm: "
+                        "it learned the rover as floor while it did not track it there; enroll again once it has "
+                        "moved, or capture the empty floor",
+                    )
             enrolment = enroll(
                 frame.image,
                 floor.image,
