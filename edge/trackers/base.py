@@ -214,9 +214,7 @@ def threshold_marker(
     above = None
     if plane is window.plane and interval is not plain and joined_to_floor(window, rover, mask):
         # the percentile was the floor's: the top over the marker's expected area of the brightest (see above)
-        top = auto_threshold(
-            plane, candidates, fraction, marker_px=rover.marker_area_cm2 / window.local.area_at(*window.predicted_uv)
-        )
+        top = auto_threshold(plane, candidates, fraction, marker_px=expected_px(window, rover))
         if top.k_max > interval.k_max and (higher := surrounded(top, plane, fraction)) is not None:
             interval = higher
             mask = candidates & threshold(plane, interval)
@@ -266,8 +264,14 @@ def surrounded(interval: ThresholdInterval, plane: F32, fraction: float) -> Thre
 def joined_to_floor(window: Window, rover: RoverModel, mask: BoolArray) -> bool:
     """Does ``mask`` hold more than :data:`JOINED_FLOOR` times the marker's expected pixels where it is predicted
     (the floor passed with the marker)?"""
+    marker_px = expected_px(window, rover)
+    return marker_px > 0.0 and int(np.count_nonzero(mask)) > JOINED_FLOOR * marker_px
+
+
+def expected_px(window: Window, rover: RoverModel) -> float:
+    """The rover's marker's expected area in pixels where the window predicts it (0 where the plane has no area)."""
     px = window.local.area_at(*window.predicted_uv)
-    return px > 0.0 and int(np.count_nonzero(mask)) > JOINED_FLOOR * rover.marker_area_cm2 / px
+    return rover.marker_area_cm2 / px if px > 0.0 else 0.0
 
 
 def above_floor(window: Window, k_max: float, fraction: float) -> BoolArray | None:

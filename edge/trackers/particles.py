@@ -24,6 +24,7 @@ from edge.segmentation import (
     single_outline,
 )
 from edge.trackers.base import Measurement, RoverModel, StageClock, Window, measure_core, threshold_marker
+from edge.trackers.base import expected_px as marker_px
 
 JOINED_AREA = 1.08  # a blob this much larger than the marker is looked at for a part joined to it (marker_part)
 
@@ -55,7 +56,7 @@ class ParticleTracker:
         if found is None:
             return None
         candidates, mask = found
-        expected_px = self._expected_px(window, rover)
+        expected_px = marker_px(window, rover)
         min_area_px = max(2, int(self.min_area_fraction * expected_px))
         t1 = time.perf_counter()
         single = single_outline(mask, self.erosion_iterations)  # one particle (a tracked marker's, nearly always)
@@ -92,13 +93,6 @@ class ParticleTracker:
                 core, interior = parted[0], None
         rest = None if parted is None else parted[1]
         return measure_core(window, rover, core, candidates, mask, self.ring_px, clock, interior, rest)  # eq. 9-10
-
-    @staticmethod
-    def _expected_px(window: Window, rover: RoverModel) -> float:
-        """The marker's expected area in pixels where it is predicted."""
-        pu, pv = window.predicted_uv
-        px_area = window.local.area_at(pu, pv)
-        return rover.marker_area_cm2 / px_area if px_area > 0 else 0.0
 
     def _choose(
         self,
