@@ -338,7 +338,7 @@ class CentreOffsets:
     def __init__(self, fits: Fits) -> None:
         self.fits = fits
         self.maps: dict[int, OffsetMap] = {}
-        self._last_job: dict[int, int] = {}
+        self._turn: dict[int, int] = {}  # the frame of each rover's last turn: its window sent, or passed over
         self._refs: dict[tuple[int, int], tuple[float, float]] = {}
         self._frame = 0
         self._pick: int | None = None  # whose window goes to the fits this frame
@@ -347,6 +347,8 @@ class CentreOffsets:
 
     def start_frame(self, frame: int, tracks: list[RoverTrack]) -> None:
         """Take in the finished fits and choose this frame's window among the tracked one-colour rovers."""
+        if self._pick is not None:  # picked, but not measured last frame (hidden, coasting): its turn passed
+            self._turn[self._pick] = self._frame
         self._frame, self._sent = frame, None
         self.collect(frame)
         one_colour = [tr.index for tr in tracks if tr.filter is not None and tr.config.front_color_bgr is None]
@@ -358,7 +360,11 @@ class CentreOffsets:
         """A one-colour marker's measurement with its centre moved by the rover's learned offset; its window handed to
         the fits when it is this rover's turn. The rover's filter is shifted with each change of the offset (a new
         offset is no spike)."""
-        if tr.index == self._pick and m.axis_coherence >= JOB_MIN_COHERENCE:
+        if tr.index == self._pick and m.axis_coherence < JOB_MIN_COHERENCE:
+            # its turn passes: held for it, the fits would idle until its edges show the axis (a magenta marker on
+            # wood, coherence 0.36 in most frames, held eight rovers' fits for 117 of 300 frames)
+            self._turn[tr.index], self._pick = self._frame, None
+        elif tr.index == self._pick:
             x0, y0, x1, y1 = window.box
             raw = window.raw if window.raw is not None else window.bgr
             xy = np.stack([grid.x_cm[y0:y1, x0:x1], grid.y_cm[y0:y1, x0:x1]]).astype(np.float64)
@@ -405,10 +411,10 @@ class CentreOffsets:
         hurry = any(self.samples(i) < MIN_SAMPLES for i in candidates)
         if not self.fits.ready(frame, hurry):
             return None
-        return min(candidates, key=lambda i: (self.samples(i) >= MIN_SAMPLES, self._last_job.get(i, -1), i))
+        return min(candidates, key=lambda i: (self.samples(i) >= MIN_SAMPLES, self._turn.get(i, -1), i))
 
     def submit(self, job: EdgeJob) -> None:
-        self._last_job[job.index] = job.frame
+        self._turn[job.index] = job.frame
         self.fits.submit(job)
 
     def collect(self, frame: int) -> int:
@@ -434,7 +440,7 @@ class CentreOffsets:
 
     def reset(self) -> None:
         self.maps.clear()
-        self._last_job.clear()
+        self._turn.clear()
         self._refs.clear()
         self._logged.clear()
         self._pick = self._sent = None

@@ -18,6 +18,7 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -42,7 +43,7 @@ from edge.sim.render import Renderer
 from edge.sim.scene import GREEN_BGR, RED_BGR, RoverLook, Scene
 from edge.sim.world import RoverState, WorldState
 from edge.tracker_config import RoverConfig, TrackerConfig
-from edge.trackers.base import CameraPlaneMapping, PlaneGrid
+from edge.trackers.base import CameraPlaneMapping, Measurement, PlaneGrid
 from edge.trackers.factory import build_tracker
 from edge.trackers.plane import world_blob
 from edge.tracking import Frame
@@ -181,12 +182,66 @@ def test_fits_in_the_loop_come_back_as_late_as_from_a_worker_and_no_more_often_t
 
 def test_the_rover_sampled_longest_ago_is_next_and_a_rover_without_enough_samples_first():
     offsets = CentreOffsets(InlineFits(every_frames=10, delay_frames=0))
-    offsets._last_job = {0: 5, 1: 3, 2: 8}
+    offsets._turn = {0: 5, 1: 3, 2: 8}
     assert offsets.pick(20, [0, 1, 2]) == 1  # none has samples yet: the oldest job
     for k in range(MIN_SAMPLES):
         offsets.maps.setdefault(1, OffsetMap()).add(_sample(0, 0, 0, 0, k))
     assert offsets.pick(20, [0, 1, 2]) == 0  # rover 1 has its samples: the others first
     assert offsets.pick(20, []) is None
+
+
+class _Taken:
+    """Fits that are always ready and keep the jobs handed over (the schedule is under test, not the fit)."""
+
+    def __init__(self) -> None:
+        self.jobs: list[EdgeJob] = []
+
+    def ready(self, frame: int, hurry: bool = False) -> bool:
+        return True
+
+    def submit(self, job: EdgeJob) -> None:
+        self.jobs.append(job)
+
+    def collect(self, frame: int) -> list[EdgeSample]:
+        return []
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_rover_whose_window_cannot_go_passes_its_turn_and_does_not_hold_the_fits(grid):
+    """Held for a rover whose edges do not show its axis (a magenta marker on wood: coherence under 0.5 in 92 % of a
+    clip's frames) or that is not measured (hidden), the fits idled: eight rovers' third samples came 70 frames
+    late."""
+    fits = _Taken()
+    offsets = CentreOffsets(fits)
+    tracks = [
+        SimpleNamespace(
+            index=i, filter=None, offset_cm=(0.0, 0.0), config=SimpleNamespace(id=f"r{i}", front_color_bgr=None)
+        )
+        for i in range(3)
+    ]
+    for tr in tracks:
+        tr.filter = SimpleNamespace(position=(0.0, 0.0), shift=lambda dx, dy: None)
+    window = SimpleNamespace(box=(0, 0, 4, 4), raw=np.zeros((4, 4, 3), np.uint8), bgr=None)
+
+    def measured(coherence: float) -> Measurement:
+        return Measurement((10.0, 20.0), (2.0, 2.0), 360.0, 100.0, 1.0, 0.0, 1.3, False, axis_coherence=coherence)
+
+    offsets.start_frame(0, tracks)  # rover 0's turn; its edges do not show the axis
+    for tr, coherence in zip(tracks, (0.3, 0.9, 0.9), strict=True):
+        offsets.corrected(window, measured(coherence), tr, grid, SIZE_CM)
+    assert fits.jobs == []
+    offsets.start_frame(1, tracks)  # rover 1's turn; it is not measured this frame
+    assert fits.jobs == []
+    offsets.start_frame(2, tracks)  # rover 2's turn: its window goes
+    for tr in tracks:
+        offsets.corrected(window, measured(0.9), tr, grid, SIZE_CM)
+    assert [job.index for job in fits.jobs] == [2]
+    offsets.start_frame(3, tracks)  # then rover 0's again, whose turn passed first
+    for tr in tracks:
+        offsets.corrected(window, measured(0.9), tr, grid, SIZE_CM)
+    assert [job.index for job in fits.jobs] == [2, 0]
 
 
 @pytest.mark.slow
