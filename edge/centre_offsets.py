@@ -14,7 +14,7 @@ A rover's first samples move it by a share of their offset, as many thirds as it
 a sample far from the rover's others (another rover in the band beyond the edges, a fit run off) is not used, and
 :data:`TRUST_CM` of every offset is held back (the fits' own error on some bodies and cameras).
 
-The fits run in another process (:class:`ProcessFits`: the frame loop keeps its time) or, for benchmarks and
+The fits run in another process (``edge.fit_worker.ProcessFits``: the frame loop keeps its time) or, for benchmarks and
 offline runs that must repeat exactly, in the frame loop with their results held back as long as a worker would
 take (:class:`InlineFits`); ``edge.pooled_fits`` runs that schedule in a pool of worker processes (``edge-ips track``).
 """
@@ -23,11 +23,7 @@ from __future__ import annotations
 
 import logging
 import math
-import multiprocessing
-import os
 from collections import deque
-from concurrent.futures import Future, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, replace
 from typing import Protocol
 
@@ -35,7 +31,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from edge.edges_encoded import encoded_edge_centre
-from edge.orphans import exit_with_parent
 from edge.rover_track import RoverTrack
 from edge.trackers.base import Measurement
 from edge.trackers.plane import PlaneGrid
@@ -46,7 +41,8 @@ log = logging.getLogger(__name__)
 
 MIN_SAMPLES = 3  # samples of a rover before its centre moves by their whole offset (by a share of it before)
 JOB_MIN_COHERENCE = 0.5  # a window goes to the fits only when its marker's edges showed the axis clearly
-MAX_OFFSET_CM = 1.0  # a fitted centre farther than this from the fast one is a failed fit, not an offset
+MAX_OFFSET_CM = 1.0  # a fitted centre farther than this from the fast one ...
+MAX_OFFSET_PX = 0.9  # ... and farther than this in the image is a failed fit, not an offset
 MAX_RMS = 12.0  # a fit whose residual (8-bit units) is larger did not find a marker's edges
 NEAR_CM = 60.0  # the floor distance over which an offset is taken to hold (the kernel's sigma)
 PRIOR_WEIGHT = 1.0  # the rover's median offset counts as this many samples at the place asked about
@@ -89,8 +85,12 @@ class EdgeSample:
 
 def fit_offset(job: EdgeJob) -> EdgeSample | None:
     """The full edge fit of ``job`` as a sample, or None when the window does not show every side out to the band
-    beyond the chroma's spread, or the fit did not find edges (its residual, or a centre beyond
-    :data:`MAX_OFFSET_CM`). Runs in the worker: a pure function of the job.
+    beyond the chroma's spread, or the fit did not find edges (its residual, or a centre beyond both
+    :data:`MAX_OFFSET_CM` and :data:`MAX_OFFSET_PX`). Runs in the worker: a pure function of the job.
+
+    The limit is in the image as well as on the plane: on the far side of the floor one pixel spans 2-3 cm along the
+    view, and a marker there (a purple one on a white body, 4:2:0 q60) had its fast centre 1.5-2 cm off for three
+    seconds while every fit that said so (0.5-0.8 pixels) was refused by a limit of 1 cm alone.
 
     The marker's colour is the mean of the pixels :data:`INSET_CM` inside its outline placed at the fast centre
     along its axis, not of the pixels classified as its hue: at 4:2:0 the marker's chroma spills onto a dark body,
@@ -110,9 +110,29 @@ def fit_offset(job: EdgeJob) -> EdgeSample | None:
         return None
     (x, y), fit = fitted
     dx, dy = x - job.centre_cm[0], y - job.centre_cm[1]
-    if not (math.isfinite(dx) and math.isfinite(dy)) or math.hypot(dx, dy) > MAX_OFFSET_CM or fit.rms > MAX_RMS:
+    if not (math.isfinite(dx) and math.isfinite(dy)) or fit.rms > MAX_RMS:
+        return None
+    if math.hypot(dx, dy) > MAX_OFFSET_CM and image_px(job.xy_cm, job.centre_cm, (dx, dy)) > MAX_OFFSET_PX:
         return None
     return EdgeSample(job.index, job.frame, job.centre_cm, (dx, dy))
+
+
+def image_px(xy_cm: FloatArray, at_cm: tuple[float, float], d_cm: tuple[float, float]) -> float:
+    """How many image pixels the step ``d_cm`` on the plane spans at ``at_cm`` (``xy_cm`` (2, h, w): a window's
+    pixels' centres on the plane; the nearest pixel's steps to its neighbours give the local scale); inf where the
+    window is too small to tell."""
+    h, w = xy_cm.shape[1:]
+    if h < 2 or w < 2:
+        return math.inf
+    near = (xy_cm[0] - at_cm[0]) ** 2 + (xy_cm[1] - at_cm[1]) ** 2
+    row, col = np.unravel_index(int(np.argmin(near)), near.shape)
+    r, c = min(int(row), h - 2), min(int(col), w - 2)
+    step_u = xy_cm[:, r, c + 1] - xy_cm[:, r, c]  # cm per pixel along image columns and rows
+    step_v = xy_cm[:, r + 1, c] - xy_cm[:, r, c]
+    jacobian = np.column_stack([step_u, step_v])
+    if abs(float(np.linalg.det(jacobian))) < 1e-12:
+        return math.inf
+    return float(np.hypot(*np.linalg.solve(jacobian, np.asarray(d_cm, dtype=np.float64))))
 
 
 class OffsetMap:
@@ -218,116 +238,6 @@ class InlineFits:
 
     def close(self) -> None:
         self._pending.clear()
-
-
-class ProcessFits:
-    """Fits in one worker process (started on the first job), one job at a time and at most one every
-    ``every_frames`` frames: the frame loop only copies a window and collects what has finished.
-
-    The worker can fail as a process does: a fit that raises costs that sample; a worker that dies (killed, out of
-    memory) or cannot be started costs the job, and the next job starts a new one after a pause that doubles with
-    each failure in a row (``every_frames`` times 2, 4, ... 64); a fit still running after
-    :data:`STALL_FRAMES` frames (a stopped or stuck worker) is abandoned and its worker terminated. Every failure is
-    counted in ``failed`` and logged; the tracker keeps the offsets it has."""
-
-    def __init__(self, every_frames: int = 10) -> None:
-        self.every_frames = every_frames
-        self.failed = 0  # jobs lost: a fit that raised, a worker that died, stalled or could not start
-        self._last: int | None = None
-        self._pool: ProcessPoolExecutor | None = None
-        self._running: Future[EdgeSample | None] | None = None
-        self._started = 0  # the frame the running job was handed over
-        self._done: list[EdgeSample] = []
-        self._failures_in_a_row = 0
-        self._pause_until = 0
-        log.info("edge offsets on: edge fits in a worker process, one rover's window every %d frames", every_frames)
-
-    def ready(self, frame: int, hurry: bool = False) -> bool:
-        if self._running is not None and not self._running.done():
-            if frame - self._started < STALL_FRAMES:
-                return False
-            log.warning(
-                "edge fits: a fit has run for %d frames; its worker is stopped and a new one started",
-                frame - self._started,
-            )
-            self._lost(frame)
-        if frame < self._pause_until:
-            return False
-        return self._last is None or frame - self._last >= (1 if hurry else self.every_frames)
-
-    def submit(self, job: EdgeJob) -> None:
-        self._harvest(job.frame)
-        self._last = job.frame
-        try:
-            if self._pool is None:
-                # spawn: the appliance runs threads (MQTT, HTTP), which a forked child would inherit half-way
-                self._pool = ProcessPoolExecutor(
-                    max_workers=1,
-                    mp_context=multiprocessing.get_context("spawn"),
-                    initializer=exit_with_parent,
-                    initargs=(os.getpid(),),
-                )
-            self._running = self._pool.submit(fit_offset, job)
-            self._started = job.frame
-        except Exception as exc:  # the pool cannot start or is broken (its worker died before this job)
-            log.warning("edge fits: the worker process could not take a job (%s)", exc)
-            self._lost(job.frame)
-
-    def _lost(self, frame: int) -> None:
-        """A job lost with its worker: stop the worker, count it, pause before the next."""
-        self.failed += 1
-        self._failures_in_a_row += 1
-        self._pause_until = frame + self.every_frames * 2 ** min(self._failures_in_a_row, 6)
-        self._stop_pool()
-
-    def _harvest(self, frame: int = 0) -> None:
-        running = self._running
-        if running is None or not running.done():
-            return
-        self._running = None
-        try:
-            sample = running.result()
-        except BrokenProcessPool:
-            log.warning("edge fits: the worker process died; a new one starts with a later job")
-            self._lost(frame)
-            return
-        except Exception as exc:  # the fit raised: that sample is lost, the worker serves on
-            log.warning("edge fits: a fit failed (%s)", exc)
-            self.failed += 1
-            return
-        self._failures_in_a_row = 0
-        if sample is not None:
-            self._done.append(sample)
-
-    def collect(self, frame: int) -> list[EdgeSample]:
-        self._harvest(frame)
-        out, self._done = self._done, []
-        return out
-
-    def wait(self, timeout_s: float) -> bool:
-        """Block until the running fit (if any) has finished; False on timeout."""
-        running = self._running
-        if running is None:
-            return True
-        done, _ = wait([running], timeout=timeout_s)
-        return bool(done)
-
-    def worker_pids(self) -> list[int]:
-        """The worker's process id (none before the first job or after a failure)."""
-        processes = getattr(self._pool, "_processes", None) or {}
-        return [p.pid for p in processes.values() if p.pid is not None]
-
-    def _stop_pool(self) -> None:
-        pool, self._pool, self._running = self._pool, None, None
-        if pool is None:
-            return
-        # a stuck or stopped worker does not end on shutdown: kill it (the executor has no public way to)
-        for process in list((getattr(pool, "_processes", None) or {}).values()):
-            process.kill()  # SIGKILL: a stopped process would hold a SIGTERM until continued
-        pool.shutdown(wait=False, cancel_futures=True)
-
-    def close(self) -> None:
-        self._stop_pool()
 
 
 class CentreOffsets:

@@ -1,5 +1,5 @@
 """Worker processes that end with the process that started them: a pool's initializer for the edge fits' workers
-(``edge.centre_offsets.ProcessFits``, ``edge.pooled_fits.PooledFits``)."""
+(``edge.fit_worker.ProcessFits``, ``edge.pooled_fits.PooledFits``)."""
 
 from __future__ import annotations
 

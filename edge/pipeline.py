@@ -32,9 +32,10 @@ from numpy.typing import NDArray
 from edge.acquisition import acquisition_scale, candidates, low_resolution_view
 from edge.background import BackgroundModel
 from edge.blob_shape import IN_VIEW_MARGIN_PX, footprint_in_view
-from edge.centre_offsets import CentreOffsets, Fits, ProcessFits
+from edge.centre_offsets import CentreOffsets, Fits
 from edge.errors import ConfigError, SourceError
 from edge.filtering import FilterFactory
+from edge.fit_worker import ProcessFits
 from edge.rover_track import Observation, RoverTrack
 from edge.segmentation import ColorModel, chroma_of_bgr
 from edge.tracker_config import TrackerConfig

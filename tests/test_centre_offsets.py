@@ -25,6 +25,8 @@ import pytest
 
 from edge.camera import paper_camera
 from edge.centre_offsets import (
+    MAX_OFFSET_CM,
+    MAX_OFFSET_PX,
     MIN_SAMPLES,
     STALL_FRAMES,
     TRUST_CM,
@@ -33,10 +35,11 @@ from edge.centre_offsets import (
     EdgeSample,
     InlineFits,
     OffsetMap,
-    ProcessFits,
     fit_offset,
+    image_px,
 )
 from edge.coverage import coverage_weights
+from edge.fit_worker import ProcessFits
 from edge.pooled_fits import PooledFits
 from edge.sim.effects import Compression, Effects, Optics
 from edge.sim.render import Renderer
@@ -109,6 +112,38 @@ def test_a_fit_that_lands_far_from_the_fast_centre_is_no_sample(grid):
     job, _ = _job(grid, (200.0, 300.0, 0.3))
     # the fast centre 4 cm off: the window's sides are sampled where the marker is not
     assert fit_offset(replace(job, centre_cm=(job.centre_cm[0] + 4.0, job.centre_cm[1]))) is None
+
+
+@pytest.mark.slow
+def test_on_the_far_side_a_fit_more_than_a_centimetre_but_under_a_pixel_off_is_a_sample(grid):
+    """On the far side a pixel spans 2.2 cm along the view: a fast centre 1.5 cm off there is 0.67 pixels off, and a
+    fit that finds it is an offset, not a failure (a purple marker on a white body, 4:2:0 q60, was 1.5-2 cm off for
+    three seconds while a 1 cm limit refused every fit that said so); 3 cm (1.3 pixels) off is still a failed fit."""
+    job, _ = _job(grid, (105.0, 531.0, 3.0))
+    base = fit_offset(job)
+    assert base is not None
+    off = replace(job, centre_cm=(job.centre_cm[0], job.centre_cm[1] + 1.5))
+    assert image_px(job.xy_cm, off.centre_cm, (0.0, 1.5)) < MAX_OFFSET_PX
+    sample = fit_offset(off)
+    assert sample is not None
+    assert sample.offset_cm == pytest.approx((base.offset_cm[0], base.offset_cm[1] - 1.5), abs=0.25)
+    assert math.hypot(*sample.offset_cm) > MAX_OFFSET_CM
+    assert fit_offset(replace(job, centre_cm=(job.centre_cm[0], job.centre_cm[1] + 3.0))) is None
+
+
+def test_a_step_on_the_plane_is_measured_in_the_pixels_it_spans_where_it_is(grid):
+    for x, y in ((105.0, 531.0), (200.0, 60.0)):
+        u, v = (int(c) for c in paper_camera().project(np.array([[x, y, 13.0]]))[0])
+        xy = np.asarray(grid.xy_cm[:, v - 10 : v + 10, u - 10 : u + 10], np.float64)
+        # one pixel down the image from the nearest pixel's centre spans exactly one pixel
+        r, c = np.unravel_index(int(np.argmin((xy[0] - x) ** 2 + (xy[1] - y) ** 2)), xy.shape[1:])
+        step = xy[:, r + 1, c] - xy[:, r, c]
+        assert image_px(xy, (x, y), (float(step[0]), float(step[1]))) == pytest.approx(1.0, abs=1e-9)
+    far = np.asarray(grid.xy_cm[:, 105:125, 519:539], np.float64)
+    near = np.asarray(grid.xy_cm[:, 523:543, 640:660], np.float64)
+    # a centimetre along the view spans under half a pixel on the far side and nearly two on the near side
+    assert image_px(far, (105.0, 531.0), (0.0, 1.0)) < 0.5 < 1.5 < image_px(near, (200.0, 60.0), (0.0, 1.0))
+    assert image_px(far[:, :1, :], (105.0, 531.0), (0.0, 1.0)) == math.inf  # one row: no scale
 
 
 def _sample(x: float, y: float, dx: float, dy: float, frame: int = 0) -> EdgeSample:
@@ -533,7 +568,8 @@ def test_a_pool_that_cannot_start_leaves_the_fits_to_the_loop(monkeypatch, caplo
 _STARTS_A_WORKER = """
 import json, sys
 import numpy as np
-from edge.centre_offsets import EdgeJob, ProcessFits
+from edge.centre_offsets import EdgeJob
+from edge.fit_worker import ProcessFits
 from edge.pooled_fits import PooledFits
 job = EdgeJob(0, 0, np.zeros((4, 4, 3), np.uint8), np.zeros((2, 4, 4)), (0.0, 0.0), 0.0, (21.5, 16.8))
 if sys.argv[1] == "pooled":

@@ -13,9 +13,9 @@ from edge.appliance import TrackerInputs, default_tracker_factory
 from edge.calibration.exact import exact_calibration
 from edge.calibration.files import save_calibration
 from edge.camera import paper_camera
-from edge.centre_offsets import ProcessFits
 from edge.config import EdgeConfig
 from edge.errors import ConfigError
+from edge.fit_worker import ProcessFits
 from edge.offline import open_track_job
 from edge.pooled_fits import PooledFits
 from edge.sim.source import SimSource
@@ -125,7 +125,7 @@ def test_an_environment_override_is_read(text: str, value: bool | str) -> None:
 def test_the_appliance_says_the_fits_are_on(caplog: pytest.LogCaptureFixture) -> None:
     config = EdgeConfig.model_validate({"rovers": [{"id": "red", "color_bgr": [40, 40, 200]}]})
     source = MemorySource([np.zeros((720, 1280, 3), np.uint8)])
-    with caplog.at_level("INFO", logger="edge.centre_offsets"):
+    with caplog.at_level("INFO", logger="edge.fit_worker"):
         tracker = default_tracker_factory(
             TrackerInputs(config, source, source.open(), CameraPlaneMapping(paper_camera()))
         )
