@@ -39,6 +39,7 @@ CORE = (
     "edge.white",
     "edge.outline",
     "edge.centre_offsets",
+    "edge.fit_worker",
     "edge.pooled_fits",
     "edge.orphans",
     "edge.edges_encoded",
