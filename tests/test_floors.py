@@ -18,6 +18,7 @@ from edge.trackers.base import (
     STANDOUT,
     SURROUND_IGNORED,
     across_floor,
+    at_marker_level,
     clear_of_grain,
     surrounded,
 )
@@ -162,6 +163,32 @@ def test_the_interval_s_top_is_the_marker_s_own_top_in_a_window_mostly_of_a_floo
     assert passed[marker].all() and not passed[~marker].any()
     # a window the marker fills most of keeps the plain 90th percentile
     assert auto_threshold(plane, marker, 0.5, marker_px=600.0) == auto_threshold(plane, marker, 0.5)
+
+
+def test_a_marker_a_small_share_of_a_wide_window_of_warm_wood_stands_out_at_its_own_level() -> None:
+    """A lost rover's wide window on warm wood: the marker 3 % of it, planks at 1.4 times the wood's median over a
+    fifth. The 90th percentile is the planks' and nothing stands out on it; the median of the marker's expected area
+    of the brightest pixels is the marker's level, and halfway from the wood to it only the marker passes. In a
+    window of the same wood alone that median is a plank's, and it must stand out more than the percentile must."""
+    rng = np.random.default_rng(11)
+    wood = (30.0 + 2.5 * rng.standard_normal((100, 160))).astype(np.float32)
+    wood[:, ::5] += 12.0  # the planks: a fifth of the window, 1.4 times the median
+    plane = wood.copy()
+    marker = np.zeros(plane.shape, bool)
+    marker[40:60, 60:87] = True  # 540 pixels
+    plane[marker] = (85.0 + 4.0 * rng.standard_normal(540)).astype(np.float32)
+    candidates = np.ones_like(marker)
+    plain = auto_threshold(plane, candidates, 0.5)
+    assert surrounded(plain, plane, 0.5) is None
+    interval = at_marker_level(plane, candidates, 0.5, 540.0)
+    assert interval is not None
+    assert interval.k_max == pytest.approx(float(np.median(plane[marker])), abs=1.0)
+    passed = threshold(plane, interval)
+    assert passed[marker].all() and not passed[~marker].any()
+    assert at_marker_level(wood, candidates, 0.5, 540.0) is None
+    brighter = wood.copy()
+    brighter[:, ::5] += 6.0  # planks at 1.6 times the wood: more than the percentile's 1.5, still no marker
+    assert at_marker_level(brighter, candidates, 0.5, 540.0) is None
 
 
 @pytest.mark.slow
