@@ -38,6 +38,7 @@ SEEN_FRAMES = 60  # lost this long at most, a rover is expected where it was las
 LOPSIDED_RATIO = 0.98  # a blob below this share of the learned area, more lopsided than the rover's whole marker ...
 LOPSIDED_FLOOR = 0.2  # ... is (twice the median point asymmetry of its whole blobs, plus 0.1; at least this) ...
 LOPSIDED_UNKNOWN = 0.4  # ... or than this before that is known, has a part hidden (RoverTrack.lopsided_limit)
+SKEW_PX = 400.0  # whole blobs' asymmetries are learned scaled to this many pixels (RoverTrack.lopsided_limit)
 SKEW_EVERY = 3  # a whole blob's point asymmetry is learned in one frame of this many
 JOINED_RATIO = 1.05  # a blob this much larger than the learned area, lopsided beyond JOINED_SKEW (point asymmetry)
 JOINED_SKEW = 0.35  # and farther than JOINED_STEP_CM from the filter's prediction is the marker joined to something
@@ -295,33 +296,38 @@ class RoverTrack:
         weights = m.weights if self.config.front_color_bgr is None else None
         wanted = smaller or unchecked or (learned and frame % SKEW_EVERY == 0)
         skew = point_asymmetry(weights) if weights is not None and wanted else None
-        if skew is not None and (smaller or unchecked) and skew > self.lopsided_limit():
+        px = float(np.maximum(weights, 0.0).sum()) if weights is not None and skew is not None else SKEW_PX
+        if skew is not None and (smaller or unchecked) and skew > self.lopsided_limit(px):
             return False  # smaller than the rover's own marker, or found with nothing to check it by, and lopsided
         if ratio > JOINED_RATIO and weights is not None and self._joined(m, skew):
             return False  # larger, lopsided and pulled off: joined to something of its hue
         if relearn:
             self.relearned_at = frame  # its areas are forgotten once it is taken (Pipeline)
         elif skew is not None and learned and ratio >= LOPSIDED_RATIO:
-            self.skews.append(skew)
+            self.skews.append(skew * math.sqrt(max(px, 1.0) / SKEW_PX))
         return True
 
-    def lopsided_limit(self) -> float:
-        """How lopsided (``edge.blob_shape.point_asymmetry``) a blob below :data:`LOPSIDED_RATIO` of the learned area
-        may be and still be the whole marker: twice the median of this rover's whole blobs, plus 0.1, at least
-        :data:`LOPSIDED_FLOOR`; :data:`LOPSIDED_UNKNOWN` before ten are known.
+    def lopsided_limit(self, px: float = 0.0) -> float:
+        """How lopsided (``edge.blob_shape.point_asymmetry``) a blob of ``px`` pixels (its coverage's sum; the
+        reference :data:`SKEW_PX` when not given) below :data:`LOPSIDED_RATIO` of the learned area may be and still be
+        the whole marker: twice the median of this rover's whole blobs, plus 0.1, at least :data:`LOPSIDED_FLOOR`;
+        :data:`LOPSIDED_UNKNOWN` before ten are known.
 
         The area band alone lets a marker that a leg or a box hides a little more each frame through: each frame's
         area is within the band's scatter of the last, the filter follows the centre toward the part left (2.5 cm
-        off in the family's occlusion clip with seed 3117), and the areas learned on the way widen the band
-        further. A hidden corner makes the blob lopsided (6-7 % of the marker: 0.3-0.34). A stream makes a whole
-        marker lopsided too, by how coarse it is against the marker: a near-side marker in a clean stream 0.03, a
-        far-side one in a 4:2:0 q60-70 stream 0.1 at the median and up to 0.37 at times, mostly at its whole area.
-        The rover's own median follows that (learned from every third frame's whole blob, :data:`SKEW_EVERY`: the
-        measure costs about 20 us); ten seconds of it count, so a part hidden a little more each second
-        does not draw the limit up (docs/benchmarks.md, "A marker hidden a little more each frame")."""
+        off in the family's occlusion clip with seed 3117). A hidden corner makes the blob lopsided (7 % of the
+        marker: 0.34, at any size). A stream's grain makes a whole marker lopsided too, more where it spans fewer
+        pixels: over a clip on wood (cross 14641, 4:2:0 q78) the median fell from 0.13-0.16 at 150-250 pixels to
+        0.04-0.07 at 700 or more, about as the inverse square root of the pixels. Each whole blob's asymmetry is
+        learned scaled by that root to :data:`SKEW_PX` pixels (every third frame's, :data:`SKEW_EVERY`; 20 us), and
+        the median scaled back to ``px``: learned near the camera, a rover's limit on the far side was 0.3 where its
+        whole marker showed 0.35-0.5, refused for 10-20 frames running (that clip's green rover). Ten seconds count,
+        so a part hidden a little more each second does not draw the limit up (docs/benchmarks.md, "A marker hidden
+        a little more each frame")."""
         if len(self.skews) < 10:
             return LOPSIDED_UNKNOWN
-        return max(LOPSIDED_FLOOR, 2.0 * float(statistics.median(self.skews)) + 0.1)
+        scale = math.sqrt(SKEW_PX / px) if px > 0.0 else 1.0
+        return max(LOPSIDED_FLOOR, 2.0 * float(statistics.median(self.skews)) * scale + 0.1)
 
     def _joined(self, m: Measurement, skew: float | None = None) -> bool:
         """Is a blob larger than the marker the marker joined to something of its hue? Lopsided, and its centre pulled

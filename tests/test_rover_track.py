@@ -12,6 +12,7 @@ from edge.rover_track import (
     LOPSIDED_FLOOR,
     LOPSIDED_UNKNOWN,
     RELEARN_FRAMES,
+    SKEW_PX,
     STEADY_FRAMES,
     STEADY_SLOPE,
     STEADY_STEP,
@@ -99,6 +100,40 @@ def test_how_lopsided_a_smaller_blob_may_be_follows_the_rover_s_own_whole_blobs(
     assert coarse.lopsided_limit() == pytest.approx(0.34)
     track.skews.extend([0.03] * 70 + [0.25] * 20)  # 2 s of a growing corner (one frame in three): the median holds
     assert track.lopsided_limit() == LOPSIDED_FLOOR
+
+
+def test_how_lopsided_a_whole_blob_may_be_grows_as_its_marker_spans_fewer_pixels() -> None:
+    """A stream's grain makes a whole marker lopsided by about the inverse square root of the pixels it spans (a
+    rover's clip on wood, cross 14641: median 0.13-0.16 at 150-250 pixels, 0.04-0.07 at 700 or more). Learned near
+    the camera, a rover's limit on the far side was 0.3 where its whole marker showed 0.35-0.5: the limit scales
+    with the blob's pixels. A hidden corner (7 % of the marker: 0.34; 12 %: 0.48) does not depend on them."""
+    track = _track([1.0] * 31)
+    track.skews.extend([0.06] * 30)  # whole blobs' asymmetries, scaled to SKEW_PX pixels
+    assert track.lopsided_limit(SKEW_PX) == pytest.approx(0.22)
+    assert track.lopsided_limit(SKEW_PX / 4) == pytest.approx(0.34)  # the far side: half as many pixels across
+    assert track.lopsided_limit(4 * SKEW_PX) == LOPSIDED_FLOOR  # near the camera: never below the floor
+    assert track.lopsided_limit(SKEW_PX / 4) < 0.48  # a marker an eighth hidden is still refused there
+
+
+def test_a_whole_blob_s_asymmetry_is_learned_scaled_to_the_reference_pixels() -> None:
+    """Whole blobs learned near the camera (936 pixels, asymmetry 0.1) are kept scaled to SKEW_PX (400) pixels by
+    the square root: near the camera the limit is twice their asymmetry plus 0.1, and on the far side, a quarter of
+    the pixels, twice as lopsided a whole marker is allowed (0.5 where the rover's limit was 0.3)."""
+    from edge.blob_shape import point_asymmetry
+
+    settings = TrackerSettings()
+    nominal = settings.marker_area_cm2
+    track = _track([nominal] * 31)
+    near = np.zeros((60, 80), np.float32)
+    near[15:45, 10:40] = 1.0
+    near[24:36, 40:43] = 1.0  # a bump on one side: asymmetry 0.1
+    skew, px = point_asymmetry(near), float(near.sum())
+    for frame in range(0, 60, 3):  # learned one frame in three
+        m = Measurement((100.0, 200.0), (30.0, 20.0), nominal, 1.0, 1.0, 0.0, 1.0, False, near)
+        assert track.whole_marker(m, track.expected_area(nominal), True, settings, 0.0, frame)
+    assert list(track.skews) == pytest.approx([skew * (px / SKEW_PX) ** 0.5] * 20)
+    assert track.lopsided_limit(px) == pytest.approx(2.0 * skew + 0.1)
+    assert track.lopsided_limit(px / 4.0) == pytest.approx(4.0 * skew + 0.1)
 
 
 def test_a_rover_being_found_again_is_not_taken_from_a_lopsided_blob_of_its_area() -> None:
