@@ -276,7 +276,7 @@ def at_marker_level(plane: F32, candidates: BoolArray, fraction: float, marker_p
     """The interval from the median of the ``marker_px`` brightest ``candidates`` (the marker's expected area in
     pixels): the marker's own level where it is a small share of a window of a floor of its hue class
     (:func:`threshold_marker`). None unless that level stands :data:`MARKER_STANDOUT` times the window's median:
-    on warm wood the brightest planks' median is about 1.5 times the wood's, a marker's 2.5-3 times."""
+    on the simulator's warm wood, windows of wood alone 1.11-1.55 times, a far-side red marker 2.3-2.6 times."""
     if marker_px <= 0.0:
         return None
     top = auto_threshold(plane, candidates, fraction, percentile=50.0, marker_px=marker_px)
