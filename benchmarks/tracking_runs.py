@@ -60,12 +60,14 @@ def render_clip(
     sharpen: float | None = None,
     demosaic: str | None = None,
     floor: str = "tiles",
+    off: tuple[str, ...] = (),
 ) -> Clip:
     """Render scenario ``name`` for ``seed`` through the nominal camera or one of the family (``camera``);
     ``chroma``, ``quality``: that camera's JPEG chroma sampling (``4:4:4``, ``4:2:2``, ``4:2:0``) or quality
     replaced, all else kept; ``line_time_s``: a rolling shutter with that line time (``edge.sim.effects``);
     ``sharpen``, ``demosaic``: its processor's sharpening (0: none) or demosaicing (``none``: no Bayer filter);
-    ``floor``: the floor's material (``edge.sim.scene.FLOORS``; named after the bodies when not the default tiles)."""
+    ``floor``: the floor's material (``edge.sim.scene.FLOORS``; named after the bodies when not the default tiles);
+    ``off``: the camera's effects of those names switched off (:func:`without`)."""
     from dataclasses import replace
 
     from edge.sim.cameras import processing_name
@@ -73,6 +75,10 @@ def render_clip(
     from edge.sim.scenarios import build
 
     setup = build(name, seed, rovers, frames, heading, camera, floor)  # type: ignore[arg-type]
+    if off:
+        setup = replace(
+            setup, effects=without(setup.effects, off), camera_name=f"{setup.camera_name} without {','.join(off)}"
+        )
     if line_time_s is not None:
         setup = replace(setup, effects=replace(setup.effects, rolling_shutter=RollingShutter(line_time_s)))
     if chroma is not None or quality is not None:
@@ -136,6 +142,38 @@ def render_clip(
         setup.camera_name,
         f"{bodies} bodies {setup.marker_height_cm:.0f} cm" + ("" if floor == "tiles" else f" on {floor}"),
     )
+
+
+EFFECTS_OFF = ("noise", "vignetting", "colour", "awb", "jpeg", "sharpen", "demosaic", "motion", "exposure")
+
+
+def without(effects: object, names: tuple[str, ...]) -> object:
+    """``effects`` (``edge.sim.effects.Effects``) with the named ones (:data:`EFFECTS_OFF`) switched off: sensor
+    noise, vignetting, colour crosstalk and white-balance error (``colour``), automatic white balance, the JPEG
+    stream, the processor's sharpening or its Bayer demosaicing, motion blur, automatic exposure."""
+    from dataclasses import replace
+
+    from edge.sim.colour import ColourResponse
+
+    unknown = sorted(set(names) - set(EFFECTS_OFF))
+    if unknown:
+        raise ValueError(f"unknown effects {', '.join(unknown)}: choose from {', '.join(EFFECTS_OFF)}")
+    e = effects
+    fields = {"noise": "noise", "vignetting": "vignetting", "awb": "auto_white_balance", "jpeg": "compression"}
+    changes: dict[str, object] = {fields[n]: None for n in names if n in fields}
+    if "colour" in names:
+        changes["colour"] = ColourResponse()
+    if "motion" in names:
+        changes["motion_blur"] = False
+    if "exposure" in names:
+        changes["auto_exposure"] = None
+    processing = e.processing  # type: ignore[attr-defined]
+    if processing is not None and "sharpen" in names:
+        processing = replace(processing, sharpen=0.0)
+    if processing is not None and "demosaic" in names:
+        processing = replace(processing, demosaic=None)
+    changes["processing"] = processing
+    return replace(e, **changes)  # type: ignore[type-var]
 
 
 def _body_name(bgr: tuple[float, float, float]) -> str:
