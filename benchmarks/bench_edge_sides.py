@@ -36,6 +36,8 @@ from tracking_runs import EFFECTS_OFF, frame_of, plane_mapping, render_clip
 from edge.centre_offsets import INSET_CM, EdgeJob, InlineFits
 from edge.edges_encoded import (
     YCC_FROM_BGR,
+    EdgeFit,
+    SideProfile,
     beyond_level,
     bgr_of_ycc,
     edge_midpoint,
@@ -82,7 +84,9 @@ def jobs_of(scenario: str, seed: int, floor: str, off: tuple[str, ...]) -> tuple
     return clip.camera_name, kept
 
 
-def _fit_at(job: EdgeJob, at: tuple[float, float]) -> tuple[list, object] | None:
+def _fit_at(job: EdgeJob, at: tuple[float, float]) -> tuple[list[SideProfile], tuple[np.ndarray, EdgeFit]] | None:
+    """The side profiles around ``at`` and the full fit to them (with the interior's mean Y'CbCr), as the fits make
+    it; None when a side does not reach its band."""
     c, s = math.cos(job.axis_rad), math.sin(job.axis_rad)
     dx, dy = job.xy_cm[0] - at[0], job.xy_cm[1] - at[1]
     inset = min(INSET_CM, 0.25 * min(job.size_cm))

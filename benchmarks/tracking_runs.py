@@ -18,10 +18,12 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from edge.centre_offsets import InlineFits
+from edge.sim.effects import Effects
 from edge.tracker_config import TrackerConfig
 from edge.trackers.base import CameraPlaneMapping
 from edge.trackers.factory import build_tracker
@@ -147,10 +149,11 @@ def render_clip(
 EFFECTS_OFF = ("noise", "vignetting", "colour", "awb", "jpeg", "sharpen", "demosaic", "motion", "exposure")
 
 
-def without(effects: object, names: tuple[str, ...]) -> object:
-    """``effects`` (``edge.sim.effects.Effects``) with the named ones (:data:`EFFECTS_OFF`) switched off: sensor
-    noise, vignetting, colour crosstalk and white-balance error (``colour``), automatic white balance, the JPEG
-    stream, the processor's sharpening or its Bayer demosaicing, motion blur, automatic exposure."""
+def without(effects: Effects, names: tuple[str, ...]) -> Effects:
+    """``effects`` with the named ones (:data:`EFFECTS_OFF`) switched off: sensor noise, vignetting, the colour
+    response (``colour``: crosstalk, white-balance error and tone curve back to the nominal camera's), automatic
+    white balance, the JPEG stream, the processor's sharpening or its Bayer demosaicing, motion blur, automatic
+    exposure."""
     from dataclasses import replace
 
     from edge.sim.colour import ColourResponse
@@ -160,20 +163,20 @@ def without(effects: object, names: tuple[str, ...]) -> object:
         raise ValueError(f"unknown effects {', '.join(unknown)}: choose from {', '.join(EFFECTS_OFF)}")
     e = effects
     fields = {"noise": "noise", "vignetting": "vignetting", "awb": "auto_white_balance", "jpeg": "compression"}
-    changes: dict[str, object] = {fields[n]: None for n in names if n in fields}
+    changes: dict[str, Any] = {fields[n]: None for n in names if n in fields}
     if "colour" in names:
         changes["colour"] = ColourResponse()
     if "motion" in names:
         changes["motion_blur"] = False
     if "exposure" in names:
         changes["auto_exposure"] = None
-    processing = e.processing  # type: ignore[attr-defined]
+    processing = e.processing
     if processing is not None and "sharpen" in names:
         processing = replace(processing, sharpen=0.0)
     if processing is not None and "demosaic" in names:
         processing = replace(processing, demosaic=None)
     changes["processing"] = processing
-    return replace(e, **changes)  # type: ignore[type-var]
+    return replace(e, **changes)
 
 
 def _body_name(bgr: tuple[float, float, float]) -> str:
