@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from tracking_runs import EFFECTS_OFF, frame_of, plane_mapping, render_clip
 
-from edge.centre_offsets import INSET_CM, EdgeJob, InlineFits
+from edge.centre_offsets import EdgeJob, InlineFits, marker_interior
 from edge.edges_encoded import (
     YCC_FROM_BGR,
     EdgeFit,
@@ -87,12 +87,7 @@ def jobs_of(scenario: str, seed: int, floor: str, off: tuple[str, ...]) -> tuple
 def _fit_at(job: EdgeJob, at: tuple[float, float]) -> tuple[list[SideProfile], tuple[np.ndarray, EdgeFit]] | None:
     """The side profiles around ``at`` and the full fit to them (with the interior's mean Y'CbCr), as the fits make
     it; None when a side does not reach its band."""
-    c, s = math.cos(job.axis_rad), math.sin(job.axis_rad)
-    dx, dy = job.xy_cm[0] - at[0], job.xy_cm[1] - at[1]
-    inset = min(INSET_CM, 0.25 * min(job.size_cm))
-    interior = (np.abs(dx * c + dy * s) < job.size_cm[0] / 2 - inset) & (
-        np.abs(dy * c - dx * s) < job.size_cm[1] / 2 - inset
-    )
+    interior = marker_interior(job, at)
     profiles = side_profiles(job.raw, job.xy_cm, at, job.axis_rad, (job.size_cm[0] / 2, job.size_cm[1] / 2))
     if not interior.any() or not all(has_band(p) for p in profiles):
         return None

@@ -95,12 +95,7 @@ def fit_offset(job: EdgeJob) -> EdgeSample | None:
     The marker's colour is the mean of the pixels :data:`INSET_CM` inside its outline placed at the fast centre
     along its axis, not of the pixels classified as its hue: at 4:2:0 the marker's chroma spills onto a dark body,
     whose pixels then take the marker's hue at a fraction of its brightness."""
-    c, s = math.cos(job.axis_rad), math.sin(job.axis_rad)
-    dx0, dy0 = job.xy_cm[0] - job.centre_cm[0], job.xy_cm[1] - job.centre_cm[1]
-    inset = min(INSET_CM, 0.25 * min(job.size_cm))
-    interior = (np.abs(dx0 * c + dy0 * s) < job.size_cm[0] / 2 - inset) & (
-        np.abs(dy0 * c - dx0 * s) < job.size_cm[1] / 2 - inset
-    )
+    interior = marker_interior(job, job.centre_cm)
     if int(np.count_nonzero(interior)) < MIN_INTERIOR_PX:
         return None
     fitted = encoded_edge_centre(
@@ -115,6 +110,17 @@ def fit_offset(job: EdgeJob) -> EdgeSample | None:
     if math.hypot(dx, dy) > MAX_OFFSET_CM and image_px(job.xy_cm, job.centre_cm, (dx, dy)) > MAX_OFFSET_PX:
         return None
     return EdgeSample(job.index, job.frame, job.centre_cm, (dx, dy))
+
+
+def marker_interior(job: EdgeJob, at_cm: tuple[float, float]) -> NDArray[np.bool_]:
+    """(h, w) the job's pixels :data:`INSET_CM` (at most a quarter of its width) inside the marker's outline placed
+    at ``at_cm`` along the job's axis: where its colour is read."""
+    c, s = math.cos(job.axis_rad), math.sin(job.axis_rad)
+    dx, dy = job.xy_cm[0] - at_cm[0], job.xy_cm[1] - at_cm[1]
+    inset = min(INSET_CM, 0.25 * min(job.size_cm))
+    return np.asarray(
+        (np.abs(dx * c + dy * s) < job.size_cm[0] / 2 - inset) & (np.abs(dy * c - dx * s) < job.size_cm[1] / 2 - inset)
+    )
 
 
 def image_px(xy_cm: FloatArray, at_cm: tuple[float, float], d_cm: tuple[float, float]) -> float:

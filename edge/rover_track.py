@@ -307,9 +307,9 @@ class RoverTrack:
             self.skews.append(skew * math.sqrt(max(px, 1.0) / SKEW_PX))
         return True
 
-    def lopsided_limit(self, px: float = 0.0) -> float:
-        """How lopsided (``edge.blob_shape.point_asymmetry``) a blob of ``px`` pixels (its coverage's sum; the
-        reference :data:`SKEW_PX` when not given) below :data:`LOPSIDED_RATIO` of the learned area may be and still be
+    def lopsided_limit(self, px: float = SKEW_PX) -> float:
+        """How lopsided (``edge.blob_shape.point_asymmetry``) a blob of ``px`` pixels (its coverage's sum; by
+        default the reference :data:`SKEW_PX`) below :data:`LOPSIDED_RATIO` of the learned area may be and still be
         the whole marker: twice the median of this rover's whole blobs, plus 0.1, at least :data:`LOPSIDED_FLOOR`;
         :data:`LOPSIDED_UNKNOWN` before ten are known.
 
