@@ -46,7 +46,7 @@ from edge.trackers.refine import refine_axis, refine_outline
 from edge.trackers.window import prepare_window, window_box
 from edge.tracking import Frame, FrameResult, RoverEstimate, StageTimes
 from edge.two_tone import MarkerPixels, TwoToneGeometry, inner_edge_weights, view_marker
-from edge.white import LocalWhite
+from edge.white import OBSERVE_EVERY, LocalWhite
 
 FloatArray = NDArray[np.float64]
 SIDEWAYS_MIN_SPEED_CM_S = 10.0  # motion that checks a two-tone marker's axis (edge.two_tone.TwoToneHeading.update)
@@ -171,6 +171,8 @@ class Pipeline:
             self.white = LocalWhite(self.background.reference, self.background.valid)
         else:
             self.white.update(self.background.reference, self.background.valid, rows)  # the light follows it
+            if self._frames % OBSERVE_EVERY == 0:  # and the whole view's change, for the next frames' windows
+                self.white.observe(image, self.background.reference, self.background.valid)
         clock.add("reference", time.perf_counter() - t0)
 
         self._frames += 1

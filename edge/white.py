@@ -21,7 +21,11 @@ floor: its reference is a local white reference at every pixel.
 
 For a window, the light there now is the light map's colour there, corrected by how the floor just around the
 window has changed since the reference was taken (median ratio of the window's border pixels to the reference's:
-the automatic white balance and passing clouds act between refreshes). The window's pixels are then divided by that
+the automatic white balance and passing clouds act between refreshes). Only border pixels whose brightness changed
+about as the whole view's did (:meth:`LocalWhite.observe`, within :data:`FLOOR_BAND` of it) count as floor: a
+rover's own black body can fill most of its window's border, and over wood its ratio to the floor (a twelfth of its
+brightness, relatively bluer) read as a blue light that moved a teal marker out of its hue for a second. Where too
+few are left, the light there is the map's changed as the whole view has. The window's pixels are then divided by that
 light's colour and multiplied by ``white`` (a von Kries correction, per channel in linear light, brightness kept):
 the marker shows the colour it had under the lamps, and a grey or white object stays grey.
 """
@@ -44,7 +48,15 @@ MAX_GAIN = 2.5  # no channel is corrected more than this (a saturated or black f
 # reference farther than this from the configured white is a coloured thing lying on the floor (a poster, a rug, a
 # parked object of a marker's hue), not the light's colour.
 MAX_LIGHT_SHIFT = 0.2
+# A floor pixel on a window's border changes its brightness about as the whole view does (the white balance, the
+# exposure, the lamps' drift act on all of it; a cloud on a sunlit patch or a lamp switched off nearby by a factor
+# of 2-3 more); a black body there is 5-30 times darker than the floor it covers.
+FLOOR_BAND = (0.3, 3.3)
+VIEW_SAMPLES = 1024  # pixels of the view sampled for its change (a sparse grid)
+MIN_VIEW_SAMPLES = 64
+OBSERVE_EVERY = 4  # frames between two measures of the view's change (edge.pipeline: the light changes over seconds)
 _ENCODE = np.asarray(np.interp(np.linspace(0.0, 1.0, 4096), LINEAR, np.arange(256)).round(), dtype=np.uint8)
+_ONES = np.ones(3, np.float32)
 _LINEAR_COLUMN = LINEAR[:, None].copy()  # (256, 1): the look-up table of one gain per channel
 
 
@@ -66,7 +78,25 @@ class LocalWhite:
         self.coarse = np.zeros((0, 0, 3))
         self.light = self.coarse
         self._edges: list[int] = []
+        self.change = [1.0, 1.0, 1.0]  # the view's per-channel change since its reference was taken (observe)
+        self.level = 1.0  # and its brightness's
         self.update(reference, valid)
+
+    def observe(self, image: U8, reference: U8, valid: BoolArray) -> None:
+        """The whole view's change of light since its reference was taken, from a sparse grid of its valid pixels:
+        per channel and in brightness, the medians of their ratios to the reference (the white balance, the exposure
+        and the lamps act on all of it; the rovers, a few per cent of the view, do not move the medians). Called
+        every few frames (``edge.pipeline``: the light changes over seconds), before the windows' :meth:`gains`; too
+        few valid pixels (the reference not yet known) leave no change."""
+        index = _grid_index(*valid.shape[:2])
+        usable = index.compress(valid.reshape(-1).take(index))
+        if len(usable) < MIN_VIEW_SAMPLES:
+            self.change, self.level = [1.0, 1.0, 1.0], 1.0
+            return
+        now = cv2.LUT(image.reshape(-1, 3).take(usable, axis=0), LINEAR) + np.float32(1e-4)
+        then = cv2.LUT(reference.reshape(-1, 3).take(usable, axis=0), LINEAR) + np.float32(1e-4)
+        self.change = [float(v) for v in _column_medians(now / then)]
+        self.level = float(_column_medians(_brightness_ratio(now, then)[:, None].astype(np.float64))[0])
 
     def update(self, reference: U8, valid: BoolArray, rows: slice | None = None) -> None:
         """Recompute the coarse map from the current reference (where it is valid; elsewhere the global white): all
@@ -113,7 +143,7 @@ class LocalWhite:
         cy = min(self.coarse.shape[0] - 1, ((y0 + y1) // 2) // BLOCK_PX)
         cx = min(self.coarse.shape[1] - 1, ((x0 + x1) // 2) // BLOCK_PX)
         coarse = self.light[cy, cx].tolist()  # three numbers: plain floats are quicker than arrays
-        light = coarse
+        light = viewed = [a * b for a, b in zip(coarse, self.change, strict=True)]  # the map's, changed as the view
         if reference is not None and valid is not None:
             border = _border_index(*valid.shape[:2])
             floor = valid.reshape(-1).take(border)
@@ -124,10 +154,16 @@ class LocalWhite:
                 # take() along the pixels: a third of the time of indexing them
                 now = cv2.LUT(crop.reshape(-1, 3).take(usable, axis=0), LINEAR) + np.float32(1e-4)
                 then = cv2.LUT(reference.reshape(-1, 3).take(usable, axis=0), LINEAR) + np.float32(1e-4)
-                light = [a * float(b) for a, b in zip(coarse, _column_medians(now / then), strict=True)]
-                total = max(sum(light), 1e-9)
-                if max(abs(v / total - w) for v, w in zip(light, self.white, strict=True)) > MAX_LIGHT_SHIFT:
-                    light = coarse  # no light has that colour: something other than floor held the border
+                level = _brightness_ratio(now, then)
+                lit = (level > FLOOR_BAND[0] * self.level) & (level < FLOOR_BAND[1] * self.level)
+                if int(np.count_nonzero(lit)) >= 8:
+                    ratio = now / then
+                    if not lit.all():
+                        ratio = ratio[lit]
+                    light = [a * float(b) for a, b in zip(coarse, _column_medians(ratio), strict=True)]
+                    total = max(sum(light), 1e-9)
+                    if max(abs(v / total - w) for v, w in zip(light, self.white, strict=True)) > MAX_LIGHT_SHIFT:
+                        light = viewed  # no light has that colour: something other than floor held the border
         total = max(sum(light), 1e-9)
         gains = [float(w) / max(v / total, 1e-6) for w, v in zip(self.white, light, strict=True)]
         scale = 3.0 / sum(gains)
@@ -151,6 +187,14 @@ class LocalWhite:
             table = encode_linear(_LINEAR_COLUMN * gains.astype(np.float32))
             return np.asarray(cv2.LUT(crop, table.reshape(1, 256, 3)), dtype=np.uint8)
         return encode_linear(linear_bgr(crop) * gains.astype(np.float32))
+
+
+@lru_cache(maxsize=8)
+def _grid_index(h: int, w: int) -> NDArray[np.intp]:
+    """Flat indices of about :data:`VIEW_SAMPLES` pixels on a regular grid over an ``h`` x ``w`` image."""
+    step = max(1, round((h * w / VIEW_SAMPLES) ** 0.5))
+    rows, cols = np.arange(step // 2, h, step), np.arange(step // 2, w, step)
+    return np.asarray((rows[:, None] * w + cols[None, :]).ravel(), dtype=np.intp)
 
 
 @lru_cache(maxsize=256)
@@ -192,6 +236,12 @@ def _column_medians(values: FloatArray) -> FloatArray:
     if rows.shape[1] % 2:
         return np.asarray(rows[:, k])
     return np.asarray(0.5 * (rows[:, k - 1] + rows[:, k]))
+
+
+def _brightness_ratio(now: NDArray[np.float32], then: NDArray[np.float32]) -> NDArray[np.float32]:
+    """(n,) each pixel's brightness (its linear channels' sum) now over then (a product with ones: a sum along the
+    short axis costs twice as much)."""
+    return np.asarray((now @ _ONES) / (then @ _ONES))
 
 
 def _mean_colour(image: U8, valid: BoolArray) -> FloatArray:

@@ -195,6 +195,69 @@ def test_a_border_whose_colour_no_light_has_falls_back_to_the_lights_map():
     assert gains == pytest.approx(np.ones(3), abs=0.02)
 
 
+WOOD_BGR = (60, 110, 170)  # a warm wooden floor (8-bit B, G, R)
+
+
+def _body_on_wood(body_tint: tuple[float, float, float], level: float) -> np.ndarray:
+    """A dark body's colour over the wood: the wood's linear colour times ``level`` and ``body_tint``."""
+    wood = linear_bgr(np.array([[WOOD_BGR]], np.uint8))[0, 0]
+    return encode_linear(np.asarray(wood * level * np.array(body_tint), np.float32)[None, None])[0, 0]
+
+
+def test_a_rovers_own_black_body_on_most_of_its_windows_border_is_not_taken_for_the_light():
+    """The cross clip's green rover (seed 14641, wood, a black body) was lost for a second: the body held most of
+    its window's border, and its ratio to the wood (a twelfth of its brightness, relatively bluer) read as a blue
+    light that moved the teal marker out of its hue. Border pixels whose brightness changed far more than the whole
+    view's did are not floor."""
+    reference = np.full((120, 160, 3), WOOD_BGR, np.uint8)
+    white = LocalWhite(reference, np.ones((120, 160), bool))
+    frame = reference.copy()
+    box = (40, 30, 120, 90)
+    frame[34:90, 40:120] = _body_on_wood((1.35, 0.92, 0.73), 0.08)  # three of the border's four sides
+    white.observe(frame, reference, np.ones((120, 160), bool))
+    crop, ref = frame[30:90, 40:120], reference[30:90, 40:120]
+    valid = np.ones((60, 80), bool)
+
+    border = (linear_bgr(crop) + 1e-4) / (linear_bgr(ref) + 1e-4)
+    ring = np.ones((60, 80), bool)
+    ring[2:-2, 2:-2] = False
+    plain = np.median(border[ring], axis=0)
+    assert plain[0] / plain[2] > 1.5  # the border's plain median: a blue light
+    assert white.gains(box, crop, ref, valid) == pytest.approx(np.ones(3), abs=0.03)
+
+
+def test_the_whole_views_change_is_the_light_where_a_windows_border_shows_no_floor():
+    """A window with no floor on its border (the reference not known there, or all of it a body) takes the light
+    map's colour changed as the whole view's has: the white balance moved everywhere at once."""
+    reference = np.full((120, 160, 3), 128, np.uint8)
+    white = LocalWhite(reference, np.ones((120, 160), bool))
+    tint = np.array([1.25, 1.0, 0.8], np.float32)
+    frame = encode_linear(np.clip(linear_bgr(reference) * tint, 0, 1))
+    box = (40, 30, 120, 90)
+    unknown = np.zeros((60, 80), bool)
+    assert white.gains(box, frame[30:90, 40:120], reference[30:90, 40:120], unknown) == pytest.approx(np.ones(3))
+    white.observe(frame, reference, np.ones((120, 160), bool))
+    gains = white.gains(box, frame[30:90, 40:120], reference[30:90, 40:120], unknown)
+    expected = (1.0 / tint) / (1.0 / tint).mean()
+    assert gains == pytest.approx(expected, rel=0.02)
+
+
+def test_a_border_dimmed_with_the_whole_view_is_still_floor():
+    """The lamps dimmed to a fifth over the whole view and a warmer light where the window is: its border changed
+    as the view did, so it is floor and gives the light there."""
+    reference = np.full((120, 160, 3), 128, np.uint8)
+    white = LocalWhite(reference, np.ones((120, 160), bool))
+    frame = encode_linear(linear_bgr(reference) * np.float32(0.2))
+    tint = np.array([0.8, 1.0, 1.25], np.float32)
+    frame[30:90, 40:120] = encode_linear(linear_bgr(reference[30:90, 40:120]) * np.float32(0.2) * tint)
+    box = (40, 30, 120, 90)
+    white.observe(frame, reference, np.ones((120, 160), bool))
+    assert white.level == pytest.approx(0.2, rel=0.05)
+    gains = white.gains(box, frame[30:90, 40:120], reference[30:90, 40:120], np.ones((60, 80), bool))
+    expected = (1.0 / tint) / (1.0 / tint).mean()
+    assert gains == pytest.approx(expected, rel=0.03)
+
+
 @pytest.mark.slow
 def test_two_tone_rovers_driving_in_a_row_through_the_lens_scenario_are_all_tracked():
     """The lens scenario's three rovers in a diagonal row, two-tone: the red one was lost at frame 153 and never
