@@ -170,8 +170,10 @@ class LocalWhite:
         return np.array([min(max(g * scale, 1.0 / MAX_GAIN), MAX_GAIN) for g in gains])
 
     def frame_gains(self, shape_hw: tuple[int, int]) -> NDArray[np.float32]:
-        """(h, w, 3) gains over a whole (downscaled) frame from the light map alone (the acquisition pass)."""
-        gains = self.white / np.maximum(self.light, 1e-6)
+        """(h, w, 3) gains over a whole (downscaled) frame from the light map changed as the whole view has
+        (:meth:`observe`; the acquisition pass: a lost rover is looked for under the white balance of now, not of
+        the reference's last refresh)."""
+        gains = self.white / np.maximum(self.light * np.asarray(self.change), 1e-6)
         gains /= gains.mean(axis=2, keepdims=True)
         gains = np.clip(gains, 1.0 / MAX_GAIN, MAX_GAIN).astype(np.float32)
         return np.asarray(cv2.resize(gains, (shape_hw[1], shape_hw[0]), interpolation=cv2.INTER_LINEAR))

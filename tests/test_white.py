@@ -242,6 +242,18 @@ def test_the_whole_views_change_is_the_light_where_a_windows_border_shows_no_flo
     assert gains == pytest.approx(expected, rel=0.02)
 
 
+def test_the_acquisitions_whole_frame_gains_follow_the_views_white_balance():
+    """The acquisition pass looks for a lost rover over the whole (downscaled) frame under the light map's gains:
+    changed as the whole view has, the white balance of now, not of the reference's last refresh."""
+    reference = np.full((120, 160, 3), 128, np.uint8)
+    white = LocalWhite(reference, np.ones((120, 160), bool))
+    tint = np.array([1.25, 1.0, 0.8], np.float32)
+    assert white.frame_gains((30, 40)) == pytest.approx(np.ones((30, 40, 3)))
+    white.observe(encode_linear(np.clip(linear_bgr(reference) * tint, 0, 1)), reference, np.ones((120, 160), bool))
+    expected = (1.0 / tint) / (1.0 / tint).mean()
+    assert white.frame_gains((30, 40)) == pytest.approx(np.broadcast_to(expected, (30, 40, 3)), rel=0.02)
+
+
 def test_a_border_dimmed_with_the_whole_view_is_still_floor():
     """The lamps dimmed to a fifth over the whole view and a warmer light where the window is: its border changed
     as the view did, so it is floor and gives the light there."""
