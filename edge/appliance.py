@@ -97,12 +97,12 @@ def grab_configured_frame(config: EdgeConfig) -> NDArray[np.uint8]:
 
 
 def default_tracker_factory(inputs: TrackerInputs) -> Tracker:
-    """The tracking pipeline built from the rovers, the ``[tracker]`` settings (``edge_offsets = "auto"`` decided by
-    the opened source) and the calibration."""
+    """The pipeline of the rovers, the ``[tracker]`` settings (``auto`` decided by the source), the calibration."""
     from edge.tracker_config import TrackerConfig
     from edge.trackers.factory import build_tracker
 
-    config = TrackerConfig.of(inputs.config.tracker, inputs.config.rovers).for_source(inputs.info.chroma_spread)
+    info, settings = inputs.info, inputs.config.tracker
+    config = TrackerConfig.of(settings, inputs.config.rovers).for_source(info.chroma_spread, info.sharpened)
     return build_tracker(config, inputs.calibration)
 
 

@@ -60,7 +60,9 @@ HELD_BACK_FRAMES = 15  # InlineFits: a result reaches the tracker this late, as 
 class EdgeJob:
     """One rover's window for a full edge fit: ``raw`` (h, w, 3) the crop as the camera gave it, ``xy_cm`` (2, h, w)
     its pixels' centres on the marker plane, ``centre_cm`` the fast centre and ``axis_rad`` the long axis of that
-    frame, ``size_cm`` the marker's length and width; ``index`` the rover, ``frame`` the frame's number."""
+    frame, ``size_cm`` the marker's length and width; ``index`` the rover, ``frame`` the frame's number;
+    ``sharpened``: the camera may sharpen its luma (the fit weighs its luma by its residuals,
+    ``edge.edges_encoded``)."""
 
     index: int
     frame: int
@@ -69,6 +71,7 @@ class EdgeJob:
     centre_cm: tuple[float, float]
     axis_rad: float
     size_cm: tuple[float, float]
+    sharpened: bool = True
 
 
 @dataclass(frozen=True)
@@ -99,7 +102,7 @@ def fit_offset(job: EdgeJob) -> EdgeSample | None:
     if int(np.count_nonzero(interior)) < MIN_INTERIOR_PX:
         return None
     fitted = encoded_edge_centre(
-        job.raw, job.xy_cm, interior, job.centre_cm, job.axis_rad, job.size_cm, side_levels=True
+        job.raw, job.xy_cm, interior, job.centre_cm, job.axis_rad, job.size_cm, True, job.sharpened
     )
     if fitted is None:
         return None
@@ -249,10 +252,11 @@ class InlineFits:
 class CentreOffsets:
     """The offsets of every rover, which rover's window goes to the fits next (the one sampled longest ago), and the
     pipeline's steps with them each frame: :meth:`start_frame`, :meth:`corrected` per one-colour measurement,
-    :meth:`filtered` once the rover's filter has taken it."""
+    :meth:`filtered` once the rover's filter has taken it. ``sharpened``: the camera may sharpen its luma
+    (``TrackerConfig.camera_sharpens``; each job says so to its fit)."""
 
-    def __init__(self, fits: Fits) -> None:
-        self.fits = fits
+    def __init__(self, fits: Fits, sharpened: bool = True) -> None:
+        self.fits, self.sharpened = fits, sharpened
         self.maps: dict[int, OffsetMap] = {}
         self._turn: dict[int, int] = {}  # the frame of each rover's last turn: its window sent, or passed over
         self._refs: dict[tuple[int, int], tuple[float, float]] = {}
@@ -286,7 +290,14 @@ class CentreOffsets:
             xy = np.stack([grid.x_cm[y0:y1, x0:x1], grid.y_cm[y0:y1, x0:x1]]).astype(np.float64)
             self.submit(
                 EdgeJob(
-                    tr.index, self._frame, np.array(raw, dtype=np.uint8, copy=True), xy, m.xy_cm, m.axis_rad, size_cm
+                    tr.index,
+                    self._frame,
+                    np.array(raw, dtype=np.uint8, copy=True),
+                    xy,
+                    m.xy_cm,
+                    m.axis_rad,
+                    size_cm,
+                    self.sharpened,
                 )
             )
             self._pick, self._sent = None, tr.index

@@ -76,8 +76,7 @@ class Pipeline:
     ) -> None:
         if config.method == "paper":
             raise ConfigError("method 'paper' is the full-frame baseline: build it with build_tracker()")
-        self.config = config
-        self.calibration = calibration
+        self.config, self.calibration = config, calibration
         self.tracker = tracker if tracker is not None else make_tracker(config.method, config)
         # Acquisition always chooses among particles (by area, shape and hue), whatever tracks the rover after.
         if acquirer is None:
@@ -93,7 +92,8 @@ class Pipeline:
         self._empty_scene = background
         self.offsets: CentreOffsets | None = None
         if config.edge_offsets is True:  # "auto" is decided by who knows the source (TrackerConfig.for_source)
-            self.offsets = CentreOffsets(fits if fits is not None else ProcessFits(config.edge_offsets_every))
+            fits = fits if fits is not None else ProcessFits(config.edge_offsets_every)
+            self.offsets = CentreOffsets(fits, config.camera_sharpens)
         self.reset()
 
     def close(self) -> None:

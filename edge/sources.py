@@ -51,6 +51,9 @@ class SourceInfo:
     # the frames came through a colour path that spreads the chroma: a camera's (demosaicing, 4:2:2 or 4:2:0
     # sampling, JPEG) or a codec's; what the ``edge_offsets`` tracker setting's ``auto`` follows
     chroma_spread: bool = True
+    # the camera may sharpen its luma: False only where its sharpening is known to be off (a camera whose sharpness
+    # control was read back at its least); what ``TrackerConfig.camera_sharpens`` follows
+    sharpened: bool = True
 
 
 @runtime_checkable
@@ -191,9 +194,11 @@ class CameraSource(_OpenCvSource):
         asked = f"{self.width}x{self.height}@{self.fps:g} {self.fourcc}"
         granted = f"{granted_w}x{granted_h}@{granted_fps:g} {granted_fourcc}"
         note = "" if asked == granted else f" (asked {asked})"
+        self._sharpened = True  # not known: a camera's sharpening is read back with its controls
         if self.controls.wanted():
             self._apply_controls()
-        return SourceInfo(granted_w, granted_h, granted_fps, f"camera {self.path}: {granted}{note}")
+        description = f"camera {self.path}: {granted}{note}"
+        return SourceInfo(granted_w, granted_h, granted_fps, description, sharpened=self._sharpened)
 
     def _apply_controls(self) -> None:
         if not self._cap.grab():  # starts the stream: controls set before it may be reset by it
@@ -207,6 +212,7 @@ class CameraSource(_OpenCvSource):
             return
         try:
             self.controls_report = apply_controls(device, self.controls)
+            self._sharpened = device.query("sharpness") is None or sharpening_on(device) is not None
         except ControlError as exc:  # the camera went away while being set up
             self.close()
             raise SourceError(f"camera {self.path}: {exc}") from exc

@@ -206,6 +206,9 @@ class TrackerConfig(TrackerSettings):
     """The settings and the rovers they track: what a tracker is built from (``edge.trackers.factory``)."""
 
     rovers: tuple[RoverConfig, ...] = Field(default=DEFAULT_ROVERS, min_length=1, max_length=64)
+    # whether the frames' camera may sharpen its luma: the source's to say (``edge.sources.SourceInfo.sharpened``);
+    # not known counts as may, as most webcams do by default. The edge fits weigh the luma by what the model misses.
+    camera_sharpens: bool = True
 
     @field_validator("rovers")
     @classmethod
@@ -217,10 +220,12 @@ class TrackerConfig(TrackerSettings):
         """``settings`` with ``rovers`` (the appliance's ``[tracker]`` section and ``[[rovers]]`` tables)."""
         return cls(rovers=tuple(rovers), **dict(settings))
 
-    def for_source(self, chroma_spread: bool) -> TrackerConfig:
+    def for_source(self, chroma_spread: bool, sharpened: bool = True) -> TrackerConfig:
         """This configuration with ``edge_offsets`` decided for a source (:func:`edge_offsets_on`): the pipeline
-        takes ``auto`` it is handed as off, not knowing where its frames come from."""
-        return self.model_copy(update={"edge_offsets": edge_offsets_on(self.edge_offsets, chroma_spread)})
+        takes ``auto`` it is handed as off, not knowing where its frames come from; ``sharpened``: whether its
+        camera may sharpen (:attr:`camera_sharpens`)."""
+        update = {"edge_offsets": edge_offsets_on(self.edge_offsets, chroma_spread), "camera_sharpens": sharpened}
+        return self.model_copy(update=update)
 
 
 def edge_offsets_on(setting: bool | Literal["auto"], chroma_spread: bool) -> bool:

@@ -199,6 +199,19 @@ def test_doctor_warns_while_the_camera_sharpens_its_frames(tmp_path: Path) -> No
     assert check is not None and check.level == "ok", check.line()
 
 
+def test_the_source_says_the_camera_sharpens_unless_its_sharpening_was_read_back_off(tmp_path: Path) -> None:
+    """The edge fits weigh the luma by their residuals where the camera may sharpen (``SourceInfo.sharpened``, the
+    tracker's ``camera_sharpens``): a camera whose sharpness was set to its least and read back there does not; one
+    left at its default, one lacking the control and one whose controls were not asked for may."""
+    camera = FakeUvcCamera(tmp_path / "video0")
+    assert camera_source(camera).open().sharpened is False
+    assert camera.values["sharpness"] == 0
+    assert camera_source(camera, FIXED.model_copy(update={"sharpness": 96})).open().sharpened is True
+    assert camera_source(camera, CameraControls()).open().sharpened is True  # nothing asked: not read
+    plain = FakeUvcCamera(tmp_path / "video1", missing=frozenset({"sharpness"}))
+    assert camera_source(plain).open().sharpened is True
+
+
 def test_doctor_says_what_the_camera_did_not_grant(tmp_path: Path) -> None:
     camera = FakeUvcCamera(tmp_path / "video0", stuck=frozenset({"gain"}))
     source = camera_source(camera)

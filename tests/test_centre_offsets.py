@@ -326,7 +326,8 @@ def test_the_pipeline_with_edge_offsets_takes_the_4_2_0_bias_out_of_the_reported
     truth = {"red": (120.0, 210.0), "green": (205.0, 330.0)}
     biases = {}
     for on in (False, True):
-        config = TrackerConfig(rovers=rovers, edge_offsets=on, edge_offsets_every=3)
+        # the stream's camera does not sharpen, and the tracker is told so (SourceInfo.sharpened)
+        config = TrackerConfig(rovers=rovers, edge_offsets=on, edge_offsets_every=3, camera_sharpens=False)
         fits = InlineFits(config.edge_offsets_every, delay_frames=2) if on else None
         tracker = build_tracker(config, CameraPlaneMapping(paper_camera()), None, fits=fits)
         got = []

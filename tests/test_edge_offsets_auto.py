@@ -18,6 +18,7 @@ from edge.errors import ConfigError
 from edge.fit_worker import ProcessFits
 from edge.offline import open_track_job
 from edge.pooled_fits import PooledFits
+from edge.sim.effects import Effects, SignalProcessing
 from edge.sim.source import SimSource
 from edge.sources import MemorySource, SourceInfo, VideoFileSource
 from edge.tracker_config import RoverConfig, TrackerConfig, edge_offsets_on, load_tracker_config
@@ -110,8 +111,32 @@ def test_a_video_is_tracked_with_the_fits_pooled_on_the_loops_schedule_unless_tu
 
 
 def test_source_info_defaults_to_a_spread_colour_path() -> None:
-    # a source written elsewhere that says nothing is taken as a camera's: the fits are on for it
-    assert SourceInfo(1280, 720, 30.0, "somewhere").chroma_spread
+    # a source written elsewhere that says nothing is taken as a camera's: the fits are on for it, its luma may be
+    # sharpened
+    info = SourceInfo(1280, 720, 30.0, "somewhere")
+    assert info.chroma_spread and info.sharpened
+
+
+@pytest.mark.parametrize("sharpened", [True, False])
+def test_the_appliances_edge_fits_weigh_the_luma_unless_the_camera_is_known_not_to_sharpen(sharpened: bool) -> None:
+    """The source says whether its camera may sharpen (``SourceInfo.sharpened``); the tracker's edge fits weigh the
+    luma by their residuals where it may (``edge.edges_encoded``), and every job they are sent says so."""
+    config = EdgeConfig.model_validate({"rovers": [{"id": "red", "color_bgr": [40, 40, 200]}]})
+    source = MemorySource([np.zeros((720, 1280, 3), np.uint8)])
+    info = SourceInfo(1280, 720, 30.0, "a camera", sharpened=sharpened)
+    tracker = default_tracker_factory(TrackerInputs(config, source, info, CameraPlaneMapping(paper_camera())))
+    try:
+        assert tracker.config.camera_sharpens is sharpened  # type: ignore[attr-defined]
+        assert tracker.offsets.sharpened is sharpened  # type: ignore[attr-defined]
+    finally:
+        tracker.close()  # type: ignore[attr-defined]
+
+
+def test_the_simulator_says_whether_its_camera_sharpens() -> None:
+    assert not SimSource("lab", realtime=False).open().sharpened  # the nominal camera: no image processor
+    assert not Effects().sharpens
+    assert not Effects(processing=SignalProcessing(sharpen=0.0)).sharpens
+    assert Effects(processing=SignalProcessing(sharpen=0.4)).sharpens
 
 
 @pytest.mark.parametrize(("text", "value"), [("true", True), ("OFF", False), ("auto", "auto")])

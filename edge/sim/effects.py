@@ -325,6 +325,11 @@ class Effects:
     occluders: tuple[Occluder, ...] = field(default_factory=tuple)
     props: tuple[Prop, ...] = field(default_factory=tuple)
 
+    @property
+    def sharpens(self) -> bool:
+        """Whether the camera's processor sharpens its luma (``edge.sources.SourceInfo.sharpened``)."""
+        return self.processing is not None and self.processing.sharpen > 0.0
+
     def describe(self) -> list[str]:
         """One line per active effect with its parameters (for ``scenario.json`` and the docs)."""
         lines = []

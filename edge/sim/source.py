@@ -131,6 +131,7 @@ class SimSource:
             self.setup.fps,
             f"sim:{self.scenario} seed {self.seed} ({pacing})",
             chroma_spread=self.setup.effects.compression is not None,  # the scenes the simulator compresses
+            sharpened=self.setup.effects.sharpens,
         )
 
     def read(self) -> Frame | None:

@@ -84,6 +84,7 @@ class WideCameraSource:
             self.setup.fps,
             f"sim:wide:{self.cam.name} of {len(self.setup.cameras)} ({pacing})",
             chroma_spread=self.cam.effects.compression is not None,
+            sharpened=self.cam.effects.sharpens,
         )
 
     def _due(self) -> int:
