@@ -71,7 +71,7 @@ def jobs_of(scenario: str, seed: int, floor: str, off: tuple[str, ...]) -> tuple
     clip = render_clip(
         "crowd" if eight else scenario, seed, rovers=8 if eight else None, camera="family", floor=floor, off=off
     )
-    config = TrackerConfig(rovers=clip.rovers, fps=clip.fps, edge_offsets=True)
+    config = TrackerConfig(rovers=clip.rovers, fps=clip.fps, edge_offsets=True, camera_sharpens=clip.sharpened)
     fits = KeptFits(config.edge_offsets_every)
     tracker = build_tracker(config, plane_mapping(clip, "camera"), None, fits=fits)  # type: ignore[arg-type]
     for i, image in enumerate(clip.frames):
@@ -92,7 +92,8 @@ def _fit_at(job: EdgeJob, at: tuple[float, float]) -> tuple[list[SideProfile], t
     if not interior.any() or not all(has_band(p) for p in profiles):
         return None
     marker_ycc = job.raw[interior].astype(np.float64).mean(axis=0) @ YCC_FROM_BGR.T
-    return profiles, (marker_ycc, fit_edges(profiles, marker_ycc, side_levels=True))
+    fit = fit_edges(profiles, marker_ycc, side_levels=True, weigh_channels=job.sharpened)  # as the tracker's
+    return profiles, (marker_ycc, fit)
 
 
 def measure(kept: list[tuple[str, EdgeJob, tuple]]) -> dict[str, dict[str, list]]:

@@ -41,7 +41,9 @@ from edge.trackers.factory import build_tracker  # noqa: E402
 
 def frames(scenario: str, seed: int, min_error_cm: float, rovers: list[str] | None) -> None:
     clip = family_clip(scenario, seed, None)
-    config = TrackerConfig(rovers=clip.rovers, method="particles", fps=clip.fps, edge_offsets=True)  # type: ignore[attr-defined]
+    config = TrackerConfig(
+        rovers=clip.rovers, method="particles", fps=clip.fps, edge_offsets=True, camera_sharpens=clip.sharpened
+    )
     tracker = build_tracker(config, plane_mapping(clip, "camera"), None, fits=InlineFits(config.edge_offsets_every))  # type: ignore[arg-type]
     print(f"{scenario} seed {seed}: {clip.camera_name} ({len(clip.frames)} frames)\n")  # type: ignore[attr-defined]
     print("| frame | rover | visible | speed cm/s | pose |")

@@ -41,7 +41,9 @@ from edge.trackers.factory import build_tracker  # noqa: E402
 
 def timeline(scenario: str, seed: int, colours: list[str] | None, spans: list[int]) -> None:
     clip = family_clip(scenario, seed, None)
-    config = TrackerConfig(rovers=clip.rovers, method="particles", fps=clip.fps, edge_offsets=True)  # type: ignore[attr-defined]
+    config = TrackerConfig(
+        rovers=clip.rovers, method="particles", fps=clip.fps, edge_offsets=True, camera_sharpens=clip.sharpened
+    )
     tracker = build_tracker(config, plane_mapping(clip, "camera"), None, fits=InlineFits(config.edge_offsets_every))  # type: ignore[arg-type]
     tracks = {t.config.id: t for t in tracker.tracks}  # type: ignore[attr-defined]
     watch = colours or list(tracks)

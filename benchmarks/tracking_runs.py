@@ -47,6 +47,7 @@ class Clip:
     height_cm: float = 13.0
     camera_name: str = "nominal"
     bodies: str = ""
+    sharpened: bool = False  # the camera's processor sharpens its luma (the tracker is told, as a SimSource tells it)
 
 
 def render_clip(
@@ -143,6 +144,7 @@ def render_clip(
         setup.marker_height_cm,
         setup.camera_name,
         f"{bodies} bodies {setup.marker_height_cm:.0f} cm" + ("" if floor == "tiles" else f" on {floor}"),
+        setup.effects.sharpens,
     )
 
 
@@ -313,6 +315,7 @@ def run_clip(
         outline_fit=outline_fit,
         edge_offsets=bool(edge_offsets),
         line_time_us=line_time_us,
+        camera_sharpens=clip.sharpened,
     )
     mapping = plane_mapping(clip, calibration)
     with_bg = (method == "paper") if use_background is None else use_background
