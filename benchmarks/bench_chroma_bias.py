@@ -3,6 +3,7 @@ rendered through the simulator's camera with one JPEG chroma sampling and qualit
 
     python benchmarks/bench_chroma_bias.py [--poses N] [--seed S] [--palette default|eight]
         [--centre linear|encoded|edges] [--margins 0.2,1.0,2.5] [--streams 'none,4:2:0 q90'] [--tone srgb|gamma2.2|...]
+        [--sharpen AMOUNT] [--weigh-channels]
 
 The centre is the tracker's default one (``edge.coverage.coverage_weights``: the linear-light coverage, its area
 centroid on the plane by ``world_blob``); the marker's interior mask is the truth's (the pixels whose centre lies on
@@ -12,7 +13,10 @@ and 1.2 px) and marker colour, ``--poses`` random poses each over the whole floo
 (x, y) over all of them and the worst per-colour mean |(x, y)| (the bias bar: 0.05 cm). ``none`` is the uncompressed
 frame; ``q100`` JPEG with the least quantisation (the chroma subsampling alone); lower qualities add the
 quantisation of the chroma.
-No noise, no motion, no automatic exposure: the bias, not the scatter.
+No noise, no motion, no automatic exposure: the bias, not the scatter. ``--sharpen``: the camera's processor sharpens
+its luma by that amount (an unsharp mask of 1 px, ``edge.sim.effects.SignalProcessing``; no demosaicing);
+``--weigh-channels``: the edge fits fitted again with the luma weighed by their residuals, as the tracker's are
+where the camera may sharpen (``edge.edges_encoded``).
 
 ``--centre encoded`` measures two centres that were tried and not adopted (``docs/benchmarks.md``, "Shares in
 the camera's values plus an optics correction"). *encoded*: shares by one affine map of the decoded 8-bit B'G'R'
@@ -56,7 +60,7 @@ from edge.coverage import coverage_weights
 from edge.edges_encoded import YCC_FROM_BGR, EdgeFit, edge_midpoint, fit_edges, side_profiles
 from edge.edges_held import HeldEdges, fit_edges_held, hold
 from edge.segmentation import LINEAR, dilate, erode
-from edge.sim.effects import Compression, Effects, Optics
+from edge.sim.effects import Compression, Effects, Optics, SignalProcessing
 from edge.sim.render import Renderer
 from edge.sim.scene import BLUE_BGR, EIGHT_HUES, GREEN_BGR, RED_BGR, RoverLook, Scene, marker_albedo_for_hue
 from edge.sim.world import RoverState, WorldState
@@ -189,6 +193,8 @@ TONES = {
     "gamma2.4": (lambda v: np.clip(v, 0, 1) ** 2.4, lambda x: np.clip(x, 0, 1) ** (1 / 2.4)),
 }
 TONE = ["srgb"]
+WEIGH = [False]  # --weigh-channels
+SKIPPED: list[str] = []  # poses whose edge profiles did not reach the band beyond the spread
 
 
 def half_crossings(profiles: list[edges_encoded.SideProfile], marker_ycc: np.ndarray) -> list[float]:
@@ -235,7 +241,7 @@ def edge_centres(
     if held is not None:
         held_fit = fit_edges_held(profiles, marker_ycc, held, *TONES[TONE[0]])
         HELD_MS.append(1e3 * (time.perf_counter() - tic))
-    fit = fit_edges(profiles, marker_ycc, *TONES[TONE[0]])
+    fit = fit_edges(profiles, marker_ycc, *TONES[TONE[0]], weigh_channels=WEIGH[0])
     centres = [edge_midpoint(start, th, u0, profiles) for u0 in (half_crossings(profiles, marker_ycc), fit.u0_px)]
     if held is not None:
         centres.append(start if held_fit is None else edge_midpoint(start, th, held_fit.u0_px, profiles))
@@ -255,7 +261,7 @@ def centre_errors_cm(
     edges: bool = False,
     held: HeldEdges | None = None,
     fits: list[EdgeFit] | None = None,
-) -> tuple[tuple[float, float], ...]:
+) -> tuple[tuple[float, float], ...] | None:
     """(x, y) error of the default centre of the marker at ``pose`` in ``image``; with ``blur_px`` (the true blur)
     also of the encoded-share centre and of that centre with the optics correction; with ``edges`` of the half
     crossings and the fitted edges (and with ``held`` of the edges on that held model; the full fit is appended
@@ -286,7 +292,8 @@ def centre_errors_cm(
         found = edge_centres(roi, core, (x0, y0), grid, start, th, held)
         if found is None and fits is not None:  # a pose to learn from, not one to measure
             return tuple(errors)
-        assert found is not None
+        if found is None:  # a side's profile does not reach its band beyond the spread (a pose by the floor's edge)
+            return None
         centres, fit = found
         errors += [(ex - x, ey - y) for ex, ey in centres]
         if fits is not None:
@@ -339,8 +346,11 @@ def main() -> None:
         default=0,
         help="with --centre edges: also the edges on a model held from this many full fits of other poses",
     )
+    parser.add_argument("--sharpen", type=float, default=0.0, help="the camera's luma sharpening (0: none)")
+    parser.add_argument("--weigh-channels", action="store_true", help="the edge fits' second fit (edge.edges_encoded)")
     args = parser.parse_args()
-    TONE[0] = args.tone
+    TONE[0], WEIGH[0] = args.tone, args.weigh_channels
+    processing = SignalProcessing(demosaic=None, sharpen=args.sharpen) if args.sharpen > 0 else None
     grid = PlaneGrid(CameraPlaneMapping(paper_camera()), (1280, 720))
     colours = palette(args.palette)
     rng = np.random.default_rng(args.seed)
@@ -355,6 +365,8 @@ def main() -> None:
     print(
         f"{args.poses} poses (seed {args.seed}) x bodies {', '.join(BODIES)} x margins {margins} cm x blur "
         f"{BLURS_PX} px x {args.palette}"
+        + (f"; luma sharpened {args.sharpen:g}" if args.sharpen > 0 else "")
+        + ("; edge fits weigh the luma by their residuals" if args.weigh_channels else "")
     )
     if edges:
         print("palette; exact interior mask, true axis; the default centre, half crossings and the fitted edges.\n")
@@ -396,7 +408,12 @@ def main() -> None:
             )
             compression = None if quality is None else Compression(quality, chroma)
             effects = Effects(
-                auto_exposure=None, noise=None, motion_blur=False, optics=Optics(blur), compression=compression
+                auto_exposure=None,
+                noise=None,
+                motion_blur=False,
+                optics=Optics(blur),
+                compression=compression,
+                processing=processing,
             )
             renderer = Renderer(paper_camera(), Scene((look,)), effects)
             held = None
@@ -413,7 +430,11 @@ def main() -> None:
                 held = hold(fits)
             for pose in poses:
                 image = renderer.render(WorldState(0.0, (RoverState("r", *pose, 0.0, 0.0, 0.0),)), 0)
-                measured.append(centre_errors_cm(image, pose, grid, blur if encoded else None, edges, held))
+                errors_cm = centre_errors_cm(image, pose, grid, blur if encoded else None, edges, held)
+                if errors_cm is None:
+                    SKIPPED.append(f"{body} {margin:g} blur {blur:g} {colour} at {pose[0]:.0f}, {pose[1]:.0f}")
+                    continue
+                measured.append(errors_cm)
                 body_of.append(f"{body} {margin:g}" if edges else body)
                 colour_of.append(colour)
         errors = np.array(measured)  # (N, centres, 2)
@@ -453,6 +474,8 @@ def main() -> None:
                 ceiling,
             ]
             print("| " + " | ".join(cells) + " |")
+    if SKIPPED:
+        print(f"\nnot measured ({len(SKIPPED)}: a side's profile short of its band): " + "; ".join(SKIPPED))
     if HELD_MS:
         print(
             f"\nheld model ({args.held} full fits of other poses per rover and camera): {sum(REFUSED)} of "
