@@ -14,6 +14,7 @@ or the body's visible side), each step blurred by the optics ``sigma``:
 encoded through the tone curve; the luma Y' (full resolution in every stream) is that, the chroma that convolved
 with a Gaussian of ``k`` pixels (the stream's spread). ``u0``, ``m`` per side and ``sigma``, ``k``, ``D``'s level
 are fitted to the four profiles at once (Levenberg-Marquardt); the centre is the middle of opposite edges.
+``edge.edges_held`` fits only the edges and margins per frame, the rest held from a few of these fits.
 
 Where the camera may sharpen (``weigh_channels``), the luma and the chroma are weighed by how well the model
 describes each. A webcam sharpens its luma (an unsharp mask on the encoded luma, which leaves the chroma as it was);
@@ -22,7 +23,6 @@ centre towards the camera by 0.1-0.2 cm. So the fit is made twice: once with bot
 there with the luma weighed by the chroma's residual RMS over its own (a feasible weighted least squares). Where
 the camera is known not to sharpen, the first fit alone: there a coarse stream's chroma misleads more than its
 residual shows (4:2:0 q75, a green marker standing still: 0.07 -> 0.16 cm with the second fit).
-``edge.edges_held`` fits only the edges and margins per frame, the rest held from a few of these fits.
 """
 
 from __future__ import annotations
