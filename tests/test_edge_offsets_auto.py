@@ -120,7 +120,8 @@ def test_source_info_defaults_to_a_spread_colour_path() -> None:
 @pytest.mark.parametrize("sharpened", [True, False])
 def test_the_appliances_edge_fits_weigh_the_luma_unless_the_camera_is_known_not_to_sharpen(sharpened: bool) -> None:
     """The source says whether its camera may sharpen (``SourceInfo.sharpened``); the tracker's edge fits weigh the
-    luma by their residuals where it may (``edge.edges_encoded``), and every job they are sent says so."""
+    luma by their residuals where it may (``edge.edges_encoded``): the tracker's offsets, which write every job
+    sent to the fits, are told."""
     config = EdgeConfig.model_validate({"rovers": [{"id": "red", "color_bgr": [40, 40, 200]}]})
     source = MemorySource([np.zeros((720, 1280, 3), np.uint8)])
     info = SourceInfo(1280, 720, 30.0, "a camera", sharpened=sharpened)

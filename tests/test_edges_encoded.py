@@ -110,10 +110,10 @@ def test_edges_in_the_encoded_chroma_hold_on_uncompressed_frames(grid):
 @pytest.mark.slow
 def test_a_sharpening_cameras_luma_counts_less_and_moves_the_centre_less(grid):
     """A camera that sharpens its luma hard (an unsharp mask of 1.2 times the detail, no stream) on a black body: with
-    luma and chroma weighed alike the fitted centre moves towards the camera (-y, 0.15 cm on average here: the side
-    beside the body's dark wall is taken outward); fitted again with the luma weighed by the first fit's residuals
-    (a fifth to a half here), at least a fifth of that goes (a quarter here; fitted again and again, the weights
-    settle and take out little more)."""
+    luma and chroma weighed alike the fitted centre moves towards the camera (-y, 0.15 cm on average here: the sides
+    beside the floor are taken inward more than the one beside the body's dark wall); fitted again with the luma
+    weighed by the first fit's residuals (a fifth to a half here), at least a fifth of that goes (a quarter here;
+    fitted again and again, the weights settle and take out little more)."""
     centres: dict[bool, list[tuple[float, float]]] = {True: [], False: []}
     for f in _frames(grid, None, 0.8, SignalProcessing(demosaic=None, sharpen=1.2)):
         profiles = side_profiles(f.roi, f.xy, f.start, f.pose[2], (SIZE_CM[0] / 2, SIZE_CM[1] / 2))
