@@ -35,6 +35,7 @@ from edge.trackers.plane import (
     PlaneGrid,
     PlaneMapping,
     WorldBlob,
+    shape_elongation,
     world_blob,
 )
 from edge.trackers.window import Window
@@ -80,8 +81,7 @@ class RoverModel:
     """What a tracker knows about the rover it measures (mutable state stays in the pipeline).
 
     ``index``: the rover's index in the colour model. ``marker_area_cm2``: expected marker area on the plane.
-    ``marker_level``: the marker's current value in its colour plane (for coverage weights), or 0 if unknown.
-    """
+    ``marker_level``: the marker's current value in its colour plane (for coverage weights), or 0 if unknown."""
 
     index: int
     marker_area_cm2: float
@@ -142,7 +142,7 @@ def make_measurement(
     blob: WorldBlob, window: Window, core: BoolArray, level: float, quality: float, weights: F32 | None = None
 ) -> Measurement:
     """A :class:`Measurement` of the marker whose pixels are ``core`` in ``window`` (``weights``: the coverage the
-    blob was computed from)."""
+    blob was computed from; its shape's elongation: ``edge.trackers.plane.shape_elongation``)."""
     x0, y0, x1, y1 = window.box
     w, h = window.image_size
     edge = bool(
@@ -158,7 +158,7 @@ def make_measurement(
         level,
         quality,
         blob.axis_rad,
-        blob.elongation,
+        blob.elongation if weights is None else shape_elongation(weights, window.offset, window.grid, blob),
         edge,
         weights,
         core_cm2=int(np.count_nonzero(core)) * window.local.area_at(blob.u_px, blob.v_px),

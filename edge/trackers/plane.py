@@ -252,6 +252,22 @@ class WorldBlob:
         return math.sqrt((tr / 2.0 + disc) / small) if small > 1e-12 else math.inf
 
 
+SHAPE_RECHECK = 1.5  # a blob more elongated has its shape taken again without its coverage's negative shares
+
+
+def shape_elongation(weights: F32, offset_xy: tuple[int, int], grid: PlaneGrid, blob: WorldBlob) -> float:
+    """The elongation the shape checks read for ``blob`` (:func:`world_blob` of ``weights``): over
+    :data:`SHAPE_RECHECK`, that of the weights without their negative shares. The coverage keeps shares down to -0.5
+    so that noise beyond the edge averages out of the centre; but a ring of them (a rim the surround's colours miss,
+    a flicker band's phase) is no part of the marker's shape, and its second moments, taken off the marker's, made a
+    whole marker's elongation 2-3 or infinite (the family's drift clip, seed 14641 on wood: a blue marker on a white
+    body refused in every third frame)."""
+    if blob.elongation <= SHAPE_RECHECK or float(weights.min()) >= 0.0:
+        return blob.elongation
+    shape = world_blob(np.maximum(weights, 0.0), offset_xy, grid)
+    return blob.elongation if shape is None else shape.elongation
+
+
 def world_blob(weights: F32, offset_xy: tuple[int, int], grid: PlaneGrid) -> WorldBlob | None:
     """Area centroid on the world plane of a weighted window (eq. 3-4 with perspective done right).
 
