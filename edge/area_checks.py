@@ -14,7 +14,6 @@ SYMMETRY_FLOOR = 0.8  # a blob below the area band but showing this share of the
 SYMMETRY_SKEW = 0.15  # ... when its point asymmetry (edge.blob_shape) is at most this
 SYMMETRY_SHAPE = 0.05  # ... and its elongation within this share of a rectangle worn down all round to its area
 SYMMETRY_STEP_CM = 0.75  # ... and its centre within this of where the rover's filter expects it
-RIM_LOSS = 0.04  # a blob's area this share of the learned one below its whole core's was lost at its rim (lost_at_rim)
 
 
 def symmetric_below(
@@ -57,12 +56,3 @@ def steady_areas(ratios: Sequence[float], max_slope: float, max_step: float) -> 
     mean_r = sum(ratios) / n
     slope = sum((t - mean_t) * (r - mean_r) for t, r in enumerate(ratios)) / sum((t - mean_t) ** 2 for t in range(n))
     return abs(slope) <= max_slope and abs(ratios[-1] - statistics.median(ratios[:-1])) <= max_step
-
-
-def lost_at_rim(core_ratio: float | None, area_ratio: float, core_band: float) -> bool:
-    """Was a blob's missing area lost at its rim, not to a part hidden? Its binary core whole (``core_ratio`` of the
-    learned core, within ``core_band`` of it) and its unmixed area (``area_ratio`` of the learned one) lower than
-    that by over :data:`RIM_LOSS`. A part hidden takes the core down with the area; the surround the edge pixels are
-    unmixed against failing on one side (a white body's rim beside warm wood) takes only the area, from that side,
-    and leaves the blob lopsided (``docs/tracking.md``, "Is it one whole marker?")."""
-    return core_ratio is not None and abs(core_ratio - 1.0) <= core_band and core_ratio - area_ratio > RIM_LOSS

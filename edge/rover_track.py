@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.area_checks import lost_at_rim, steady_areas, symmetric_below
+from edge.area_checks import steady_areas, symmetric_below
 from edge.blob_shape import point_asymmetry, wear_stretch
 from edge.filtering import ConstantVelocityFilter, HeadingFilter, one_colour_heading
 from edge.tracker_config import RoverConfig, TrackerSettings
@@ -122,7 +122,8 @@ class RoverTrack:
         return self.theta_rad
 
     def expected_area(self, nominal_cm2: float) -> float:
-        """The marker area to expect: the median of its recent areas once learned, within half to twice nominal."""
+        """The marker area to expect: the median of this rover's recent areas once learned, within half to twice
+        the nominal one."""
         if self.learned:
             learned = float(statistics.median(self.areas))  # 31 floats: plain Python is quicker
             return min(max(learned, 0.5 * nominal_cm2), 2.0 * nominal_cm2)
@@ -296,9 +297,8 @@ class RoverTrack:
         wanted = smaller or unchecked or (learned and frame % SKEW_EVERY == 0)
         skew = point_asymmetry(weights) if weights is not None and wanted else None
         px = float(np.maximum(weights, 0.0).sum()) if weights is not None and skew is not None else SKEW_PX
-        lopsided = skew is not None and (smaller or unchecked) and skew > self.lopsided_limit(px)
-        if lopsided and not lost_at_rim(self.core_ratio(m), ratio, CORE_BAND):
-            return False  # smaller than its own marker, or found with nothing to check it by, lopsided, a part hidden
+        if skew is not None and (smaller or unchecked) and skew > self.lopsided_limit(px):
+            return False  # smaller than the rover's own marker, or found with nothing to check it by, and lopsided
         if ratio > JOINED_RATIO and weights is not None and self._joined(m, skew):
             return False  # larger, lopsided and pulled off: joined to something of its hue
         if relearn:
