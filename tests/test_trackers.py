@@ -359,7 +359,7 @@ def test_negative_shares_beside_a_whole_marker_are_no_part_of_its_shape():
     from edge.trackers.plane import SHAPE_RECHECK, shape_elongation
 
     grid = PlaneGrid(CameraPlaneMapping(paper_camera()), (1280, 720))
-    u, v = (int(round(c)) for c in paper_camera().project(np.array([[150.0, 420.0, 13.0]]))[0])
+    u, v = (round(float(c)) for c in paper_camera().project(np.array([[150.0, 420.0, 13.0]]))[0])
     weights = np.zeros((40, 60), np.float32)
     weights[12:28, 15:45] = 1.0  # a whole marker (its pixels, near the far side)
     offset = (u - 30, v - 20)
