@@ -258,10 +258,10 @@ SHAPE_RECHECK = 1.5  # a blob more elongated has its shape taken again without i
 def shape_elongation(weights: F32, offset_xy: tuple[int, int], grid: PlaneGrid, blob: WorldBlob) -> float:
     """The elongation the shape checks read for ``blob`` (:func:`world_blob` of ``weights``): over
     :data:`SHAPE_RECHECK`, that of the weights without their negative shares. The coverage keeps shares down to -0.5
-    so that noise beyond the edge averages out of the centre; but a ring of them (a rim the surround's colours miss,
-    a flicker band's phase) is no part of the marker's shape, and its second moments, taken off the marker's, made a
-    whole marker's elongation 2-3 or infinite (the family's drift clip, seed 14641 on wood: a blue marker on a white
-    body refused in every third frame)."""
+    so that noise beyond the edge averages out of the centre; but rows of them beside its long sides (a rim the
+    surround's colours miss, in a flicker band's phase) are no part of the marker's shape, and their second moments,
+    taken off the marker's, made a whole marker's elongation 2-3 or infinite (the family's drift clip, seed 14641 on
+    wood: a blue marker on a white body refused in every third frame)."""
     if blob.elongation <= SHAPE_RECHECK or float(weights.min()) >= 0.0:
         return blob.elongation
     shape = world_blob(np.maximum(weights, 0.0), offset_xy, grid)
