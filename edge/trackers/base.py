@@ -19,15 +19,14 @@ import numpy as np
 from edge.background import subtract_background
 from edge.coverage import (
     LOCAL_LIGHT_PX,
-    TWO_LIGHTS,
     Floor,
     coverage_weights,
-    light_ratio,
     local_mean,
     marker_level,
     reach_box,
 )
-from edge.segmentation import F32, BoolArray, ThresholdInterval, auto_threshold, close, dilate, erode, threshold
+from edge.segmentation import F32, BoolArray, ThresholdInterval, auto_threshold, close, erode, threshold
+from edge.shade import in_two_lights
 from edge.trackers.plane import (
     CameraPlaneMapping,
     FloatArray,
@@ -61,7 +60,6 @@ __all__ = [
     "threshold_marker",
     "world_blob",
 ]
-
 
 SHADE_GAP_PX = 4  # the widest gap in a marker's mask closed for the two-lights test (threshold_marker)
 SURROUND_IGNORED = 0.1  # a surround this much of the marker's level in its plane counts as 0 (surrounded: grey floors)
@@ -174,15 +172,14 @@ def threshold_marker(
     floor's hue (:func:`across_floor`, :func:`clear_of_grain`).
 
     A marker in two lights (the edge of a sunlit patch across it) is thresholded against its level where it stands.
-    Whether it is in two lights is judged on its interior with the mask's gaps of up to :data:`SHADE_GAP_PX` closed;
-    the mask it is then given has them closed too where that joins parts that were apart. The part in the shade is
-    darker and less saturated, its pixels only in part of the hue class and above the threshold, and a camera that
-    sharpens darkens the first rows past the light's edge further (its halo): the shaded end came apart from the rest
-    in strips, the interior's erosion took them all away, the test saw one light, and the blob lacked its shaded end
-    (the family's sun clip with seed 16661: a green rover driving into the patch 1-2.5 cm toward the sun, refused for
-    11 frames). Parts already joined are left as they are: something of the marker's hue joined to it by a thin neck
-    is parted off there later (``edge.blob_shape.marker_part``), and closed, the neck would be too thick to part.
-    Under one light nothing changes (docs/benchmarks.md, "A shaded end in strips").
+    Whether it is in two lights is judged on its interior with the mask's gaps of up to :data:`SHADE_GAP_PX` closed,
+    and with the shaded part the threshold cut away whole, if it did (``edge.shade``); the mask it is then given has
+    the gaps closed too where that joins parts that were apart. The shaded part is darker and less saturated, and a
+    camera that sharpens darkens the first rows past the light's edge further: the shaded end came apart in strips,
+    the interior's erosion took them away, the test saw one light, and the blob lacked its shaded end (the family's
+    sun clip with seed 16661: a green rover driving into the patch refused for 11 frames). Parts already joined are
+    left as they are: something joined to the marker by a thin neck is parted off there later
+    (``edge.blob_shape.marker_part``); closed, the neck would be too thick to part. Under one light nothing changes.
 
     The interval's top is the 90th percentile of the window's pixels of the hue class. Where a coloured floor passed
     with the marker (:func:`joined_to_floor`), it is taken over the marker's expected area of the brightest of them
@@ -230,13 +227,11 @@ def threshold_marker(
             interval = higher
             mask = candidates & threshold(plane, interval)
         above = above_floor(window, interval.k_max, fraction)
-    if above is not None:
-        mask &= above
-    # its interior, edges left out, its gaps of up to SHADE_GAP_PX closed first (see the docstring): eroding the
-    # closed mask twice is eroding its dilation twice more
+    mask = mask if above is None else mask & above
     gap = SHADE_GAP_PX // 2
-    if light_ratio(window.lum[erode(dilate(mask, gap), gap + 2)], encoded=True) >= TWO_LIGHTS:
-        # a marker in two lights (edge.coverage): the threshold follows its level where it stands
+    lit = in_two_lights(window.c1, window.c2, window.lum, candidates, mask, expected_px(window, rover), gap)
+    if lit is not None:  # a marker in two lights (edge.coverage): the threshold follows its level where it stands
+        mask = lit
         inner = erode(mask, 1)
         mean = float(np.mean(plane[inner])) if np.count_nonzero(inner) else 0.0
         if mean > 0.0:
