@@ -19,12 +19,10 @@ from __future__ import annotations
 
 import math
 
-import cv2
 import numpy as np
-from numpy.typing import NDArray
 
 from edge.coverage import TWO_LIGHTS, light_ratio
-from edge.segmentation import F32, BoolArray, dilate, erode
+from edge.segmentation import F32, BoolArray, dilate, erode, reconstruct
 
 SHADE_HUE_DEG = 25.0  # a shaded pixel's chroma within this angle of the marker's hue
 SHADE_SATURATION = (0.6, 1.6)  # ... its relative saturation within these factors of the marker's
@@ -69,12 +67,9 @@ def shaded_part(
     )
     if not np.count_nonzero(pick):
         return None
-    _, labels = cv2.connectedComponents(pick.view(np.uint8), connectivity=8)
-    joined = np.unique(labels[dilate(mask, 1) & pick])
-    joined = joined[joined > 0]
-    if joined.size == 0:
+    part = reconstruct(dilate(mask, 1), pick)  # those joined to the mask
+    if not np.count_nonzero(part):
         return None
-    part: NDArray[np.bool_] = np.isin(labels, joined)
     if held + int(np.count_nonzero(part)) > SHADE_FILL * marker_px:
         return None  # more than the marker lacks: the body's side with the marker's chroma spread onto it
     return part
@@ -87,10 +82,14 @@ def in_two_lights(
     ``2 gap`` px closed first: eroding the closed mask twice is eroding its dilation twice more) spans
     :data:`edge.coverage.TWO_LIGHTS` in brightness, or does with the shaded part the threshold cut away
     (:func:`shaded_part`; the mask is then returned with it). A mask already in two lights is returned as it is."""
-    if light_ratio(lum[erode(dilate(mask, gap), gap + 2)], encoded=True) >= TWO_LIGHTS:
+
+    def spans(m: BoolArray) -> bool:
+        return light_ratio(lum[erode(dilate(m, gap), gap + 2)], encoded=True) >= TWO_LIGHTS
+
+    if spans(mask):
         return mask
     part = shaded_part(c1, c2, lum, candidates, mask, marker_px)
     if part is None:
         return None
     joined = mask | part
-    return joined if light_ratio(lum[erode(dilate(joined, gap), gap + 2)], encoded=True) >= TWO_LIGHTS else None
+    return joined if spans(joined) else None
