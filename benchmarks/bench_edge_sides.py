@@ -169,6 +169,9 @@ def main() -> None:
 def print_per_run(runs: list[tuple[str, int, str, np.ndarray]]) -> None:
     """Each run's and rover's bias (mean error x, y over its fits) of the fitted and of the fast centre, and how
     many are over :data:`BIAS_BAR_CM`."""
+    if not runs:
+        print("\nNo run's rover had a fit to compare.")
+        return
     print("\n| scenario | seed | colour | fits | fitted centre bias x, y cm (size) | fast centre bias x, y cm (size) |")
     print("|---|---|---|---|---|---|")
     fitted_sizes, fast_sizes = [], []
