@@ -15,8 +15,6 @@ interior's brightness spans more than :data:`TWO_LIGHTS`; under one light, compr
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import cv2
 import numpy as np
 from numpy.typing import NDArray
@@ -28,18 +26,7 @@ _CODES = np.arange(256, dtype=np.float64)
 TWO_LIGHTS = 1.5  # a marker whose interior's brightness (linear light, p90 / p10) spans this is in two lights
 LOCAL_LIGHT_PX = 4.0  # "where it stands": the marker's level at a pixel is the Gaussian mean of its interior this near
 ON_THE_FLOOR = 0.25  # an edge pixel this near (of |marker - floor|) the line from the floor to the marker mixes the two
-
-
-class Floor(NamedTuple):
-    """The empty floor under a window, as the camera gave both: ``raw`` (the window's pixels), ``reference``
-    (the background model's floor there) and ``valid`` (where the model knows the floor); all of one shape."""
-
-    raw: U8
-    reference: U8
-    valid: BoolArray
-
-    def crop(self, rows: slice, cols: slice) -> Floor:
-        return Floor(self.raw[rows, cols], self.reference[rows, cols], self.valid[rows, cols])
+NEAR_PX = 3.0  # what lies beside an edge pixel: the band round the marker this near it (a Gaussian's sigma)
 
 
 def linear_luminance(linear: F32) -> F32:
@@ -94,7 +81,7 @@ def coverage_weights(
     linear: F32 | None = None,
     interior: BoolArray | None = None,
     apart: BoolArray | None = None,
-    floor: Floor | None = None,
+    floor_mixes: bool = True,
 ) -> F32:
     """(h, w) float32 share of each pixel covered by the marker whose filled binary mask is ``core``.
 
@@ -105,8 +92,8 @@ def coverage_weights(
     marker's share ``a`` by least squares (linear unmixing). ``M`` is the mean of the interior's ``pure`` pixels
     (glare excluded), ``D`` and ``F`` the means of the darker and brighter halves of a band just outside the ring.
     Shares below 0 are kept (down to -0.5) so noise on background pixels averages out instead of biasing.
-    ``exclude``: ring pixels that may be something else (of another rover's hue), given no share unless the floor
-    there explains them (``floor``, :func:`on_the_floor`); ``apart``: pixels
+    ``exclude``: ring pixels that may be something else (of another rover's hue), given no share unless they are
+    the marker mixed with what lies beside them (``floor_mixes``, :func:`on_the_floor`); ``apart``: pixels
     of other things (another rover's marker), left out of the band ``D`` and ``F`` come from; ``linear``:
     ``linear_bgr(bgr_roi)`` when the caller has it already (else only the part near the core is linearised);
     ``interior``: ``erode(core, 1)`` when the caller has it already.
@@ -130,7 +117,7 @@ def coverage_weights(
         None if pure is None else pure[rows, cols],
         None if interior is None else interior[rows, cols],  # erosion of the crop: the same pixels (see _unmix)
         None if apart is None else apart[rows, cols],
-        None if floor is None else floor.crop(rows, cols),
+        floor_mixes,
     )
     if weights is not None:
         full[rows, cols] = weights
@@ -157,7 +144,7 @@ def _unmix(
     pure: BoolArray | None,
     interior: BoolArray | None = None,
     apart: BoolArray | None = None,
-    floor: Floor | None = None,
+    floor_mixes: bool = True,
 ) -> F32 | None:
     """:func:`coverage_weights` on a crop that holds the core's outer band (``lin``: the crop in linear light;
     ``interior``: ``erode(core, 1)``, of the crop or cropped from a larger one: the crop ends at least the outer
@@ -203,8 +190,8 @@ def _unmix(
     ring = region > interior
     out = interior.astype(np.float32)  # the ring unmixed below, the interior whole (1.0), the rest nothing
     deep = erode(interior, 1)
-    if floor is not None and others is not None and np.count_nonzero(others):
-        on_the_floor(out, others > interior, floor, source)
+    if floor_mixes and others is not None and np.count_nonzero(others):
+        on_the_floor(out, others > interior, lin, marker, outer)  # the band beyond the ring: what lies beside
     if light_ratio(lum[deep]) >= TWO_LIGHTS:
         _unmix_in_two_lights(out, lin, lum, ring, source, marker, dark, bright)
         return out
@@ -215,30 +202,43 @@ def _unmix(
     return out
 
 
-def on_the_floor(out: F32, pixels: BoolArray, floor: Floor, source: BoolArray) -> None:
-    """Give those of ``pixels`` (edge pixels of another rover's hue) that are the marker mixed with the floor
-    under them their share of it, into ``out``: in linear light, a pixel ``p`` on the line from the floor's colour
-    there ``B`` (the background model's) to the marker's ``M`` (the mean of ``source``, as the camera gave it), within
-    :data:`ON_THE_FLOOR` of ``|M - B|`` of it and between the two, is ``a M + (1 - a) B``; the rest keep theirs.
+def on_the_floor(out: F32, pixels: BoolArray, lin: F32, marker: tuple[float, float, float], band: BoolArray) -> None:
+    """Give those of ``pixels`` (edge pixels of another rover's hue) that are the marker mixed with what lies beside
+    them their share of it, into ``out``: in linear light (``lin``), a pixel ``p`` on the line from the colour
+    beside it ``B`` to the ``marker``'s ``M``, within :data:`ON_THE_FLOOR` of ``|M - B|`` of it and between the
+    two, is ``a M + (1 - a) B``; the rest keep theirs. ``B`` is the Gaussian mean (sigma :data:`NEAR_PX`) of the
+    ``band`` pixels near it (the band round the marker, beyond its ring): the floor beyond a far edge, the body beside a
+    near one.
 
     The hue classes split a marker's mixed edge pixels by hue: against warm wood a purple marker's are magenta, and
     left out as another rover's they took 0.5-1 px off its far edge (1.35 cm toward the camera at the far side).
-    Another rover's marker is not on that line (it is more saturated than any mix of this marker with the floor);
-    nor is the body beside the marker, whose floor the model does not see."""
-    pick = pixels & floor.valid
-    if not np.count_nonzero(pick):
+    Another rover's marker is not on that line (it is more saturated than any mix of this marker with the floor;
+    its saturated pixels are not in the band). What lies beside is read from the window, not from the background
+    model's reference: the model knows no floor round a rover that has stood where it stood at the first frame (a
+    third of the windows of a clip's first four seconds had none), and a centre that moved as the model learned
+    the floor moved the offsets learned from it (``edge.centre_offsets``). Near each pixel, not the band's mean: the
+    floor beyond one edge, the body beside another, a sunlit patch's border."""
+    if not np.count_nonzero(pixels):
         return
-    ys, xs = np.nonzero(pick)
-    marker = np.asarray(_mean(linear_bgr(floor.raw), source), np.float32)
-    q = LINEAR[floor.raw[ys, xs]]  # (n, 3): the pixels and the floor under them, less the floor
-    b = LINEAR[floor.reference[ys, xs]]
-    q -= b
-    d = marker - b
-    dd, qd, qq = (d * d).sum(axis=1), (q * d).sum(axis=1), (q * q).sum(axis=1)
+    ys, xs = np.nonzero(pixels)
+    b = _near_mean(lin, band, NEAR_PX, ys, xs)
+    q = lin[ys, xs] - b  # (n, 3): the pixels and the marker, less what lies beside them
+    d = np.asarray(marker, np.float32) - b
+    dd, qd = (d * d).sum(axis=1), (q * d).sum(axis=1)
     share = qd / np.maximum(dd, 1e-9)
-    off = qq - share * qd  # |q - share d|^2
+    off = (q * q).sum(axis=1) - share * qd  # |q - share d|^2
     ok = (off <= ON_THE_FLOOR**2 * dd) & (share > -0.1) & (share < 1.1) & (dd > 1e-4)
     out[ys[ok], xs[ok]] = np.minimum(np.maximum(share[ok], 0.0), 1.0)  # np.clip's wrapper costs more
+
+
+def _near_mean(values: F32, source: BoolArray, sigma_px: float, ys: NDArray[np.intp], xs: NDArray[np.intp]) -> F32:
+    """(n, 3) float32: :func:`local_mean` of each channel of ``values`` (h, w, 3) at the pixels ``ys``, ``xs``; the
+    three channels and their weight blurred in one call, divided only where asked."""
+    weight = source.astype(np.float32)
+    blurred = cv2.GaussianBlur(np.dstack([values * weight[:, :, None], weight]), (0, 0), sigma_px)[ys, xs]
+    prior = np.float32(0.01)
+    mean = np.asarray(cv2.mean(values, mask=source.view(np.uint8))[:3], np.float32)
+    return np.asarray((blurred[:, :3] + prior * mean) / (blurred[:, 3:] + prior), dtype=np.float32)
 
 
 def _unmix_in_two_lights(

@@ -325,17 +325,20 @@ def test_a_blue_rover_on_a_white_body_leaving_a_sunlit_patch_of_wood_is_kept() -
 @pytest.mark.slow
 def test_a_far_side_purple_marker_s_edge_on_wood_counts_though_it_looks_magenta() -> None:
     """The family's crowd of eight hues with seed 4321 (4:2:0 q60, blur 1.1 px) on the wooden floor: the purple
-    rover on a white body drives along the far side. Its edge pixels mixed with the warm wood are magenta, of the
-    magenta rover's hue class, and were given no share of the marker: its far edge lost half a pixel, and in
-    frames 200-300 its centre sat 1.12 cm toward the camera (1.15 cm off on average). The floor the background
-    model knows there explains them as purple and wood mixed; now it is within 0.6 cm in y on average there, and
-    0.75 cm off. (Till frame 140 the rover stands where it started and the floor under it is not known yet:
-    docs/benchmarks.md, "Edge pixels of another hue on the floor".)"""
+    rover on a white body stands where it started, then drives along the far side. Its edge pixels mixed with the
+    warm wood are magenta, of the magenta rover's hue class, and were given no share of the marker: its far edge
+    lost half a pixel, and in frames 200-300 its centre sat 1.12 cm toward the camera (1.15 cm off on average).
+    Held against the floor the background model knew there, they counted once the model knew it: in frames 200-300
+    0.34 cm toward the camera (0.49 cm off), but in frames 40-140, where it stands on the floor it stood on at the
+    first frame and the model knows none, still 1.33 cm (1.36 cm off). Held against what lies beside them in the
+    window itself, 0.82 cm there (0.86 cm off) and 0.49 cm (0.56 cm off) in frames 200-300 (docs/benchmarks.md,
+    "The floor beside a marker's edge read from the window, not the background model")."""
     _, errors = _on_wood("crowd", 4321, 300, rover="purple", rovers=8)
-    late = np.array([errors[i] for i in range(200, 300) if i in errors])
-    assert len(late) >= 95
-    assert float(late[:, 1].mean()) > -0.6, late[:, 1].mean()
-    assert float(np.hypot(late[:, 0], late[:, 1]).mean()) < 0.75
+    for frames, toward, off in ((range(40, 140), -1.0, 1.0), (range(200, 300), -0.6, 0.75)):
+        seen = np.array([errors[i] for i in frames if i in errors])
+        assert len(seen) >= 95
+        assert float(seen[:, 1].mean()) > toward, (frames, seen[:, 1].mean())
+        assert float(np.hypot(seen[:, 0], seen[:, 1]).mean()) < off, frames
 
 
 @pytest.mark.slow

@@ -19,7 +19,6 @@ import numpy as np
 from edge.background import subtract_background
 from edge.coverage import (
     LOCAL_LIGHT_PX,
-    Floor,
     coverage_weights,
     local_mean,
     marker_level,
@@ -384,8 +383,8 @@ def measure_core(
     thresholded pixels ``mask``), weighted by grey-level edge coverage (pixels of other rovers' hues left out; of the
     surround's colours only those as saturated as a marker; and ``parted``: what was parted off the marker's blob,
     ``edge.blob_shape.marker_part``) and turned into its area centroid on the world plane. Edge pixels of other hues
-    that the floor under them explains are the marker's (``edge.coverage.on_the_floor``), unless something was
-    parted off. ``interior``: ``erode(core, 1)`` when the caller has it."""
+    that are the marker mixed with the floor beside them are the marker's (``edge.coverage.on_the_floor``), unless
+    something was parted off. ``interior``: ``erode(core, 1)`` when the caller has it."""
     t0 = time.perf_counter()
     if interior is None:  # for both: the marker's level and its pure colour are taken inside its edge
         interior = erode(core, 1)
@@ -396,14 +395,11 @@ def measure_core(
     if parted is not None:
         exclude = parted if exclude is None else exclude | parted
         apart = parted if apart is None else apart | parted
-    # the floor explains edge pixels of other hues as this marker's; not those parted off (of its own hue, joined)
-    floor = (
-        None
-        if window.reference is None or window.raw is None or parted is not None
-        else Floor(window.raw, window.reference, window.reference_valid)
-    )
+    # edge pixels of other hues mixed with the floor are this marker's; not when something was parted off (of its
+    # own hue, joined)
+    mixes = parted is None
     weights = coverage_weights(
-        window.bgr, core, ring_px, exclude=exclude, pure=mask, interior=interior, apart=apart, floor=floor
+        window.bgr, core, ring_px, exclude=exclude, pure=mask, interior=interior, apart=apart, floor_mixes=mixes
     )
     t1 = time.perf_counter()
     clock.add("measure", t1 - t0)
