@@ -51,12 +51,18 @@ def light_ratio(luminance: NDArray[np.floating], encoded: bool = False) -> float
 
 
 def local_mean(values: F32, source: BoolArray, sigma_px: float) -> F32:
-    """(h, w) float32: at every pixel the Gaussian-weighted (``sigma_px``) mean of ``values`` over the ``source``
-    pixels near it (a normalised convolution), drawn to their plain mean where none is near."""
+    """(h, w) float32 (or (h, w, c) for (h, w, c) ``values``, each channel): at every pixel the Gaussian-weighted
+    (``sigma_px``) mean of ``values`` over the ``source`` pixels near it (a normalised convolution), drawn to their
+    plain mean where none is near. Channels are blurred with their weight in one call."""
     weight = source.astype(np.float32)
+    prior = np.float32(0.01)
+    if values.ndim == 3:
+        c = values.shape[2]
+        blurred = cv2.GaussianBlur(np.dstack([values * weight[:, :, None], weight]), (0, 0), sigma_px)
+        means = np.asarray(cv2.mean(values, mask=source.view(np.uint8))[:c], np.float32)
+        return np.asarray((blurred[:, :, :c] + prior * means) / (blurred[:, :, c:] + prior), dtype=np.float32)
     num = cv2.GaussianBlur(values * weight, (0, 0), sigma_px)
     den = cv2.GaussianBlur(weight, (0, 0), sigma_px)
-    prior = np.float32(0.01)
     mean = np.float32(cv2.mean(values, mask=source.view(np.uint8))[0])
     return np.asarray((num + prior * mean) / (den + prior), dtype=np.float32)
 
@@ -221,7 +227,7 @@ def on_the_floor(out: F32, pixels: BoolArray, lin: F32, marker: tuple[float, flo
     if not np.count_nonzero(pixels):
         return
     ys, xs = np.nonzero(pixels)
-    b = _near_mean(lin, band, NEAR_PX, ys, xs)
+    b = local_mean(lin, band, NEAR_PX)[ys, xs]
     q = lin[ys, xs] - b  # (n, 3): the pixels and the marker, less what lies beside them
     d = np.asarray(marker, np.float32) - b
     dd, qd = (d * d).sum(axis=1), (q * d).sum(axis=1)
@@ -229,16 +235,6 @@ def on_the_floor(out: F32, pixels: BoolArray, lin: F32, marker: tuple[float, flo
     off = (q * q).sum(axis=1) - share * qd  # |q - share d|^2
     ok = (off <= ON_THE_FLOOR**2 * dd) & (share > -0.1) & (share < 1.1) & (dd > 1e-4)
     out[ys[ok], xs[ok]] = np.minimum(np.maximum(share[ok], 0.0), 1.0)  # np.clip's wrapper costs more
-
-
-def _near_mean(values: F32, source: BoolArray, sigma_px: float, ys: NDArray[np.intp], xs: NDArray[np.intp]) -> F32:
-    """(n, 3) float32: :func:`local_mean` of each channel of ``values`` (h, w, 3) at the pixels ``ys``, ``xs``; the
-    three channels and their weight blurred in one call, divided only where asked."""
-    weight = source.astype(np.float32)
-    blurred = cv2.GaussianBlur(np.dstack([values * weight[:, :, None], weight]), (0, 0), sigma_px)[ys, xs]
-    prior = np.float32(0.01)
-    mean = np.asarray(cv2.mean(values, mask=source.view(np.uint8))[:3], np.float32)
-    return np.asarray((blurred[:, :3] + prior * mean) / (blurred[:, 3:] + prior), dtype=np.float32)
 
 
 def _unmix_in_two_lights(
