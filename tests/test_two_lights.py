@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from edge.camera import MARKER_HEIGHT_CM, paper_camera
-from edge.coverage import LOCAL_LIGHT_PX, TWO_LIGHTS, light_ratio, local_mean
+from edge.coverage import LOCAL_LIGHT_PX, NEAR_PX, TWO_LIGHTS, light_ratio, local_mean, local_mean_at
 from edge.segmentation import LINEAR, erode
 from edge.sim.effects import Compression, Effects, Optics
 from edge.sim.render import Renderer
@@ -51,6 +51,24 @@ def test_the_local_mean_is_each_side_s_own_level_across_a_step_and_the_mean_far_
     wide = np.pad(values, ((0, 0), (0, 140)), mode="edge")
     far = local_mean(wide, np.pad(source, ((0, 0), (0, 140))), LOCAL_LIGHT_PX)
     assert far[20, 195] == pytest.approx(2.0, abs=1e-3)  # no source near: the sources' plain mean
+
+
+@pytest.mark.parametrize("shape", [(40, 60), (9, 70), (1, 30), (30, 1), (3, 3), (61, 47)])
+@pytest.mark.parametrize("sigma", [NEAR_PX, LOCAL_LIGHT_PX])
+@pytest.mark.parametrize("channels", [0, 3])
+def test_the_local_mean_at_some_pixels_is_the_whole_window_s_there(shape, sigma, channels) -> None:
+    """The same sums at a few pixels: OpenCV's kernel and its reflected border, also where the window is shorter
+    than the kernel (the border reflected again and again) or one pixel wide."""
+    rng = np.random.default_rng(shape[0] * 100 + shape[1] + channels)
+    values = rng.uniform(0.0, 1.0, shape + ((channels,) if channels else ())).astype(np.float32)
+    source = rng.uniform(size=shape) < 0.4
+    whole = local_mean(values, source, sigma)
+    ys, xs = np.nonzero(np.ones(shape, bool))
+    at = local_mean_at(values, source, sigma, ys, xs)
+    assert at.shape == whole[ys, xs].shape and at.dtype == np.float32
+    np.testing.assert_allclose(at, whole[ys, xs], rtol=1e-5, atol=1e-6)
+    picked = local_mean_at(values, source, sigma, ys[::7], xs[::7])  # any few pixels, in any order
+    np.testing.assert_allclose(picked, whole[ys[::7], xs[::7]], rtol=1e-5, atol=1e-6)
 
 
 @pytest.mark.slow
