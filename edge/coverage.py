@@ -29,6 +29,7 @@ TWO_LIGHTS = 1.5  # a marker whose interior's brightness (linear light, p90 / p1
 LOCAL_LIGHT_PX = 4.0  # "where it stands": the marker's level at a pixel is the Gaussian mean of its interior this near
 ON_THE_FLOOR = 0.25  # an edge pixel this near (of |marker - floor|) the line from the floor to the marker mixes the two
 NEAR_PX = 3.0  # what lies beside an edge pixel: the band round the marker this near it (a Gaussian's sigma)
+TAPS_MAX_PX = 160  # local_mean_at's cached taps for windows up to this long (64 of them: 6.5 MB at most)
 
 
 def linear_luminance(linear: F32) -> F32:
@@ -71,9 +72,12 @@ def local_mean(values: F32, source: BoolArray, sigma_px: float) -> F32:
 
 def local_mean_at(values: F32, source: BoolArray, sigma_px: float, ys: NDArray[np.intp], xs: NDArray[np.intp]) -> F32:
     """:func:`local_mean` at the pixels ``ys``, ``xs`` only: (n,) float32, or (n, c) for (h, w, c) ``values``. The
-    same sums (OpenCV's kernel and its reflected border), taken at those pixels alone: a few edge pixels of a
-    window cost a fifth of blurring the whole window."""
+    same sums (OpenCV's kernel and its reflected border), taken at those pixels alone: a dozen edge pixels of a
+    marker's window cost a third of blurring the whole window. A window longer than :data:`TAPS_MAX_PX` either way
+    (a blob joined to something large) is blurred whole instead: the cached taps stay a few megabytes."""
     h, w = source.shape
+    if max(h, w) > TAPS_MAX_PX:
+        return local_mean(values, source, sigma_px)[ys, xs]
     c = values.shape[2] if values.ndim == 3 else 1
     weight = source.astype(np.float32)
     rows = _taps(h, sigma_px)[ys]  # (n, h): each pixel's vertical pass, as one row of weights over the window's rows
@@ -87,7 +91,7 @@ def local_mean_at(values: F32, source: BoolArray, sigma_px: float, ys: NDArray[n
     return np.asarray(mean if values.ndim == 3 else mean[:, 0], dtype=np.float32)
 
 
-@lru_cache(maxsize=256)
+@lru_cache(maxsize=64)  # window lengths seen: a marker's crop, 20-150 px
 def _taps(length: int, sigma_px: float) -> F32:
     """(length, length) float32: row ``i`` holds the weights cv2.GaussianBlur (``sigma_px``, its own kernel size
     for float images) gives each of ``length`` samples at sample ``i``, the border reflected as it reflects it

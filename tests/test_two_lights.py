@@ -53,12 +53,12 @@ def test_the_local_mean_is_each_side_s_own_level_across_a_step_and_the_mean_far_
     assert far[20, 195] == pytest.approx(2.0, abs=1e-3)  # no source near: the sources' plain mean
 
 
-@pytest.mark.parametrize("shape", [(40, 60), (9, 70), (1, 30), (30, 1), (3, 3), (61, 47)])
+@pytest.mark.parametrize("shape", [(40, 60), (9, 70), (1, 30), (30, 1), (3, 3), (61, 47), (12, 200)])
 @pytest.mark.parametrize("sigma", [NEAR_PX, LOCAL_LIGHT_PX])
 @pytest.mark.parametrize("channels", [0, 3])
 def test_the_local_mean_at_some_pixels_is_the_whole_window_s_there(shape, sigma, channels) -> None:
     """The same sums at a few pixels: OpenCV's kernel and its reflected border, also where the window is shorter
-    than the kernel (the border reflected again and again) or one pixel wide."""
+    than the kernel (the border reflected again and again) or one pixel wide, or longer than the cached taps go."""
     rng = np.random.default_rng(shape[0] * 100 + shape[1] + channels)
     values = rng.uniform(0.0, 1.0, shape + ((channels,) if channels else ())).astype(np.float32)
     source = rng.uniform(size=shape) < 0.4
