@@ -8,8 +8,8 @@ row per scenario, seed and colour (its "Every scenario, camera and colour" table
 family: a colour's *mean* bias over the cameras it was seen through (each run one camera, weighted alike), at most
 0.05 cm for every hue of the default palette and of the eight-hue palette. Printed per colour: the runs, that mean
 (x, y and its length), and, for scale, the median and the largest single run's bias length (the per-run figure
-the family table's "worst colour bias" column and its bars use). A file without that table is one line on stderr,
-exit 2.
+the family table's "worst colour bias" column and its bars use). An output of ``--calibration both`` counts
+its first table only (the camera's calibration). A file without that table is one line on stderr, exit 2.
 """
 
 from __future__ import annotations
