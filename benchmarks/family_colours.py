@@ -26,7 +26,7 @@ sys.path.insert(0, str(REPO))
 from edge.sim.scene import EIGHT_HUES  # noqa: E402  (after the sys.path line above)
 
 BAR_CM = 0.05
-PALETTES = ("red", "green", "blue", *(name for name, _ in EIGHT_HUES))  # the default palette, then the eight hues
+PALETTES = tuple(dict.fromkeys(("red", "green", "blue", *(name for name, _ in EIGHT_HUES))))  # default, then eight
 TABLE = "Every scenario, camera and colour:"
 
 

@@ -82,7 +82,7 @@ def local_mean_at(values: F32, source: BoolArray, sigma_px: float, ys: NDArray[n
     weight = source.astype(np.float32)
     rows = _taps(h, sigma_px)[ys]  # (n, h): each pixel's vertical pass, as one row of weights over the window's rows
     cols = _taps(w, sigma_px)[xs][:, None, :]  # (n, 1, w): and its horizontal pass
-    weighted = values * weight[:, :, None] if c > 1 else values * weight
+    weighted = values * (weight[:, :, None] if values.ndim == 3 else weight)
     num = np.matmul(cols, (rows @ weighted.reshape(h, w * c)).reshape(-1, w, c))[:, 0]
     den = np.matmul(cols, (rows @ weight)[:, :, None])[:, 0]
     means = np.asarray(cv2.mean(values, mask=source.view(np.uint8))[:c], np.float32)
