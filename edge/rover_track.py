@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.area_checks import steady_areas, symmetric_below
+from edge.area_checks import LEARN_SPAN, nominal_below, steady_areas, symmetric_below
 from edge.blob_shape import point_asymmetry, wear_stretch
 from edge.filtering import ConstantVelocityFilter, HeadingFilter, one_colour_heading
 from edge.tracker_config import RoverConfig, TrackerSettings
@@ -25,7 +25,6 @@ STEADY_FRAMES = 8  # the consecutive frames whose areas show a whole marker's ar
 STEADY_SLOPE = 0.01  # the most those areas may rise or fall per frame, as a share of the learned area
 STEADY_STEP = 0.06  # the most the last area may differ from the median of the frames before it (same share)
 STEADY_SCATTERS = 5.0  # a steady area may lie this many of the rover's own area scatters below its learned area
-LEARN_SPAN = (0.8, 1.25)  # areas first learned: within this share of the nominal area (a quality over 0.8)
 RELEARN_FRAMES = 60  # lost this long (2 s at 30 fps), a rover may learn its area afresh (RoverTrack.relearn)
 RELEARN_NEARER = 1.1  # ... from a blob nearer the nominal area than its learned area is, by this factor
 RELEARN_SHAPE = 0.07  # ... whose elongation is within this share of the marker's aspect (a hidden end shortens it)
@@ -150,8 +149,14 @@ class RoverTrack:
 
     def learn(self, m: Measurement, nominal_cm2: float, frame: int) -> None:
         """Learn the areas of a blob taken for this rover: its area when it is near the learned one (its quality) or
-        larger and level (:meth:`larger_and_level`), its binary core's when near the learned core (or none yet)."""
-        if m.quality > 0.8 or self.larger_and_level(m.area_cm2, nominal_cm2, frame):
+        larger and level (:meth:`larger_and_level`) or, the learned area grown past :data:`LEARN_SPAN` of the nominal
+        one, within it (``edge.area_checks.nominal_below``); its binary core's when near the learned core (or none)."""
+        low, high = LEARN_SPAN
+        if (
+            m.quality > 0.8
+            or self.larger_and_level(m.area_cm2, nominal_cm2, frame)
+            or low <= m.area_cm2 / nominal_cm2 <= high < self.expected_area(nominal_cm2) / nominal_cm2
+        ):
             self.areas.append(m.area_cm2)
         if m.core_cm2 > 0.0 and (
             len(self.cores) < CORES_KNOWN or 0.8 <= m.core_cm2 / statistics.median(self.cores) <= CORE_OVER
@@ -269,18 +274,12 @@ class RoverTrack:
         if learned:
             self.measured(frame, m.area_cm2, m.xy_cm)
         steady = learned and ratio < low and self.steady_below(ratio, expected_area_cm2, config, frame)
-        symmetric = (
-            learned
-            and ratio < low
-            and not steady
-            and self.config.front_color_bgr is None  # a two-tone marker's coloured part has another aspect
-            and symmetric_below(
-                m,
-                ratio,
-                _aspect(config),
-                self.step_cm(m, frame),
-                1.0 if cm_per_px is None else wear_stretch(cm_per_px, m.axis_rad),
-            )
+        below = learned and ratio < low and not steady and self.config.front_color_bgr is None  # (two-tone: no)
+        stretch = wear_stretch(cm_per_px, m.axis_rad) if below and cm_per_px is not None else 1.0
+        step, nominal = self.step_cm(m, frame) if below else None, config.marker_area_cm2
+        symmetric = below and (
+            symmetric_below(m, ratio, _aspect(config), step, stretch)
+            or nominal_below(m, m.area_cm2 / nominal, expected_area_cm2 / nominal, step)
         )
         relearn = False
         whole = low <= ratio <= high or steady or symmetric

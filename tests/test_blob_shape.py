@@ -177,6 +177,31 @@ def test_a_lost_rover_s_worn_marker_is_taken_where_it_was_last_seen_and_nowhere_
     assert taken((100.3, 200.2), lost_for=SEEN_FRAMES) and not taken((100.3, 200.2), lost_for=SEEN_FRAMES + 1)
 
 
+def test_a_whole_marker_is_taken_after_its_learned_area_grew_with_a_tinted_body_top() -> None:
+    """A white body's top in the window's blue daylight beside a blue marker: the blob grew symmetric all round to
+    1.4 of the nominal area and the learned area followed it (the daylight clip, seed 14641 on wood). Back under the
+    lamps the whole marker, at the nominal area, shows 0.71 of the learned one, below the band: it is taken, where
+    the rover is expected. A blob of that size with a corner hidden (lopsided), one outside the nominal span, one
+    away from the prediction, and the same blob for a rover whose learned area is the nominal one, are not."""
+    settings = TrackerSettings()
+    nominal = settings.marker_area_cm2
+    whole = _coverage(_rect(LENGTH, WIDTH), 2.5, 70.0, 0.8)
+    cornered = _coverage(_rect(LENGTH, WIDTH), 2.5, 70.0, 0.8, holes=[_rect(9.0, 7.0, LENGTH / 2, WIDTH / 2)])
+
+    def taken(share: float, learned: float, xy=(100.2, 200.1), weights=whole) -> bool:
+        track = RoverTrack(RoverConfig(id="blue", color_bgr=(200, 60, 30)), 0)
+        track.areas.extend([learned * nominal] * 31)
+        track.seen, track.lost_at = (100.0, 200.0, 3.0), 90
+        m = Measurement(xy, (60.0, 60.0), share * nominal, 1.0, share, 0.0, ASPECT, False, weights)
+        return track.whole_marker(m, track.expected_area(nominal), True, settings, 0.0, 95)
+
+    assert taken(1.0, 1.4) and taken(0.92, 1.4)
+    assert not taken(1.0, 1.4, weights=cornered)  # lopsided: a part hidden
+    assert not taken(0.7, 1.4)  # below the nominal span
+    assert not taken(1.0, 1.4, xy=(101.0, 200.0))  # not where the rover is expected
+    assert not taken(0.7, 1.0)  # the learned area is the nominal one: the band alone decides
+
+
 def test_strips_hidden_along_an_end_and_a_side_leave_a_worn_looking_marker_that_only_the_prediction_refuses() -> None:
     """1.5 cm hidden along the front and along the left side: a smaller rectangle, symmetric and of a worn
     marker's elongation, 0.84 of its area, its centre 1.1 cm off. Its shape passes; for a rover the filter follows

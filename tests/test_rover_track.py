@@ -210,19 +210,16 @@ def test_a_rover_first_seen_with_a_fifth_of_its_marker_hidden_learns_its_whole_a
 
 
 @pytest.mark.slow
-def test_a_rover_whose_learned_area_grew_wrong_learns_afresh_after_two_seconds_lost() -> None:
+def test_a_rover_whose_learned_area_grew_wrong_keeps_its_real_marker_and_learns_its_area_back() -> None:
     """Its marker measured 12 % then 30 % larger than it is (a wrong light, a bloom), a little at a time, the rover
-    learned 1.3 times its area; the real marker (0.77 of that, too small even for a worn whole one) is then refused.
-    After 2 s lost, the level blob nearer the nominal area is taken and its area learned afresh: tracked again,
-    centred."""
+    learned 1.3 times its area, more than a marker of the configured size shows; the real marker (0.77 of that, too
+    small even for a worn whole one) is at the nominal area, symmetric and where the rover is expected: taken
+    (``edge.area_checks.nominal_below``; before, lost for the 2 s after which it learned afresh), centred, and its area
+    learned back within a second (quality 1)."""
     estimates = _track_parked(150, scale=lambda i: 1.06 if i < 30 else 1.14 if i < 60 else 1.0)
-    assert all(e is not None for e in estimates[:60])
-    lost = [i for i, e in enumerate(estimates) if e is None]
-    assert lost and lost[0] == 60 and 60 + RELEARN_FRAMES <= lost[-1] < 60 + RELEARN_FRAMES + 15
-    back = estimates[lost[-1] + 1 :]
-    assert all(e is not None for e in back)
-    assert max(np.hypot(e.x_cm - X_CM, e.y_cm - Y_CM) for e in back) < 0.3
-    assert back[-1].quality == 1.0
+    assert all(e is not None for e in estimates)
+    assert max(np.hypot(e.x_cm - X_CM, e.y_cm - Y_CM) for e in estimates[60:]) < 0.3
+    assert estimates[60].quality < 0.8 and min(e.quality for e in estimates[90:]) == 1.0
 
 
 @pytest.mark.slow
