@@ -54,10 +54,17 @@ def nominal_below(m: Measurement, nominal_ratio: float, learned_ratio: float, in
     centre by half the cut, which the step bounds as it does for :func:`symmetric_below`. The shape is not asked: the
     body's top shows a margin of its own on each side (0.2-2.5 cm), so the grown blob's elongation is not the
     marker's."""
-    low, high = LEARN_SPAN
-    if learned_ratio <= high or not low <= nominal_ratio <= high or m.weights is None or innovation_cm is None:
+    if not back_to_nominal(nominal_ratio, learned_ratio) or m.weights is None or innovation_cm is None:
         return False
     return innovation_cm <= SYMMETRY_STEP_CM and point_asymmetry(m.weights) <= SYMMETRY_SKEW
+
+
+def back_to_nominal(nominal_ratio: float, learned_ratio: float) -> bool:
+    """Is a blob's area within :data:`LEARN_SPAN` of the nominal area (``nominal_ratio``) while the learned area has
+    grown above that span (``learned_ratio``, also of the nominal)? Then :func:`nominal_below` may take it and the
+    rover learns its area (``RoverTrack.learn``)."""
+    low, high = LEARN_SPAN
+    return low <= nominal_ratio <= high < learned_ratio
 
 
 def steady_areas(ratios: Sequence[float], max_slope: float, max_step: float) -> bool:

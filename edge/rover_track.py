@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from edge.area_checks import LEARN_SPAN, nominal_below, steady_areas, symmetric_below
+from edge.area_checks import LEARN_SPAN, back_to_nominal, nominal_below, steady_areas, symmetric_below
 from edge.blob_shape import point_asymmetry, wear_stretch
 from edge.filtering import ConstantVelocityFilter, HeadingFilter, one_colour_heading
 from edge.tracker_config import RoverConfig, TrackerSettings
@@ -150,12 +150,12 @@ class RoverTrack:
     def learn(self, m: Measurement, nominal_cm2: float, frame: int) -> None:
         """Learn the areas of a blob taken for this rover: its area when it is near the learned one (its quality) or
         larger and level (:meth:`larger_and_level`) or, the learned area grown past :data:`LEARN_SPAN` of the nominal
-        one, within it (``edge.area_checks.nominal_below``); its binary core's when near the learned core (or none)."""
-        low, high = LEARN_SPAN
+        one, within it (``edge.area_checks.back_to_nominal``); its binary core's when near the learned core (or
+        none yet)."""
         if (
             m.quality > 0.8
             or self.larger_and_level(m.area_cm2, nominal_cm2, frame)
-            or low <= m.area_cm2 / nominal_cm2 <= high < self.expected_area(nominal_cm2) / nominal_cm2
+            or back_to_nominal(m.area_cm2 / nominal_cm2, self.expected_area(nominal_cm2) / nominal_cm2)
         ):
             self.areas.append(m.area_cm2)
         if m.core_cm2 > 0.0 and (
@@ -276,7 +276,8 @@ class RoverTrack:
         steady = learned and ratio < low and self.steady_below(ratio, expected_area_cm2, config, frame)
         below = learned and ratio < low and not steady and self.config.front_color_bgr is None  # (two-tone: no)
         stretch = wear_stretch(cm_per_px, m.axis_rad) if below and cm_per_px is not None else 1.0
-        step, nominal = self.step_cm(m, frame) if below else None, config.marker_area_cm2
+        step = self.step_cm(m, frame) if below else None
+        nominal = config.marker_area_cm2
         symmetric = below and (
             symmetric_below(m, ratio, _aspect(config), step, stretch)
             or nominal_below(m, m.area_cm2 / nominal, expected_area_cm2 / nominal, step)
