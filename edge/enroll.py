@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 from edge.errors import EnrollmentError
 from edge.floor_change import changed_from, planes
 from edge.floor_contrast import floor_warnings
+from edge.marker_blobs import Blob, components, left_behind, marker_blobs, relative_saturation, world_outline
 from edge.messages import id_problem
 from edge.tracker_config import RoverConfig
 from edge.trackers.base import PlaneMapping
@@ -45,9 +46,10 @@ U8 = NDArray[np.uint8]
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
-MIN_SATURATION = 0.25  # relative saturation |chroma| / luminance of a marker's coloured part (floors: < 0.1)
-AREA_RANGE = (0.25, 1.6)  # a coloured blob's area as a share of the nominal marker's: smaller is debris, larger not
-MIN_FRONT_SHARE = 0.1  # a light part smaller than this share of the marker is a reflection, not a two-tone front
+MIN_FRONT_SHARE = 0.1  # a light part (and the coloured part's shortfall) under this share of the marker: no front
+FRONT_SATURATION = 0.5  # ... and no more than this share of its marker's saturation (an awb tints white 0.2-0.3)
+FRONT_ROOM = 0.9  # ... and the coloured part's longest side is at most this share of the marker's length
+FRONT_UNION = 1.3  # ... a front and its coloured part together are the marker: a light part adding more is a body
 LIGHT_MARGIN_DEG = 10.0  # how far a hue may move between places in a room (lamps, window light) beyond its spread
 CLIPPED = 250  # a channel this bright is clipped (glare): its hue is not the marker's
 HUE_NAMES = ((0.0, "red"), (30.0, "orange"), (60.0, "yellow"), (90.0, "lime"), (120.0, "green"), (150.0, "teal"),
@@ -139,19 +141,6 @@ def _hue_gap_deg(a: float, b: float) -> float:
     return min(d, 360.0 - d)
 
 
-def _components(mask: BoolArray) -> list[BoolArray]:
-    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-    return [labels == k for k in range(1, n)]
-
-
-def _world_outline(mask: BoolArray, calibration: PlaneMapping) -> FloatArray | None:
-    """(K, 2) the blob's outline on the marker plane, cm; None when it leaves the plane (beyond the horizon)."""
-    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    outline = max(contours, key=len).reshape(-1, 2).astype(np.float64)
-    world = calibration.pixel_to_world(outline)
-    return None if not np.all(np.isfinite(world)) else world
-
-
 def _interior(mask: BoolArray) -> BoolArray:
     """The blob without its edge pixels (mixed with the body or the floor); the blob itself when that is all."""
     for iterations in (2, 1):
@@ -177,36 +166,6 @@ def _spread_deg(c1: FloatArray, c2: FloatArray, mask: BoolArray, color_bgr: Sequ
     return float(np.degrees(np.percentile(deviation, 95))) if deviation.size else 0.0
 
 
-@dataclass(frozen=True)
-class _Blob:
-    mask: BoolArray
-    world: FloatArray
-    area_cm2: float
-
-
-def _blobs(colored: BoolArray, calibration: PlaneMapping, nominal_cm2: float) -> tuple[list[_Blob], list[str]]:
-    """Marker-sized blobs of ``colored``, and a line for each blob of colour that is not marker-sized."""
-    found, ignored = [], []
-    lo, hi = AREA_RANGE
-    for mask in _components(colored):
-        if mask.sum() < 6:
-            continue
-        world = _world_outline(mask, calibration)
-        if world is None:
-            continue
-        area = float(cv2.contourArea(world.astype(np.float32)))
-        centre = world.mean(axis=0)
-        if lo * nominal_cm2 <= area <= hi * nominal_cm2:
-            found.append(_Blob(mask, world, area))
-        elif area >= 0.05 * nominal_cm2:
-            size = "too small" if area < lo * nominal_cm2 else "too large"
-            ignored.append(
-                f"a coloured blob of {area:.0f} cm2 at ({centre[0]:.0f}, {centre[1]:.0f}) cm: {size} for a "
-                f"marker of {nominal_cm2:.0f} cm2"
-            )
-    return found, ignored
-
-
 def enroll(
     frame: U8,
     background: U8,
@@ -230,28 +189,21 @@ def enroll(
     f1, f2, flum = planes(frame)
     b1, b2, blum = planes(background)
     changed = changed_from((f1, f2, flum), (b1, b2, blum))
-    open3 = np.ones((3, 3), np.uint8)
-    frame_sat, back_sat = _saturation(f1, f2, flum), _saturation(b1, b2, blum)
-    colored = cv2.morphologyEx((changed & (frame_sat >= MIN_SATURATION)).astype(np.uint8), cv2.MORPH_OPEN, open3)
     nominal_cm2 = marker_length_cm * marker_width_cm
-
-    in_background = (changed & (back_sat >= MIN_SATURATION) & (frame_sat < MIN_SATURATION)).astype(np.uint8)
-    left_behind, _ = _blobs(
-        cv2.morphologyEx(in_background, cv2.MORPH_OPEN, open3).astype(bool), calibration, nominal_cm2
-    )
-    if left_behind:
-        x, y = left_behind[0].world.mean(axis=0)
+    left = left_behind((f1, f2, flum), (b1, b2, blum), background, changed, calibration, nominal_cm2)
+    if left is not None:
         raise EnrollmentError(
-            f"the background image has a marker in it at ({x:.0f}, {y:.0f}) cm that the frame does not: take the "
-            "background with no rover in view"
+            f"the background image has a marker in it at ({left[0]:.0f}, {left[1]:.0f}) cm that the frame does not: "
+            "take the background with no rover in view"
         )
-
-    blobs, ignored = _blobs(colored.astype(bool), calibration, nominal_cm2)
+    saturation = relative_saturation((f1, f2, flum), blum)
+    blobs, ignored = marker_blobs((f1, f2, flum), (b1, b2, blum), changed, calibration, nominal_cm2)
     if not blobs:
         hint = f" ({'; '.join(ignored)})" if ignored else ""
         raise EnrollmentError(f"no marker-sized blob of colour differs from the background{hint}")
-    light = changed & (frame_sat < MIN_SATURATION) & (flum > blum + 10.0)
-    markers = [_measure(frame, (f1, f2, flum), blob, light, calibration, nominal_cm2) for blob in blobs]
+    light = changed & (flum > blum + 10.0)
+    size = (marker_length_cm, marker_width_cm)
+    markers = [_measure(frame, (f1, f2, flum), blob, saturation, light, calibration, size) for blob in blobs]
     named = _name(markers, ids)
     warnings = _too_close(named) + _odd_sizes(named, marker_length_cm, marker_width_cm)
     seen = [(m.rover_id, m.color_bgr, m.uv_px, math.sqrt(m.pixels)) for m in named]
@@ -272,10 +224,11 @@ def _pixel_areas_cm2(calibration: PlaneMapping, box: tuple[int, int, int, int]) 
 def _measure(
     frame: U8,
     frame_planes: tuple[FloatArray, FloatArray, FloatArray],
-    blob: _Blob,
+    blob: Blob,
+    saturation: FloatArray,
     light: BoolArray,
     calibration: PlaneMapping,
-    nominal_cm2: float,
+    size_cm: tuple[float, float],
 ) -> EnrolledMarker:
     """Colour, spread, area, size and the light front part of one blob.
 
@@ -285,6 +238,7 @@ def _measure(
     """
     c1, c2, lum = frame_planes
     h, w = lum.shape
+    nominal_cm2 = size_cm[0] * size_cm[1]
     inner = _interior(blob.mask)
     color = _median_bgr(frame, inner)
     vs, us = np.nonzero(blob.mask)
@@ -301,8 +255,9 @@ def _measure(
     near = np.zeros_like(blob.mask)
     near[y0:y1, x0:x1] = ring
     front_mask = np.zeros_like(blob.mask)
-    for part in _components(light & (lum > float(np.median(lum[inner])))):
-        if (part & near).any():
+    pale = saturation < FRONT_SATURATION * float(np.median(saturation[inner]))
+    for part in components(light & pale & (lum > float(np.median(lum[inner])))):
+        if (part & near).any() and not _surrounds(part, blob.mask):
             front_mask |= part
     front_cm2 = 0.0
     if front_mask.any():  # over the front's own box: a front pointing along a row or column sticks out of the blob's
@@ -313,7 +268,12 @@ def _measure(
     front_color: tuple[int, int, int] | None = None
     front_fraction: float | None = None
     whole = blob.mask
-    if front_cm2 >= MIN_FRONT_SHARE * nominal_cm2:
+    short = nominal_cm2 - colored_cm2  # a two-tone marker's coloured part is short of the marker by its front
+    if (
+        min(front_cm2, short) >= MIN_FRONT_SHARE * nominal_cm2
+        and colored_cm2 + front_cm2 <= FRONT_UNION * nominal_cm2
+        and _short_of_marker(blob.world, size_cm[0])
+    ):
         front_color = _median_bgr(frame, _interior(front_mask))
         # the marker's size is the tracker's (it places the centre by it); its coloured share is measured
         front_fraction = round(min(0.6, max(0.05, 1.0 - colored_cm2 / nominal_cm2)), 2)
@@ -321,7 +281,7 @@ def _measure(
         measured_cm2 = colored_cm2 + front_cm2
     else:
         measured_cm2 = colored_cm2
-    outline = _world_outline(whole, calibration)
+    outline = world_outline(whole, calibration)
     (cx, cy), (a, b), _ = cv2.minAreaRect((outline if outline is not None else blob.world).astype(np.float32))
     scale = math.sqrt(measured_cm2 / max(a * b, 1e-6))  # the outline's box, scaled to the measured area
     wvs, wus = np.nonzero(whole)
@@ -340,6 +300,25 @@ def _measure(
         front_color_bgr=front_color,
         front_fraction=front_fraction,
     )
+
+
+def _short_of_marker(world: FloatArray, length_cm: float) -> bool:
+    """Is a coloured part (its outline ``world`` on the marker plane) short of the marker's length by room for a
+    front, its longest side at most :data:`FRONT_ROOM` of ``length_cm``? A two-tone marker's coloured part showed
+    0.66-0.89 of it over the family (its width, 0.78 of the length, the longest side for a front of 0.3); a
+    one-colour marker's 0.92-1.0, and a light body's side beside it was taken for a front (8 of 90 on tiles)."""
+    _, (a, b), _ = cv2.minAreaRect(world.astype(np.float32))
+    return max(a, b) <= FRONT_ROOM * length_cm
+
+
+def _surrounds(part: BoolArray, mask: BoolArray) -> bool:
+    """Does the light ``part`` surround the coloured blob ``mask`` (the blob's centre inside the part's convex hull)?
+    A two-tone marker's front lies at one end of it; a white or light grey body shows all round it, and was taken
+    for a front of up to three times the marker's area."""
+    vs, us = np.nonzero(part)
+    hull = cv2.convexHull(np.column_stack([us, vs]).astype(np.int32))
+    mv, mu = np.nonzero(mask)
+    return cv2.pointPolygonTest(hull, (float(mu.mean()), float(mv.mean())), False) >= 0
 
 
 # -- naming ----------------------------------------------------------------------------------------------------------

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -231,3 +232,53 @@ def test_enroll_errors_are_one_line(files: dict[str, Path], tmp_path: Path, case
     assert len(lines) == 1 and lines[0].startswith("Error: ") and fragment in lines[0], result.stderr
     if case == "a configuration as --out":
         assert out.read_text() == '[broker]\nurl = "embedded"\n'
+
+
+# -- the camera family ---------------------------------------------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.parametrize(("seed", "floor"), [(0, "wood"), (1, "wood"), (2, "tiles"), (3, "wood")])
+def test_markers_seen_by_the_family_s_webcams_on_its_bodies_are_enrolled_whole_where_they_stand(
+    seed: int, floor: str
+) -> None:
+    # black bodies tinted by the white balance, white ones turned bluish by it over wood, a wooden floor as
+    # saturated as a pale marker: each of these once made a body part of its marker's blob or a marker of the floor
+    lab = Lab.family(eight_hues(), seed, floor)
+    poses = spread_out(8)
+    result = enroll(lab.frame(poses), lab.background(), lab.calibration, ids=[name for name, _ in PALETTE])
+    assert [m.rover_id for m in result.markers] == [name for name, _ in PALETTE], lab.camera_name
+    for marker, (x, y, _) in zip(result.markers, poses, strict=True):
+        assert math.hypot(marker.xy_cm[0] - x, marker.xy_cm[1] - y) < 2.0, (lab.camera_name, marker)
+        assert 0.7 < marker.area_cm2 / (21.5 * 16.8) < 1.35, (lab.camera_name, marker)
+        assert marker.front_color_bgr is None  # a light body beside a one-colour marker is not its front
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [2, 7])
+def test_a_light_body_round_a_one_colour_marker_is_neither_a_marker_nor_its_front(seed: int) -> None:
+    lab = Lab.family(fleet_looks(3), seed, "wood")
+    assert any(min(look.body_bgr) > 0.5 for look in lab.looks)  # the family drew a white body here
+    poses = spread_out(3)
+    result = enroll(lab.frame(poses), lab.background(), lab.calibration)
+    assert len(result.markers) == 3, lab.camera_name
+    for marker in result.markers:
+        assert min(math.hypot(marker.xy_cm[0] - x, marker.xy_cm[1] - y) for x, y, _ in poses) < 2.0
+        assert marker.front_color_bgr is None and marker.area_cm2 / (21.5 * 16.8) < 1.35
+
+
+@pytest.mark.slow
+def test_a_grey_body_over_a_wooden_floor_is_not_a_marker_left_in_the_background() -> None:
+    # the body hides the wood's colour where it stands: the empty floor there is as saturated as a pale marker
+    looks = tuple(replace(look, body_bgr=(0.45, 0.45, 0.45)) for look in fleet_looks(3))
+    lab = Lab(looks, floor="wood")
+    result = enroll(lab.frame(spread_out(3)), lab.background(), lab.calibration, ids=["red", "green", "blue"])
+    assert [m.rover_id for m in result.markers] == ["red", "green", "blue"]
+
+
+def test_a_coloured_blob_beyond_the_working_area_is_not_a_rover() -> None:
+    lab = Lab(fleet_looks(2))
+    frame = lab.frame([(100.0, 150.0, 0.0), (300.0, 300.0, 0.0)])
+    corners = np.array([[185.0, 630.0], [206.5, 630.0], [206.5, 646.8], [185.0, 646.8]])  # 80 cm beyond its far side
+    cv2.fillConvexPoly(frame, lab.calibration.world_to_pixel(corners).round().astype(np.int32), (40, 40, 190))
+    result = enroll(frame, lab.background(), lab.calibration)
+    assert [m.rover_id for m in result.markers] == ["red", "green"]
+    assert any("outside the working area" in line for line in result.ignored)

@@ -45,6 +45,7 @@ from edge.sim.effects import (
     Vignetting,
 )
 from edge.sim.scene import RoverLook
+from edge.sim.setup import scenario_rng
 
 BODY_ALBEDOS = {"black": 0.035, "dark grey": 0.12, "white": 0.80}
 CHROMA = ("4:2:0", "4:2:2", "4:4:4")
@@ -156,3 +157,12 @@ def draw_bodies(looks: tuple[RoverLook, ...], rng: np.random.Generator) -> tuple
             )
         )
     return tuple(out)
+
+
+def draw_family(name: str, seed: int, looks: tuple[RoverLook, ...]) -> tuple[CameraDraw, tuple[RoverLook, ...]]:
+    """The webcam (with its processor) and the rovers' bodies that the family draws for scenario ``name`` and
+    ``seed`` (the accuracy benchmark's runs, enrolment's stills): ``looks`` with their bodies drawn."""
+    rng = scenario_rng(f"{name}/camera", seed)
+    drawn = draw_camera(rng)
+    looks = draw_bodies(looks, rng)
+    return drawn.with_processing(draw_processing(scenario_rng(f"{name}/processing", seed))), looks

@@ -41,9 +41,9 @@ from edge.sim.builders import (
     build_sun,
     lens_camera,
 )
-from edge.sim.cameras import draw_bodies, draw_camera, draw_processing
+from edge.sim.cameras import draw_family
 from edge.sim.scene import FLOORS, HEADINGS, Heading
-from edge.sim.setup import FPS, SimSetup, lab_effects, scenario_rng
+from edge.sim.setup import FPS, SimSetup, lab_effects
 
 __all__ = ["FPS", "SCENARIOS", "Scenario", "SimSetup", "build", "get_scenario", "lab_effects", "lens_camera"]
 
@@ -89,10 +89,7 @@ class Scenario:
         if heading != "plain":
             looks = tuple(replace(look, heading=heading, aruco_id=k) for k, look in enumerate(looks))
         if camera == "family":
-            rng = scenario_rng(f"{self.name}/camera", seed)
-            drawn = draw_camera(rng)
-            looks = draw_bodies(looks, rng)
-            drawn = drawn.with_processing(draw_processing(scenario_rng(f"{self.name}/processing", seed)))
+            drawn, looks = draw_family(self.name, seed, looks)
             setup = replace(setup, effects=drawn.apply(setup.effects), camera_name=drawn.name)
         return replace(setup, scene=replace(setup.scene, rovers=looks, floor=FLOORS[floor]))
 

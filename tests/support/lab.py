@@ -18,9 +18,10 @@ from edge.appliance import Appliance, TrackerInputs
 from edge.calibration.exact import exact_calibration
 from edge.camera import PinholeCamera, paper_camera
 from edge.runtime import EdgeRuntime
+from edge.sim.cameras import draw_family
 from edge.sim.render import Renderer
-from edge.sim.scenarios import lab_effects
 from edge.sim.scene import FLOORS, RoverLook, Scene, marker_albedo_for_hue
+from edge.sim.setup import lab_effects
 from edge.sim.world import RoverState, WorldState
 from edge.sources import SourceInfo
 from edge.tracker_config import RoverConfig, TrackerConfig
@@ -56,6 +57,21 @@ class Lab:
         effects = lab_effects(np.random.default_rng(seed))
         self.renderer = Renderer(self.camera, Scene(rovers=self.looks, floor=FLOORS[floor]), effects, seed=seed)
         self.calibration = exact_calibration(self.camera)
+        self.camera_name = "the lab's"
+
+    @classmethod
+    def family(cls, looks: Sequence[RoverLook], seed: int, floor: str = "tiles") -> Lab:
+        """A lab seen by a webcam drawn from the simulator's family (``edge.sim.cameras``: stream, optics, colour,
+        white balance, processor) with the rovers' bodies drawn too (black, dark grey or white, 8-20 cm tall), the
+        calibration on their marker plane."""
+        drawn, drawn_looks = draw_family("enrol", seed, tuple(looks))
+        lab = cls(drawn_looks, seed, floor=floor)
+        scene = Scene(rovers=lab.looks, floor=FLOORS[floor])
+        effects = drawn.apply(lab_effects(np.random.default_rng(seed)))
+        lab.renderer = Renderer(lab.camera, scene, effects, seed=seed)
+        lab.calibration = exact_calibration(lab.camera, lab.looks[0].body_height_cm)
+        lab.camera_name = drawn.name
+        return lab
 
     def frame(self, poses: Sequence[Pose], index: int = 5) -> np.ndarray:
         rovers = tuple(

@@ -1,0 +1,130 @@
+"""Colour enrolment (``edge.enroll``) over the camera family: does every rover get enrolled, at its place, at its size?
+
+    python benchmarks/bench_enrolment.py [--seeds 0-19] [--palette eight|three|two-tone] [--floors wood,tiles]
+
+For each seed and floor: a still of the paper's lab seen by a webcam drawn from the family (``edge.sim.cameras``:
+stream, optics, colour response, white balance, processor) with the rovers' bodies drawn too (black, dark grey or
+white, 8-20 cm tall), the rovers spread over two rows, and the empty floor. The frame and the floor are enrolled
+(``eight``: the eight-hue palette with its ids; ``three``: red, green, blue named by hue; ``two-tone``: red, green,
+blue with a light front). Prints, per floor, the labs where every rover was enrolled within 2 cm of its place, the
+worst centre error, the enrolled areas as a share of the marker's (1st / 50th / 99th percentile) and, for two-tone
+markers on dark bodies, how many front fractions came within 0.08 of the true 0.3 (for one-colour markers, how
+many were given a front: none should be); then each failure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from edge.calibration.exact import exact_calibration
+from edge.camera import paper_camera
+from edge.enroll import enroll
+from edge.errors import EnrollmentError
+from edge.sim.cameras import draw_family
+from edge.sim.render import Renderer
+from edge.sim.scene import FLOORS, RoverLook, Scene, fleet_looks, marker_albedo_for_hue
+from edge.sim.setup import lab_effects
+from edge.sim.world import RoverState, WorldState
+
+HUES = (("red", 0), ("orange", 30), ("yellow", 60), ("green", 120), ("cyan", 180), ("blue", 240), ("purple", 270),
+        ("magenta", 300))  # fmt: skip
+
+
+def palette(name: str) -> tuple[RoverLook, ...]:
+    if name == "eight":
+        return tuple(RoverLook(n, marker_albedo_for_hue(h)) for n, h in HUES)
+    looks = fleet_looks(3)
+    return tuple(replace(look, heading="two_tone") for look in looks) if name == "two-tone" else looks
+
+
+def spread(n: int) -> list[tuple[float, float, float]]:
+    cols = math.ceil(n / 2)
+    return [
+        (60.0 + 270.0 * (k % cols) / max(cols - 1, 1), 130.0 + 260.0 * (k // cols), 0.4 * k - 1.0) for k in range(n)
+    ]
+
+
+def one_lab(seed: int, floor: str, name: str) -> tuple[bool, float, list[float], list[tuple[float | None, bool]], str]:
+    """Enrol one drawn lab: (all enrolled within 2 cm, worst error cm, area shares, (front, dark body)s, failure)."""
+    drawn, looks = draw_family("enrol", seed, palette(name))
+    camera = paper_camera()
+    renderer = Renderer(
+        camera,
+        Scene(rovers=looks, floor=FLOORS[floor]),
+        drawn.apply(lab_effects(np.random.default_rng(seed))),
+        seed=seed,
+    )
+    calibration = exact_calibration(camera, looks[0].body_height_cm)
+    poses = spread(len(looks))
+    states = tuple(RoverState(look.rover_id, x, y, th, 0.0, 0.0) for look, (x, y, th) in zip(looks, poses, strict=True))
+    frame = renderer.render(WorldState(5 / 30.0, states), 5)
+    ids = [look.rover_id for look in looks] if name == "eight" else None
+    try:
+        result = enroll(frame, renderer.background(5), calibration, ids=ids)
+    except EnrollmentError as exc:
+        return False, math.inf, [], [], f"{seed} {floor} {drawn.name}: {exc}"
+    errors, fronts = [], []
+    for m in result.markers:
+        truth = {look.rover_id: p for look, p in zip(looks, poses, strict=True)}.get(m.rover_id)
+        places = [truth] if truth is not None else poses
+        errors.append(min(math.hypot(m.xy_cm[0] - x, m.xy_cm[1] - y) for x, y, _ in places))
+        nearest = min(range(len(poses)), key=lambda k: math.hypot(m.xy_cm[0] - poses[k][0], m.xy_cm[1] - poses[k][1]))
+        fronts.append((m.front_fraction, looks[nearest].body_bgr[0] < 0.5))
+    worst = max(errors)
+    ok = len(result.markers) == len(looks) and worst <= 2.0
+    areas = [m.area_cm2 / (looks[0].marker_length_cm * looks[0].marker_width_cm) for m in result.markers]
+    why = "" if ok else f"{seed} {floor} {drawn.name}: {len(result.markers)} of {len(looks)}, worst {worst:.1f} cm"
+    return ok, worst, areas, fronts, why
+
+
+def seeds_of(text: str) -> list[int]:
+    if "-" in text:
+        lo, hi = (int(v) for v in text.split("-"))
+        return list(range(lo, hi + 1))
+    return [int(v) for v in text.split(",")]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seeds", default="0-19")
+    parser.add_argument("--palette", choices=("eight", "three", "two-tone"), default="eight")
+    parser.add_argument("--floors", default="wood,tiles")
+    args = parser.parse_args()
+    failures = []
+    for floor in args.floors.split(","):
+        good, worst, areas, fronts = 0, 0.0, [], []
+        seeds = seeds_of(args.seeds)
+        for seed in seeds:
+            ok, w, a, f, why = one_lab(seed, floor, args.palette)
+            good += ok
+            worst = max(worst, w)
+            areas += a
+            fronts += f
+            if why:
+                failures.append(why)
+        share = np.percentile(areas, [1, 50, 99]) if areas else np.array([math.nan] * 3)
+        line = (
+            f"{floor:6s} {args.palette}: {good} of {len(seeds)} labs enrolled whole (every rover within 2 cm), "
+            f"worst {worst:.2f} cm, area / marker p1 {share[0]:.2f} p50 {share[1]:.2f} p99 {share[2]:.2f}"
+        )
+        if args.palette == "two-tone":
+            dark = [fr for fr, is_dark in fronts if is_dark]
+            near = sum(fr is not None and abs(fr - 0.3) <= 0.08 for fr in dark)
+            line += f"; fronts on dark bodies within 0.08 of 0.3: {near} of {len(dark)}"
+        else:
+            line += f"; fronts found on one-colour markers: {sum(fr is not None for fr, _ in fronts)}"
+        print(line, flush=True)
+    for why in failures:
+        print("  failed:", why)
+
+
+if __name__ == "__main__":
+    main()
