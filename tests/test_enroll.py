@@ -253,6 +253,15 @@ def test_markers_seen_by_the_family_s_webcams_on_its_bodies_are_enrolled_whole_w
 
 
 @pytest.mark.slow
+def test_colours_enrolled_through_one_of_the_family_s_webcams_then_track_every_rover() -> None:
+    lab = Lab.family(eight_hues(), 0, "wood")
+    poses = spread_out(8)
+    result = enroll(lab.frame(poses), lab.background(), lab.calibration, ids=[name for name, _ in PALETTE])
+    for rover_id, errs in track(lab, result.rover_configs(), poses).items():
+        assert max(errs) < 1.5, f"{rover_id}: {errs}"  # found, with its id, in every one of the last 15 frames
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [2, 7])
 def test_a_light_body_round_a_one_colour_marker_is_neither_a_marker_nor_its_front(seed: int) -> None:
     lab = Lab.family(fleet_looks(3), seed, "wood")
