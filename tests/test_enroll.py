@@ -291,3 +291,19 @@ def test_a_coloured_blob_beyond_the_working_area_is_not_a_rover() -> None:
     result = enroll(frame, lab.background(), lab.calibration)
     assert [m.rover_id for m in result.markers] == ["red", "green"]
     assert any("outside the working area" in line for line in result.ignored)
+
+
+@pytest.mark.slow
+def test_markers_printed_larger_than_the_tracker_is_configured_for_are_named_with_their_size() -> None:
+    # the tracker sizes its windows and area checks by the configured marker: 40 % more area is learned as the
+    # rover's own, and a part of it hidden down to the configured size would look whole (docs/tracking.md)
+    big = tuple(
+        replace(look, marker_length_cm=25.4, marker_width_cm=19.9, body_length_cm=29.0, body_width_cm=23.0)
+        for look in fleet_looks(3)
+    )
+    lab = Lab(big)
+    result = enroll(lab.frame(spread_out(3)), lab.background(), lab.calibration, ids=["red", "green", "blue"])
+    sized = [w for w in result.warnings if "but the tracker expects 21.5 x 16.8 cm" in w]
+    assert [w.split()[0] for w in sized] == ["red", "green", "blue"]
+    for marker in result.markers:
+        assert marker.area_cm2 == pytest.approx(25.4 * 19.9, rel=0.12)
