@@ -2,14 +2,17 @@
 rovers in view and one of the empty floor.
 
 Typing ``color_bgr`` "as the camera sees it" into a configuration is guesswork; the camera knows. :func:`enroll`
-finds every marker-sized blob of colour that is not on the empty floor, and measures it:
+finds every marker-sized blob of colour that is not on the empty floor (``edge.marker_blobs``: colour judged against
+the light where it stands, told from the rovers' bodies and the floor), and measures it:
 
 * its **colour**: the per-channel median over the blob's interior (its edge pixels, mixed with the dark body and
   the floor, are eroded away; clipped pixels are left out), so a glare on part of the marker does not move it;
 * its **size** on the marker plane (through the calibration), and where it stands;
-* for a **two-tone** marker, its light front part: the bright, unsaturated pixels that are not on the empty floor
-  and touch the coloured part. Their median colour is ``front_color_bgr`` and their share of the marker's area
-  ``front_fraction``;
+* for a **two-tone** marker, its light front part: the pixels brighter than the empty floor and the coloured part,
+  under half its saturation, that touch the coloured part without surrounding it; taken only where the coloured
+  part has room for a front (short of the marker by a tenth of its area, its longest side at most 0.9 of the
+  marker's length) and both together are at most 1.3 markers (a light body's side beside a one-colour marker is
+  not a front). Their median colour is ``front_color_bgr``, and ``front_fraction`` is 1 minus the coloured share;
 * how far its hue **spreads** over the marker (the 95th percentile of its pixels' hue deviation).
 
 Rovers are named by hue when no ids are given. Two markers whose hues are closer than their spreads plus a margin
@@ -197,7 +200,7 @@ def enroll(
             "take the background with no rover in view"
         )
     saturation = relative_saturation((f1, f2, flum), blum)
-    blobs, ignored = marker_blobs((f1, f2, flum), (b1, b2, blum), changed, calibration, nominal_cm2)
+    blobs, ignored = marker_blobs((f1, f2, flum), (b1, b2, blum), changed, saturation, calibration, nominal_cm2)
     if not blobs:
         hint = f" ({'; '.join(ignored)})" if ignored else ""
         raise EnrollmentError(f"no marker-sized blob of colour differs from the background{hint}")

@@ -115,9 +115,11 @@ def marker_parts(mask: BoolArray, c1: FloatArray, c2: FloatArray) -> list[BoolAr
 
 
 def without_rims(parts: list[BoolArray], saturation: FloatArray) -> list[BoolArray]:
-    """``parts`` with a median saturation of :data:`PART_SATURATION` at least, and not within half its own size of
-    a part :data:`RIM_RATIO` times as saturated or more: a light body's tinted sides and top (0.2-0.3) beside its
-    marker (0.35-1.0), apart from it by the top's margin. Rovers to enrol stand apart by more than that."""
+    """``parts`` with a median saturation of :data:`PART_SATURATION` at least, and none within half a part's size
+    of that part if it is :data:`RIM_RATIO` times as saturated or more: a light body's tinted sides and top (median
+    0.2-0.3) beside its marker (0.26-1.3), apart from it by the top's margin. Rovers to enrol stand apart by more
+    than half a marker. The parts dropped are not listed: a marker this drops shows as one missing (a count of
+    markers short of the ids), and enrolling again with the rovers farther apart tells which."""
     levels = [float(np.median(saturation[p])) for p in parts]
     reach = [max(2, round(0.5 * math.sqrt(float(p.sum())))) for p in parts]
     grown = [
@@ -164,15 +166,20 @@ def sized_blobs(mask: BoolArray, calibration: PlaneMapping, nominal_cm2: float) 
 
 
 def marker_blobs(
-    frame: Planes, background: Planes, changed: BoolArray, calibration: PlaneMapping, nominal_cm2: float
+    frame: Planes,
+    background: Planes,
+    changed: BoolArray,
+    saturation: FloatArray,
+    calibration: PlaneMapping,
+    nominal_cm2: float,
 ) -> tuple[list[Blob], list[str]]:
     """The markers in ``frame`` over the empty floor ``background`` (``changed``: where they differ,
-    ``edge.floor_change.changed_from``): its coloured pixels, each part cut down to its own colour, bodies'
-    rims dropped, the marker-sized ones kept; and a line for each other blob of colour."""
+    ``edge.floor_change.changed_from``; ``saturation``: :func:`relative_saturation`): its coloured pixels, each
+    part cut down to its own colour, bodies' rims dropped, the marker-sized ones kept; and a line for each other
+    blob of colour."""
     c1, c2, _ = frame
     opened = cv2.morphologyEx((changed & coloured(frame, background)).astype(np.uint8), cv2.MORPH_OPEN, OPEN3)
     mask = np.asarray(cv2.morphologyEx(opened, cv2.MORPH_CLOSE, OPEN3), dtype=bool)  # a glare across a marker
-    saturation = relative_saturation(frame, background[2])
     cores = np.zeros_like(changed)
     for part in without_rims(marker_parts(mask, c1, c2), saturation):
         cores |= part
@@ -188,10 +195,10 @@ def left_behind(
     nominal_cm2: float,
 ) -> tuple[float, float] | None:
     """Where (cm) a marker-sized blob of colour stands in the empty floor's image (``background_image``, its
-    planes ``background``) but not in ``frame``: coloured against the floor round it (:func:`floor_around`), not
-    coloured in the frame. None: nowhere."""
+    planes ``background``) but not in ``frame``: coloured against the floor round it (:func:`floor_around`), and
+    the frame there not (a wooden floor, where the marker stood, is coloured against the marker). None: nowhere."""
     around = planes(floor_around(background_image))
-    mask = changed & coloured(background, around) & ~coloured(frame, background)
+    mask = changed & coloured(background, around) & ~coloured(frame, around)
     blobs, _ = sized_blobs(
         cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, OPEN3).astype(bool), calibration, nominal_cm2
     )
