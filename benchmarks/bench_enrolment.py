@@ -10,9 +10,10 @@ blue with a light front). Each enrolled marker is matched to the rover it stands
 labs enrolled whole (every rover once, within 2 cm of its place, its id on its own marker when ids are given, no
 front on a one-colour marker) and those refused, the worst centre error, the enrolled areas as a share of the
 marker's (1st / 50th / 99th percentile, over the labs not refused), the markers named otherwise than their rover
-(named by hue, a blue marker the camera sees as azure is "azure") and, for two-tone markers on dark bodies, how
-many front fractions came within 0.08 of the true 0.3 (for one-colour markers, how many were given a front: none
-should be); then each lab not whole. The enrolment's constants were set on seeds 0-19 (eight, two-tone) and 0-29
+(named by hue, a blue marker the camera sees as azure is "azure") and, for two-tone markers, how many front
+fractions on dark bodies came within 0.08 of the true 0.3 and how many markers were enrolled without a front and
+named so in a warning (for one-colour markers, how many were given a front and how many were named as two-tone
+markers without their front: none should be); then each lab not whole. The enrolment's constants were set on seeds 0-19 (eight, two-tone) and 0-29
 (three): run other seeds for held-out figures.
 """
 
@@ -68,6 +69,7 @@ class Lab:
     areas: list[float]
     fronts: list[tuple[float | None, bool]]
     renamed: int
+    front_missing: int
     why: str
 
 
@@ -89,7 +91,7 @@ def one_lab(seed: int, floor: str, name: str) -> Lab:
     try:
         result = enroll(frame, renderer.background(5), calibration, ids=ids)
     except EnrollmentError as exc:
-        return Lab(False, True, math.inf, [], [], 0, f"{seed} {floor} {drawn.name}: {exc}")
+        return Lab(False, True, math.inf, [], [], 0, 0, f"{seed} {floor} {drawn.name}: {exc}")
     errors, fronts, matched, renamed = [], [], [], 0
     for m in result.markers:  # each marker to the rover it stands on
         k = min(range(len(poses)), key=lambda k: math.hypot(m.xy_cm[0] - poses[k][0], m.xy_cm[1] - poses[k][1]))
@@ -104,7 +106,8 @@ def one_lab(seed: int, floor: str, name: str) -> Lab:
     areas = [m.area_cm2 / (looks[0].marker_length_cm * looks[0].marker_width_cm) for m in result.markers]
     names = ", ".join(m.rover_id for m in result.markers)
     why = "" if ok else f"{seed} {floor} {drawn.name}: {names}; worst {worst:.1f} cm"
-    return Lab(ok, False, worst, areas, fronts, renamed, why)
+    missing = sum("no light front was found" in warning for warning in result.warnings)
+    return Lab(ok, False, worst, areas, fronts, renamed, missing, why)
 
 
 def seeds_of(text: str) -> list[int]:
@@ -134,12 +137,15 @@ def main() -> None:
             f"area / marker p1 {share[0]:.2f} p50 {share[1]:.2f} p99 {share[2]:.2f}; markers named otherwise than "
             f"their rover: {sum(lab.renamed for lab in labs)}"
         )
+        said = sum(lab.front_missing for lab in labs)
         if args.palette == "two-tone":
             dark = [fr for fr, is_dark in fronts if is_dark]
             near = sum(fr is not None and abs(fr - 0.3) <= 0.08 for fr in dark)
             line += f"; fronts on dark bodies within 0.08 of 0.3: {near} of {len(dark)}"
+            line += f"; markers enrolled without a front: {sum(fr is None for fr, _ in fronts)}, named so: {said}"
         else:
             line += f"; one-colour markers given a front: {sum(fr is not None for fr, _ in fronts)}"
+            line += f"; named as a two-tone marker without its front: {said} of {len(fronts)}"
         print(line, flush=True)
     for why in failures:
         print("  failed:", why)

@@ -208,7 +208,9 @@ def enroll(
     size = (marker_length_cm, marker_width_cm)
     markers = [_measure(frame, (f1, f2, flum), blob, saturation, light, calibration, size) for blob in blobs]
     named = _name(markers, ids)
+    short = {m.xy_cm for m, b in zip(markers, blobs, strict=True) if _front_missing(m, b, size)}
     warnings = _too_close(named) + _odd_sizes(named, marker_length_cm, marker_width_cm)
+    warnings += [_FRONT_MISSING.format(m.rover_id, m.length_cm, marker_length_cm) for m in named if m.xy_cm in short]
     seen = [(m.rover_id, m.color_bgr, m.uv_px, math.sqrt(m.pixels)) for m in named]
     warnings += floor_warnings(background, seen, calibration)  # a floor near a marker's hue (edge.floor_contrast)
     return Enrolment(tuple(named), tuple(warnings), tuple(ignored), (w, h))
@@ -302,6 +304,23 @@ def _measure(
         pixels=int(whole.sum()),
         front_color_bgr=front_color,
         front_fraction=front_fraction,
+    )
+
+
+_FRONT_MISSING = (
+    "{} is one colour over {:.1f} cm of the marker's {:g} cm length and no light front was found beside it: a "
+    "two-tone marker whose front is as light as its body? enrolled as one colour (its centre that of the coloured "
+    "part); give two-tone markers a dark body"
+)
+
+
+def _front_missing(marker: EnrolledMarker, blob: Blob, size_cm: tuple[float, float]) -> bool:
+    """A marker enrolled without a front whose coloured part is short of the marker by room for one (in area and
+    in length): on the family's cameras, a two-tone marker on a white or light grey body."""
+    return (
+        marker.front_color_bgr is None
+        and marker.area_cm2 <= (1.0 - MIN_FRONT_SHARE) * size_cm[0] * size_cm[1]
+        and _short_of_marker(blob.world, size_cm[0])
     )
 
 

@@ -282,6 +282,18 @@ def test_a_light_body_round_a_one_colour_marker_is_neither_a_marker_nor_its_fron
     for marker in result.markers:
         assert min(math.hypot(marker.xy_cm[0] - x, marker.xy_cm[1] - y) for x, y, _ in poses) < 2.0
         assert marker.front_color_bgr is None and marker.area_cm2 / (21.5 * 16.8) < 1.35
+    assert not [w for w in result.warnings if "no light front" in w]  # whole one-colour markers: nothing missing
+
+
+@pytest.mark.slow
+def test_a_two_tone_marker_whose_front_is_lost_in_a_white_body_is_named() -> None:
+    looks = tuple(replace(look, heading="two_tone", body_bgr=(0.8, 0.8, 0.8)) for look in fleet_looks(3))
+    lab = Lab(looks)
+    result = enroll(lab.frame(spread_out(3)), lab.background(), lab.calibration)
+    missing = [m.rover_id for m in result.markers if m.front_color_bgr is None]
+    assert missing  # the light front and the white body are one light part
+    said = [w.split()[0] for w in result.warnings if "no light front was found beside it" in w]
+    assert said == missing
 
 
 @pytest.mark.slow
