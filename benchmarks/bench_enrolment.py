@@ -13,8 +13,8 @@ marker's (1st / 50th / 99th percentile, over the labs not refused), the markers 
 (named by hue, a blue marker the camera sees as azure is "azure") and, for two-tone markers, how many front
 fractions on dark bodies came within 0.08 of the true 0.3 and how many markers were enrolled without a front and
 named so in a warning (for one-colour markers, how many were given a front and how many were named as two-tone
-markers without their front: none should be); then each lab not whole. The enrolment's constants were set on seeds 0-19 (eight, two-tone) and 0-29
-(three): run other seeds for held-out figures.
+markers without their front: none should be); then each lab not whole. The enrolment's constants were set on
+seeds 0-19 (eight, two-tone) and 0-29 (three): run other seeds for held-out figures.
 """
 
 from __future__ import annotations
