@@ -63,7 +63,8 @@ HUE_NAMES = ((0.0, "red"), (30.0, "orange"), (60.0, "yellow"), (90.0, "lime"), (
 @dataclass(frozen=True)
 class EnrolledMarker:
     """One marker as measured. ``hue_deg``: HSV hue of ``color_bgr``; ``spread_deg``: 95th percentile of its
-    pixels' hue deviation (the tracker's opponent-colour hue); ``xy_cm``: its centre on the marker plane;
+    pixels' hue deviation (the tracker's opponent-colour hue); ``saturation``: the median of its interior's, relative
+    to the light there (``edge.marker_blobs.relative_saturation``); ``xy_cm``: its centre on the marker plane;
     ``length_cm`` x ``width_cm``: its size; ``front_*``: the light front part of a two-tone marker, else None."""
 
     rover_id: str
@@ -130,10 +131,6 @@ class Enrolment:
 
 
 # -- measuring -------------------------------------------------------------------------------------------------------
-def _saturation(c1: FloatArray, c2: FloatArray, lum: FloatArray) -> FloatArray:
-    return np.asarray(np.hypot(c1, c2) / np.maximum(lum, 8.0))
-
-
 def _hsv_hue_deg(color_bgr: Sequence[int]) -> float:
     b, g, r = (c / 255.0 for c in color_bgr)
     return colorsys.rgb_to_hsv(r, g, b)[0] * 360.0
@@ -294,7 +291,7 @@ def _measure(
         rover_id="",
         color_bgr=color,
         hue_deg=round(_hsv_hue_deg(color), 1),
-        saturation=round(float(np.median(_saturation(c1, c2, lum)[inner])), 3),
+        saturation=round(float(np.median(saturation[inner])), 3),
         spread_deg=round(_spread_deg(c1, c2, inner, color), 1),
         xy_cm=(round(float(cx), 1), round(float(cy), 1)),
         uv_px=(round(float(wus.mean()), 1), round(float(wvs.mean()), 1)),

@@ -18,7 +18,7 @@ from edge.appliance import Appliance, TrackerInputs
 from edge.calibration.exact import exact_calibration
 from edge.camera import PinholeCamera, paper_camera
 from edge.runtime import EdgeRuntime
-from edge.sim.cameras import draw_family
+from edge.sim.cameras import CameraDraw, draw_family
 from edge.sim.render import Renderer
 from edge.sim.scene import FLOORS, RoverLook, Scene, marker_albedo_for_hue
 from edge.sim.setup import lab_effects
@@ -50,14 +50,20 @@ class Lab:
     """The paper's camera over the lab floor with ``looks`` on it; frames of the rovers and of the empty floor."""
 
     def __init__(
-        self, looks: Sequence[RoverLook], seed: int = 0, camera: PinholeCamera | None = None, floor: str = "tiles"
+        self,
+        looks: Sequence[RoverLook],
+        seed: int = 0,
+        camera: PinholeCamera | None = None,
+        floor: str = "tiles",
+        webcam: CameraDraw | None = None,
     ) -> None:
         self.looks = tuple(looks)
         self.camera = camera or paper_camera()
         effects = lab_effects(np.random.default_rng(seed))
+        effects = webcam.apply(effects) if webcam is not None else effects
         self.renderer = Renderer(self.camera, Scene(rovers=self.looks, floor=FLOORS[floor]), effects, seed=seed)
-        self.calibration = exact_calibration(self.camera)
-        self.camera_name = "the lab's"
+        self.calibration = exact_calibration(self.camera, self.looks[0].body_height_cm if webcam else None)
+        self.camera_name = webcam.name if webcam is not None else "the lab's"
 
     @classmethod
     def family(cls, looks: Sequence[RoverLook], seed: int, floor: str = "tiles") -> Lab:
@@ -65,13 +71,7 @@ class Lab:
         white balance, processor) with the rovers' bodies drawn too (black, dark grey or white, 8-20 cm tall), the
         calibration on their marker plane."""
         drawn, drawn_looks = draw_family("enrol", seed, tuple(looks))
-        lab = cls(drawn_looks, seed, floor=floor)
-        scene = Scene(rovers=lab.looks, floor=FLOORS[floor])
-        effects = drawn.apply(lab_effects(np.random.default_rng(seed)))
-        lab.renderer = Renderer(lab.camera, scene, effects, seed=seed)
-        lab.calibration = exact_calibration(lab.camera, lab.looks[0].body_height_cm)
-        lab.camera_name = drawn.name
-        return lab
+        return cls(drawn_looks, seed, floor=floor, webcam=drawn)
 
     def frame(self, poses: Sequence[Pose], index: int = 5) -> np.ndarray:
         rovers = tuple(
