@@ -4,7 +4,7 @@ commands run (they parse the options, call one of these and print the result).""
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +24,7 @@ from edge.calibration.intrinsics import (
 )
 from edge.calibration.lens import Intrinsics
 from edge.calibration.points import PointsCalibration, PointTable, calibrate_points, read_points_csv
+from edge.calibration.refine import Refined, refine_clicks
 from edge.camera import MARKER_HEIGHT_CM
 from edge.errors import CalibrationError
 
@@ -66,6 +67,26 @@ class PointsRun:
     table: PointTable
     image_size: tuple[int, int]
     result: PointsCalibration
+    refined: Refined | None = None  # the clicks moved onto printed targets (``refine_on``); ``table`` holds them so
+
+
+def refine_points(table: PointTable, photo_path: Path, image_size: tuple[int, int]) -> tuple[PointTable, Refined]:
+    """``table``'s clicks moved onto the X-corners of the printed targets in the photo ``photo_path``
+    (``edge.calibration.refine``); a :class:`CalibrationError` where the photo is not of the points' size or no
+    click has a target under it."""
+    photo = read_image(photo_path)
+    if photo.shape[1::-1] != image_size:
+        raise CalibrationError(
+            f"{photo_path} is {photo.shape[1]}x{photo.shape[0]} but the points are for {image_size[0]}x{image_size[1]} "
+            "images: refine on a photo from the camera the points were clicked in"
+        )
+    refined = refine_clicks(photo, table.uv_px)
+    if not refined.found.any():
+        raise CalibrationError(
+            f"{photo_path}: no printed target's corner near any of the {len(table)} clicks: is this the photo with "
+            'the targets in place? (docs/calibration.md, "Printed targets")'
+        )
+    return replace(table, uv_px=refined.uv_px), refined
 
 
 def calibrate_points_files(
@@ -79,13 +100,18 @@ def calibrate_points_files(
     size: tuple[int, int] | None = None,
     area_cm: AreaCm | None = None,
     detect_outliers: bool = True,
+    refine_on: Path | None = None,
 ) -> PointsRun:
     """Fit the points of ``points_csv`` (the outlier test on), write the error map PNG (when asked and there is
-    one: it needs 5 points) and the calibration file ``out``."""
+    one: it needs 5 points) and the calibration file ``out``; ``refine_on``: a photo of printed targets on the
+    points, the clicks moved onto them first (:func:`refine_points`)."""
     background = read_image(image) if image is not None else None
     lens = load_intrinsics(intrinsics) if intrinsics is not None else None
     image_size = points_image_size(background, lens, size, image_path=image, intrinsics_path=intrinsics)
     table = read_points_csv(points_csv)
+    refined = None
+    if refine_on is not None:
+        table, refined = refine_points(table, refine_on, image_size)
     result = calibrate_points(
         table,
         image_size,
@@ -105,7 +131,7 @@ def calibrate_points_files(
             background=background,
         )
     save_calibration(result.record, out)
-    return PointsRun(table, image_size, result)
+    return PointsRun(table, image_size, result, refined)
 
 
 def calibrate_intrinsics_files(

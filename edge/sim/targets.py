@@ -47,6 +47,7 @@ __all__ = [
     "checkerboard_views",
     "survey_layout",
     "survey_points",
+    "survey_target_frame",
     "write_markers_csv",
     "write_points_csv",
 ]
@@ -153,6 +154,31 @@ def _measure(
     true_uv = camera.project(xyz)
     noisy = true_uv + gen.normal(0.0, noise_px / math.sqrt(2.0), true_uv.shape)
     return SurveyPoints(noisy, xy.copy(), true_uv, height_cm)
+
+
+TARGET_CELL_CM = 7.0  # a survey target's squares: a 2 x 2 checker 14 cm wide on a 21 cm card (an A4 sheet)
+
+
+def survey_target_frame(
+    camera: PinholeCamera,
+    xy_world_cm: FloatArray,
+    height_cm: float = MARKER_HEIGHT_CM,
+    cell_cm: float = TARGET_CELL_CM,
+    rng: np.random.Generator | int | None = None,
+) -> NDArray[np.uint8]:
+    """One photo of the survey's printed targets in place: at each point ``xy_world_cm`` (N, 2) on the plane
+    ``height_cm``, a 2 x 2 checker of ``cell_cm`` squares (dark at the near left and the far right) on a white card
+    half a square wider each way, its X-corner on the point, over a mid-grey floor (``edge.calibration.refine``)."""
+    gen = np.random.default_rng(rng)
+    image = np.full((camera.height_px, camera.width_px), 95.0)
+    g = camera.plane_homography(height_cm)
+    cells = np.full((6, 6), 230.0)  # half squares: the card's margin is one of them
+    cells[1:3, 1:3] = cells[3:5, 3:5] = 25.0
+    c = cell_cm / 2.0
+    for x, y in np.asarray(xy_world_cm, np.float64).reshape(-1, 2):
+        card = np.array([[c, 0.0, x - 3.0 * c], [0.0, -c, y + 3.0 * c], [0.0, 0.0, 1.0]])  # cells -> plane cm
+        _render_cells(image, camera, g @ card, cells)
+    return _finish(image, gen)
 
 
 # -- rendering of planar cell patterns ------------------------------------------------------------------------------
