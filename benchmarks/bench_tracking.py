@@ -4,9 +4,9 @@ simulator's camera family.
     python benchmarks/bench_tracking.py stages   [--frames N] [--seed S] [--baseline OTHER_CHECKOUT [--reps R]]
     python benchmarks/bench_tracking.py scale    [--frames N] [--counts 1,3,8,16,32]
     python benchmarks/bench_tracking.py accuracy [--scenarios lab,...] [--methods ...] [--seeds 0,1] [--frames N]
-                                                 [--calibration camera|points] [--heading plain|two_tone]
+                                                 [--calibration camera|points|targets] [--heading plain|two_tone]
     python benchmarks/bench_tracking.py family   [--scenarios lab,...,crowd8] [--seeds 0,1] [--frames N]
-                                                 [--calibration camera|points] [--detail] [--chroma 4:4:4]
+                                                 [--calibration camera|points|targets] [--detail] [--chroma 4:4:4]
                                                  [--quality 95] [--floor tiles|beige|wood|white|dark]
     python benchmarks/bench_tracking.py acquire  [--seed S] [--reps R]
     python benchmarks/bench_tracking.py all
@@ -491,7 +491,7 @@ def main() -> None:
     parser.add_argument("--counts", default="1,3,8,16,32")
     parser.add_argument("--scenarios", default=",".join(SCENARIOS))
     parser.add_argument("--methods", default=",".join(METHODS))
-    parser.add_argument("--calibration", choices=("camera", "points", "both"), default="camera")
+    parser.add_argument("--calibration", choices=("camera", "points", "targets", "both"), default="camera")
     parser.add_argument("--heading", choices=("plain", "two_tone"), default="plain", help="Markers on the rovers.")
     parser.add_argument(
         "--outline-fit", action="store_true", help="stages, family: track with outline_fit = true (default: false)"

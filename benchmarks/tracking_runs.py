@@ -276,12 +276,14 @@ def plane_mapping(clip: Clip, calibration: str) -> object:
     """``camera``: the scene camera itself at the markers' height (the tracker's error alone). ``points``: a
     calibration fitted with ``edge.calibration`` to 34 points surveyed at the markers' height with 0.5 px measuring
     noise (the whole system's error), with the lens intrinsics given when the camera has distortion (as
-    ``edge-ips calibrate intrinsics`` would provide)."""
+    ``edge-ips calibrate intrinsics`` would provide). ``targets``: the same clicks moved onto printed targets on the
+    points in a rendered photo of them first (``calibrate points --refine-on``, ``edge.calibration.refine``)."""
     if calibration == "camera":
         return CameraPlaneMapping(clip.camera, clip.height_cm)  # type: ignore[arg-type]
     from edge.calibration import Intrinsics, calibrate_points
     from edge.calibration.points import point_table
-    from edge.sim.targets import survey_points
+    from edge.calibration.refine import refine_clicks
+    from edge.sim.targets import survey_points, survey_target_frame
 
     cam = clip.camera
     survey = survey_points(cam, height_cm=clip.height_cm, rng=1000 + clip.seed)  # type: ignore[arg-type]
@@ -290,7 +292,11 @@ def plane_mapping(clip: Clip, calibration: str) -> object:
         if cam.has_distortion  # type: ignore[attr-defined]
         else None
     )
-    table = point_table(survey.uv_px, survey.xy_world_cm)
+    clicks = survey.uv_px
+    if calibration == "targets":
+        photo = survey_target_frame(cam, survey.xy_world_cm, clip.height_cm, rng=1000 + clip.seed)  # type: ignore[arg-type]
+        clicks = refine_clicks(photo, clicks).uv_px
+    table = point_table(clicks, survey.xy_world_cm)
     return calibrate_points(table, (1280, 720), height_cm=clip.height_cm, intrinsics=intrinsics).calibration
 
 
