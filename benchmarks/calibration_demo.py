@@ -3,7 +3,8 @@
     .venv/bin/python benchmarks/calibration_demo.py DIR [--seed 0] [--distortion]
 
 DIR receives: points.csv (34 survey points at 13 cm, 0.5 px RMS noise, planned layout), check.csv (20 independent
-check points), reference.png and floor.png (a frame with 12 ArUco markers on the floor), markers.csv, and with
+check points), targets.png (a photo of printed 2x2 checker targets on the survey points, for `--refine-on`),
+reference.png and floor.png (a frame with 12 ArUco markers on the floor), markers.csv, and with
 --distortion a lens with barrel distortion plus boards/board_NN.png (14 checkerboard photos, 9x6, 2.5 cm).
 docs/calibration.md was made from this kit with seed 0.
 """
@@ -24,6 +25,7 @@ from edge.sim.targets import (
     check_points,
     checkerboard_views,
     survey_points,
+    survey_target_frame,
     write_markers_csv,
 )
 
@@ -38,7 +40,9 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     camera = paper_camera((-0.12, 0.04, 0.0008, -0.0005, 0.0) if args.distortion else (0.0,) * 5)
     save_camera(camera, out / "camera.json")
-    survey_points(camera, rng=args.seed).write_csv(out / "points.csv")
+    survey = survey_points(camera, rng=args.seed)
+    survey.write_csv(out / "points.csv")
+    cv2.imwrite(str(out / "targets.png"), survey_target_frame(camera, survey.xy_world_cm, rng=args.seed + 4))
     check_points(camera, rng=args.seed + 1).write_csv(out / "check.csv")
     frame = aruco_floor_frame(camera, rng=args.seed + 2)
     cv2.imwrite(str(out / "floor.png"), frame.image)
