@@ -8,11 +8,13 @@ without any error of its own would show a per-rover bias over 0.05 cm on most ru
 
 So each survey point may carry a printed *target*: a 2 x 2 checker (two dark and two light squares meeting at the
 point), whose centre is an X-corner, a saddle of the image's brightness that stays a saddle under any perspective.
-:func:`refine_clicks` fits a quadratic to the smoothed image round each click and moves it to the quadratic's saddle
-(again, until it stays), and keeps the result only where the window really holds an X-corner:
-round it, the brightness alternates dark, light, dark, light (its second circular harmonic carries at least
-:data:`MIN_SADDLE` of the contrast), the contrast is at least :data:`MIN_CONTRAST_DN`, and the corner found is
-within :data:`MAX_MOVE_PX` of the click. Elsewhere the click stands as it was, and is named.
+:func:`refine_clicks` fits a quadratic to the smoothed image round each click and moves it to the quadratic's saddle,
+again until it stays (:func:`saddle_point`): first on a coarser smoothing (a sharp corner's saddle is a pixel wide and
+a click may be further off), then on a finer one from there and from the eight pixels round it (:func:`_corner`: a
+far target's squares are 3 px tall, and one start may slide to the card's edge). It keeps the result only where it
+really is an X-corner: round it, the brightness alternates dark, light, dark, light (its second circular harmonic
+carries at least :data:`MIN_SADDLE` of the contrast), the contrast is at least :data:`MIN_CONTRAST_DN`, and the
+corner is within :data:`MAX_MOVE_PX` of the click. Elsewhere the click stands as it was (the caller names it).
 """
 
 from __future__ import annotations
@@ -28,11 +30,12 @@ FloatArray = NDArray[np.float64]
 
 SMOOTH_PX = 1.0  # the image is smoothed by a Gaussian of this sigma before the saddle is fitted
 HALF_FIT_PX = 1  # the quadratic is fitted to the 3 x 3 px round the nearest pixel (5 x 5 takes in a far card's edge)
-ITERATIONS = 8
+ITERATIONS = 12
+SETTLED_PX = 0.5  # a last step this short is a fit swinging between two windows, not one still moving
 COARSE_SMOOTH_PX, COARSE_HALF_PX = 2.0, 2  # the first, rough saddle (a click over a pixel off a sharp corner)
 MAX_MOVE_PX = 3.0  # a corner further from the click is some other corner (or none)
 MIN_CONTRAST_DN = 20.0  # the target's dark and light squares differ by this much at least (8-bit)
-MIN_SADDLE = 0.35  # the ring's second harmonic over its half range: an X-corner ~0.6-0.9, an edge or a blob ~0-0.2
+MIN_SADDLE = 0.35  # the ring's second harmonic over its half range: the targets' corners 0.9-1, an edge or a dot ~0
 RING_RADII_PX = (1.5, 2.5)  # where the alternation is read round the corner (inside a far target's 3 px squares)
 RING_SAMPLES = 32
 AGREE_PX = 0.25  # the starts' saddles within this of their median are one corner
@@ -55,7 +58,7 @@ def grey(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
 
 def saddle_strength(gray: NDArray[np.uint8], uv_px: tuple[float, float]) -> tuple[float, float]:
     """Round ``uv_px``: the brightness's range (8-bit) and its second circular harmonic's amplitude over half that
-    range (1 for a perfect X-corner's square wave through a blur: ~0.6-0.9 in practice; a straight edge or a dot has
+    range (about 1 for an X-corner, whose ring is two periods of a blurred square wave; a straight edge or a dot has
     almost none)."""
     angles = np.linspace(0.0, 2.0 * np.pi, RING_SAMPLES, endpoint=False)
     rings = []
@@ -76,13 +79,16 @@ def saddle_point(
 ) -> tuple[float, float] | None:
     """The saddle of the smoothed image nearest ``uv_px``: a quadratic ``a x^2 + b x y + c y^2 + d x + e y + f``
     fitted to the (2 ``half`` + 1) px square round the nearest pixel, moved to where its gradient vanishes, again
-    until it stays (None: no saddle there, or the image's border)."""
+    until it stays (None: no saddle there, the image's border, or still moving after :data:`ITERATIONS`). Near a
+    pixel's border the window changes with the estimate, and the two windows' saddles may take turns a few
+    hundredths apart: then the middle of the last two."""
     h, w = smooth.shape
     dy, dx = np.mgrid[-half : half + 1, -half : half + 1].astype(np.float64)
     design = np.column_stack([dx.ravel() ** 2, (dx * dy).ravel(), dy.ravel() ** 2, dx.ravel(), dy.ravel()])
     design = np.column_stack([design, np.ones(dx.size)])
     solve = np.linalg.pinv(design)
-    x, y = uv_px
+    x, y = px, py = uv_px
+    step = math.inf
     for _ in range(ITERATIONS):
         cx, cy = round(x), round(y)
         if not (half <= cx < w - half and half <= cy < h - half):
@@ -93,11 +99,11 @@ def saddle_point(
         if det >= 0.0:  # a peak, a pit or a ridge: not an X-corner
             return None
         nx, ny = cx + (b * e - 2.0 * c * d) / det, cy + (b * d - 2.0 * a * e) / det
-        still = abs(nx - x) < 0.005 and abs(ny - y) < 0.005
-        x, y = nx, ny
-        if still:
-            break
-    return x, y
+        step = math.hypot(nx - x, ny - y)
+        (px, py), (x, y) = (x, y), (nx, ny)
+        if step < 0.005:
+            return x, y
+    return ((x + px) / 2.0, (y + py) / 2.0) if step < SETTLED_PX else None
 
 
 def _corner(smooth: NDArray[np.float32], u: float, v: float) -> tuple[float, float] | None:
