@@ -88,9 +88,17 @@ def test_lens_scene_calibrates_with_its_checkerboards(tmp_path):
 def test_kit_files_are_what_calibrate_reads(tmp_path, name):
     run_dir = tmp_path / name
     _run("sim", "render", name, "--out", str(run_dir), "--frames", "1", "--kit")
-    for file in ("points.csv", "check.csv", "floor.png", "markers.csv", "background.png", "camera.json"):
+    for file in ("points.csv", "check.csv", "targets.png", "floor.png", "markers.csv", "background.png", "camera.json"):
         assert (run_dir / file).exists(), file
     assert (run_dir / "boards").exists() == (name == "lens")
     out = _points_calibration(run_dir)
     check = _run("calibrate", "check", str(out), str(run_dir / "check.csv"))
     assert "mean" in check
+
+
+def test_the_kits_targets_photo_takes_the_clicked_survey_several_times_closer(tmp_path: Path) -> None:
+    run_dir = tmp_path / "lab"
+    _run("sim", "render", "lab", "--out", str(run_dir), "--frames", "1", "--kit")
+    clicked = true_error_cm(run_dir, _points_calibration(run_dir)).mean()
+    refined = true_error_cm(run_dir, _points_calibration(run_dir, "--refine-on", str(run_dir / "targets.png"))).mean()
+    assert refined < 0.4 * clicked

@@ -10,8 +10,9 @@ Written into the output directory:
 * ``camera.json``: the camera model that rendered the scene (:func:`edge.camera.save_camera`);
 * ``points.csv``: the 34 surveyed calibration points (``u,v,x,y``) with 0.5 px RMS measuring noise
   (:func:`edge.sim.targets.survey_points`);
-* with ``kit``: ``check.csv``, ``floor.png`` + ``markers.csv`` (ArUco on the floor), ``boards/`` (checkerboards, when
-  the lens distorts): the rest of a calibration session;
+* with ``kit``: ``check.csv``, ``targets.png`` (printed targets on the survey points, for ``calibrate points
+  --refine-on``), ``floor.png`` + ``markers.csv`` (ArUco on the floor), ``boards/`` (checkerboards, when the lens
+  distorts): the rest of a calibration session;
 * ``scenario.json``: scenario, seed, frames, rovers (id, marker colour as seen, reflectance) and effects.
 """
 
@@ -31,7 +32,14 @@ from edge.errors import SimulationError
 from edge.sim.scenarios import SimSetup, build
 from edge.sim.scene import Heading
 from edge.sim.source import frame_truth
-from edge.sim.targets import aruco_floor_frame, check_points, checkerboard_views, survey_points, write_markers_csv
+from edge.sim.targets import (
+    aruco_floor_frame,
+    check_points,
+    checkerboard_views,
+    survey_points,
+    survey_target_frame,
+    write_markers_csv,
+)
 
 TRUTH_COLUMNS = ("frame", "id", "x", "y", "theta", "vx", "vy")
 
@@ -165,10 +173,17 @@ def _write_points(setup: SimSetup, path: Path) -> None:
 
 def write_calibration_kit(setup: SimSetup, out_dir: Path) -> list[str]:
     """The rest of a calibration session in this scene (``edge.sim.targets``): ``check.csv`` (20 independent
-    check points), ``floor.png`` with ``markers.csv`` (ArUco markers laid on the floor) and, when the lens
-    distorts, ``boards/board_NN.png`` (checkerboard photos for ``edge-ips calibrate intrinsics``)."""
+    check points), ``targets.png`` (a photo of printed targets on the survey points of ``points.csv``),
+    ``floor.png`` with ``markers.csv`` (ArUco markers laid on the floor) and, when the lens distorts,
+    ``boards/board_NN.png`` (checkerboard photos for ``edge-ips calibrate intrinsics``)."""
     check_points(setup.camera, rng=setup.seed + 1).write_csv(out_dir / "check.csv")
     written = ["check.csv"]
+    survey = survey_points(setup.camera, rng=setup.seed)  # points.csv's survey
+    if not cv2.imwrite(
+        str(out_dir / "targets.png"), survey_target_frame(setup.camera, survey.xy_world_cm, rng=setup.seed + 4)
+    ):
+        raise SimulationError(f"{out_dir / 'targets.png'}: cannot write")
+    written.append("targets.png")
     floor = aruco_floor_frame(setup.camera, rng=setup.seed + 2)
     if not cv2.imwrite(str(out_dir / "floor.png"), floor.image):
         raise SimulationError(f"{out_dir / 'floor.png'}: cannot write")
