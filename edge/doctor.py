@@ -15,7 +15,6 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from edge.config import BrokerTarget, EdgeConfig, broker_target
@@ -26,7 +25,6 @@ if TYPE_CHECKING:
     from edge.source_spec import SimFactory
 
 Level = Literal["ok", "warn", "fail"]
-CLICKED_SIGMA_PX = 0.15  # a point-pair fit's residual this large or more: clicked by hand (0.3-0.4 px); targets 0.03
 
 
 @dataclass(frozen=True)
@@ -127,30 +125,21 @@ def check_calibration(config: EdgeConfig, source: Any, info: Any, where: str) ->
     if parse_source(config.camera.source).kind == "sim":
         return Check("calibration", "ok", "simulated camera: its exact calibration")
     loaded = f"{config.calibration.path} loaded for {info.width_px}x{info.height_px}"
-    clicked = clicked_by_hand(Path(str(config.calibration.path)))
+    from edge.appliance import calibration_path
+    from edge.calibration.files import read_calibration_file
+    from edge.calibration.refine import clicked_by_hand, clicked_note
+
+    path = calibration_path(config, where)
+    clicked = None if path is None else clicked_by_hand(read_calibration_file(path))
     if clicked is not None:
         return Check(
             "calibration",
             "warn",
-            f"{loaded}; its points fit with {clicked:.2f} px residuals, clicked by hand: over a run each rover carries "
-            "the mapping's error there as a bias (about 0.1 cm)",
+            f"{loaded}; {clicked_note(clicked)}",
             "printed targets on the points and `edge-ips calibrate points --refine-on PHOTO` "
             '(docs/calibration.md, "Printed targets on the points")',
         )
     return Check("calibration", "ok", loaded)
-
-
-def clicked_by_hand(path: Path) -> float | None:
-    """A point-pair calibration's fit residual (px) where it says the points were clicked by hand (at least
-    :data:`CLICKED_SIGMA_PX`: refined on printed targets they fit to a few hundredths); None otherwise."""
-    from edge.calibration.files import read_calibration_file
-
-    try:
-        record = read_calibration_file(path)
-    except EdgeIpsError:
-        return None
-    sigma = record.fit.sigma_px if record.method == "points" and record.fit is not None else None
-    return sigma if sigma is not None and sigma >= CLICKED_SIGMA_PX else None
 
 
 def _port_free(host: str, port: int) -> bool:

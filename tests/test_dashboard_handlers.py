@@ -506,6 +506,13 @@ def test_calibration_panel_from_a_point_pair_file(tmp_path: Path) -> None:
     assert summary is not None and summary["method"] == "points" and summary["exact"] is False
     assert result.error_map is not None
     assert summary["mean_cm"] == pytest.approx(result.error_map.mean_cm, abs=1e-3)
+    assert "clicked by hand" in summary["note"] and "--refine-on" in summary["note"]  # 0.4 px of click noise
+    exact = calibrate_points(
+        point_table(camera.project(np.column_stack([xy, np.full(len(xy), 13.0)])), xy), (1280, 720)
+    )
+    save_calibration(exact.record, tmp_path / "exact.json")
+    refined_view = CalibrationView(exact.calibration, simulated=False, path=tmp_path / "exact.json").summary()
+    assert refined_view is not None and refined_view["note"] == ""  # points to a few hundredths: nothing to say
     png = cv2.imdecode(np.frombuffer(view.png(), np.uint8), cv2.IMREAD_COLOR)
     assert png.shape[0] > 300 and png.shape[1] > 600
     simulated = CalibrationView(exact_calibration(camera), simulated=True)

@@ -26,6 +26,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from edge.calibration.files import CalibrationFile
+
 FloatArray = NDArray[np.float64]
 
 SMOOTH_PX = 1.0  # the image is smoothed by a Gaussian of this sigma before the saddle is fitted
@@ -39,6 +41,7 @@ MIN_SADDLE = 0.35  # the ring's second harmonic over its half range: the targets
 RING_RADII_PX = (1.5, 2.5)  # where the alternation is read round the corner (inside a far target's 3 px squares)
 RING_SAMPLES = 32
 AGREE_PX = 0.25  # the starts' saddles within this of their median are one corner
+CLICKED_SIGMA_PX = 0.15  # a point-pair fit's residual this large or more: clicked by hand (0.3-0.4 px); targets 0.03
 
 
 @dataclass(frozen=True)
@@ -144,3 +147,18 @@ def refine_clicks(image: NDArray[np.uint8], uv_px: FloatArray) -> Refined:
             out[i], found[i] = corner, True
     moved = np.where(found, np.hypot(*(out - clicks).T), 0.0)
     return Refined(out, found, moved)
+
+
+def clicked_by_hand(record: CalibrationFile) -> float | None:
+    """A point-pair calibration's fit residual (px) where it says its points were clicked by hand (at least
+    :data:`CLICKED_SIGMA_PX`: refined on printed targets they fit to a few hundredths); None otherwise."""
+    sigma = record.fit.sigma_px if record.method == "points" and record.fit is not None else None
+    return sigma if sigma is not None and sigma >= CLICKED_SIGMA_PX else None
+
+
+def clicked_note(sigma_px: float) -> str:
+    """What a calibration from points clicked by hand means for the positions (doctor, the dashboard)."""
+    return (
+        f"its points fit with {sigma_px:.2f} px residuals, clicked by hand: over a run each rover carries the "
+        "mapping's error there as a bias (about 0.1 cm)"
+    )

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from edge.calibration.refine import clicked_by_hand, clicked_note
 from edge.errors import CalibrationError
 
 if TYPE_CHECKING:
@@ -93,6 +94,9 @@ class CalibrationView:
                 out["loo_max_cm"] = _round(fit.loo_max_cm)
             if out["mean_cm"] is None:
                 out["note"] = f"{self.record.method} calibration: no error map (it needs a point-pair fit)"
+            clicked = clicked_by_hand(self.record)
+            if clicked is not None:
+                out["note"] = f"{clicked_note(clicked)}; printed targets and calibrate points --refine-on take it down"
         return out
 
     def png(self) -> bytes:
