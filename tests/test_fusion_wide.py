@@ -15,6 +15,7 @@ from click.testing import CliRunner
 
 from edge.board_messages import parse_detections
 from edge.calibration.points import read_points_csv
+from edge.calibration.refine import refine_clicks
 from edge.camera import load_camera
 from edge.cli import main
 from edge.errors import SimulationError
@@ -69,7 +70,15 @@ def test_one_truth_for_the_arena_and_a_directory_per_camera(wide: Path) -> None:
     assert layout["cameras"][0]["phase_s"] == 0.0 and layout["cameras"][1]["phase_s"] != 0.0
     for cam in layout["cameras"]:
         where = wide / cam["name"]
-        for name in ("video.mp4", "points.csv", "check.csv", "background.png", "camera.json", "rovers.toml"):
+        for name in (
+            "video.mp4",
+            "points.csv",
+            "targets.png",
+            "check.csv",
+            "background.png",
+            "camera.json",
+            "rovers.toml",
+        ):
             assert (where / name).is_file(), name
         video = cv2.VideoCapture(str(where / "video.mp4"))
         assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == FRAMES
@@ -82,6 +91,10 @@ def test_one_truth_for_the_arena_and_a_directory_per_camera(wide: Path) -> None:
         exact = camera.project(np.column_stack([points.xy_world_cm, np.full(len(points), 13.0)]))
         click_px = np.hypot(*(points.uv_px - exact).T)
         assert 0.2 < float(np.sqrt(np.mean(click_px**2))) < 0.9  # 0.5 px RMS click noise
+        # the targets under the clicks (a far corner's, its squares 2 px tall, may be too small to find: kept)
+        refined = refine_clicks(cv2.imread(str(where / "targets.png")), points.uv_px)
+        moved = refined.uv_px[refined.found] - exact[refined.found]
+        assert refined.found.mean() > 0.9 and float(np.sqrt(np.mean(np.sum(moved**2, axis=1)))) < 0.15
 
 
 def test_neighbouring_regions_overlap_and_cover_the_arena() -> None:

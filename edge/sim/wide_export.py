@@ -9,7 +9,8 @@ Written into the output directory:
 * ``cam1`` ... ``camN``, each with ``video.mp4`` (frame ``i`` exposed at ``i / fps + phase``), ``visibility.csv``
   (``frame,id,visible``: the share of each marker in this camera's view), ``background.png``, ``camera.json``,
   ``points.csv`` (34 survey points in this camera's region, in the shared floor frame, their pixels measured with
-  0.5 px RMS click noise, as ``edge-ips calibrate points`` takes them), ``check.csv`` (check points, the overlaps'
+  0.5 px RMS click noise, as ``edge-ips calibrate points`` takes them), ``targets.png`` (a photo of printed targets
+  on those points, for ``calibrate points --refine-on``), ``check.csv`` (check points, the overlaps'
   shared with the neighbouring cameras, for ``edge-ips calibrate check`` across boards) and ``rovers.toml`` (each
   rover's marker colour as this camera sees it, for ``edge-ips track --config``).
 """
@@ -32,7 +33,7 @@ from edge.camera import MARKER_HEIGHT_CM, save_camera
 from edge.errors import SimulationError
 from edge.sim.export import TRUTH_COLUMNS, ensure_directory
 from edge.sim.render import Renderer
-from edge.sim.targets import survey_points
+from edge.sim.targets import survey_points, survey_target_frame
 from edge.sim.wide import WideCamera, WideSetup, build_wide
 
 CHECK_POINTS = 80  # over the whole arena
@@ -138,7 +139,11 @@ def _write_camera_files(setup: WideSetup, cam: WideCamera, renderer: Renderer, w
         raise SimulationError(f"{where / 'background.png'}: cannot write")
     save_camera(cam.camera, where / "camera.json")
     k = setup.cameras.index(cam)
-    survey_points(cam.camera, rng=setup.seed * 16 + k, area_cm=cam.region_cm).write_csv(where / "points.csv")
+    survey = survey_points(cam.camera, rng=setup.seed * 16 + k, area_cm=cam.region_cm)
+    survey.write_csv(where / "points.csv")
+    targets = survey_target_frame(cam.camera, survey.xy_world_cm, rng=setup.seed * 16 + k)
+    if not cv2.imwrite(str(where / "targets.png"), targets):
+        raise SimulationError(f"{where / 'targets.png'}: cannot write")
     lines = [f"# The rovers' marker colours as {cam.name} sees them (edge-ips track --config).", ""]
     for rover in setup.rover_configs(renderer):
         lines += ["[[rovers]]", f'id = "{rover.id}"', f"color_bgr = {list(rover.color_bgr)}", ""]
