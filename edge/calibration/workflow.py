@@ -67,7 +67,7 @@ class PointsRun:
     table: PointTable
     image_size: tuple[int, int]
     result: PointsCalibration
-    refined: Refined | None = None  # the clicks moved onto printed targets (``refine_on``); ``table`` holds them so
+    refined: Refined | None = None  # the clicks moved onto printed targets (``refine_on``; ``table`` has the moved)
 
 
 def refine_points(table: PointTable, photo_path: Path, image_size: tuple[int, int]) -> tuple[PointTable, Refined]:
@@ -84,7 +84,7 @@ def refine_points(table: PointTable, photo_path: Path, image_size: tuple[int, in
     if not refined.found.any():
         raise CalibrationError(
             f"{photo_path}: no printed target's corner near any of the {len(table)} clicks: is this the photo with "
-            'the targets in place? (docs/calibration.md, "Printed targets")'
+            'the targets in place? (docs/calibration.md, "Printed targets on the points")'
         )
     return replace(table, uv_px=refined.uv_px), refined
 

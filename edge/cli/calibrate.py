@@ -105,6 +105,8 @@ def calibrate_points_cmd(
     )
     fit, stats, table = run.result.fit, run.result.stats, run.table
     if run.refined is not None:
+        from edge.calibration.refine import MAX_MOVE_PX
+
         found = run.refined.found.tolist()
         moved = sorted(m for m, f in zip(run.refined.moved_px.tolist(), found, strict=True) if f)
         click.echo(
@@ -114,7 +116,8 @@ def calibrate_points_cmd(
         for k in (k for k, f in enumerate(found) if not f):
             click.echo(
                 f"NOT REFINED {points_csv} row {table.rows[k]} (line {table.lines[k]}): no target's corner within "
-                f"3 px of u,v = {table.uv_px[k, 0]:g},{table.uv_px[k, 1]:g} in {refine_on}; kept as clicked"
+                f"{MAX_MOVE_PX:g} px of u,v = {table.uv_px[k, 0]:g},{table.uv_px[k, 1]:g} in {refine_on}; "
+                "kept as clicked"
             )
     click.echo(
         f"calibrated from {len(table)} points in {points_csv} ({fit.n_used} used, {len(fit.rejected)} rejected), "
