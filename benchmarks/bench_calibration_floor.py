@@ -27,13 +27,12 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from edge.calibration import Intrinsics, calibrate_points
+from tracking_runs import survey_calibration
+
 from edge.calibration.files import Calibration
-from edge.calibration.points import point_table
-from edge.calibration.refine import refine_clicks
 from edge.sim.scenarios import build
-from edge.sim.targets import survey_points, survey_target_frame
 
 SCENARIOS = ("lab", "lens", "occlusion", "sun", "crowd8", "drift", "cross", "crowd", "daylight")
 SEEDS = (1000, 4321, 14641, 16661)
@@ -71,21 +70,9 @@ def run_paths(name: str, seed: int) -> Paths:
 def points_calibration(paths: Paths, rng: int, noise_px: float, refine: bool = False) -> tuple[Calibration, float]:
     """The calibration of ``tracking_runs.plane_mapping(clip, "points")`` (the same survey for ``rng`` = 1000 +
     the run's seed at 0.5 px), with clicks of ``noise_px``; ``refine``: the clicks moved onto printed targets in a
-    rendered photo of them (``edge.calibration.refine``). Also the clicks' RMS error as used (px)."""
-    cam = paths.camera
-    survey = survey_points(cam, height_cm=paths.height_cm, noise_px=noise_px, rng=rng)  # type: ignore[arg-type]
-    uv = survey.uv_px
-    if refine:
-        photo = survey_target_frame(cam, survey.xy_world_cm, paths.height_cm, rng=rng)  # type: ignore[arg-type]
-        uv = refine_clicks(photo, uv).uv_px
-    intrinsics = (
-        Intrinsics(cam.camera_matrix, cam.dist_coeffs, cam.width_px, cam.height_px)  # type: ignore[attr-defined]
-        if cam.has_distortion  # type: ignore[attr-defined]
-        else None
-    )
-    table = point_table(uv, survey.xy_world_cm)
-    fitted = calibrate_points(table, (1280, 720), height_cm=paths.height_cm, intrinsics=intrinsics).calibration
-    return fitted, float(np.sqrt(np.mean(np.sum((uv - survey.uv_true_px) ** 2, axis=1))))
+    rendered photo of them (``edge.calibration.refine``, ``"targets"``). Also the clicks' RMS error as used (px)."""
+    fitted, rms_px = survey_calibration(paths.camera, paths.height_cm, rng, noise_px, refine)
+    return fitted, rms_px  # type: ignore[return-value]
 
 
 def floor_errors(paths: Paths, calibration: Calibration) -> dict[str, np.ndarray]:

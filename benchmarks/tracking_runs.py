@@ -280,24 +280,34 @@ def plane_mapping(clip: Clip, calibration: str) -> object:
     points in a rendered photo of them first (``calibrate points --refine-on``, ``edge.calibration.refine``)."""
     if calibration == "camera":
         return CameraPlaneMapping(clip.camera, clip.height_cm)  # type: ignore[arg-type]
+    return survey_calibration(clip.camera, clip.height_cm, 1000 + clip.seed, refine=calibration == "targets")[0]
+
+
+def survey_calibration(
+    camera: object, height_cm: float, rng: int, noise_px: float = 0.5, refine: bool = False
+) -> tuple[object, float]:
+    """The ``points`` (``refine``: ``targets``) calibration of :func:`plane_mapping` for ``camera`` with the survey
+    drawn from ``rng`` and clicked with ``noise_px`` RMS; also the clicks' RMS error as fitted (px)."""
     from edge.calibration import Intrinsics, calibrate_points
     from edge.calibration.points import point_table
     from edge.calibration.refine import refine_clicks
     from edge.sim.targets import survey_points, survey_target_frame
 
-    cam = clip.camera
-    survey = survey_points(cam, height_cm=clip.height_cm, rng=1000 + clip.seed)  # type: ignore[arg-type]
+    cam = camera
+    survey = survey_points(cam, height_cm=height_cm, noise_px=noise_px, rng=rng)  # type: ignore[arg-type]
     intrinsics = (
         Intrinsics(cam.camera_matrix, cam.dist_coeffs, cam.width_px, cam.height_px)  # type: ignore[attr-defined]
         if cam.has_distortion  # type: ignore[attr-defined]
         else None
     )
     clicks = survey.uv_px
-    if calibration == "targets":
-        photo = survey_target_frame(cam, survey.xy_world_cm, clip.height_cm, rng=1000 + clip.seed)  # type: ignore[arg-type]
+    if refine:
+        photo = survey_target_frame(cam, survey.xy_world_cm, height_cm, rng=rng)  # type: ignore[arg-type]
         clicks = refine_clicks(photo, clicks).uv_px
-    table = point_table(clicks, survey.xy_world_cm)
-    return calibrate_points(table, (1280, 720), height_cm=clip.height_cm, intrinsics=intrinsics).calibration
+    fitted = calibrate_points(
+        point_table(clicks, survey.xy_world_cm), (1280, 720), height_cm=height_cm, intrinsics=intrinsics
+    )
+    return fitted.calibration, float(np.sqrt(np.mean(np.sum((clicks - survey.uv_true_px) ** 2, axis=1))))
 
 
 def run_clip(
