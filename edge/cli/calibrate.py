@@ -85,6 +85,7 @@ def calibrate_points_cmd(
 
     Example:
 
+    \b
         edge-ips calibrate points points.csv --out calibration.json --image reference.png --error-map map.png
         edge-ips calibrate points points.csv --refine-on targets.png --out calibration.json
     """
