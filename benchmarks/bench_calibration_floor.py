@@ -1,7 +1,7 @@
 """What the calibration alone costs the tracking bars: a perfect tracker's error over the family's runs.
 
     .venv/bin/python benchmarks/bench_calibration_floor.py                       # family runs, 0.5 px clicks
-    .venv/bin/python benchmarks/bench_calibration_floor.py --noise 0.5,0.25,0.1 --surveys 10
+    .venv/bin/python benchmarks/bench_calibration_floor.py --noise 0.5,0.25,0.1 --surveys 2 --refine
 
 Issue 15's bars (per run: mean <= 0.15 cm, p95 <= 0.4 cm, each colour's bias <= 0.05 cm) are to hold "with
 `calibrate points` from 34 noisy points as well as with the exact camera". A calibration's error is a fixed
@@ -11,9 +11,11 @@ projected through the scene's camera at the markers' height, i.e. a tracker with
 through the calibration ``bench_tracking.py family --calibration points`` uses (34 points on the G-optimal 30 cm
 grid, clicked with ``--noise`` px RMS radial error, the lens intrinsics given where the camera has distortion); the
 runs' mean, p95 and each rover's bias are then the calibration's share of the bars. ``--surveys K`` draws K more
-surveys per run (other click noise) so the figures are not one survey's luck.
+surveys per run (other click noise) so the figures are not one survey's luck. ``--refine``: each noise level also
+with the clicks moved onto printed targets in a rendered photo of them (``calibrate points --refine-on``,
+``bench_tracking.py family --calibration targets``).
 
-Ground truth only: nothing is rendered, so a run takes a second.
+Ground truth only: nothing is rendered but the targets' photo, so the whole table takes a few minutes.
 """
 
 from __future__ import annotations
