@@ -3,9 +3,10 @@
     .venv/bin/python benchmarks/calibration_demo.py DIR [--seed 0] [--distortion]
 
 DIR receives: points.csv (34 survey points at 13 cm, 0.5 px RMS noise, planned layout), check.csv (20 independent
-check points), targets.png (a photo of printed 2x2 checker targets on the survey points, for `--refine-on`),
-reference.png and floor.png (a frame with 12 ArUco markers on the floor), markers.csv, and with
---distortion a lens with barrel distortion plus boards/board_NN.png (14 checkerboard photos, 9x6, 2.5 cm).
+check points) and check_targets.png (printed targets on them, for `calibrate check --refine-on`), targets.png (a
+photo of printed 2x2 checker targets on the survey points, for `calibrate points --refine-on`), reference.png and
+floor.png (a frame with 12 ArUco markers on the floor), markers.csv, and with --distortion a lens with barrel
+distortion plus boards/board_NN.png (14 checkerboard photos, 9x6, 2.5 cm).
 docs/calibration.md was made from this kit with seed 0.
 """
 
@@ -26,6 +27,7 @@ from edge.sim.targets import (
     checkerboard_views,
     survey_points,
     survey_target_frame,
+    targets_apart,
     write_markers_csv,
 )
 
@@ -43,7 +45,10 @@ def main() -> None:
     survey = survey_points(camera, rng=args.seed)
     survey.write_csv(out / "points.csv")
     cv2.imwrite(str(out / "targets.png"), survey_target_frame(camera, survey.xy_world_cm, rng=args.seed + 4))
-    check_points(camera, rng=args.seed + 1).write_csv(out / "check.csv")
+    check = check_points(camera, rng=args.seed + 1)
+    check.write_csv(out / "check.csv")
+    apart = check.xy_world_cm[targets_apart(check.xy_world_cm)]  # two cards cannot lie on one spot
+    cv2.imwrite(str(out / "check_targets.png"), survey_target_frame(camera, apart, rng=args.seed + 5))
     frame = aruco_floor_frame(camera, rng=args.seed + 2)
     cv2.imwrite(str(out / "floor.png"), frame.image)
     cv2.imwrite(str(out / "reference.png"), frame.image)

@@ -15,7 +15,7 @@ from edge.calibration.points import calibrate_points, point_table
 from edge.calibration.refine import refine_clicks
 from edge.camera import AREA_LENGTH_CM, AREA_WIDTH_CM, MARKER_HEIGHT_CM, PinholeCamera, paper_camera
 from edge.cli import main
-from edge.sim.targets import survey_points, survey_target_frame
+from edge.sim.targets import check_points, survey_points, survey_target_frame, targets_apart
 
 REAL = Path(__file__).parent / "data" / "realdata"
 
@@ -129,7 +129,11 @@ def kit(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     cv2.imwrite(str(d / "empty.png"), np.full((720, 1280, 3), 95, np.uint8))
     cv2.imwrite(str(d / "small.png"), np.full((480, 640, 3), 95, np.uint8))
     (d / "junk.png").write_bytes(b"not an image")
-    return {"dir": d, "points": d / "points.csv", "targets": d / "targets.png"}
+    check = check_points(camera, rng=4)
+    check.write_csv(d / "check.csv")
+    apart = check.xy_world_cm[targets_apart(check.xy_world_cm)]
+    cv2.imwrite(str(d / "check_targets.png"), survey_target_frame(camera, apart, rng=4))
+    return {"dir": d, "points": d / "points.csv", "targets": d / "targets.png", "check": d / "check.csv"}
 
 
 def test_calibrate_points_refines_the_clicks_on_the_targets_photo(kit: dict[str, Path], tmp_path: Path) -> None:
@@ -175,3 +179,24 @@ def test_a_bad_targets_photo_is_a_one_line_error(
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("Error: ") and fragment in lines[0], result.stderr
     assert not out.exists()
+
+
+def test_calibrate_check_refines_the_check_points_so_it_reports_the_calibrations_error(
+    kit: dict[str, Path], tmp_path: Path
+) -> None:
+    """Check points are clicked too, and their own half pixel is most of what a check reports; refined on their
+    targets, what is left is the calibration's. Random check points too close for two cards carry no target: named,
+    kept as measured."""
+    cal = tmp_path / "cal.json"
+    assert run("calibrate", "points", kit["points"], "--refine-on", kit["targets"], "--out", cal).exit_code == 0
+    plain = run("calibrate", "check", cal, kit["check"], "--json")
+    refined = run("calibrate", "check", cal, kit["check"], "--refine-on", kit["dir"] / "check_targets.png", "--json")
+    assert plain.exit_code == 0 and refined.exit_code == 0, refined.output
+    means = [json.loads(r.output)["mean_cm"] for r in (plain, refined)]
+    assert means[1] < 0.5 * means[0]
+    text = run("calibrate", "check", cal, kit["check"], "--refine-on", kit["dir"] / "check_targets.png")
+    assert "check points refined on" in text.output
+    missing = int((~targets_apart(check_points(paper_camera(), rng=4).xy_world_cm)).sum())
+    assert text.output.count("NOT REFINED") == missing
+    wrong = run("calibrate", "check", cal, kit["check"], "--refine-on", kit["targets"], "--refine-on", kit["targets"])
+    assert wrong.exit_code == 2 and "one photo per board" in wrong.stderr

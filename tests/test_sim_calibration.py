@@ -88,7 +88,8 @@ def test_lens_scene_calibrates_with_its_checkerboards(tmp_path):
 def test_kit_files_are_what_calibrate_reads(tmp_path, name):
     run_dir = tmp_path / name
     _run("sim", "render", name, "--out", str(run_dir), "--frames", "1", "--kit")
-    for file in ("points.csv", "check.csv", "targets.png", "floor.png", "markers.csv", "background.png", "camera.json"):
+    kit_files = ("points.csv", "check.csv", "check_targets.png", "targets.png", "floor.png", "markers.csv")
+    for file in (*kit_files, "background.png", "camera.json"):
         assert (run_dir / file).exists(), file
     assert (run_dir / "boards").exists() == (name == "lens")
     out = _points_calibration(run_dir)

@@ -13,6 +13,8 @@ from edge.cli.common import UserError, config_option, load, quiet
 
 if TYPE_CHECKING:
     from edge.calibration.check import CheckResult
+    from edge.calibration.points import PointTable
+    from edge.calibration.refine import Refined
 
 
 def parse_size(text: str | None, option: str) -> tuple[float, float] | None:
@@ -105,21 +107,9 @@ def calibrate_points_cmd(
         refine_on=refine_on,
     )
     fit, stats, table = run.result.fit, run.result.stats, run.table
-    if run.refined is not None:
-        from edge.calibration.refine import MAX_MOVE_PX
-
-        found = run.refined.found.tolist()
-        moved = sorted(m for m, f in zip(run.refined.moved_px.tolist(), found, strict=True) if f)
-        click.echo(
-            f"clicks refined on {refine_on}: {len(moved)} of {len(found)} moved onto their targets' corners "
-            f"(median move {moved[len(moved) // 2]:.2f} px, largest {moved[-1]:.2f} px)"
-        )
-        for k in (k for k, f in enumerate(found) if not f):
-            click.echo(
-                f"NOT REFINED {points_csv} row {table.rows[k]} (line {table.lines[k]}): no target's corner within "
-                f"{MAX_MOVE_PX:g} px of u,v = {table.uv_px[k, 0]:g},{table.uv_px[k, 1]:g} in {refine_on}; "
-                "kept as clicked"
-            )
+    if run.refined is not None and refine_on is not None:
+        for line in _refined_lines("clicks", points_csv, table, run.refined, refine_on):
+            click.echo(line)
     click.echo(
         f"calibrated from {len(table)} points in {points_csv} ({fit.n_used} used, {len(fit.rejected)} rejected), "
         f"plane z = {height_cm:g} cm, {run.image_size[0]}x{run.image_size[1]} images"
@@ -304,17 +294,29 @@ def calibrate_line_time_cmd(
 @calibrate.command("check")
 @click.argument("pairs", nargs=-1, required=True, metavar="CALIBRATION CHECK_CSV [CALIBRATION CHECK_CSV ...]")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object (mean_cm, max_cm, n, points...).")
-def calibrate_check_cmd(pairs: tuple[str, ...], as_json: bool) -> None:
+@click.option(
+    "--refine-on",
+    "refine_on",
+    type=click.Path(path_type=Path),
+    multiple=True,
+    help="Photo of printed targets on the check points (one per board, in order): each moved onto its corner.",
+)
+def calibrate_check_cmd(pairs: tuple[str, ...], as_json: bool, refine_on: tuple[Path, ...]) -> None:
     """Check a calibration against points measured but not used in the fit (CSV u,v,x,y).
 
     Maps each point's u,v and reports its distance to the surveyed x,y, and the mean and max. Given several boards
     (a calibration and its check points each, all in one floor frame), also reports the seam error of every pair:
     where the two boards put the check points both see (the same x,y), and how far apart.
 
+    Check points are clicked like survey points, to about half a pixel, and at the far side that is a centimetre of
+    their own: with printed targets on them and a photo (--refine-on, one per board) each is moved onto its target's
+    corner first, and the figures are the calibration's.
+
     Example:
 
     \b
         edge-ips calibrate check calibration.json check.csv --json
+        edge-ips calibrate check calibration.json check.csv --refine-on check_targets.png
         edge-ips calibrate check cam1/calibration.json cam1/check.csv cam2/calibration.json cam2/check.csv
     """
     import json
@@ -328,6 +330,21 @@ def calibrate_check_cmd(pairs: tuple[str, ...], as_json: bool) -> None:
         raise UserError("give a calibration file and its check points CSV for every board (pairs of arguments)")
     paths = [Path(p) for p in pairs]
     boards = [(paths[i], load_calibration(paths[i]), read_points_csv(paths[i + 1])) for i in range(0, len(paths), 2)]
+    if refine_on:
+        from edge.calibration.workflow import refine_points
+
+        if len(refine_on) != len(boards):
+            raise UserError(
+                f"--refine-on: one photo per board, in order ({len(boards)} boards, {len(refine_on)} photos)"
+            )
+        refined_boards = []
+        for k, ((cal_path, cal, table), photo) in enumerate(zip(boards, refine_on, strict=True)):
+            moved, refined = refine_points(table, photo, cal.image_size)
+            refined_boards.append((cal_path, cal, moved))
+            if not as_json:
+                for line in _refined_lines("check points", paths[2 * k + 1], table, refined, photo):
+                    click.echo(line)
+        boards = refined_boards
     checks = check_boards(boards)
     names = [c.name for c in checks]
     if len(set(names)) != len(names):
@@ -366,6 +383,24 @@ def calibrate_check_cmd(pairs: tuple[str, ...], as_json: bool) -> None:
             f"seam {s.a}/{s.b}: {s.n} shared points, the boards disagree by mean {s.mean_cm:.3f} cm, "
             f"max {s.max_cm:.3f} cm, rms {s.rms_cm:.3f} cm"
         )
+
+
+def _refined_lines(what: str, csv_path: Path, table: PointTable, refined: Refined, photo: Path) -> list[str]:
+    """What refining ``table``'s points on ``photo`` did: how many moved and how far, and each that did not."""
+    from edge.calibration.refine import MAX_MOVE_PX
+
+    found = refined.found.tolist()
+    moved = sorted(m for m, f in zip(refined.moved_px.tolist(), found, strict=True) if f)
+    lines = [
+        f"{what} refined on {photo}: {len(moved)} of {len(found)} moved onto their targets' corners "
+        f"(median move {moved[len(moved) // 2]:.2f} px, largest {moved[-1]:.2f} px)"
+    ]
+    for k in (k for k, f in enumerate(found) if not f):
+        lines.append(
+            f"NOT REFINED {csv_path} row {table.rows[k]} (line {table.lines[k]}): no target's corner within "
+            f"{MAX_MOVE_PX:g} px of u,v = {table.uv_px[k, 0]:g},{table.uv_px[k, 1]:g} in {photo}; kept as measured"
+        )
+    return lines
 
 
 def _print_check(result: CheckResult, calibration_json: Path, check_csv: Path) -> None:

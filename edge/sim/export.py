@@ -10,9 +10,9 @@ Written into the output directory:
 * ``camera.json``: the camera model that rendered the scene (:func:`edge.camera.save_camera`);
 * ``points.csv``: the 34 surveyed calibration points (``u,v,x,y``) with 0.5 px RMS measuring noise
   (:func:`edge.sim.targets.survey_points`);
-* with ``kit``: ``check.csv``, ``targets.png`` (printed targets on the survey points, for ``calibrate points
-  --refine-on``), ``floor.png`` + ``markers.csv`` (ArUco on the floor), ``boards/`` (checkerboards, when the lens
-  distorts): the rest of a calibration session;
+* with ``kit``: ``check.csv`` (+ ``check_targets.png``), ``targets.png`` (printed targets on the check and the
+  survey points, for ``calibrate check|points --refine-on``), ``floor.png`` + ``markers.csv`` (ArUco on the floor),
+  ``boards/`` (checkerboards, when the lens distorts): the rest of a calibration session;
 * ``scenario.json``: scenario, seed, frames, rovers (id, marker colour as seen, reflectance) and effects.
 """
 
@@ -38,6 +38,7 @@ from edge.sim.targets import (
     checkerboard_views,
     survey_points,
     survey_target_frame,
+    targets_apart,
     write_markers_csv,
 )
 
@@ -173,11 +174,18 @@ def _write_points(setup: SimSetup, path: Path) -> None:
 
 def write_calibration_kit(setup: SimSetup, out_dir: Path) -> list[str]:
     """The rest of a calibration session in this scene (``edge.sim.targets``): ``check.csv`` (20 independent
-    check points), ``targets.png`` (a photo of printed targets on the survey points of ``points.csv``),
+    check points) with ``check_targets.png`` (printed targets on them, for ``calibrate check --refine-on``),
+    ``targets.png`` (a photo of printed targets on the survey points of ``points.csv``),
     ``floor.png`` with ``markers.csv`` (ArUco markers laid on the floor) and, when the lens distorts,
     ``boards/board_NN.png`` (checkerboard photos for ``edge-ips calibrate intrinsics``)."""
-    check_points(setup.camera, rng=setup.seed + 1).write_csv(out_dir / "check.csv")
+    check = check_points(setup.camera, rng=setup.seed + 1)
+    check.write_csv(out_dir / "check.csv")
     written = ["check.csv"]
+    apart = check.xy_world_cm[targets_apart(check.xy_world_cm)]  # random points: two may be too close for two cards
+    photo = survey_target_frame(setup.camera, apart, rng=setup.seed + 5)
+    if not cv2.imwrite(str(out_dir / "check_targets.png"), photo):
+        raise SimulationError(f"{out_dir / 'check_targets.png'}: cannot write")
+    written.append("check_targets.png")
     survey = survey_points(setup.camera, rng=setup.seed)  # points.csv's survey
     if not cv2.imwrite(
         str(out_dir / "targets.png"), survey_target_frame(setup.camera, survey.xy_world_cm, rng=setup.seed + 4)

@@ -48,6 +48,7 @@ __all__ = [
     "survey_layout",
     "survey_points",
     "survey_target_frame",
+    "targets_apart",
     "write_markers_csv",
     "write_points_csv",
 ]
@@ -179,6 +180,15 @@ def survey_target_frame(
         card = np.array([[c, 0.0, x - 3.0 * c], [0.0, -c, y + 3.0 * c], [0.0, 0.0, 1.0]])  # cells -> plane cm
         _render_cells(image, camera, g @ card, cells)
     return _finish(image, gen)
+
+
+def targets_apart(xy_world_cm: FloatArray, cell_cm: float = TARGET_CELL_CM) -> NDArray[np.bool_]:
+    """(N,) which of the points can carry a printed target: those a card's width (3 squares) or more from every other
+    (two cards cannot lie on one spot; random check points may fall closer)."""
+    xy = np.asarray(xy_world_cm, np.float64).reshape(-1, 2)
+    gap = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    np.fill_diagonal(gap, np.inf)
+    return np.asarray(gap.min(axis=1, initial=np.inf) >= 3.0 * cell_cm)
 
 
 # -- rendering of planar cell patterns ------------------------------------------------------------------------------
