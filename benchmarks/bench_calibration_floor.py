@@ -25,6 +25,7 @@ import sys
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -33,7 +34,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from tracking_runs import survey_calibration
 
-from edge.calibration.files import Calibration
 from edge.sim.scenarios import build
 
 SCENARIOS = ("lab", "lens", "occlusion", "sun", "crowd8", "drift", "cross", "crowd", "daylight")
@@ -69,15 +69,7 @@ def run_paths(name: str, seed: int) -> Paths:
     return Paths(camera, h, xy)
 
 
-def points_calibration(paths: Paths, rng: int, noise_px: float, refine: bool = False) -> tuple[Calibration, float]:
-    """The calibration of ``tracking_runs.plane_mapping(clip, "points")`` (the same survey for ``rng`` = 1000 +
-    the run's seed at 0.5 px), with clicks of ``noise_px``; ``refine``: the clicks moved onto printed targets in a
-    rendered photo of them (``edge.calibration.refine``, ``"targets"``). Also the clicks' RMS error as used (px)."""
-    fitted, rms_px = survey_calibration(paths.camera, paths.height_cm, rng, noise_px, refine)
-    return fitted, rms_px  # type: ignore[return-value]
-
-
-def floor_errors(paths: Paths, calibration: Calibration) -> dict[str, np.ndarray]:
+def floor_errors(paths: Paths, calibration: Any) -> dict[str, np.ndarray]:
     """Rover id -> (frames, 2) the calibration's error (mapped minus true, cm) along the rover's path."""
     out = {}
     for rid, p in paths.xy.items():
@@ -124,7 +116,7 @@ def main() -> None:
         for (_, seed), p in paths.items():
             for k in range(1 + args.surveys):
                 rng = 1000 + seed if k == 0 else 10_000 * k + seed
-                calibration, rms_px = points_calibration(p, rng, noise, refine)
+                calibration, rms_px = survey_calibration(p.camera, p.height_cm, rng, noise, refine)
                 used.append(rms_px)
                 errors = floor_errors(p, calibration)
                 mean, p95, worst = run_figures(errors)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -77,6 +78,17 @@ def saddle_strength(gray: NDArray[np.uint8], uv_px: tuple[float, float]) -> tupl
     return spread, second / (0.5 * spread)
 
 
+@lru_cache(maxsize=4)
+def _quadratic_fit(half: int) -> FloatArray:
+    """(6, n) least squares of ``a x^2 + b x y + c y^2 + d x + e y + f`` over a (2 ``half`` + 1) px square's
+    pixels (row-major); read-only (cached)."""
+    dy, dx = np.mgrid[-half : half + 1, -half : half + 1].astype(np.float64)
+    design = np.column_stack([dx.ravel() ** 2, (dx * dy).ravel(), dy.ravel() ** 2, dx.ravel(), dy.ravel()])
+    solve = np.linalg.pinv(np.column_stack([design, np.ones(dx.size)]))
+    solve.flags.writeable = False
+    return solve
+
+
 def saddle_point(
     smooth: NDArray[np.float32], uv_px: tuple[float, float], half: int = HALF_FIT_PX
 ) -> tuple[float, float] | None:
@@ -86,10 +98,7 @@ def saddle_point(
     pixel's border the window changes with the estimate, and the two windows' saddles may take turns a few
     hundredths apart: then the middle of the last two."""
     h, w = smooth.shape
-    dy, dx = np.mgrid[-half : half + 1, -half : half + 1].astype(np.float64)
-    design = np.column_stack([dx.ravel() ** 2, (dx * dy).ravel(), dy.ravel() ** 2, dx.ravel(), dy.ravel()])
-    design = np.column_stack([design, np.ones(dx.size)])
-    solve = np.linalg.pinv(design)
+    solve = _quadratic_fit(half)
     x, y = px, py = uv_px
     step = math.inf
     for _ in range(ITERATIONS):

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
+import numpy as np
+from numpy.typing import NDArray
 
 from edge.camera import save_camera
 from edge.errors import SimulationError
@@ -112,15 +114,15 @@ def render_to_directory(
     finally:
         writer.release()
     written = ["video.mp4", "truth.csv", "visibility.csv"]
-    if not cv2.imwrite(str(out_dir / "background.png"), renderer.background(0)):
-        raise SimulationError(f"{out_dir / 'background.png'}: cannot write")
+    _write_image(out_dir / "background.png", renderer.background(0))
     written.append("background.png")
     save_camera(cam, out_dir / "camera.json")
     written.append("camera.json")
-    _write_points(setup, out_dir / "points.csv")
+    survey = survey_points(setup.camera, rng=setup.seed)  # as a person makes it: 34 points, 0.5 px clicks
+    survey.write_csv(out_dir / "points.csv")
     written.append("points.csv")
     if kit:
-        written += write_calibration_kit(setup, out_dir)
+        written += write_calibration_kit(setup, out_dir, survey.xy_world_cm)
     (out_dir / "scenario.json").write_text(json.dumps(describe(setup, renderer), indent=2) + "\n")
     written.append("scenario.json")
     return RenderSummary(out_dir, setup.frames, tuple(written), 1000.0 * render_s / setup.frames)
@@ -166,35 +168,26 @@ def describe(setup: SimSetup, renderer: object | None = None) -> dict[str, objec
     }
 
 
-def _write_points(setup: SimSetup, path: Path) -> None:
-    """The calibration survey as a person makes it (``edge.sim.targets``: 34 points on a 30 cm grid at 13 cm, their
-    pixels measured with 0.5 px RMS noise) as ``points.csv``."""
-    survey_points(setup.camera, rng=setup.seed).write_csv(path)
+def _write_image(path: Path, image: NDArray[np.uint8]) -> None:
+    if not cv2.imwrite(str(path), image):
+        raise SimulationError(f"{path}: cannot write")
 
 
-def write_calibration_kit(setup: SimSetup, out_dir: Path) -> list[str]:
+def write_calibration_kit(setup: SimSetup, out_dir: Path, survey_xy_cm: NDArray[np.float64]) -> list[str]:
     """The rest of a calibration session in this scene (``edge.sim.targets``): ``check.csv`` (20 independent
     check points) with ``check_targets.png`` (printed targets on them, for ``calibrate check --refine-on``),
-    ``targets.png`` (a photo of printed targets on the survey points of ``points.csv``),
+    ``targets.png`` (a photo of printed targets on the survey points ``survey_xy_cm``, those of ``points.csv``),
     ``floor.png`` with ``markers.csv`` (ArUco markers laid on the floor) and, when the lens distorts,
     ``boards/board_NN.png`` (checkerboard photos for ``edge-ips calibrate intrinsics``)."""
     check = check_points(setup.camera, rng=setup.seed + 1)
     check.write_csv(out_dir / "check.csv")
     written = ["check.csv"]
     apart = check.xy_world_cm[targets_apart(check.xy_world_cm)]  # random points: two may be too close for two cards
-    photo = survey_target_frame(setup.camera, apart, rng=setup.seed + 5)
-    if not cv2.imwrite(str(out_dir / "check_targets.png"), photo):
-        raise SimulationError(f"{out_dir / 'check_targets.png'}: cannot write")
-    written.append("check_targets.png")
-    survey = survey_points(setup.camera, rng=setup.seed)  # points.csv's survey
-    if not cv2.imwrite(
-        str(out_dir / "targets.png"), survey_target_frame(setup.camera, survey.xy_world_cm, rng=setup.seed + 4)
-    ):
-        raise SimulationError(f"{out_dir / 'targets.png'}: cannot write")
-    written.append("targets.png")
+    _write_image(out_dir / "check_targets.png", survey_target_frame(setup.camera, apart, rng=setup.seed + 5))
+    _write_image(out_dir / "targets.png", survey_target_frame(setup.camera, survey_xy_cm, rng=setup.seed + 4))
+    written += ["check_targets.png", "targets.png"]
     floor = aruco_floor_frame(setup.camera, rng=setup.seed + 2)
-    if not cv2.imwrite(str(out_dir / "floor.png"), floor.image):
-        raise SimulationError(f"{out_dir / 'floor.png'}: cannot write")
+    _write_image(out_dir / "floor.png", floor.image)
     write_markers_csv(out_dir / "markers.csv", floor.markers)
     written += ["floor.png", "markers.csv"]
     if setup.camera.has_distortion:
